@@ -1,0 +1,48 @@
+# Two entry points for a fresh Debian machine: `make run` and `make test`. Each brings the machine up to
+# what it needs (idempotent: a second call skips finished steps) and then does its job.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+# The default experiment: a factorial sweep of lighting x case on the default plan.
+RUN_ARGS ?= -m light=bright,dim case=1,2,3
+export YOLO_OFFLINE := 1
+
+.PHONY: setup system python data run test ui map bench clean
+
+setup: system python data
+
+system:
+	@bash scripts/setup_vulkan.sh
+
+python: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt -e '.[test]'
+	@# openvino phones home from a background thread on import unless opted out
+	@$(BIN)/opt_in_out --opt_out >/dev/null 2>&1 || true
+	@touch $@
+
+data: python
+	@$(BIN)/python -m garage_exp.assets ensure
+
+run: setup
+	$(BIN)/python -m garage_exp $(RUN_ARGS)
+	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open http://127.0.0.1:5000"
+
+test: setup
+	$(BIN)/python -m pytest -q -p no:cacheprovider
+
+ui: python
+	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
+
+map: python
+	@for p in plans/*.yaml plans/*.csv; do $(BIN)/python -m garage_exp.plan map $$p -o outputs/maps/$$(basename $${p%.*}).png; done
+
+bench: setup
+	@for b in benchmarks/bench_*.py; do $(BIN)/python $$b; done
+
+clean:
+	rm -rf outputs

@@ -1,0 +1,180 @@
+"""Structured configs: the schema of every config group, registered in Hydra's ConfigStore.
+
+A YAML level of a group is validated against its dataclass here (typos and wrong types fail at compose time).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING
+
+
+@dataclass
+class PlanConf:
+    name: str = "research"
+    file: Optional[str] = None  # any plan file; overrides `name` (shipped plans live in plans/NAME.yaml)
+
+
+@dataclass
+class GarageConf:
+    """Geometry and materials of the built garage (not swept by default)."""
+
+    ceiling_height: float = 2.8
+    slab_thickness: float = 0.3
+    pillar_size: float = 0.6  # square pillars, metres per side
+    wall_thickness: float = 0.25
+    bay_width: float = 2.5  # a cell wider than this along its lane holds several bays
+    lamp_spacing: float = 5.0  # lamps on a regular grid over driveable cells and bays, metres
+    lamp_size: tuple[float, float] = (1.2, 0.2)
+    marking_width: float = 0.12
+    marking_wear: float = 0.0  # 0 fresh paint .. 1 invisible
+
+
+@dataclass
+class LightConf:
+    """A lighting preset: which lamps are on and how bright. Off lamps keep their light at intensity 0 so
+    the renderer's light count (and SAPIEN's compiled shaders) never change."""
+
+    name: str = "bright"
+    coverage: float = 1.0  # fraction of lamps on
+    intensity: float = 1.0  # per-lamp point-light strength (renderer units; 1.0 ~ a 40 W LED batten)
+    ambient: float = 0.05  # uniform ambient light (0..1)
+    colour: tuple[float, float, float] = (1.0, 0.96, 0.9)
+    seed: int = 0  # which lamps are off when coverage < 1
+
+
+@dataclass
+class CameraConf:
+    """One camera on the ego: mount relative to the ego's origin (centre of its footprint, on the floor),
+    x forward, y left, z up; yaw left-positive; pitch positive looks down. fovy is the VERTICAL field of
+    view in degrees (Unity's and SAPIEN's convention)."""
+
+    name: str = "front"
+    x: float = 0.5
+    y: float = 0.0
+    z: float = 1.55
+    yaw: float = 0.0
+    pitch: float = 0.0
+    fovy: float = 60.0
+    width: int = 640
+    height: int = 480
+
+
+@dataclass
+class CameraRigConf:
+    name: str = "front"
+    cameras: list[CameraConf] = field(default_factory=lambda: [CameraConf()])
+    roof: bool = True  # z is added to the ego vehicle's height (camera on the roof)
+
+
+@dataclass
+class PaletteConf:
+    """Which vehicle models and colours fill the garage."""
+
+    name: str = "default"
+    ego: str = "tcamrysilver"
+    target_colours: list[str] = field(default_factory=lambda: ["black", "white"])
+    target: str = ""  # a model name; empty: choose a medium car of the first target colour
+    parked_occupancy: float = 0.0  # fraction of free bays with a parked car
+    parked_classes: list[str] = field(default_factory=lambda: ["small", "medium"])
+    models: list[str] = field(default_factory=list)  # allowed models; empty: all that fit under the ceiling
+    seed: int = 0
+
+
+@dataclass
+class OccluderConf:
+    """The occluder a case places between the ego and its target."""
+
+    name: str = "pillar"
+    kind: str = "pillar"  # pillar | none
+    size: float = 0.6  # pillar side, metres
+
+
+@dataclass
+class CaseConf:
+    """A scenario. `kind` picks the trajectory generator; the rest are its parameters (metres, degrees)."""
+
+    name: str = MISSING
+    kind: str = MISSING  # light | corner | pass | parked
+    step: float = 0.5
+    start: float = 0.0
+    end: float = 0.0
+    target_distance: float = 10.0
+    feature: str = ""
+    placements: list[Any] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class SensorConf:
+    name: str = "ideal"
+    kind: str = "ideal"  # ideal | noisy
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class DetectorConf:
+    name: str = "coco3"
+    models: list[str] = field(default_factory=lambda: ["yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model",
+                                                         "yolo26n_int8_openvino_model"])
+    classes: list[str] = field(default_factory=lambda: ["car", "truck", "bus"])
+    conf: float = 0.05  # keep low detections: a miss scores 0, a weak hit its confidence
+    iou: float = 0.5
+    match: str = "full"  # full | visible | either
+    threshold: float = 0.5  # composite confidence counted as detected
+    imgsz: int = 640
+
+
+@dataclass
+class RendererConf:
+    name: str = "sapien"
+    backend: str = "sapien"
+    max_lights: int = 8
+    shadows: bool = False
+    save_frames: str = "key"  # all | key | none
+
+
+@dataclass
+class TrackingConf:
+    name: str = "mlflow"
+    uri: Optional[str] = None  # None: $MLFLOW_TRACKING_URI, else sqlite:///<project>/outputs/mlflow.db
+    experiment: str = "garage_exp"
+
+
+@dataclass
+class Config:
+    plan: PlanConf = field(default_factory=PlanConf)
+    garage: GarageConf = field(default_factory=GarageConf)
+    light: LightConf = field(default_factory=LightConf)
+    camera: CameraRigConf = field(default_factory=CameraRigConf)
+    palette: PaletteConf = field(default_factory=PaletteConf)
+    occluder: OccluderConf = field(default_factory=OccluderConf)
+    case: CaseConf = field(default_factory=CaseConf)
+    sensor: SensorConf = field(default_factory=SensorConf)
+    detector: DetectorConf = field(default_factory=DetectorConf)
+    renderer: RendererConf = field(default_factory=RendererConf)
+    tracking: TrackingConf = field(default_factory=TrackingConf)
+    # Extra factors: config groups whose YAML names a scene modifier with `_target_` (see conf/pillar/).
+    modifiers: dict[str, Any] = field(default_factory=dict)
+    seed: int = 0
+    blank: bool = False  # the blank control: only the vehicles, background removed
+    dataset: bool = False  # also write frames with YOLO-format labels
+    resume: bool = False
+    dry_run: bool = False  # plan + map + MLflow only: no rendering or detection
+
+
+GROUPS = {
+    "plan": PlanConf, "garage": GarageConf, "light": LightConf, "camera": CameraRigConf, "palette": PaletteConf,
+    "occluder": OccluderConf, "case": CaseConf, "sensor": SensorConf, "detector": DetectorConf,
+    "renderer": RendererConf, "tracking": TrackingConf,
+}
+
+
+def register() -> None:
+    cs = ConfigStore.instance()
+    cs.store(name="config_schema", node=Config)
+    for group, schema in GROUPS.items():
+        cs.store(group=group, name=f"{group}_schema", node=schema)

@@ -1,0 +1,128 @@
+"""A plain-data description of a garage scene, between the plan and any renderer.
+
+Nothing here imports SAPIEN or trimesh: geometry is testable and exportable without a GPU.
+Frame: Z up, metres; yaw in degrees counter-clockwise from +x (see DEVELOPERS.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+Role = Literal["structure", "marking", "lamp", "parked", "target", "occluder", "ego", "moving"]
+VEHICLE_ROLES = ("parked", "target", "occluder", "ego", "moving")
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Position and heading. Roll and pitch are never needed for a garage's rigid objects."""
+
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    yaw: float = 0.0  # degrees, CCW from +x
+
+    def compose(self, local: "Pose") -> "Pose":
+        """This pose applied to `local` (local expressed in this pose's frame)."""
+        c, s = math.cos(math.radians(self.yaw)), math.sin(math.radians(self.yaw))
+        return Pose(
+            self.x + c * local.x - s * local.y,
+            self.y + s * local.x + c * local.y,
+            self.z + local.z,
+            (self.yaw + local.yaw) % 360.0,
+        )
+
+
+@dataclass(frozen=True)
+class Material:
+    name: str
+    color: tuple[float, float, float, float] = (0.5, 0.5, 0.5, 1.0)  # linear RGBA
+    roughness: float = 0.8
+    metallic: float = 0.0
+    emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # emissive panels (lamps)
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box in its entity's frame: `size` is the full extent (x, y, z)."""
+
+    size: tuple[float, float, float]
+    material: Material
+    offset: Pose = Pose()
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A mesh file (GLB, Z up, metres, recentred: wheels at z=0, nose along +x)."""
+
+    path: str
+    offset: Pose = Pose()
+    scale: float = 1.0
+
+
+Shape = Box | Mesh
+
+
+@dataclass
+class Entity:
+    """A named object. Renderers give each entity its own segmentation id."""
+
+    name: str
+    role: Role
+    pose: Pose
+    shapes: list[Shape] = field(default_factory=list)
+    # Vehicles: the model name, its size class and its extent (length, width, height).
+    model: str | None = None
+    size_class: str | None = None
+    extent: tuple[float, float, float] | None = None
+    static: bool = True
+
+
+@dataclass(frozen=True)
+class Light:
+    """A point light. `intensity` 0 keeps the light in the scene (no shader recompile) but dark."""
+
+    name: str
+    position: tuple[float, float, float]
+    color: tuple[float, float, float] = (1.0, 0.95, 0.85)
+    intensity: float = 1.0
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A camera mounted on the ego: `mount` is relative to the ego's pose; fovy is the vertical FOV."""
+
+    name: str
+    mount: Pose
+    pitch: float = 0.0  # degrees, positive looks down
+    fovy: float = 60.0
+    width: int = 640
+    height: int = 480
+    near: float = 0.05
+    far: float = 100.0
+
+
+@dataclass
+class Scene:
+    name: str
+    entities: list[Entity] = field(default_factory=list)
+    lights: list[Light] = field(default_factory=list)
+    ambient: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    cameras: list[CameraSpec] = field(default_factory=list)
+    # Bounds of the garage footprint: (xmin, ymin, xmax, ymax) and the ceiling height.
+    bounds: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    ceiling: float = 2.8
+    background: bool = True  # False: the blank control (only vehicles are drawn)
+
+    def entity(self, name: str) -> Entity:
+        for e in self.entities:
+            if e.name == name:
+                return e
+        raise KeyError(name)
+
+    def by_role(self, *roles: str) -> list[Entity]:
+        return [e for e in self.entities if e.role in roles]
+
+    def vehicles(self) -> list[Entity]:
+        return self.by_role(*VEHICLE_ROLES)

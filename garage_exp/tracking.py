@@ -1,0 +1,159 @@
+"""MLflow: one run per job, a parent run per sweep, FAILED runs that keep their error."""
+
+from __future__ import annotations
+
+import functools
+import os
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp.paths import OUTPUTS_DIR, PROJECT_ROOT
+
+PARENT_FILE = "mlflow_parent_run_id"
+
+
+def tracking_uri(uri: str | None = None) -> str:
+    """Config override, then $MLFLOW_TRACKING_URI, then the project's sqlite store (absolute, cwd-proof)."""
+    if uri:
+        return uri
+    if os.environ.get("MLFLOW_TRACKING_URI"):
+        return os.environ["MLFLOW_TRACKING_URI"]
+    OUTPUTS_DIR.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{OUTPUTS_DIR / 'mlflow.db'}"
+
+
+def client(uri: str | None = None):
+    import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
+
+    mlflow.set_tracking_uri(tracking_uri(uri))
+    return mlflow.MlflowClient()
+
+
+def retry(fn, attempts: int = 8, base_delay: float = 0.2):
+    """Call fn(), retrying on sqlite's 'database is locked' (several workers share one sqlite store)."""
+    for k in range(attempts):
+        try:
+            return fn()
+        except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError
+            if "locked" not in str(exc).lower() or k == attempts - 1:
+                raise
+            time.sleep(base_delay * (2**k))
+    raise AssertionError("unreachable")
+
+
+def experiment_id(mlc, name: str) -> str:
+    def get_or_create():
+        exp = mlc.get_experiment_by_name(name)
+        if exp is not None:
+            return exp.experiment_id
+        try:
+            return mlc.create_experiment(name)
+        except Exception:  # another worker created it first
+            exp = mlc.get_experiment_by_name(name)
+            if exp is None:
+                raise
+            return exp.experiment_id
+
+    return retry(get_or_create)
+
+
+@functools.lru_cache(maxsize=1)
+def git_commit() -> str:
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT, capture_output=True, text=True,
+                             timeout=5).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=PROJECT_ROOT,
+                               capture_output=True, text=True, timeout=5).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return (sha or "unknown") + ("-dirty" if dirty else "")
+
+
+def flatten(node: Any, prefix: str = "") -> dict[str, str]:
+    """Flatten a nested config into dotted keys with string values (MLflow params)."""
+    out: dict[str, str] = {}
+    if isinstance(node, dict):
+        for key, value in node.items():
+            out.update(flatten(value, f"{prefix}{key}."))
+    elif isinstance(node, list) and any(isinstance(v, (dict, list)) for v in node):
+        for k, value in enumerate(node):
+            out.update(flatten(value, f"{prefix}{k}."))
+    else:
+        out[prefix[:-1]] = str(node)[:6000]
+    return out
+
+
+def config_params(cfg: DictConfig) -> dict[str, str]:
+    container = OmegaConf.to_container(cfg, resolve=True)
+    container.pop("hydra", None)
+    return flatten(container)
+
+
+class JobRun:
+    """The MLflow run of one job. Logging goes through the client (no global active run), so a sweep's
+    parent run and the jobs of one process never interfere."""
+
+    def __init__(self, mlc, run_id: str):
+        self.mlc, self.run_id = mlc, run_id
+
+    def log_metric(self, key: str, value: float, step: int = 0) -> None:
+        retry(lambda: self.mlc.log_metric(self.run_id, key, float(value), step=step))
+
+    def log_metrics(self, metrics: dict[str, float], step: int = 0) -> None:
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        batch = [Metric(k, float(v), now, step) for k, v in metrics.items()]
+        for k in range(0, len(batch), 900):
+            retry(lambda part=batch[k:k + 900]: self.mlc.log_batch(self.run_id, metrics=part))
+
+    def log_series(self, key: str, values, steps=None) -> None:
+        """A whole trajectory metric in few requests."""
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        steps = range(len(values)) if steps is None else steps
+        batch = [Metric(key, float(v), now, int(s)) for s, v in zip(steps, values)]
+        for k in range(0, len(batch), 900):
+            retry(lambda part=batch[k:k + 900]: self.mlc.log_batch(self.run_id, metrics=part))
+
+    def set_tag(self, key: str, value: Any) -> None:
+        retry(lambda: self.mlc.set_tag(self.run_id, key, str(value)[:5000]))
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        retry(lambda: self.mlc.log_artifact(self.run_id, str(path), artifact_path))
+
+    def end(self, status: str = "FINISHED") -> None:
+        retry(lambda: self.mlc.set_terminated(self.run_id, status))
+
+
+def start_job_run(cfg: DictConfig, run_name: str, tags: dict[str, str], parent_run_id: str | None) -> JobRun:
+    from mlflow.entities import Param
+    from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID, MLFLOW_RUN_NAME
+
+    mlc = client(cfg.tracking.uri)
+    exp_id = experiment_id(mlc, cfg.tracking.experiment)
+    all_tags = {MLFLOW_RUN_NAME: run_name, "git_commit": git_commit(), **tags}
+    if parent_run_id:
+        all_tags[MLFLOW_PARENT_RUN_ID] = parent_run_id
+    run = retry(lambda: mlc.create_run(exp_id, run_name=run_name, tags=all_tags))
+    job = JobRun(mlc, run.info.run_id)
+    params = [Param(k, v) for k, v in sorted(config_params(cfg).items())]
+    for k in range(0, len(params), 100):
+        retry(lambda part=params[k:k + 100]: mlc.log_batch(job.run_id, params=part))
+    return job
+
+
+def write_parent(sweep_dir: str | Path, run_id: str) -> None:
+    path = Path(sweep_dir)
+    path.mkdir(parents=True, exist_ok=True)
+    (path / PARENT_FILE).write_text(run_id)
+
+
+def read_parent(sweep_dir: str | Path) -> str | None:
+    path = Path(sweep_dir) / PARENT_FILE
+    return path.read_text().strip() if path.is_file() else None
