@@ -65,9 +65,17 @@ def run_job(cfg: DictConfig) -> float:
     out = Path(hc.runtime.output_dir)
     plan = load_plan(resolve_plan_path(cfg.plan))  # bad input fails here, before anything is logged
     classified = classify(plan)
+    digest = tracking.config_hash(cfg)
+    if cfg.resume:
+        done = tracking.finished_run(cfg, digest)
+        if done:
+            print(f"garage_exp: skipped {run_name(cfg)!r}: finished before as run {done}")
+            if hc.mode == RunMode.MULTIRUN:
+                tracking.add_resumed(hc.sweep.dir, done)  # the sweep report counts it
+            return math.nan
     parent = tracking.read_parent(hc.sweep.dir) if hc.mode == RunMode.MULTIRUN else None
     tags = {"plan": plan.name, "overrides": " ".join(hc.overrides.task), "case": str(cfg.case.name),
-            "output_dir": str(out)}
+            "output_dir": str(out), "config_hash": digest}
     run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
     try:
         (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))

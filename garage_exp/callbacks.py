@@ -40,7 +40,8 @@ class MlflowSweepCallback(Callback):
         try:
             from garage_exp.report import sweep_report
 
-            sweep_report(mlc, self.parent_run_id, config.hydra.sweep.dir)
+            sweep_report(mlc, self.parent_run_id, config.hydra.sweep.dir,
+                         resumed=tracking.read_resumed(config.hydra.sweep.dir))
         except Exception as exc:  # the sweep's runs are safe; a failed summary must not hide them
             log.error("sweep report failed: %s", exc)
             tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "report_error", str(exc)[:5000]))

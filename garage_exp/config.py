@@ -90,7 +90,7 @@ class OccluderConf:
 
     name: str = "pillar"
     kind: str = "pillar"  # pillar | none
-    size: float = 0.6  # pillar side, metres
+    size: Optional[float] = None  # the case pillar's side (m); None: as the garage (and `pillar` factor) has it
 
 
 @dataclass

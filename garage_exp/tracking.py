@@ -93,6 +93,28 @@ def config_params(cfg: DictConfig) -> dict[str, str]:
     return flatten(container)
 
 
+def config_hash(cfg: DictConfig) -> str:
+    """Identity of a job: the composed config without the keys that do not change its result."""
+    import hashlib
+    import json
+
+    container = OmegaConf.to_container(cfg, resolve=True)
+    for key in ("hydra", "resume", "tracking"):
+        container.pop(key, None)
+    return hashlib.sha256(json.dumps(container, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def finished_run(cfg: DictConfig, digest: str) -> str | None:
+    """The id of a FINISHED run of the same config in this experiment, if any."""
+    mlc = client(cfg.tracking.uri)
+    exp = retry(lambda: mlc.get_experiment_by_name(cfg.tracking.experiment))
+    if exp is None:
+        return None
+    runs = retry(lambda: mlc.search_runs([exp.experiment_id], max_results=1,
+                                         filter_string=f"tags.config_hash = '{digest}' and attributes.status = 'FINISHED'"))
+    return runs[0].info.run_id if runs else None
+
+
 class JobRun:
     """The MLflow run of one job. Logging goes through the client (no global active run), so a sweep's
     parent run and the jobs of one process never interfere."""
@@ -157,3 +179,18 @@ def write_parent(sweep_dir: str | Path, run_id: str) -> None:
 def read_parent(sweep_dir: str | Path) -> str | None:
     path = Path(sweep_dir) / PARENT_FILE
     return path.read_text().strip() if path.is_file() else None
+
+
+RESUMED_FILE = "mlflow_resumed_run_ids"
+
+
+def add_resumed(sweep_dir: str | Path, run_id: str) -> None:
+    """Record a finished run that a resumed sweep skipped (one line per run; appends are atomic enough for
+    short lines from several workers)."""
+    with open(Path(sweep_dir) / RESUMED_FILE, "a") as fh:
+        fh.write(run_id + "\n")
+
+
+def read_resumed(sweep_dir: str | Path) -> list[str]:
+    path = Path(sweep_dir) / RESUMED_FILE
+    return sorted(set(path.read_text().split())) if path.is_file() else []

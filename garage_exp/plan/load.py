@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import io
 import math
 from collections import deque
 from pathlib import Path
@@ -29,7 +28,8 @@ def load_plan(path: str | Path, name: str | None = None) -> Plan:
     if path.stat().st_size > MAX_FILE_BYTES:
         raise GarageError(f"file is larger than {MAX_FILE_BYTES // 1_000_000} MB; not a plan", where)
     try:
-        text = path.read_text(encoding="utf-8")
+        # utf-8-sig: spreadsheets save "CSV UTF-8" with a byte-order mark
+        text = path.read_text(encoding="utf-8-sig")
     except (UnicodeDecodeError, OSError) as exc:
         raise GarageError(f"cannot read as UTF-8 text ({type(exc).__name__})", where) from None
     if not text.strip():
@@ -60,6 +60,8 @@ def _parse_yaml(text: str, where: str):
         place = f"line {mark.line + 1}" if mark is not None else "?"
         problem = getattr(exc, "problem", None) or "invalid YAML"
         raise GarageError(f"{place}: {problem}", where) from None
+    except (ValueError, RecursionError) as exc:  # a 5000-digit integer, brackets nested thousands deep
+        raise GarageError(f"unreadable YAML ({type(exc).__name__}: {str(exc)[:80]})", where) from None
     if not isinstance(data, dict):
         raise GarageError(f"expected a mapping with keys S, R, C; got {type(data).__name__}", where)
     unknown = set(map(str, data)) - YAML_KEYS
@@ -75,12 +77,16 @@ def _parse_yaml(text: str, where: str):
 
 
 def _parse_csv(text: str, where: str):
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and not r[0].lstrip().startswith("#")]
-    rows = [[cell.strip() for cell in r] for r in rows if any(cell.strip() for cell in r)]
+    # Drop comments before parsing: a quote inside a comment would otherwise open a field that eats lines.
+    lines = [ln for ln in text.splitlines() if not ln.lstrip().startswith("#")]
+    try:
+        rows = [[cell.strip() for cell in r] for r in csv.reader(lines) if any(cell.strip() for cell in r)]
+    except csv.Error as exc:
+        raise GarageError(f"not a CSV plan ({exc})", where) from None
     if len(rows) < 2:
         raise GarageError("CSV needs a header row of column widths and at least one plan row", where)
     header = rows[0]
-    C = [_csv_number(v, where, f"row 1, column {k + 1}") for k, v in enumerate(header[1:])]
+    C = [_csv_number(v, where, f"row 1, column {k + 2}") for k, v in enumerate(header[1:])]
     R, S = [], []
     for k, row in enumerate(rows[1:], start=2):
         if len(row) != len(header):
@@ -113,8 +119,9 @@ def _matrix(S, where: str) -> np.ndarray:
             if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
                 raise GarageError(f"S row {i}, column {j}: {v!r} is not an integer", where)
             if not -1 <= int(v) <= 3:
+                shown = int(v) if abs(int(v)) < 10**6 else "out of range"  # str() of 5000 digits raises
                 raise GarageError(
-                    f"S row {i}, column {j}: value {int(v)} is not one of -1 obstacle, 0 parking, 1 lane, "
+                    f"S row {i}, column {j}: value {shown} is not one of -1 obstacle, 0 parking, 1 lane, "
                     "2 entrance, 3 exit", where)
     m, n = len(S), width
     if m > MAX_CELLS_PER_SIDE or n > MAX_CELLS_PER_SIDE:
@@ -151,9 +158,13 @@ def _vector(values, key: str, length: int, column: bool, where: str) -> np.ndarr
     for k, v in enumerate(flat):
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
             raise GarageError(f"{key}[{k}]: {v!r} is not a number", where)
-        if not math.isfinite(float(v)):
+        try:
+            f = float(v)
+        except OverflowError:
+            raise GarageError(f"{key}[{k}]: number too large", where) from None
+        if not math.isfinite(f):
             raise GarageError(f"{key}[{k}]: {v} is not finite", where)
-        if not lo <= float(v) <= hi:
+        if not lo <= f <= hi:
             raise GarageError(f"{key}[{k}]: {v} m is outside the sane range {lo}-{hi} m", where)
     return np.asarray(flat, dtype=float)
 

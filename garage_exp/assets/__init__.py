@@ -1,0 +1,6 @@
+"""Vehicle models (FlightGear AC3D -> GLB) and the lookup of vehicle and detector data."""
+
+from garage_exp.assets.locate import models_dir, vehicles_dir
+from garage_exp.assets.vehicles import VehicleLibrary, VehicleModel, kind_of
+
+__all__ = ["VehicleLibrary", "VehicleModel", "kind_of", "models_dir", "vehicles_dir"]

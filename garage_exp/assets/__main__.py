@@ -1,0 +1,77 @@
+"""`python -m garage_exp.assets where|ensure|fetch|convert`.
+
+where:   print the vehicles and models folders in use (or what is missing).
+ensure:  like where, but fetch whatever is missing (used by `make data`; a no-op when ../shared has both).
+fetch:   download the FlightGear vehicles and the official Ultralytics weights into the cache.
+convert: convert every vehicle to GLB now instead of on first use, and list the library.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from garage_exp.assets import locate
+from garage_exp.errors import GarageError
+
+
+def _where() -> int:
+    missing = 0
+    for what, find in (("vehicles", locate.vehicles_dir), ("models", locate.models_dir)):
+        try:
+            print(f"{what}: {find()}")
+        except GarageError as exc:
+            print(f"{what}: missing ({exc})")
+            missing += 1
+    return 1 if missing else 0
+
+
+def _ensure() -> int:
+    try:
+        locate.vehicles_dir()
+    except GarageError:
+        print(f"fetching vehicles ({locate.DEB_PACKAGE}) ...", flush=True)
+        locate.fetch_vehicles()
+    try:
+        locate.models_dir()
+    except GarageError:
+        print(f"fetching detector weights {', '.join(locate.MODEL_WEIGHTS)} ...", flush=True)
+        locate.fetch_models()
+    return _where()
+
+
+def _fetch() -> int:
+    print(f"fetching vehicles ({locate.DEB_PACKAGE}) ...", flush=True)
+    print(f"vehicles fetched into {locate.fetch_vehicles()}")
+    print(f"fetching detector weights {', '.join(locate.MODEL_WEIGHTS)} ...", flush=True)
+    print(f"models fetched into {locate.fetch_models()}")
+    return _where()
+
+
+def _convert() -> int:
+    from garage_exp.assets.vehicles import VehicleLibrary
+
+    library = VehicleLibrary()
+    for model in library.models:
+        print(f"{model.name:22s} {model.length:5.2f} x {model.width:4.2f} x {model.height:4.2f} m "
+              f"{model.size_class:6s} {model.kind:6s} {model.colour:6s} {model.glb}")
+    for name, reason in library.excluded.items():
+        print(f"{name:22s} excluded: {reason}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m garage_exp.assets", description=__doc__.splitlines()[0])
+    parser.add_argument("command", choices=("where", "ensure", "fetch", "convert"))
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    try:
+        return {"where": _where, "ensure": _ensure, "fetch": _fetch, "convert": _convert}[args.command]()
+    except GarageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

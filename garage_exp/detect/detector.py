@@ -1,0 +1,184 @@
+"""Run several COCO-pretrained YOLO models on one RGB frame, offline.
+
+Two weight formats are accepted, both loaded through ultralytics' `YOLO`:
+- an OpenVINO export: a folder whose name ends in `_openvino_model` (ultralytics rejects other folder names),
+  holding the `.xml`/`.bin` IR and `metadata.yaml`;
+- PyTorch weights: an existing `.pt` file (official or fine-tuned).
+A bare name such as "yolo11n.pt" that is not an existing file is refused: ultralytics would try to download it
+from GitHub.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from garage_exp.detect.offline import prepare_offline
+from garage_exp.errors import GarageError
+
+log = logging.getLogger("garage_exp")
+OPENVINO_SUFFIX = "_openvino_model"
+_LOADED: dict[Path, Any] = {}  # resolved path -> warmed-up ultralytics YOLO, so a process pays loading once
+
+
+@dataclass
+class ModelDetections:
+    """One model's detections on one frame, in the frame's pixel coordinates."""
+
+    model: str  # short model name, e.g. "yolo11n_int8"
+    boxes: np.ndarray  # (N, 4) float32 x1, y1, x2, y2
+    confs: np.ndarray  # (N,) float32
+    classes: list[str]  # N COCO class names
+    ms: float = 0.0  # wall-clock time of this model's predict call
+
+    def __len__(self) -> int:
+        return len(self.classes)
+
+
+def model_format(path: Path) -> str:
+    """The weights format of a model path ("openvino" or "pt"); GarageError when it cannot be loaded offline."""
+    where = str(path)
+    if not path.exists():
+        hint = " (a bare weights name would be downloaded from GitHub; give the path of a local file)" \
+            if path.suffix == ".pt" and not path.is_absolute() and len(path.parts) == 1 else ""
+        raise GarageError(f"model not found{hint}", where)
+    if path.is_dir():
+        if not path.name.endswith(OPENVINO_SUFFIX):
+            raise GarageError(f"a model folder must be an OpenVINO export named *{OPENVINO_SUFFIX}", where)
+        if not any(path.glob("*.xml")):
+            raise GarageError("OpenVINO model folder holds no .xml file", where)
+        return "openvino"
+    if path.suffix == ".pt":
+        return "pt"
+    raise GarageError(f"unsupported model file; use a *{OPENVINO_SUFFIX} folder or a .pt file", where)
+
+
+def model_label(path: Path) -> str:
+    """A short name for tables and metrics: the folder name without the export suffix, or the file stem."""
+    name = path.name
+    if name.endswith(OPENVINO_SUFFIX):
+        return name[: -len(OPENVINO_SUFFIX)]
+    return path.stem
+
+
+def resolve_model(entry: str | Path) -> Path:
+    """A config entry: an absolute path or an existing relative path as is, else a name under the models dir."""
+    path = Path(entry).expanduser()
+    if path.is_absolute() or path.exists():
+        return path
+    from garage_exp.assets.locate import models_dir
+
+    root = models_dir()
+    found = root / path
+    if not found.exists() and path.name.endswith("_openvino_model"):
+        # `python -m garage_exp.assets fetch` brings the official .pt weights of the same network (INT8
+        # exports need calibration data that is not fetched): yolo11n_int8_openvino_model -> yolo11n.pt.
+        official = root / (path.name.split("_")[0] + ".pt")
+        if official.exists():
+            return official
+    return found
+
+
+def load_model(path: Path, imgsz: int = 640, device: str = "cpu") -> Any:
+    """The ultralytics model for a path, loaded and warmed up once per process."""
+    path = path.resolve()
+    if path in _LOADED:
+        return _LOADED[path]
+    kind = model_format(path)
+    prepare_offline()
+    from ultralytics import YOLO
+
+    start = time.perf_counter()
+    try:
+        # task="detect" spares ultralytics a guess from the file and a warning; harmless for .pt weights.
+        model = YOLO(str(path), task="detect")
+        # The first predict compiles the OpenVINO network (seconds); pay it here, not in the first frame.
+        model.predict(np.zeros((imgsz, imgsz, 3), np.uint8), imgsz=imgsz, device=device, verbose=False)
+    except GarageError:
+        raise
+    except Exception as exc:  # ultralytics raises many types; the user needs one line naming the model
+        raise GarageError(f"cannot load {kind} model: {type(exc).__name__}: {exc}".splitlines()[0], str(path)) \
+            from exc
+    log.info("loaded %s model %s in %.1f s", kind, path.name, time.perf_counter() - start)
+    _LOADED[path] = model
+    return model
+
+
+@dataclass
+class Detector:
+    """Several YOLO models run one after another on each frame.
+
+    models: OpenVINO folders or .pt files (must exist). classes: the vehicle classes a target may be matched
+    with. conf: lowest confidence kept (low, so that a weak hit scores its confidence instead of 0).
+    imgsz: network input size in pixels. device: torch/ultralytics device string.
+    """
+
+    models: Sequence[str | Path]
+    classes: Sequence[str] = ("car", "truck", "bus")
+    conf: float = 0.05
+    imgsz: int = 640
+    device: str = "cpu"
+    names: list[str] = field(init=False)
+    paths: list[Path] = field(init=False)
+    _models: list[Any] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.models:
+            raise GarageError("no detector models given", "detector.models")
+        if not 0.0 <= self.conf < 1.0:
+            raise GarageError(f"conf {self.conf} is outside [0, 1)", "detector.conf")
+        self.paths = [Path(m).expanduser() for m in self.models]
+        for path in self.paths:
+            model_format(path)  # fail on a bad path before spending seconds loading the others
+        self.classes = tuple(self.classes)
+        self.names = _unique([model_label(p) for p in self.paths])
+        self._models = [load_model(p, self.imgsz, self.device) for p in self.paths]
+        for path, model in zip(self.paths, self._models):
+            unknown = set(self.classes) - set(model.names.values())
+            if unknown:
+                raise GarageError(f"classes {sorted(unknown)} are not among {path.name}'s classes",
+                                  "detector.classes")
+
+    @classmethod
+    def from_config(cls, conf: Any) -> Detector:
+        """From a `DetectorConf` (Hydra node): model entries resolved against the models dir."""
+        return cls([resolve_model(m) for m in conf.models], classes=tuple(conf.classes), conf=float(conf.conf),
+                   imgsz=int(conf.imgsz), device=str(getattr(conf, "device", "cpu")))
+
+    def detect(self, rgb: np.ndarray) -> list[ModelDetections]:
+        """All classes' detections per model (non-vehicle classes are kept: they count as false positives)."""
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"expected an HxWx3 uint8 RGB frame, got {rgb.dtype} {rgb.shape}")
+        bgr = np.ascontiguousarray(rgb[..., ::-1])  # ultralytics reads numpy images as OpenCV BGR
+        out = []
+        # Preprocessing (letterbox, scaling) is repeated per model, but it is ~2-3 ms of a 20-45 ms call:
+        # sharing it would mean driving ultralytics' predictor internals, not worth the fragility.
+        for name, model in zip(self.names, self._models):
+            start = time.perf_counter()
+            result = model.predict(bgr, conf=self.conf, imgsz=self.imgsz, device=self.device, verbose=False)[0]
+            ms = (time.perf_counter() - start) * 1000.0
+            boxes = result.boxes
+            out.append(ModelDetections(
+                model=name,
+                boxes=boxes.xyxy.cpu().numpy().astype(np.float32).reshape(-1, 4),
+                confs=boxes.conf.cpu().numpy().astype(np.float32).reshape(-1),
+                classes=[result.names[int(k)] for k in boxes.cls.cpu().numpy()],
+                ms=ms,
+            ))
+        return out
+
+
+def _unique(names: Iterable[str]) -> list[str]:
+    """Model names become table columns: two models with one name get _2, _3 suffixes."""
+    seen: dict[str, int] = {}
+    out = []
+    for name in names:
+        seen[name] = seen.get(name, 0) + 1
+        out.append(name if seen[name] == 1 else f"{name}_{seen[name]}")
+    return out

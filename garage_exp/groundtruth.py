@@ -1,0 +1,205 @@
+"""Per-vehicle ground truth of one rendered frame: visibility, 2D boxes, distance, truncation, KITTI level.
+
+Inputs are plain arrays (no SAPIEN): the frame's id picture, each vehicle's unoccluded silhouette (the vehicle
+rendered with everything else hidden) and the scene description for roles and extents.
+
+Boxes are (x1, y1, x2, y2) pixel edges: a box around columns 10..19 is x1=10, x2=20, so x2 - x1 is the width in
+pixels. `full_box` bounds the unoccluded silhouette (within the image), `visible_box` the visible pixels.
+
+Truncation is geometric: the vehicle's 3D box (its extent, centred on its pose, wheels at z=0) is clipped at the
+camera's near plane and projected with the frame's intrinsics; truncation is the share of that projected
+rectangle's area that lies outside the image. Only a vehicle without an extent (and no Box shapes to take one
+from) falls back to the silhouette: 1.0 when it touches the image border, else 0.0.
+
+KITTI difficulty (Geiger et al., 2012) uses the full box height, an occlusion state and the truncation. KITTI's
+occlusion states are annotators' judgements; here they come from the visible fraction (visible / unoccluded
+pixels): fully visible >= 0.85, partly occluded >= 0.5, largely occluded > 0, fully occluded = 0.
+- easy: height >= 40 px, fully visible, truncation <= 0.15
+- moderate: height >= 25 px, at most partly occluded, truncation <= 0.30
+- hard: height >= 25 px, at most largely occluded, truncation <= 0.50
+- otherwise "ignored" (a fully occluded vehicle is always ignored).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from garage_exp.render import Frame
+from garage_exp.scene.description import Box, Entity, Pose, Scene
+
+BoxXYXY = tuple[int, int, int, int]
+Kitti = Literal["easy", "moderate", "hard", "ignored"]
+
+FULLY_VISIBLE = 0.85
+PARTLY_OCCLUDED = 0.5
+# (min full-box height in px, worst occlusion state allowed, max truncation) per level, easiest first.
+KITTI_LEVELS: tuple[tuple[str, int, int, float], ...] = (
+    ("easy", 40, 0, 0.15),
+    ("moderate", 25, 1, 0.30),
+    ("hard", 25, 2, 0.50),
+)
+OCCLUSION_NAMES = ("fully_visible", "partly_occluded", "largely_occluded", "fully_occluded")
+
+
+@dataclass(frozen=True)
+class VehicleTruth:
+    name: str
+    role: str
+    visible_pixels: int
+    unoccluded_pixels: int
+    visible_fraction: float
+    visible_box: BoxXYXY | None  # None when no pixel of the vehicle is visible
+    full_box: BoxXYXY
+    distance: float  # camera centre to the vehicle's 3D box centre, metres
+    truncation: float  # 0..1, see the module doc
+    occlusion: int  # KITTI occlusion state 0..3 (OCCLUSION_NAMES)
+    kitti: Kitti
+
+    @property
+    def box_height(self) -> int:
+        return self.full_box[3] - self.full_box[1]
+
+
+def occlusion_state(visible_fraction: float) -> int:
+    if visible_fraction >= FULLY_VISIBLE:
+        return 0
+    if visible_fraction >= PARTLY_OCCLUDED:
+        return 1
+    if visible_fraction > 0:
+        return 2
+    return 3
+
+
+def kitti_level(box_height: float, visible_fraction: float, truncation: float) -> Kitti:
+    occ = occlusion_state(visible_fraction)
+    if occ == 3:
+        return "ignored"
+    for name, min_height, worst_occlusion, max_truncation in KITTI_LEVELS:
+        if box_height >= min_height and occ <= worst_occlusion and truncation <= max_truncation:
+            return name  # type: ignore[return-value]
+    return "ignored"
+
+
+def mask_box(mask: np.ndarray) -> BoxXYXY | None:
+    """Tight box (pixel edges) of a boolean mask, or None when it is empty."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+
+
+def local_box(entity: Entity) -> tuple[np.ndarray, np.ndarray] | None:
+    """The vehicle's 3D box in its own frame (lo, hi): its extent centred on x=y=0 with wheels at z=0, else the
+    union of its Box shapes, else None."""
+    if entity.extent is not None:
+        length, width, height = entity.extent
+        return np.array([-length / 2, -width / 2, 0.0]), np.array([length / 2, width / 2, height])
+    boxes = [s for s in entity.shapes if isinstance(s, Box)]
+    if not boxes:
+        return None
+    los, his = [], []
+    for b in boxes:
+        corners = _corners(-np.asarray(b.size) / 2, np.asarray(b.size) / 2)
+        placed = _place(corners, b.offset)
+        los.append(placed.min(axis=0))
+        his.append(placed.max(axis=0))
+    return np.min(los, axis=0), np.max(his, axis=0)
+
+
+def world_corners(entity: Entity, pose: Pose) -> np.ndarray | None:
+    """The 8 world corners of the vehicle's 3D box at `pose`."""
+    box = local_box(entity)
+    if box is None:
+        return None
+    return _place(_corners(*box), pose)
+
+
+def projected_truncation(frame: Frame, corners: np.ndarray, near: float = 0.05) -> float:
+    """Share of the projected 3D box's rectangle outside the image (1.0 when it is behind the camera)."""
+    local = (corners - frame.cam_to_world[:3, 3]) @ frame.cam_to_world[:3, :3]
+    points = _clip_near(local, near)
+    if len(points) == 0:
+        return 1.0
+    u = frame.cx - frame.fx * points[:, 1] / points[:, 0]
+    v = frame.cy - frame.fy * points[:, 2] / points[:, 0]
+    area = (u.max() - u.min()) * (v.max() - v.min())
+    if area <= 0:
+        return 1.0
+    iw = max(0.0, min(u.max(), frame.width) - max(u.min(), 0.0))
+    ih = max(0.0, min(v.max(), frame.height) - max(v.min(), 0.0))
+    return float(np.clip(1.0 - iw * ih / area, 0.0, 1.0))
+
+
+def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Scene,
+                 ids: Mapping[str, int]) -> list[VehicleTruth]:
+    """One record per vehicle with a non-empty unoccluded silhouette (a vehicle is "in view" when it would be
+    seen with nothing in the way), in the order of `silhouettes`.
+
+    silhouettes: name -> HxW bool mask (`renderer.unoccluded_ids`); ids: name -> segmentation id
+    (`renderer.ids`). Poses come from the frame (where the vehicles stood when it was rendered), falling back to
+    the description's.
+    """
+    camera = frame.position
+    out = []
+    for name, silhouette in silhouettes.items():
+        silhouette = np.asarray(silhouette, dtype=bool)
+        if silhouette.shape != frame.ids.shape:
+            raise ValueError(f"silhouette of {name} is {silhouette.shape}, the frame {frame.ids.shape}")
+        full_box = mask_box(silhouette)
+        if full_box is None:
+            continue
+        entity = scene.entity(name)
+        pose = frame.poses.get(name, entity.pose)
+        visible = (frame.ids == ids[name]) & silhouette
+        unoccluded_pixels = int(silhouette.sum())
+        visible_pixels = int(visible.sum())
+        fraction = visible_pixels / unoccluded_pixels
+        corners = world_corners(entity, pose)
+        if corners is not None:
+            centre = (corners.min(axis=0) + corners.max(axis=0)) / 2
+            truncation = projected_truncation(frame, corners)
+        else:
+            centre = np.array([pose.x, pose.y, pose.z])
+            truncation = 1.0 if _touches_border(silhouette) else 0.0
+        occ = occlusion_state(fraction)
+        out.append(VehicleTruth(
+            name=name, role=entity.role, visible_pixels=visible_pixels, unoccluded_pixels=unoccluded_pixels,
+            visible_fraction=fraction, visible_box=mask_box(visible), full_box=full_box,
+            distance=float(np.linalg.norm(centre - camera)), truncation=truncation, occlusion=occ,
+            kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation)))
+    return out
+
+
+def _corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])],
+                    dtype=float)
+
+
+def _place(points: np.ndarray, pose: Pose) -> np.ndarray:
+    c, s = np.cos(np.radians(pose.yaw)), np.sin(np.radians(pose.yaw))
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return points @ rot.T + np.array([pose.x, pose.y, pose.z])
+
+
+# The 12 edges of a box whose corners come from _corners (index bits: x, y, z).
+_EDGES = [(a, a | bit) for a in range(8) for bit in (1, 2, 4) if not a & bit]
+
+
+def _clip_near(local: np.ndarray, near: float) -> np.ndarray:
+    """Corners in front of the near plane plus the points where box edges cross it (camera frame, x forward)."""
+    front = local[:, 0] >= near
+    points = [local[front]]
+    for a, b in _EDGES:
+        if front[a] != front[b]:
+            t = (near - local[a, 0]) / (local[b, 0] - local[a, 0])
+            points.append((local[a] + t * (local[b] - local[a]))[None])
+    return np.concatenate(points, axis=0)
+
+
+def _touches_border(mask: np.ndarray) -> bool:
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())

@@ -1,0 +1,64 @@
+"""`python -m garage_exp.plan map PLAN_FILE [-o out.png]` draws a plan; `... check PLAN_FILE` summarises it.
+Bad input prints the one-line GarageError to stderr and exits 2."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from pathlib import Path
+
+from garage_exp.errors import GarageError
+from garage_exp.plan.classify import LANE_TYPES, PARKING_TYPES, Classified, classify
+from garage_exp.plan.load import load_plan
+
+
+def summary(classified: Classified) -> str:
+    """A few lines: size, cell counts by kind and type, pillars."""
+    plan = classified.plan
+    m, n = plan.shape
+    width, depth = plan.size
+    kinds = Counter(c.kind for c in classified.all_cells())
+    types = Counter((c.kind, c.type) for c in classified.all_cells())
+    lanes = ", ".join(f"{t} {types['lane', t]}" for t in LANE_TYPES)
+    bays = ", ".join(f"{t} {types['parking', t]}" for t in PARKING_TYPES)
+    return "\n".join([
+        f"plan {plan.name} ({plan.source})",
+        f"size: {m} x {n} cells, {width:.1f} x {depth:.1f} m (x by y)",
+        f"lanes: {kinds['lane']} ({lanes})",
+        f"parking: {kinds['parking']} ({bays})",
+        f"entrances: {kinds['entrance']}, exits: {kinds['exit']}, obstacles: {kinds['obstacle']}",
+        f"pillars: {len(classified.pillars)}",
+    ])
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m garage_exp.plan", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    draw = sub.add_parser("map", help="draw a top-down PNG map of the plan")
+    draw.add_argument("plan_file", type=Path, metavar="PLAN_FILE")
+    draw.add_argument("-o", "--output", type=Path, help="PNG to write (default: PLAN_map.png here)")
+    check = sub.add_parser("check", help="load and classify the plan and print a summary")
+    check.add_argument("plan_file", type=Path, metavar="PLAN_FILE")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        classified = classify(load_plan(args.plan_file))
+        if args.command == "map":
+            from garage_exp.plan.draw import draw_map  # matplotlib only when drawing
+
+            out = args.output or Path(f"{args.plan_file.stem}_map.png")
+            print(draw_map(classified, out))
+        else:
+            print(summary(classified))
+    except GarageError as exc:
+        print(f"garage_exp.plan: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,203 @@
+"""What a job leaves behind: the frame table, summary metrics, the confidence plot, annotated frames and the
+optional YOLO-format dataset."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+COCO_IDS = {"car": 2, "bus": 5, "truck": 7}
+KIND_TO_COCO = {"car": "car", "suv": "car", "pickup": "truck", "van": "truck", "bus": "bus", "truck": "truck"}
+
+
+def frame_row(shot, camera: str, target, score, model_names: list[str]) -> dict:
+    row = {
+        "shot": shot.index, "label": shot.label, "position": shot.position, "camera": camera,
+        "ego_x": round(shot.ego.x, 4), "ego_y": round(shot.ego.y, 4), "ego_yaw": round(shot.ego.yaw, 3),
+        "target": shot.target,
+        "distance": round(target.distance, 4) if target else math.nan,
+        "visible_fraction": round(target.visible_fraction, 6) if target else 0.0,
+        "visible_pixels": target.visible_pixels if target else 0,
+        "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
+        "truncation": round(target.truncation, 4) if target else math.nan,
+        "kitti": target.kitti if target else "out_of_view",
+    }
+    for name, conf in zip(model_names, score.per_model):
+        row[f"conf_{name}"] = round(float(conf), 6)
+    row["composite"] = round(float(score.composite), 6)
+    row["detected"] = bool(score.detected)
+    row["false_positives"] = int(score.false_positives)
+    return row
+
+
+def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, float]:
+    """Summary metrics over the primary camera's frames, plus the mean per label (colour, placement)."""
+    t = table[table.camera == primary]
+    conf = t.composite.to_numpy(dtype=float)
+    out = {
+        "confidence_mean": float(conf.mean()) if len(conf) else 0.0,
+        "confidence_min": float(conf.min()) if len(conf) else 0.0,
+        "recall": float((conf >= threshold).mean()) if len(conf) else 0.0,
+        "frames_under_threshold": float((conf < threshold).sum()),
+        "visible_fraction_mean": float(t.visible_fraction.mean()) if len(t) else 0.0,
+        "false_positives": float(t.false_positives.sum()) if len(t) else 0.0,
+        "frames": float(len(t)),
+    }
+    out["difficulty"] = 1.0 - out["confidence_mean"]
+    for label, group in t.groupby("label", sort=False):
+        out[f"confidence_mean.{_metric_key(label)}"] = float(group.composite.mean())
+    for col in [c for c in t.columns if c.startswith("conf_")]:
+        out[f"confidence_mean.{col[5:]}"] = float(t[col].mean())
+    for cam, group in table.groupby("camera", sort=False):
+        if cam != primary:
+            out[f"confidence_mean.camera_{_metric_key(cam)}"] = float(group.composite.mean())
+    return out
+
+
+def _metric_key(label: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "_-." else "_" for ch in str(label))
+
+
+def one_line(cfg, summary: dict, frames: int) -> str:
+    return (f"case={cfg.case.name} light={cfg.light.name} sensor={cfg.sensor.name} plan={cfg.plan.name}: "
+            f"{frames} frames, confidence mean {summary['confidence_mean']:.3f} min {summary['confidence_min']:.3f}, "
+            f"recall {summary['recall']:.2f}, difficulty {summary['difficulty']:.3f}")
+
+
+def plot_confidence(table: pd.DataFrame, path: Path, xlabel: str, cfg) -> Path:
+    """Composite confidence against position per label, visible fraction on a second axis (as the
+    research's figures)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    primary = table.camera.iloc[0] if len(table) else ""
+    t = table[table.camera == primary]
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
+    ax2 = ax.twinx()
+    labels = list(dict.fromkeys(t.label))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    single_frame = all(len(g) == 1 for _, g in t.groupby("label"))
+    for k, label in enumerate(labels):
+        g = t[t.label == label]
+        c = colours[k % len(colours)]
+        style = "o" if single_frame else "-o"
+        ax.plot(g.position, g.composite, style, color=c, ms=3, label=f"confidence {label}")
+        ax2.plot(g.position, g.visible_fraction, "--", color=c, alpha=0.5, lw=1)
+    ax.axhline(cfg.detector.threshold, color="grey", lw=0.8, ls=":")
+    ax.set_ylim(-0.02, 1.02)
+    ax2.set_ylim(-0.02, 1.02)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("composite confidence (mean over models)")
+    ax2.set_ylabel("visible fraction (dashed)")
+    ax.set_title(f"case {cfg.case.name}, light {cfg.light.name}, sensor {cfg.sensor.name}, plan {cfg.plan.name}")
+    if len(labels) <= 14:
+        ax.legend(loc="lower left", fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def draw_boxes(rgb: np.ndarray, target, dets, score=None, min_conf: float = 0.25,
+               classes=("car", "truck", "bus")) -> np.ndarray:
+    """Ground truth in green (full box) and yellow (visible part); vehicle detections at or above min_conf in
+    red with their model's confidence."""
+    import cv2
+
+    img = np.ascontiguousarray(rgb).copy()
+    if target is not None and target.full_box:
+        x1, y1, x2, y2 = map(int, target.full_box)
+        cv2.rectangle(img, (x1, y1), (x2, y2), (0, 220, 0), 2)
+        if target.visible_box:
+            x1, y1, x2, y2 = map(int, target.visible_box)
+            cv2.rectangle(img, (x1, y1), (x2, y2), (240, 220, 0), 1)
+    for model in dets:
+        for box, conf, cls in zip(model.boxes, model.confs, model.classes):
+            if conf < min_conf or cls not in classes:
+                continue
+            x1, y1, x2, y2 = map(int, box)
+            cv2.rectangle(img, (x1, y1), (x2, y2), (230, 40, 40), 1)
+            cv2.putText(img, f"{cls} {conf:.2f}", (x1, max(10, y1 - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.35,
+                        (230, 40, 40), 1, cv2.LINE_AA)
+    if score is not None:
+        cv2.putText(img, f"composite {score.composite:.2f}", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                    (255, 255, 255), 1, cv2.LINE_AA)
+    return img
+
+
+def save_frame(path: Path, rgb, target, dets, score=None) -> Path:
+    from PIL import Image
+
+    Image.fromarray(draw_boxes(rgb, target, dets, score)).save(path)
+    return path
+
+
+def key_indices(rows: list[dict]) -> set[int]:
+    """Rows worth keeping pictures of: the first, the hardest (lowest composite) and the last."""
+    if not rows:
+        return set()
+    hardest = min(range(len(rows)), key=lambda k: (rows[k]["composite"], k))
+    return {rows[0]["shot"], rows[hardest]["shot"], rows[-1]["shot"]}
+
+
+def prune_key_frames(keep: dict, rows: list[dict]) -> dict:
+    wanted = key_indices(rows)
+    return {k: v for k, v in keep.items() if k[0] in wanted}
+
+
+def save_key_frames(keep: dict, table: pd.DataFrame, frames_dir: Path) -> list[Path]:
+    rows = table.to_dict("records")
+    if not rows:
+        return []
+    hardest = min(range(len(rows)), key=lambda k: (rows[k]["composite"], k))
+    names = {rows[0]["shot"]: "first", rows[hardest]["shot"]: "hardest", rows[-1]["shot"]: "last"}
+    paths = []
+    for (shot, cam), (rgb, target, dets) in sorted(keep.items()):
+        if shot in names:
+            paths.append(save_frame(frames_dir / f"{names[shot]}_{shot:04d}_{cam}.png", rgb, target, dets))
+    return paths
+
+
+class DatasetWriter:
+    """Frames with YOLO-format labels from ground truth (class x_centre y_centre w h, normalised), so a
+    detector can be fine-tuned on the hard cases."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        (root / "images").mkdir(parents=True, exist_ok=True)
+        (root / "labels").mkdir(parents=True, exist_ok=True)
+
+    def add(self, stem: str, rgb: np.ndarray, truth, scene) -> None:
+        from PIL import Image
+
+        h, w = rgb.shape[:2]
+        Image.fromarray(rgb).save(self.root / "images" / f"{stem}.png")
+        lines = []
+        for t in truth:
+            if not t.visible_box or t.visible_pixels == 0:
+                continue
+            kind = _vehicle_kind(scene, t.name)
+            x1, y1, x2, y2 = t.full_box
+            lines.append(f"{COCO_IDS[KIND_TO_COCO.get(kind, 'car')]} {(x1 + x2) / 2 / w:.6f} {(y1 + y2) / 2 / h:.6f} "
+                         f"{(x2 - x1) / w:.6f} {(y2 - y1) / h:.6f}")
+        (self.root / "labels" / f"{stem}.txt").write_text("\n".join(lines) + ("\n" if lines else ""))
+
+    def finish(self) -> Path:
+        names = "\n".join(f"  {i}: {n}" for n, i in sorted(COCO_IDS.items(), key=lambda t: t[1]))
+        (self.root / "data.yaml").write_text(f"path: {self.root}\ntrain: images\nval: images\nnames:\n{names}\n")
+        return self.root
+
+
+def _vehicle_kind(scene, name: str) -> str:
+    try:
+        entity = scene.entity(name)
+    except KeyError:
+        return "car"
+    from garage_exp.assets.vehicles import kind_of
+
+    return kind_of(entity.model or "")

@@ -1,0 +1,161 @@
+"""A camera-sensor model applied to each rendered frame before detection.
+
+A renderer's frame is noise-free however dark the scene: darkness alone barely moves YOLO's confidence. A real
+camera counts photo-electrons, so a dark scene holds few of them; shot noise (Poisson) and read noise are then a
+large part of the signal, and the auto-exposure's gain amplifies both. `SensorModel` reproduces that chain:
+
+    8-bit sRGB render -> linear radiance -> (lens blur) -> expected electrons -> Poisson shot noise ->
+    well saturation -> Gaussian read noise -> auto-exposure gain -> clipping -> sRGB -> 8 bits
+
+Each RGB channel is treated as its own pixel (no Bayer mosaic or demosaicing), so the noise is per channel and
+shows as colour speckle, much like a camera's raw chroma noise before denoising.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from garage_exp.errors import GarageError
+
+KINDS = ("ideal", "noisy")
+
+# Parameter sets for conf/sensor/<name>.yaml (`kind` plus `params`).
+LEVELS: dict[str, dict[str, Any]] = {
+    "ideal": {"kind": "ideal", "params": {}},
+    # A small automotive pixel (about 3 um: 6,000 e- full well, 3 e- read noise) whose AE reaches middle grey
+    # with at most 16x gain. exposure 0.25: a rendered white collects 1,500 e-, about what a white wall lit at
+    # ~100 lux gives such a pixel behind a colour filter (f/2, 33 ms, QE 0.6). A dim garage frame (linear
+    # mean ~0.02) then holds ~30 e- per pixel on average: shot noise ~18%, amplified by the gain.
+    "noisy": {"kind": "noisy", "params": {"full_well": 6000.0, "exposure": 0.25, "read_noise": 3.0,
+                                          "target_brightness": 0.18, "max_gain": 16.0, "blur_sigma": 0.0,
+                                          "quantize": True}},
+}
+
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] to linear light (IEC 61966-2-1)."""
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(v: np.ndarray) -> np.ndarray:
+    """Linear light in [0, 1] to sRGB-encoded values (IEC 61966-2-1)."""
+    v = np.clip(v, 0.0, 1.0)
+    return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1.0 / 2.4) - 0.055)
+
+
+# uint8 -> linear as a table: 256 entries instead of a power per pixel.
+_LINEAR_LUT = srgb_to_linear(np.arange(256, dtype=np.float64) / 255.0).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """A camera sensor with photon shot noise, read noise and auto-exposure (AE).
+
+    name: the level's name (for logs), e.g. "noisy".
+    kind: "ideal" returns the frame unchanged; "noisy" runs the sensor chain.
+    full_well: electrons (e-) a pixel holds before it saturates. Together with `exposure` it sets how many
+        electrons a scene yields, hence the shot-noise level (SNR of a pixel = sqrt(electrons)). Typical: 4,000
+        to 10,000 e- for 2-3 um automotive pixels.
+    exposure: the longest exposure the AE may use (exposure time x aperture x quantum efficiency), in units of
+        the exposure at which a rendered linear radiance of 1.0 (white) exactly fills the well; dimensionless.
+        exposure * full_well is the electron count of a rendered white at the longest exposure: the link between
+        the renderer's arbitrary brightness and photons. Above 1, highlights saturate.
+    read_noise: standard deviation of the readout noise in electrons (e- rms), added after the shot noise and
+        amplified by the gain like the signal. Typical: 1.5 to 5 e-.
+    target_brightness: the mean linear signal, as a fraction of full scale, the AE aims for; 0.18 is middle
+        grey (about 118 of 255 once sRGB-encoded). Dimensionless, in (0, 1].
+    max_gain: the largest gain (dimensionless, >= 1) the AE may apply once the exposure is at its longest;
+        darker scenes stay darker than the target, as with a real camera.
+    blur_sigma: standard deviation in pixels of a Gaussian lens/motion blur applied to the radiance before it
+        reaches the sensor; 0 disables it.
+    quantize: True returns uint8 sRGB (the camera's 8-bit stream, as the detector gets it); False returns
+        float32 sRGB in [0, 1], to study the noise without rounding.
+
+    AE, like a converged camera AE metering the noise-free mean: when the longest exposure would overshoot the
+    target, it shortens the exposure (fewer electrons, no gain); otherwise it keeps the longest exposure and
+    raises the gain up to max_gain. The gain is what makes a dim scene visibly noisier than a bright one.
+    """
+
+    name: str = "ideal"
+    kind: str = "ideal"
+    full_well: float = 6000.0
+    exposure: float = 0.25
+    read_noise: float = 3.0
+    target_brightness: float = 0.18
+    max_gain: float = 16.0
+    blur_sigma: float = 0.0
+    quantize: bool = True
+
+    def __post_init__(self) -> None:
+        where = f"sensor.params ({self.name})"
+        if self.kind not in KINDS:
+            raise GarageError(f"unknown sensor kind {self.kind!r} ({' | '.join(KINDS)})", "sensor.kind")
+        checks = [
+            (self.full_well > 0, "full_well must be > 0 electrons"),
+            (self.exposure > 0, "exposure must be > 0"),
+            (self.read_noise >= 0, "read_noise must be >= 0 electrons"),
+            (0 < self.target_brightness <= 1, "target_brightness must be in (0, 1]"),
+            (self.max_gain >= 1, "max_gain must be >= 1"),
+            (self.blur_sigma >= 0, "blur_sigma must be >= 0 pixels"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise GarageError(message, where)
+
+    def exposure_and_gain(self, mean_linear: float) -> tuple[float, float]:
+        """The AE's choice for a frame of mean linear radiance: (exposure used, gain)."""
+        longest = mean_linear * self.exposure  # mean signal as a fraction of full scale at the longest exposure
+        if longest <= 0:
+            return self.exposure, self.max_gain
+        needed = self.target_brightness / longest
+        if needed < 1.0:
+            return self.exposure * needed, 1.0
+        return self.exposure, min(needed, self.max_gain)
+
+    def apply(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The frame as this camera would deliver it; `rng` draws the noise (same seed, same frame)."""
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"expected an HxWx3 uint8 RGB frame, got {rgb.dtype} {rgb.shape}")
+        if self.kind == "ideal":
+            return rgb
+        radiance = _LINEAR_LUT[rgb]
+        if self.blur_sigma > 0:
+            import cv2
+
+            radiance = cv2.GaussianBlur(radiance, (0, 0), sigmaX=self.blur_sigma, sigmaY=self.blur_sigma,
+                                        borderType=cv2.BORDER_REFLECT)
+        exposure, gain = self.exposure_and_gain(float(radiance.mean()))
+        expected = radiance.astype(np.float64) * (exposure * self.full_well)
+        electrons = np.minimum(rng.poisson(expected), self.full_well).astype(np.float32)
+        if self.read_noise > 0:
+            electrons += rng.normal(0.0, self.read_noise, size=electrons.shape).astype(np.float32)
+        signal = np.clip(electrons * np.float32(gain / self.full_well), 0.0, 1.0)
+        out = linear_to_srgb(signal).astype(np.float32)
+        if not self.quantize:
+            return out
+        return np.rint(out * 255.0).astype(np.uint8)
+
+    def params(self) -> dict[str, Any]:
+        """The parameters as logged with a run."""
+        return asdict(self)
+
+
+def make_sensor(conf: Any) -> SensorModel:
+    """From a `SensorConf` (name, kind, params) Hydra node or a dict of the same keys."""
+    get = conf.get if isinstance(conf, dict) else lambda key, default=None: getattr(conf, key, default)
+    params = dict(get("params", None) or {})
+    allowed = set(SensorModel.__dataclass_fields__) - {"name", "kind"}
+    unknown = sorted(set(params) - allowed)
+    if unknown:
+        raise GarageError(f"unknown sensor parameter(s) {unknown}; allowed: {sorted(allowed)}", "sensor.params")
+    for key, value in params.items():
+        if key == "quantize":
+            if not isinstance(value, bool):
+                raise GarageError(f"quantize must be true or false, got {value!r}", "sensor.params.quantize")
+        elif isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value)):
+            raise GarageError(f"{key} must be a finite number, got {value!r}", f"sensor.params.{key}")
+    return SensorModel(name=str(get("name", "ideal")), kind=str(get("kind", "ideal")), **params)

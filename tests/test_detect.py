@@ -1,0 +1,281 @@
+import importlib.util
+import os
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from garage_exp.detect import GTBox, ModelDetections, iou, model_format, score_target
+from garage_exp.detect import detector as detector_module
+from garage_exp.detect import offline
+from garage_exp.errors import GarageError
+
+DEFAULT_MODELS = ("yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model", "yolo26n_int8_openvino_model")
+BUS_BOX = (10.0, 230.0, 805.0, 760.0)  # the bus in ultralytics' bus.jpg (810x1080), by hand
+
+
+def dets(model: str, *rows: tuple) -> ModelDetections:
+    """Synthetic detections: rows of (x1, y1, x2, y2, conf, class)."""
+    return ModelDetections(model, np.array([r[:4] for r in rows], np.float32).reshape(-1, 4),
+                           np.array([r[4] for r in rows], np.float32), [r[5] for r in rows])
+
+
+# --- IoU and matching, no model -------------------------------------------------------------------------------
+
+def test_iou():
+    assert iou((0, 0, 10, 10), (0, 0, 10, 10)) == pytest.approx(1.0)
+    assert iou((0, 0, 10, 10), (20, 20, 30, 30)) == 0.0
+    assert iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(50 / 150)
+    assert iou((0, 0, 10, 10), (2, 2, 4, 4)) == pytest.approx(4 / 100)
+    assert iou((0, 0, 0, 10), (0, 0, 0, 10)) == 0.0  # empty boxes never match
+
+
+def test_score_takes_the_best_vehicle_match_per_model_and_averages():
+    target = GTBox((100, 100, 200, 200), (100, 100, 200, 200))
+    models = [
+        dets("a", (100, 100, 200, 200, 0.6, "car"), (102, 100, 200, 200, 0.9, "truck"), (0, 0, 50, 50, 0.99, "car")),
+        dets("b", (100, 100, 200, 200, 0.95, "person")),  # right place, wrong class: a miss
+        dets("c", (150, 150, 250, 250, 0.8, "car")),  # IoU 1/7: a miss
+    ]
+    score = score_target(models, target, [target])
+    assert score.per_model == pytest.approx([0.9, 0.0, 0.0])
+    assert score.matched == [1, -1, -1]
+    assert score.composite == pytest.approx(0.3)
+    assert not score.detected
+    assert score_target(models, target, [target], threshold=0.29).detected
+    assert score_target(models, target, [target], iou_threshold=0.1).per_model[2] == pytest.approx(0.8)
+
+
+def test_no_detections_and_target_out_of_view_score_zero():
+    target = GTBox((0, 0, 10, 10))
+    empty = [dets("a"), dets("b")]
+    assert score_target(empty, target).per_model == [0.0, 0.0]
+    out_of_view = score_target([dets("a", (0, 0, 10, 10, 0.9, "car"))], None)
+    assert out_of_view.composite == 0.0 and not out_of_view.detected
+    assert out_of_view.false_positives == 1  # with no ground truth at all, the car box matches nothing
+
+
+def test_match_modes_full_visible_either():
+    # A car two-thirds hidden behind a pillar: the detector boxes the visible third only (IoU 1/3 with full).
+    target = SimpleNamespace(name="t", full_box=(0, 0, 300, 100), visible_box=(0, 0, 100, 100))
+    models = [dets("a", (0, 0, 100, 100, 0.7, "car"))]
+    assert score_target(models, target, match="full").composite == 0.0
+    assert score_target(models, target, match="visible").composite == pytest.approx(0.7)
+    assert score_target(models, target, match="either").composite == pytest.approx(0.7)
+    whole = [dets("a", (0, 0, 300, 100, 0.8, "car"))]
+    assert score_target(whole, target, match="full").composite == pytest.approx(0.8)
+    assert score_target(whole, target, match="visible").composite == 0.0
+    hidden = SimpleNamespace(full_box=(0, 0, 300, 100), visible_box=None)  # in view but fully occluded
+    assert score_target(models, hidden, match="visible").composite == 0.0
+
+
+def test_bare_box_target():
+    assert score_target([dets("a", (0, 0, 10, 10, 0.5, "bus"))], (0, 0, 10, 10)).composite == pytest.approx(0.5)
+
+
+def test_false_positives():
+    target = GTBox((0, 0, 100, 100), (0, 0, 100, 100))
+    parked = GTBox((300, 0, 400, 100), (300, 0, 350, 100))  # half hidden
+    models = [dets(
+        "a",
+        (0, 0, 100, 100, 0.9, "car"),  # the target
+        (300, 0, 350, 100, 0.8, "car"),  # the parked car's visible part: real, whatever the match mode
+        (600, 0, 700, 100, 0.7, "truck"),  # no vehicle there
+        (600, 0, 700, 100, 0.1, "car"),  # too weak to count
+        (10, 10, 50, 90, 0.6, "person"),  # a non-vehicle class
+    )]
+    score = score_target(models, target, [target, parked], match="full")
+    assert score.false_positives == 2 and score.false_positives_per_model == [2]
+    assert score_target(models, target, [target, parked], fp_conf=0.05).false_positives == 3
+    assert score_target(models, target, [target], fp_conf=0.05).false_positives == 4
+    # The target counts as ground truth even when the caller leaves it out of `truth`.
+    assert score_target(models, target, [parked]).false_positives == 2
+
+
+def test_custom_vehicle_classes():
+    target = GTBox((0, 0, 10, 10))
+    models = [dets("a", (0, 0, 10, 10, 0.9, "motorcycle"))]
+    assert score_target(models, target).composite == 0.0
+    assert score_target(models, target, classes=("car", "motorcycle")).composite == pytest.approx(0.9)
+
+
+@pytest.mark.parametrize("kwargs, where", [
+    ({"match": "centre"}, "detector.match"), ({"iou_threshold": 0.0}, "detector.iou"),
+    ({"threshold": 2.0}, "detector.threshold")])
+def test_bad_matching_settings(kwargs, where):
+    with pytest.raises(GarageError) as err:
+        score_target([], None, **kwargs)
+    assert err.value.where == where
+
+
+# --- model paths, no model loaded --------------------------------------------------------------------------------
+
+@pytest.fixture
+def no_loading(monkeypatch):
+    """Fail the test if anything would load (or download) a model."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("a model was loaded")
+    monkeypatch.setattr(detector_module, "load_model", refuse)
+
+
+def test_missing_model_path_names_it(tmp_path, no_loading):
+    missing = tmp_path / "nothing_openvino_model"
+    with pytest.raises(GarageError) as err:
+        detector_module.Detector([missing])
+    assert err.value.where == str(missing)
+
+
+def test_bare_weights_name_is_refused_not_downloaded(tmp_path, monkeypatch, no_loading):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(GarageError, match="GitHub"):
+        detector_module.Detector(["yolo11n.pt"])
+    assert not (tmp_path / "yolo11n.pt").exists()
+
+
+def test_one_bad_path_fails_before_any_loading(tmp_path, no_loading):
+    good = tmp_path / "good_openvino_model"
+    good.mkdir()
+    (good / "good.xml").write_text("<net/>")
+    with pytest.raises(GarageError) as err:
+        detector_module.Detector([good, tmp_path / "missing.pt"])
+    assert err.value.where.endswith("missing.pt")
+
+
+def test_model_format_dispatch(tmp_path):
+    ov = tmp_path / "m_openvino_model"
+    ov.mkdir()
+    with pytest.raises(GarageError, match="no .xml"):
+        model_format(ov)
+    (ov / "m.xml").write_text("<net/>")
+    assert model_format(ov) == "openvino"
+    pt = tmp_path / "m.pt"
+    pt.write_bytes(b"")
+    assert model_format(pt) == "pt"
+    plain = tmp_path / "weights"
+    plain.mkdir()
+    with pytest.raises(GarageError, match="_openvino_model"):
+        model_format(plain)
+    onnx = tmp_path / "m.onnx"
+    onnx.write_bytes(b"")
+    with pytest.raises(GarageError, match="unsupported"):
+        model_format(onnx)
+
+
+def test_model_labels_are_short_and_unique():
+    assert detector_module.model_label(Path("/x/yolo11n_int8_openvino_model")) == "yolo11n_int8"
+    assert detector_module.model_label(Path("/x/best.pt")) == "best"
+    assert detector_module._unique(["a", "b", "a"]) == ["a", "b", "a_2"]
+
+
+# --- offline setup -----------------------------------------------------------------------------------------------
+
+def test_fonts_are_installed_so_plots_never_download(tmp_path):
+    offline._install_fonts(tmp_path)
+    for name in offline.FONT_NAMES:
+        assert (tmp_path / name).stat().st_size > 100_000
+
+
+def test_openvino_telemetry_opt_out(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("CI", raising=False)
+    offline._opt_out_of_openvino_telemetry()
+    assert (tmp_path / "intel" / "openvino_telemetry").read_text() == "0"
+    assert "CI" not in os.environ
+    # A consent file that opts in: this process still sends nothing (openvino skips telemetry when CI=true).
+    (tmp_path / "intel" / "openvino_telemetry").write_text("1")
+    offline._opt_out_of_openvino_telemetry()
+    assert os.environ["CI"] == "true"
+
+
+# --- real models -------------------------------------------------------------------------------------------------
+
+def models_dir() -> Path:
+    try:
+        from garage_exp.assets.locate import models_dir as locate_models
+        return locate_models()
+    except (ImportError, GarageError):
+        from garage_exp.paths import shared_dir
+        return shared_dir() / "models"
+
+
+def default_models() -> list[Path]:
+    paths = [models_dir() / name for name in DEFAULT_MODELS]
+    missing = [p.name for p in paths if not p.is_dir()]
+    if missing:
+        pytest.skip(f"YOLO weights missing: {missing} (run `make data` or set GARAGE_EXP_MODELS)")
+    return paths
+
+
+def bus_image() -> tuple[Path, np.ndarray]:
+    from PIL import Image
+
+    path = Path(importlib.util.find_spec("ultralytics").origin).parent / "assets" / "bus.jpg"
+    return path, np.array(Image.open(path).convert("RGB"))
+
+
+@pytest.fixture(scope="module")
+def detector():
+    return detector_module.Detector(default_models())
+
+
+@pytest.mark.detect
+def test_default_models_find_the_bus(detector):
+    _, rgb = bus_image()
+    found = detector.detect(rgb)
+    assert [d.model for d in found] == ["yolo11n_int8", "yolov8n_int8", "yolo26n_int8"]
+    bus = GTBox(BUS_BOX, BUS_BOX)
+    score = score_target(found, bus, [bus])
+    assert min(score.per_model) > 0.5, score.per_model
+    assert score.detected
+    for model, index in zip(found, score.matched):
+        assert model.classes[index] == "bus"
+    # The four people are not vehicles: every model reports some of them as false positives.
+    assert all(n >= 3 for n in score.false_positives_per_model), score.false_positives_per_model
+
+
+@pytest.mark.detect
+def test_rgb_frames_match_ultralytics_own_file_reading(detector):
+    """ultralytics reads files with OpenCV (BGR); our RGB arrays must give the very same detections."""
+    path, rgb = bus_image()
+    ours = detector.detect(rgb)[0]
+    theirs = detector._models[0].predict(str(path), conf=detector.conf, imgsz=detector.imgsz, verbose=False)[0]
+    assert np.allclose(ours.boxes, theirs.boxes.xyxy.cpu().numpy(), atol=0.5)
+    assert np.allclose(ours.confs, theirs.boxes.conf.cpu().numpy(), atol=1e-4)
+    swapped = detector.detect(np.ascontiguousarray(rgb[..., ::-1]))[0]
+    assert not np.allclose(swapped.confs[:3], ours.confs[:3], atol=1e-4)
+
+
+@pytest.mark.detect
+def test_models_are_loaded_once_per_process(detector):
+    again = detector_module.Detector(detector.paths)
+    assert all(a is b for a, b in zip(again._models, detector._models))
+
+
+@pytest.mark.detect
+def test_pt_weights_load_through_the_same_path(tmp_path):
+    """No .pt weights can be downloaded here, so build an untrained yolo11n from ultralytics' bundled yaml,
+    save it as .pt and load that: the .pt branch of the loader works end to end, offline."""
+    offline.prepare_offline()
+    from ultralytics import YOLO
+    from ultralytics.utils import ROOT, YAML
+
+    model = YOLO("yolo11n.yaml", task="detect")
+    model.model.names = YAML.load(ROOT / "cfg" / "datasets" / "coco.yaml")["names"]
+    weights = tmp_path / "untrained.pt"
+    model.save(weights)
+    detector = detector_module.Detector([weights], conf=0.0, imgsz=320)
+    found = detector.detect(np.zeros((240, 320, 3), np.uint8))
+    assert detector.names == ["untrained"] and found[0].model == "untrained"
+    assert found[0].boxes.shape == (len(found[0].classes), 4) and len(found[0].classes) > 0
+
+
+@pytest.mark.detect
+def test_from_config(detector):
+    from omegaconf import OmegaConf
+
+    from garage_exp.config import DetectorConf
+
+    conf = OmegaConf.merge(OmegaConf.structured(DetectorConf), {"models": [str(p) for p in detector.paths]})
+    made = detector_module.Detector.from_config(conf)
+    assert made.names == detector.names and made.classes == ("car", "truck", "bus") and made.conf == 0.05

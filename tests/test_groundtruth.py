@@ -1,0 +1,213 @@
+"""Ground truth on synthetic frames: no SAPIEN, the id pictures are painted by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from garage_exp.groundtruth import (
+    VehicleTruth,
+    ground_truth,
+    kitti_level,
+    mask_box,
+    occlusion_state,
+    projected_truncation,
+    world_corners,
+)
+from garage_exp.render import Frame, camera_to_world, intrinsics_of
+from garage_exp.scene.description import Box, CameraSpec, Entity, Material, Pose, Scene
+
+W, H = 640, 480
+CAR = (4.5, 1.8, 1.5)
+GREY = Material("grey")
+
+
+def make_frame(ids: np.ndarray, poses: dict[str, Pose], cam_height: float = 0.75) -> Frame:
+    """A camera at (0, 0, cam_height) looking along +x, 60 degrees vertical FOV."""
+    spec = CameraSpec("front", Pose(0.0, 0.0, cam_height), width=ids.shape[1], height=ids.shape[0])
+    fx, fy, cx, cy = intrinsics_of(spec)
+    return Frame("front", np.zeros((*ids.shape, 3), np.uint8), ids, camera_to_world(Pose(), spec), fx, fy, cx, cy,
+                 poses)
+
+
+def car(name: str = "car", pose: Pose = Pose(10.0, 0.0, 0.0, 90.0), role: str = "target") -> Entity:
+    return Entity(name, role, pose, extent=CAR, static=False)
+
+
+def projected_mask(frame: Frame, entity: Entity, pose: Pose) -> np.ndarray:
+    """The image rectangle of the vehicle's projected 3D box: a stand-in for its rendered silhouette."""
+    uv, depth = frame.project(world_corners(entity, pose))
+    assert np.all(depth > 0)
+    x1, y1 = np.floor(uv.min(axis=0)).astype(int)
+    x2, y2 = np.ceil(uv.max(axis=0)).astype(int)
+    mask = np.zeros((frame.height, frame.width), bool)
+    mask[max(y1, 0):max(y2, 0), max(x1, 0):max(x2, 0)] = True
+    return mask
+
+
+def truth_for(pose: Pose, hide_columns: int = 0, hide_rows: int = 0) -> VehicleTruth:
+    """One car at `pose`; the leftmost `hide_columns` columns (or top rows) of it painted over by a pillar."""
+    entity = car(pose=pose)
+    frame = make_frame(np.zeros((H, W), np.int32), {"car": pose})
+    silhouette = projected_mask(frame, entity, pose)
+    frame.ids[silhouette] = 7
+    x1, y1, x2, y2 = mask_box(silhouette)
+    frame.ids[:, x1:x1 + hide_columns] = 3
+    frame.ids[y1:y1 + hide_rows, :] = 3
+    [truth] = ground_truth(frame, {"car": silhouette}, Scene("s", [entity]), {"car": 7})
+    return truth
+
+
+def test_mask_box_uses_pixel_edges():
+    mask = np.zeros((H, W), bool)
+    mask[20:30, 10:20] = True
+    assert mask_box(mask) == (10, 20, 20, 30)
+    assert mask_box(np.zeros((H, W), bool)) is None
+
+
+def test_unoccluded_car_ahead_is_easy_and_centred():
+    t = truth_for(Pose(10.0, 0.0, 0.0, 90.0))  # side-on width 1.8 m, 10 m ahead
+    assert t.visible_fraction == 1.0 and t.occlusion == 0
+    assert t.visible_box == t.full_box
+    assert t.truncation == pytest.approx(0.0)
+    assert t.box_height >= 40 and t.kitti == "easy"
+    # The box centre is straight ahead: the image centre.
+    assert (t.full_box[0] + t.full_box[2]) / 2 == pytest.approx(W / 2, abs=1)
+    # Camera at 0.75 m, box centre at (10, 0, 0.75) after the 3D box's own half height.
+    assert t.distance == pytest.approx(10.0, abs=1e-6)
+
+
+def test_occlusion_lowers_visible_fraction_and_level():
+    full = truth_for(Pose(10.0, 0.0, 0.0, 90.0))
+    width = full.full_box[2] - full.full_box[0]
+    half = truth_for(Pose(10.0, 0.0, 0.0, 90.0), hide_columns=width // 2)
+    most = truth_for(Pose(10.0, 0.0, 0.0, 90.0), hide_columns=int(width * 0.8))
+    assert half.visible_fraction == pytest.approx(0.5, abs=0.05) and half.kitti == "moderate"
+    assert most.visible_fraction == pytest.approx(0.2, abs=0.05) and most.kitti == "hard"
+    # The visible box shrinks to the visible part; the full box stays.
+    assert half.full_box == full.full_box
+    assert half.visible_box[0] > full.full_box[0] and half.visible_box[2] == full.full_box[2]
+
+
+def test_fully_hidden_vehicle_is_ignored_with_no_visible_box():
+    t = truth_for(Pose(10.0, 0.0, 0.0, 90.0), hide_rows=H)
+    assert t.visible_pixels == 0 and t.visible_box is None
+    assert t.occlusion == 3 and t.kitti == "ignored"
+
+
+def test_far_car_is_moderate_then_ignored_by_height():
+    fy = intrinsics_of(CameraSpec("c", Pose(), width=W, height=H))[1]
+    # The side-on car's near face (0.9 m nearer than its centre) sets the projected height.
+    moderate = truth_for(Pose(fy * CAR[2] / 32 + 0.9, 0.0, 0.0, 90.0))
+    ignored = truth_for(Pose(fy * CAR[2] / 20 + 0.9, 0.0, 0.0, 90.0))
+    assert 25 <= moderate.box_height < 40 and moderate.kitti == "moderate"
+    assert ignored.box_height < 25 and ignored.kitti == "ignored"
+
+
+def test_truncation_of_a_car_half_out_of_the_image():
+    # Put the side-on car's centre on the right image border: half its projected box is outside.
+    fx = intrinsics_of(CameraSpec("c", Pose(), width=W, height=H))[0]
+    d = 12.0
+    y = -(W / 2) / fx * d
+    t = truth_for(Pose(d, y, 0.0, 90.0))
+    # Not exactly 0.5: the near face projects wider than the far one and spills further out.
+    assert t.truncation == pytest.approx(0.5, abs=0.06)
+    assert t.full_box[2] == W  # the full box is clipped to the image
+    inward = truth_for(Pose(d, y + 0.6, 0.0, 90.0))
+    assert 0.3 < inward.truncation < t.truncation
+    assert inward.kitti == "hard" and t.kitti == "ignored"
+
+
+def test_truncation_behind_and_straddling_the_camera():
+    entity = car()
+    frame = make_frame(np.zeros((H, W), np.int32), {})
+    behind = world_corners(entity, Pose(-10.0, 0.0, 0.0))
+    assert projected_truncation(frame, behind) == 1.0
+    beside = world_corners(entity, Pose(0.5, 2.0, 0.0))  # the car's rear is behind the camera, nose ahead
+    assert projected_truncation(frame, beside) > 0.5
+
+
+def test_vehicles_out_of_view_are_left_out_and_order_is_kept():
+    a, b = car("a"), car("b", Pose(15.0, 3.0, 0.0, 0.0))
+    frame = make_frame(np.zeros((H, W), np.int32), {"a": a.pose, "b": b.pose})
+    sa, sb = projected_mask(frame, a, a.pose), projected_mask(frame, b, b.pose)
+    frame.ids[sb] = 2
+    frame.ids[sa] = 1  # a is nearer and hides part of b
+    truth = ground_truth(frame, {"b": sb, "a": sa, "gone": np.zeros((H, W), bool)}, Scene("s", [a, b, car("gone")]),
+                         {"a": 1, "b": 2, "gone": 3})
+    assert [t.name for t in truth] == ["b", "a"]
+    tb, ta = truth
+    assert ta.visible_fraction == 1.0
+    assert 0.0 < tb.visible_fraction < 1.0
+    assert tb.visible_pixels == int(((frame.ids == 2) & sb).sum())
+
+
+def test_box_shapes_stand_in_for_a_missing_extent():
+    entity = Entity("t", "target", Pose(10.0, 0.0, 0.0), [Box((2.0, 2.0, 2.0), GREY, Pose(0, 0, 1.0))], static=False)
+    corners = world_corners(entity, entity.pose)
+    assert corners.min(axis=0) == pytest.approx([9.0, -1.0, 0.0])
+    assert corners.max(axis=0) == pytest.approx([11.0, 1.0, 2.0])
+
+
+def test_silhouette_of_the_wrong_size_is_an_error():
+    frame = make_frame(np.zeros((H, W), np.int32), {})
+    with pytest.raises(ValueError):
+        ground_truth(frame, {"car": np.ones((10, 10), bool)}, Scene("s", [car()]), {"car": 1})
+
+
+@pytest.mark.parametrize("height, fraction, truncation, level", [
+    (40, 0.85, 0.15, "easy"),
+    (39, 1.0, 0.0, "moderate"),
+    (40, 0.84, 0.0, "moderate"),
+    (40, 1.0, 0.16, "moderate"),
+    (25, 0.5, 0.30, "moderate"),
+    (25, 0.49, 0.0, "hard"),
+    (25, 1.0, 0.31, "hard"),
+    (25, 0.01, 0.50, "hard"),
+    (24, 1.0, 0.0, "ignored"),
+    (100, 1.0, 0.51, "ignored"),
+    (100, 0.0, 0.0, "ignored"),
+])
+def test_kitti_levels(height, fraction, truncation, level):
+    assert kitti_level(height, fraction, truncation) == level
+
+
+def test_occlusion_states():
+    assert [occlusion_state(f) for f in (1.0, 0.85, 0.7, 0.5, 0.3, 0.0)] == [0, 0, 1, 1, 2, 3]
+
+
+def test_camera_pose_yaw_and_pitch():
+    spec = CameraSpec("c", Pose(1.0, 0.0, 1.5, 90.0), pitch=30.0)
+    pose = camera_to_world(Pose(5.0, 5.0, 0.0, 90.0), spec)
+    # Ego at (5, 5) facing +y; the mount 1 m ahead is (5, 6); mount yaw 90 turns the camera to -x.
+    assert pose[:3, 3] == pytest.approx([5.0, 6.0, 1.5])
+    forward = pose[:3, 0]
+    assert forward == pytest.approx([-math.cos(math.radians(30)), 0.0, -math.sin(math.radians(30))], abs=1e-9)
+    assert pose[:3, 2][2] > 0  # the camera's up still points upwards
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=st.floats(3.0, 40.0), y=st.floats(-15.0, 15.0), yaw=st.floats(0.0, 360.0),
+       hidden=st.integers(0, W))
+def test_truth_invariants(x, y, yaw, hidden):
+    entity = car(pose=Pose(x, y, 0.0, yaw))
+    frame = make_frame(np.zeros((H, W), np.int32), {"car": entity.pose})
+    silhouette = projected_mask(frame, entity, entity.pose)
+    frame.ids[silhouette] = 5
+    frame.ids[:, :hidden] = 1
+    truth = ground_truth(frame, {"car": silhouette}, Scene("s", [entity]), {"car": 5})
+    if not silhouette.any():
+        assert truth == []
+        return
+    [t] = truth
+    assert 0.0 <= t.visible_fraction <= 1.0 and 0.0 <= t.truncation <= 1.0
+    x1, y1, x2, y2 = t.full_box
+    assert 0 <= x1 < x2 <= W and 0 <= y1 < y2 <= H
+    if t.visible_box is not None:
+        vx1, vy1, vx2, vy2 = t.visible_box
+        assert x1 <= vx1 < vx2 <= x2 and y1 <= vy1 < vy2 <= y2
+    assert t.kitti in ("easy", "moderate", "hard", "ignored")
