@@ -59,9 +59,12 @@ def steps(start: float, end: float, step: float) -> list[float]:
 def _targets(cfg, library, rng, exclude=()):
     """One medium target car per palette colour (or the palette's named model)."""
     out = {}
+    pinned = dict(cfg.palette.get("target_models") or {})
     for colour in cfg.palette.target_colours:
         if cfg.palette.target:
             model = library.get(cfg.palette.target)
+        elif colour in pinned:
+            model = library.get(pinned[colour])
         else:
             model = library.choose(size_class="medium", colour=colour, max_height=cfg.garage.ceiling_height - 0.1,
                                    kind="car", rng=rng)

@@ -77,7 +77,8 @@ class PaletteConf:
     name: str = "default"
     ego: str = "tcamrysilver"
     target_colours: list[str] = field(default_factory=lambda: ["black", "white"])
-    target: str = ""  # a model name; empty: choose a medium car of the first target colour
+    target: str = ""  # one model for every colour; empty: target_models, else a medium car of each colour
+    target_models: dict[str, str] = field(default_factory=dict)  # colour -> model name
     parked_occupancy: float = 0.0  # fraction of free bays with a parked car
     parked_classes: list[str] = field(default_factory=lambda: ["small", "medium"])
     models: list[str] = field(default_factory=list)  # allowed models; empty: all that fit under the ceiling

@@ -155,11 +155,13 @@ def save_key_frames(keep: dict, table: pd.DataFrame, frames_dir: Path) -> list[P
     if not rows:
         return []
     hardest = min(range(len(rows)), key=lambda k: (rows[k]["composite"], k))
-    names = {rows[0]["shot"]: "first", rows[hardest]["shot"]: "hardest", rows[-1]["shot"]: "last"}
+    # One picture per role, even when the hardest frame is also the first or the last.
+    roles = (("first", rows[0]["shot"]), ("hardest", rows[hardest]["shot"]), ("last", rows[-1]["shot"]))
     paths = []
-    for (shot, cam), (rgb, target, dets) in sorted(keep.items()):
-        if shot in names:
-            paths.append(save_frame(frames_dir / f"{names[shot]}_{shot:04d}_{cam}.png", rgb, target, dets))
+    for role, wanted in roles:
+        for (shot, cam), (rgb, target, dets) in sorted(keep.items()):
+            if shot == wanted:
+                paths.append(save_frame(frames_dir / f"{role}_{shot:04d}_{cam}.png", rgb, target, dets))
     return paths
 
 
@@ -188,9 +190,22 @@ class DatasetWriter:
         (self.root / "labels" / f"{stem}.txt").write_text("\n".join(lines) + ("\n" if lines else ""))
 
     def finish(self) -> Path:
-        names = "\n".join(f"  {i}: {n}" for n, i in sorted(COCO_IDS.items(), key=lambda t: t[1]))
-        (self.root / "data.yaml").write_text(f"path: {self.root}\ntrain: images\nval: images\nnames:\n{names}\n")
+        import yaml
+
+        # All 80 COCO names with COCO's ids, so a COCO-pretrained detector fine-tunes on it without remapping.
+        data = {"path": str(self.root), "train": "images", "val": "images", "names": coco_names()}
+        (self.root / "data.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
         return self.root
+
+
+def coco_names() -> dict[int, str]:
+    """COCO's 80 class names by id, from ultralytics' own dataset config (no download)."""
+    from importlib.resources import files
+
+    import yaml
+
+    text = (files("ultralytics") / "cfg" / "datasets" / "coco.yaml").read_text()
+    return {int(k): str(v) for k, v in yaml.safe_load(text)["names"].items()}
 
 
 def _vehicle_kind(scene, name: str) -> str:

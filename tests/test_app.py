@@ -16,8 +16,8 @@ def runs_of(uri: str, experiment: str = "garage_exp"):
 
 
 def test_quote_numeric_group_choices():
-    assert quote_numeric_choices(["-m", "case=1,2,3", "light=dim", "seed=3", "+case=2"]) == [
-        "-m", "case='1','2','3'", "light=dim", "seed=3", "+case='2'"]
+    assert quote_numeric_choices(["-m", "case=1,2,3", "light=dim", "seed=3", "+case=2", "case=light,3"]) == [
+        "-m", "case='1','2','3'", "light=dim", "seed=3", "+case='2'", "case=light,'3'"]
 
 
 def test_cfg_job_prints_composed_config(tmp_path):

@@ -37,7 +37,7 @@ from garage_exp.errors import GarageError
 log = logging.getLogger(__name__)
 
 # Bump whenever the conversion changes what a GLB or the metadata holds.
-CONVERTER_VERSION = 3
+CONVERTER_VERSION = 4
 
 SMALL_MAX_LENGTH = 4.4
 MEDIUM_MAX_LENGTH = 5.0
@@ -59,7 +59,7 @@ COLOURS = ("black", "white", "silver", "red", "blue", "green", "yellow", "other"
 KINDS = ("car", "suv", "pickup", "van", "bus", "truck")
 
 # Models whose nose the automatic rule puts at -x (checked by rendering side views): turned 180 degrees.
-NOSE_FLIP: frozenset[str] = frozenset()
+NOSE_FLIP: frozenset[str] = frozenset({"it_policecar1"})
 
 # Models built at the wrong scale: the two gr_* models are 1.33x too large (wheels about 0.85 m across, the
 # Citroen Xsara police car 5.6 m long instead of 4.2 m, the Ducato ambulance 7.8 m instead of 5.8 m).

@@ -1,0 +1,265 @@
+"""Whole jobs: the garage rendered, the target scored by the detectors, everything logged.
+
+The in-process tests share the process's renderer and detectors (loaded once); the sweep tests run the app in
+a subprocess as a user would. Skipped, with the reason, only where a Vulkan device or the weights are missing.
+"""
+
+from __future__ import annotations
+
+import csv
+import textwrap
+
+import numpy as np
+import pytest
+from conftest import ROOT, run_app
+from hydra import compose, initialize_config_dir
+
+from garage_exp import config as schema
+from garage_exp import tracking
+from garage_exp.app import quote_numeric_choices
+from garage_exp.render.device import device_problem
+
+pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
+
+FRAME_COLUMNS = {"shot", "label", "position", "camera", "ego_x", "ego_y", "ego_yaw", "target", "distance",
+                 "visible_fraction", "visible_pixels", "box_height", "truncation", "kitti", "composite",
+                 "detected", "false_positives"}
+
+
+def _skip_without_backends():
+    problem = device_problem()
+    if problem:
+        pytest.skip(f"no Vulkan device for SAPIEN: {problem}")
+    from garage_exp.assets.locate import models_dir, vehicles_dir
+    from garage_exp.errors import GarageError
+
+    try:
+        vehicles_dir()
+        models_dir()
+    except GarageError as exc:
+        pytest.skip(f"vehicle assets or detector weights missing: {exc}")
+
+
+def compose_cfg(*overrides: str):
+    schema.register()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=quote_numeric_choices(list(overrides)))
+
+
+@pytest.fixture(scope="module")
+def pipeline():
+    """The process's renderer and the default detectors (paid once for the module)."""
+    _skip_without_backends()
+    from garage_exp.detect import Detector
+    from garage_exp.render import get_renderer
+
+    cfg = compose_cfg()
+    return get_renderer(max_lights=cfg.renderer.max_lights), Detector.from_config(cfg.detector)
+
+
+def shoot(pipeline, *overrides: str):
+    """Build the case's scene, render its shots and score each target as a job does; (truth, score) per shot."""
+    from garage_exp.cases import EGO
+    from garage_exp.detect import score_target
+    from garage_exp.experiment import HIDDEN, build_scene
+    from garage_exp.groundtruth import ground_truth
+    from garage_exp.plan import classify, load_plan
+
+    renderer, detector = pipeline
+    cfg = compose_cfg(*overrides)
+    classified = classify(load_plan(ROOT / "plans" / f"{cfg.plan.name}.yaml"))
+    from garage_exp.assets.vehicles import VehicleLibrary
+
+    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    renderer.load(scene)
+    out = []
+    for shot in setup.shots:
+        renderer.set_pose(EGO, shot.ego)
+        for name, pose in shot.poses.items():
+            renderer.set_pose(name, pose if pose is not None else HIDDEN)
+        cam = scene.cameras[0].name
+        frame = renderer.render(cam)
+        in_view = [n for n, p in shot.poses.items() if p is not None]
+        truth = ground_truth(frame, renderer.unoccluded_ids(cam, in_view), scene, renderer.ids)
+        rgb = frame.rgb if scene.background else renderer.blank_composite(frame.rgb, frame, [shot.target])
+        target = next(t for t in truth if t.name == shot.target)
+        score = score_target(detector.detect(rgb), target, truth, classes=tuple(cfg.detector.classes))
+        out.append((shot, target, score, rgb))
+    return out
+
+
+def test_unoccluded_car_ten_metres_ahead_is_detected_under_bright(pipeline):
+    """The acceptance check of the 3D garage: a black sedan 10 m ahead in the lane, nothing in between."""
+    (shot, target, score, rgb), = shoot(pipeline, "case=light", "light=bright", "case.params.distances=[10.0]",
+                                        "palette.target_colours=[black]")
+    assert target.visible_fraction == 1.0 and target.kitti == "easy"
+    assert 8.5 < target.distance < 11.0
+    assert score.composite >= 0.5, score
+    assert min(score.per_model) >= 0.4, score  # every model sees it, not just the average
+
+
+def test_blank_control_keeps_the_car_and_drops_the_garage(pipeline):
+    (shot, target, score, rgb), = shoot(pipeline, "case=light", "light=bright", "case.params.distances=[10.0]",
+                                        "palette.target_colours=[black]", "blank=true")
+    x1, y1, x2, y2 = target.full_box
+    outside = np.ones(rgb.shape[:2], bool)
+    outside[y1:y2, x1:x2] = False
+    assert np.all(rgb[outside] == 128)  # no floor, pillar, lamp or ego roof left
+    assert rgb[y1:y2, x1:x2].std() > 10  # the car itself, shaded and textured
+    assert score.composite >= 0.5, score
+
+
+def test_pillar_at_the_corner_hides_the_target_in_case_1(pipeline):
+    """Case 1 on the research plan: far from the corner the target is only partly visible, the pillar cuts
+    it; with occluder=none the same frames see more of it."""
+    args = ("case=1", "light=bright", "case.start=11.0", "case.end=9.0", "case.step=1.0",
+            "palette.target_colours=[black]")
+    with_pillar = shoot(pipeline, *args)
+    without = shoot(pipeline, *args, "occluder=none")
+    assert [s.position for s, *_ in with_pillar] == [11.0, 10.0, 9.0]
+    for (_, a, _, _), (_, b, _, _) in zip(with_pillar, without):
+        assert a.visible_fraction < b.visible_fraction - 0.05
+    assert any(a.visible_fraction < 0.9 for _, a, _, _ in with_pillar)
+
+
+def read_table(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """A 2 x 2 sweep (light x case) in one process, few frames, with the YOLO dataset export."""
+    _skip_without_backends()
+    tmp = tmp_path_factory.mktemp("sweep")
+    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    r = run_app(["-m", "case=light,3", "light=bright,dim", "case.start=6.0", "case.end=6.0",
+                 "dataset=true", f"tracking.uri={uri}"], tmp)
+    assert r.returncode == 0, r.stderr[-3000:]
+    mlc = tracking.client(uri)
+    exp = mlc.get_experiment_by_name("garage_exp")
+    runs = mlc.search_runs([exp.experiment_id], max_results=50)
+    return tmp, mlc, runs
+
+
+def test_sweep_logs_a_parent_and_four_finished_children(sweep):
+    _, mlc, runs = sweep
+    parents = [r for r in runs if r.data.tags.get("sweep") == "parent"]
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId")]
+    assert len(parents) == 1 and len(children) == 4
+    assert all(c.info.status == "FINISHED" for c in children)
+    assert {(c.data.params["case.name"], c.data.params["light.name"]) for c in children} == {
+        ("light", "bright"), ("light", "dim"), ("3", "bright"), ("3", "dim")}
+
+
+def test_each_job_logs_its_table_series_summary_and_artifacts(sweep):
+    tmp, mlc, runs = sweep
+    for run in [r for r in runs if r.data.tags.get("mlflow.parentRunId")]:
+        rid = run.info.run_id
+        table = read_table(f"{run.data.tags['output_dir']}/frames.csv")
+        assert FRAME_COLUMNS <= set(table[0])
+        assert {c for c in table[0] if c.startswith("conf_")} == {
+            "conf_yolo11n_int8", "conf_yolov8n_int8", "conf_yolo26n_int8"}
+        for row in table:  # the composite is the mean over the models, as in the research
+            per_model = [float(row[c]) for c in row if c.startswith("conf_")]
+            assert float(row["composite"]) == pytest.approx(np.mean(per_model), abs=1e-5)
+        series = mlc.get_metric_history(rid, "confidence")
+        assert [m.step for m in series] == list(range(len(table)))
+        assert [m.value for m in series] == pytest.approx([float(r["composite"]) for r in table], abs=1e-6)
+        assert len(mlc.get_metric_history(rid, "visible_fraction")) == len(table)
+        m = run.data.metrics
+        assert m["difficulty"] == pytest.approx(1 - m["confidence_mean"])
+        assert m["recall"] == pytest.approx(np.mean([float(r["composite"]) >= 0.5 for r in table]))
+        for key in ("confidence_min", "frames_under_threshold"):
+            assert key in m
+        arts = {a.path for a in mlc.list_artifacts(rid)}
+        assert {"frames.csv", "confidence.png", "scene.glb", "plan_map.png", "config.yaml", "frames"} <= arts
+        assert {a.path.split("/")[-1].split("_")[0] for a in mlc.list_artifacts(rid, "frames")} == {
+            "first", "hardest", "last"}
+
+
+def test_case_3_runs_every_placement_and_targets_the_far_car(sweep):
+    _, _, runs = sweep
+    run = next(r for r in runs if r.data.params.get("case.name") == "3")
+    table = read_table(f"{run.data.tags['output_dir']}/frames.csv")
+    labels = [r["label"] for r in table]
+    assert labels[:3] == ["far=small", "far=medium", "far=large"]
+    assert "medium=medium,far=large" not in labels and "close=large,medium=medium,far=small" in labels
+    by_label = {r["label"]: r for r in table}
+    assert by_label["far=small"]["target"] == "far_small"
+    assert by_label["close=large,medium=medium,far=small"]["target"] == "far_small"
+    # The same small car in the far bay is harder to see with a large car parked close to the ego.
+    alone = float(by_label["far=small"]["visible_fraction"])
+    hidden = float(by_label["close=large,medium=medium,far=small"]["visible_fraction"])
+    assert hidden < alone
+
+
+def test_sweep_report_has_main_effects_pairs_and_heat_map(sweep):
+    _, mlc, runs = sweep
+    parent = next(r for r in runs if r.data.tags.get("sweep") == "parent")
+    arts = {a.path for a in mlc.list_artifacts(parent.info.run_id, "report")}
+    assert {"report/report.md", "report/main_effects.csv", "report/pair_effects.csv", "report/heatmap.png"} <= arts
+    path = mlc.download_artifacts(parent.info.run_id, "report/main_effects.csv")
+    effects = read_table(path)
+    assert {(e["factor"], e["level"]) for e in effects} == {("case", "light"), ("case", "3"), ("light", "bright"),
+                                                             ("light", "dim")}
+    assert "effect.light.bright" in mlc.get_run(parent.info.run_id).data.metrics
+
+
+def test_dataset_export_writes_yolo_labels_from_ground_truth(sweep):
+    _, _, runs = sweep
+    run = next(r for r in runs if r.data.params.get("case.name") == "light")
+    root = f"{run.data.tags['output_dir']}/dataset"
+    import os
+    import yaml
+
+    images = sorted(os.listdir(f"{root}/images"))
+    labels = sorted(os.listdir(f"{root}/labels"))
+    assert len(images) == 8 and [x.replace(".png", ".txt") for x in images] == labels
+    data = yaml.safe_load(open(f"{root}/data.yaml"))
+    assert data["names"][2] == "car" and len(data["names"]) == 80  # COCO ids: fine-tune a COCO detector as is
+    for name in labels:
+        lines = open(f"{root}/labels/{name}").read().split("\n")
+        rows = [list(map(float, ln.split())) for ln in lines if ln]
+        assert len(rows) == 1  # the one target in view; the ego is never labelled
+        cls, x, y, w, h = rows[0]
+        assert cls == 2 and all(0 < v <= 1 for v in (x, y, w, h))
+
+
+def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
+    """A user adds a factor without touching garage_exp: a config group in their own config dir whose levels
+    name a scene modifier (_target_), here one of their own in their own module, then sweeps it."""
+    _skip_without_backends()
+    (tmp_path / "user_mods.py").write_text(textwrap.dedent("""
+        from garage_exp.scene.description import Box, Entity, Material, Pose
+
+        def barrier(scene, classified, garage, height=1.0):
+            x0, y0, x1, y1 = scene.bounds
+            scene.entities.append(Entity("barrier", "structure", Pose((x0 + x1) / 2, (y0 + y1) / 2, 0.0),
+                                         [Box((0.2, 0.2, height), Material("barrier", (0.8, 0.1, 0.1, 1.0)),
+                                              Pose(0.0, 0.0, height / 2))]))
+        """))
+    group = tmp_path / "conf" / "barrier"
+    group.mkdir(parents=True)
+    for level, height in (("low", 0.5), ("high", 2.0)):
+        (group / f"{level}.yaml").write_text(
+            f"# @package modifiers.barrier\n_target_: user_mods.barrier\nheight: {height}\n")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    r = run_app(["-m", "--config-dir", str(tmp_path / "conf"), "+barrier=low,high", "case=light",
+                 "case.params.distances=[10.0]", "palette.target_colours=[black]", f"tracking.uri={uri}"],
+                tmp_path, env={"PYTHONPATH": str(tmp_path), "GARAGE_EXP_MODIFIER_MODULES": "user_mods"})
+    assert r.returncode == 0, r.stderr[-3000:]
+    mlc = tracking.client(uri)
+    runs = mlc.search_runs([mlc.get_experiment_by_name("garage_exp").experiment_id])
+    children = [x for x in runs if x.data.tags.get("mlflow.parentRunId")]
+    assert sorted(c.data.params["modifiers.barrier.height"] for c in children) == ["0.5", "2.0"]
+    assert all(c.info.status == "FINISHED" for c in children)
+    import trimesh
+
+    for c in children:  # the modifier changed the scene that was rendered and exported
+        glb = trimesh.load(mlc.download_artifacts(c.info.run_id, "scene.glb"))
+        barrier = glb.geometry["structure/barrier"]  # static structure is merged per material in the GLB
+        assert max(barrier.extents) == pytest.approx(float(c.data.params["modifiers.barrier.height"]), abs=1e-3)
+    parent = next(x for x in runs if x.data.tags.get("sweep") == "parent")
+    effects = read_table(mlc.download_artifacts(parent.info.run_id, "report/main_effects.csv"))
+    assert {e["level"] for e in effects if e["factor"] == "barrier"} == {"low", "high"}
