@@ -1,9 +1,7 @@
-"""`python -m garage_exp`: one job; `-m` sweeps (Hydra)."""
+"""`python -m garage_exp`: one job; `-m` sweeps (Hydra). Exit codes: 0 done, 2 bad input (one line on stderr,
+nothing run), 1 a sweep with failed jobs (listed in its summary) or a crash (traceback), 130 Ctrl-C, 143 SIGTERM."""
 
-import sys
-
-from garage_exp.app import main, quote_numeric_choices
+from garage_exp.app import cli
 
 if __name__ == "__main__":
-    sys.argv[1:] = quote_numeric_choices(sys.argv[1:])
-    main()
+    cli()

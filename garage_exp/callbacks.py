@@ -1,49 +1,190 @@
-"""Hydra callbacks: the MLflow parent run of a sweep and the report at its end."""
+"""Hydra callbacks: check a sweep before it starts, its MLflow parent run, and its summary and report at the end."""
 
 from __future__ import annotations
 
 import logging
+import os
 from typing import Any
 
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from garage_exp import tracking
+from garage_exp.errors import GarageError
 
 log = logging.getLogger(__name__)
+BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+_CURRENT: MlflowSweepCallback | None = None
+
+
+def current_sweep() -> MlflowSweepCallback | None:
+    """The sweep this process ran (for the exit code), if any."""
+    return _CURRENT
+
+
+def abandon_sweep(exc: BaseException) -> None:
+    """The sweep stopped without reaching its end (Ctrl-C, SIGTERM, a launcher crash): its parent run ends
+    KILLED or FAILED with the reason, instead of RUNNING forever."""
+    sweep = _CURRENT
+    if sweep is None or not sweep.parent_run_id or sweep.ended:
+        return
+    if isinstance(exc, SystemExit) and not exc.code:
+        return
+    status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
+    try:
+        mlc = tracking.client(sweep.uri)
+        reason = f"sweep interrupted: {type(exc).__name__}: {exc}".strip()
+        tracking.retry(lambda: mlc.set_tag(sweep.parent_run_id, "error", reason[:5000]))
+        tracking.retry(lambda: mlc.set_terminated(sweep.parent_run_id, status))
+        sweep.ended = True
+    except Exception as err:  # never hide the original exception
+        log.error("could not close the sweep's parent run: %s", err)
+
+
+def sweep_jobs(config: DictConfig) -> list[list[str]] | None:
+    """The override lists of every job of a BasicSweeper sweep, in launch order (None for other sweepers)."""
+    if OmegaConf.select(config, "hydra.sweeper._target_") != BASIC_SWEEPER:
+        return None
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    loader = GlobalHydra.instance().config_loader()
+    params = [f"{k}={v}" for k, v in (OmegaConf.select(config, "hydra.sweeper.params") or {}).items()]
+    parser = OverridesParser.create(config_loader=loader)
+    overrides = parser.parse_overrides(params + list(config.hydra.overrides.task))
+    return [list(job) for batch in BasicSweeper.split_arguments(overrides, None) for job in batch]
+
+
+def check_sweep(config: DictConfig) -> list[list[str]] | None:
+    """Compose and preflight every job of the sweep before any of them runs: a typo in the 40th job's level
+    or a plan the last case cannot use fails the sweep at once, with one line and nothing written, instead of
+    hours into the night. Returns the jobs (None when the sweeper is not Hydra's basic one)."""
+    jobs = sweep_jobs(config)
+    if jobs is None:
+        return None
+    from hydra.core.global_hydra import GlobalHydra
+
+    from garage_exp.app import preflight
+
+    loader = GlobalHydra.instance().config_loader()
+    for k, job in enumerate(jobs):
+        job_cfg = loader.load_sweep_config(config, job)  # Hydra's errors (unknown level, wrong type) raise here
+        try:
+            preflight(job_cfg)
+        except GarageError as exc:
+            shown = " ".join(o for o in job if not o.lstrip("+~").startswith("tracking."))
+            raise GarageError(str(exc), f"sweep job {k} ({shown})") from None
+    return jobs
+
+
+def _fatal(method):
+    """Hydra turns an exception in a callback into a warning and goes on: a sweep whose check or parent run
+    failed would run untracked, and one whose summary failed would exit 0. So a callback's error ends the
+    process here: an input error as one line and exit 2, anything else with its traceback and exit 1."""
+    import functools
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except Exception as exc:
+            import sys
+            import traceback
+
+            from garage_exp.app import EXIT_INPUT, input_error
+
+            line = input_error(exc)
+            if line is not None:
+                print(f"garage_exp: {line}", file=sys.stderr)
+                raise SystemExit(EXIT_INPUT) from None
+            traceback.print_exc()
+            print(f"garage_exp: sweep aborted: {method.__name__} failed: {type(exc).__name__}: {exc}",
+                  file=sys.stderr)
+            raise SystemExit(1) from None
+
+    return wrapper
 
 
 class MlflowSweepCallback(Callback):
-    """Opens a parent run when a multirun starts; every job (in any process) reads its id from the sweep dir
-    and becomes its child. At the end of the sweep the report is logged on the parent."""
+    """Checks every job, then opens a parent run when a multirun starts; every job (in any process) reads its
+    id from the sweep dir and becomes its child. A resumed sweep (resume=true, same overrides) reopens the
+    parent of the interrupted one. At the end: a summary on stdout, the report logged on the parent."""
 
     def __init__(self) -> None:
         self.parent_run_id: str | None = None
+        self.uri: str | None = None
+        self.jobs: int | None = None
+        self.failures = 0
+        self.ended = False
 
+    @_fatal
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         from mlflow.utils.mlflow_tags import MLFLOW_RUN_NAME
 
-        mlc = tracking.client(config.tracking.uri)
+        global _CURRENT
+        _CURRENT = self
+        jobs = check_sweep(config)  # before anything is written
+        self.jobs = len(jobs) if jobs is not None else None
+        self.uri = config.tracking.uri
+        mlc = tracking.client(self.uri)
         exp_id = tracking.experiment_id(mlc, config.tracking.experiment)
-        overrides = " ".join(config.hydra.overrides.task)
-        tags = {MLFLOW_RUN_NAME: f"sweep {overrides}".strip(), "sweep": "parent", "overrides": overrides,
-                "git_commit": tracking.git_commit(), "sweep_dir": str(config.hydra.sweep.dir)}
-        run = tracking.retry(lambda: mlc.create_run(exp_id, tags=tags))
-        self.parent_run_id = run.info.run_id
+        task = list(config.hydra.overrides.task)
+        overrides = " ".join(task)
+        key = tracking.sweep_key(task)
+        tags = {"sweep": "parent", "overrides": overrides, "sweep_key": key, "git_commit": tracking.git_commit(),
+                "sweep_dir": str(config.hydra.sweep.dir), "host": os.uname().nodename, "pid": str(os.getpid())}
+        if self.jobs is not None:
+            tags["jobs"] = str(self.jobs)
+        previous = tracking.find_parent(mlc, exp_id, key) if config.get("resume") else None
+        if previous is not None:
+            self.parent_run_id = previous.info.run_id
+            tracking.retry(lambda: mlc.update_run(self.parent_run_id, status="RUNNING"))
+            resumes = int(previous.data.tags.get("resumes", "0")) + 1
+            for k, v in {**tags, "resumes": str(resumes)}.items():
+                tracking.retry(lambda k=k, v=v: mlc.set_tag(self.parent_run_id, k, v))
+            print(f"garage_exp: resuming sweep {self.parent_run_id} ({overrides})")
+        else:
+            tags[MLFLOW_RUN_NAME] = f"sweep {overrides}".strip()
+            run = tracking.retry(lambda: mlc.create_run(exp_id, tags=tags))
+            self.parent_run_id = run.info.run_id
         tracking.write_parent(config.hydra.sweep.dir, self.parent_run_id)
+        tracking.clear_resumed(config.hydra.sweep.dir)
 
+    @_fatal
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         if not self.parent_run_id:
             return
-        mlc = tracking.client(config.tracking.uri)
-        status = "FINISHED"
-        try:
-            from garage_exp.report import sweep_report
+        from garage_exp.report import child_runs, summary, sweep_report
 
-            sweep_report(mlc, self.parent_run_id, config.hydra.sweep.dir,
-                         resumed=tracking.read_resumed(config.hydra.sweep.dir))
+        mlc = tracking.client(self.uri)
+        resumed = tracking.read_resumed(config.hydra.sweep.dir)
+        close_dead_children(mlc, self.parent_run_id)
+        report_path, report_error = None, None
+        try:
+            report_path = sweep_report(mlc, self.parent_run_id, config.hydra.sweep.dir, resumed=resumed)
         except Exception as exc:  # the sweep's runs are safe; a failed summary must not hide them
             log.error("sweep report failed: %s", exc)
             tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "report_error", str(exc)[:5000]))
-            status = "FAILED"
+            report_error = exc
+        runs = child_runs(mlc, self.parent_run_id, resumed)
+        text, self.failures = summary(runs, self.jobs)
+        print(text + (f"\n  report: {report_path}" if report_path else ""))
+        status = "FAILED" if self.failures or report_error else "FINISHED"
+        tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "jobs_failed", str(self.failures)))
         tracking.retry(lambda: mlc.set_terminated(self.parent_run_id, status))
+        self.ended = True
+
+
+def close_dead_children(mlc, parent_run_id: str) -> None:
+    """At the end of a sweep every job has returned: a child still RUNNING lost its process (a worker killed
+    by the OOM killer, a segfault) and ends FAILED, so that nothing looks alive that is not."""
+    parent = tracking.retry(lambda: mlc.get_run(parent_run_id))
+    runs = tracking.retry(lambda: mlc.search_runs(
+        [parent.info.experiment_id],
+        filter_string=f"tags.mlflow.parentRunId = '{parent_run_id}' and attributes.status = 'RUNNING'",
+        max_results=10000))
+    for r in runs:
+        rid = r.info.run_id
+        tracking.retry(lambda rid=rid: mlc.set_tag(rid, "error", "the job's process ended without closing its run"))
+        tracking.retry(lambda rid=rid: mlc.set_terminated(rid, "FAILED"))

@@ -145,7 +145,11 @@ def pass_case(cfg, classified: Classified, library, rng) -> CaseSetup:
     u = UNIT[side]
     ego_model = _ego(cfg, library)
     targets = _targets(cfg, library, rng)
-    inset = bay.depth / 2 - ego_model.length / 2 - 0.3  # the ego's bumper 0.3 m behind the bay line
+    gap = float(c.params.get("bumper_gap", 0.3))  # the ego's bumper this far behind the bay line
+    if not 0.0 <= gap <= bay.depth - ego_model.length:
+        raise GarageError(f"bumper_gap {gap} m does not fit a {ego_model.length:.1f} m ego in a {bay.depth:.1f} m "
+                          "bay", "case.params.bumper_gap")
+    inset = bay.depth / 2 - ego_model.length / 2 - gap
     ego = Pose(bay.x + u[0] * inset, bay.y + u[1] * inset, 0.0, YAW[side])
     lane_i, lane_j = plan.cell_at(bay.x + u[0] * (bay.depth / 2 + 0.5), bay.y + u[1] * (bay.depth / 2 + 0.5))
     lx, ly = plan.cell_center(lane_i, lane_j)

@@ -36,11 +36,13 @@ def child_runs(mlc, parent_run_id: str, resumed: list[str] = ()) -> pd.DataFrame
     runs = tracking.retry(lambda: mlc.search_runs(
         [parent.info.experiment_id], filter_string=f"tags.mlflow.parentRunId = '{parent_run_id}'",
         max_results=10000))
-    runs = list(runs) + [tracking.retry(lambda r=r: mlc.get_run(r)) for r in resumed]
+    known = {r.info.run_id for r in runs}
+    runs = list(runs) + [tracking.retry(lambda r=r: mlc.get_run(r)) for r in resumed if r not in known]
+    skipped = set(resumed)
     rows = []
     for r in runs:
         row = {"run_id": r.info.run_id, "run_name": r.data.tags.get("mlflow.runName", ""), "status": r.info.status,
-               "error": r.data.tags.get("error", "")}
+               "skipped": r.info.run_id in skipped, "error": r.data.tags.get("error", "")}
         row.update({f"factor.{k}": v for k, v in parse_overrides(r.data.tags.get("overrides", "")).items()})
         row.update({m: r.data.metrics.get(m) for m in METRICS})
         rows.append(row)
@@ -77,7 +79,7 @@ def heatmaps(runs: pd.DataFrame, factors: list[str], path: Path) -> Path | None:
     import matplotlib.pyplot as plt
 
     pairs = list(itertools.combinations(factors, 2))
-    if not pairs:
+    if not pairs or runs.empty:  # a dry-run sweep has no confidences to map
         return None
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.8 * len(pairs), 4), dpi=110, squeeze=False)
     for ax, (a, b) in zip(axes[0], pairs):
@@ -108,14 +110,41 @@ def markdown(runs: pd.DataFrame, effects: pd.DataFrame, pairs: pd.DataFrame) -> 
 
     failed = runs[runs.status != "FINISHED"] if "status" in runs else runs.iloc[0:0]
     ranked = runs[runs.status == "FINISHED"].sort_values("difficulty", ascending=False)
-    text = ["# Sweep report\n", f"{len(runs)} runs, {len(failed)} not finished.\n",
+    skipped = runs[runs.skipped] if "skipped" in runs else runs.iloc[0:0]
+    text = ["# Sweep report\n", f"{len(runs)} runs, {len(failed)} not finished, {len(skipped)} skipped "
+            "(finished before, resume=true).\n",
             "## Main effects (mean over the other factors)\n", table(effects),
             "## Pairs\n", table(pairs),
             "## Runs ranked by difficulty (1 - mean composite confidence)\n",
             table(ranked[["run_name", "confidence_mean", "recall", "difficulty"]])]
     if len(failed):
         text += ["## Failed runs\n", table(failed[["run_name", "status", "error"]])]
+    if len(skipped):
+        text += ["## Skipped (finished before)\n", table(skipped[["run_name", "run_id"]])]
     return "\n".join(text)
+
+
+def summary(runs: pd.DataFrame, expected: int | None = None) -> tuple[str, int]:
+    """The sweep's summary for the terminal: counts, then one line per failed run. Returns (text, number of
+    failed or missing jobs). `expected`: the number of jobs launched, when known (a job without any run,
+    e.g. refused for bad input in a worker, counts as failed)."""
+    n = len(runs)
+    if n:
+        done = runs.status == "FINISHED"
+        skipped = runs.skipped if "skipped" in runs else pd.Series(False, index=runs.index)
+        failed = runs[~done]
+        ran = int((done & ~skipped).sum())
+        n_skipped = int((done & skipped).sum())
+    else:
+        failed, ran, n_skipped = runs, 0, 0
+    missing = max(0, (expected or 0) - n)
+    total = expected if expected is not None else n
+    head = (f"garage_exp: sweep summary: {total} jobs: {ran} finished, {n_skipped} skipped (finished before), "
+            f"{len(failed)} failed" + (f", {missing} without a run" if missing else ""))
+    lines = [head]
+    for _, r in failed.iterrows():
+        lines.append(f"  {r.status}: {r.run_name} (run {r.run_id}): {r.error or 'no error recorded'}"[:600])
+    return "\n".join(lines), len(failed) + missing
 
 
 def sweep_report(mlc, parent_run_id: str, out_dir: str | Path | None = None, resumed: list[str] | None = None
@@ -146,6 +175,7 @@ def sweep_report(mlc, parent_run_id: str, out_dir: str | Path | None = None, res
             key = f"effect.{row.factor}.{row.level}".replace("/", "_")
             tracking.retry(lambda k=key, v=row.confidence_mean: mlc.log_metric(parent_run_id, k, float(v)))
         tracking.retry(lambda: mlc.log_metric(parent_run_id, "runs_failed", float((runs.status != "FINISHED").sum())))
+        tracking.retry(lambda: mlc.log_metric(parent_run_id, "runs_skipped", float(runs.skipped.sum())))
     tracking.retry(lambda: mlc.log_artifacts(parent_run_id, str(out), "report"))
     return out / "report.md"
 

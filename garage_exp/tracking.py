@@ -30,19 +30,40 @@ def client(uri: str | None = None):
     import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
 
     mlflow.set_tracking_uri(tracking_uri(uri))
-    return mlflow.MlflowClient()
+    return retry(mlflow.MlflowClient)  # the client opens (and may create) the store: a write
 
 
-def retry(fn, attempts: int = 8, base_delay: float = 0.2):
-    """Call fn(), retrying on sqlite's 'database is locked' (several workers share one sqlite store)."""
+# sqlite answers "database is locked" (or "database table is locked") when another process holds the write
+# lock longer than its busy timeout; the write did not happen and is safe to repeat.
+TRANSIENT = ("database is locked", "database table is locked")
+
+
+def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.0):
+    """Call fn(), retrying on sqlite's 'database is locked' (several workers share one sqlite store) with
+    jittered exponential back-off (~30 s in all before the error is raised)."""
+    import random
+
     for k in range(attempts):
         try:
             return fn()
         except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError
-            if "locked" not in str(exc).lower() or k == attempts - 1:
+            text = str(exc).lower()
+            if not any(t in text for t in TRANSIENT) or k == attempts - 1:
                 raise
-            time.sleep(base_delay * (2**k))
+            time.sleep(min(max_delay, base_delay * (2**k)) * (0.5 + random.random()))
     raise AssertionError("unreachable")
+
+
+def artifact_location(uri: str | None, name: str) -> str | None:
+    """Where a new experiment of a sqlite store keeps its artifacts: beside the database file. (MLflow's default
+    is ./mlruns of whatever directory the first run happened to start in, so a store's artifacts would end up
+    scattered, or inside a temporary dir that is later deleted.) None for other stores: the server decides."""
+    if not uri or not uri.startswith("sqlite:///"):
+        return None
+    import re
+
+    db = Path(uri[len("sqlite:///"):])
+    return str(db.parent / "mlartifacts" / (re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "experiment"))
 
 
 def experiment_id(mlc, name: str) -> str:
@@ -51,7 +72,8 @@ def experiment_id(mlc, name: str) -> str:
         if exp is not None:
             return exp.experiment_id
         try:
-            return mlc.create_experiment(name)
+            return mlc.create_experiment(name, artifact_location=artifact_location(
+                getattr(mlc, "tracking_uri", None), name))
         except Exception:  # another worker created it first
             exp = mlc.get_experiment_by_name(name)
             if exp is None:
@@ -93,15 +115,38 @@ def config_params(cfg: DictConfig) -> dict[str, str]:
     return flatten(container)
 
 
-def config_hash(cfg: DictConfig) -> str:
-    """Identity of a job: the composed config without the keys that do not change its result."""
+def file_digest(path: str | Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def config_hash(cfg: DictConfig, plan_digest: str = "") -> str:
+    """Identity of a job: the composed config without the keys that do not change its result, plus the
+    content of its plan file (an edited plan is a different job, though its name is the same)."""
     import hashlib
     import json
 
     container = OmegaConf.to_container(cfg, resolve=True)
     for key in ("hydra", "resume", "tracking"):
         container.pop(key, None)
+    if plan_digest:
+        container["plan_sha256"] = plan_digest
     return hashlib.sha256(json.dumps(container, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def sweep_key(task_overrides: list[str]) -> str:
+    """Identity of a sweep: its task overrides, sorted, without `resume` and `tracking.*` (the same sweep
+    resumed, or pointed at another store, is the same sweep)."""
+    import hashlib
+    import json
+
+    def keep(override: str) -> bool:
+        key = override.split("=", 1)[0].lstrip("+~")
+        return key != "resume" and not key.startswith("tracking.") and key != "tracking"
+
+    kept = sorted(o for o in task_overrides if keep(o))
+    return hashlib.sha256(json.dumps(kept).encode()).hexdigest()[:16]
 
 
 def finished_run(cfg: DictConfig, digest: str) -> str | None:
@@ -113,6 +158,35 @@ def finished_run(cfg: DictConfig, digest: str) -> str | None:
     runs = retry(lambda: mlc.search_runs([exp.experiment_id], max_results=1,
                                          filter_string=f"tags.config_hash = '{digest}' and attributes.status = 'FINISHED'"))
     return runs[0].info.run_id if runs else None
+
+
+def supersede(mlc, experiment_id: str, digest: str, new_run_id: str) -> list[str]:
+    """A resumed job replaces the runs of the same config that never finished (left RUNNING by a killed
+    process, or FAILED/KILLED): they are marked KILLED if still RUNNING, tagged `superseded_by` and deleted
+    (MLflow's soft delete: `mlflow runs restore --run-id ID` brings one back). Returns their ids."""
+    runs = retry(lambda: mlc.search_runs([experiment_id], filter_string=f"tags.config_hash = '{digest}'",
+                                         max_results=1000))
+    gone = []
+    for r in runs:
+        rid = r.info.run_id
+        if rid == new_run_id or r.info.status == "FINISHED":
+            continue
+        if r.info.status in ("RUNNING", "SCHEDULED"):
+            retry(lambda rid=rid: mlc.set_tag(rid, "error", "the process ended without closing the run "
+                                                            "(killed); superseded by a resumed run"))
+            retry(lambda rid=rid: mlc.set_terminated(rid, "KILLED"))
+        retry(lambda rid=rid: mlc.set_tag(rid, "superseded_by", new_run_id))
+        retry(lambda rid=rid: mlc.delete_run(rid))
+        gone.append(rid)
+    return gone
+
+
+def find_parent(mlc, experiment_id: str, key: str):
+    """The latest parent run of the sweep with this key (see sweep_key), or None."""
+    runs = retry(lambda: mlc.search_runs(
+        [experiment_id], filter_string=f"tags.sweep = 'parent' and tags.sweep_key = '{key}'", max_results=1,
+        order_by=["attributes.start_time DESC"]))
+    return runs[0] if runs else None
 
 
 class JobRun:
@@ -148,6 +222,9 @@ class JobRun:
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         retry(lambda: self.mlc.log_artifact(self.run_id, str(path), artifact_path))
+
+    def log_text(self, text: str, artifact_file: str) -> None:
+        retry(lambda: self.mlc.log_text(self.run_id, text, artifact_file))
 
     def end(self, status: str = "FINISHED") -> None:
         retry(lambda: self.mlc.set_terminated(self.run_id, status))
@@ -194,3 +271,8 @@ def add_resumed(sweep_dir: str | Path, run_id: str) -> None:
 def read_resumed(sweep_dir: str | Path) -> list[str]:
     path = Path(sweep_dir) / RESUMED_FILE
     return sorted(set(path.read_text().split())) if path.is_file() else []
+
+
+def clear_resumed(sweep_dir: str | Path) -> None:
+    """A sweep starting in a used sweep dir must not count the skips of an earlier one."""
+    (Path(sweep_dir) / RESUMED_FILE).unlink(missing_ok=True)

@@ -98,15 +98,14 @@ def test_multirun_with_joblib_parents_children_in_other_processes(tmp_path, mlfl
     assert all(c.info.status == "FINISHED" for c in children)
 
 
-def test_crash_in_job_marks_failed_and_sweep_goes_on(tmp_path, mlflow_uri):
-    # case.kind=nonsense passes the schema (a string) but fails inside the job, after the run started.
-    r = run_app(["-m", "plan=tiny", "case.kind=nonsense,light", "light=bright", "detector.models=[]",
-                 f"tracking.uri={mlflow_uri}"], tmp_path)
-    _, runs = runs_of(mlflow_uri)
-    children = [x for x in runs if x.data.tags.get("mlflow.parentRunId")]
-    assert len(children) == 2, r.stderr
-    failed = [c for c in children if c.info.status == "FAILED"]
-    assert any("nonsense" in c.data.tags.get("error", "") for c in failed)
+def test_sweep_with_a_bad_job_is_refused_before_any_job_runs(tmp_path, mlflow_uri):
+    # case.kind=nonsense passes the schema (a string) but not the check of every job that runs before the
+    # sweep opens its parent run. (A job that crashes after its start: tests/test_reliability_faults.py.)
+    r = run_app(["-m", "plan=tiny", "case.kind=nonsense,light", "light=bright", f"tracking.uri={mlflow_uri}"],
+                tmp_path)
+    assert r.returncode == 2
+    assert "case.kind" in r.stderr and "nonsense" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "mlflow.db").exists() and not (tmp_path / "sweep").exists()
 
 
 def test_parse_overrides():

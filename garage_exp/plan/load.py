@@ -14,7 +14,8 @@ from garage_exp.errors import GarageError
 from garage_exp.plan.model import DRIVEABLE, ENTRANCE, Plan
 
 MAX_CELLS_PER_SIDE = 500
-MAX_FILE_BYTES = 10_000_000
+MAX_FILE_BYTES = 4_000_000  # the largest plan (500 x 500 cells) is ~1 MB of YAML or CSV
+MAX_YAML_DEPTH = 32
 METRES_RANGE = (0.5, 100.0)  # a row depth or column width outside this is a unit mistake
 YAML_KEYS = {"S", "R", "C", "name"}
 
@@ -52,9 +53,28 @@ def plan_from_lists(S, R, C, name: str, where: str = "<memory>") -> Plan:
     return plan
 
 
+def _safe_load(text: str, where: str):
+    """YAML as plain data (safe loading only: no Python objects, a plan is data). libyaml's safe loader, when
+    installed, is ~6x faster on a big plan, but its composer recurses in C and crashes the process on a file
+    nested a million levels deep; its event parser does not, so the depth is checked on the events first."""
+    if not hasattr(yaml, "CSafeLoader"):
+        return yaml.safe_load(text)  # pure Python: deep nesting is a RecursionError, caught by the caller
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.CSafeLoader):
+        if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                line = event.start_mark.line + 1 if event.start_mark else "?"
+                raise GarageError(f"line {line}: nested more than {MAX_YAML_DEPTH} levels deep (a plan has 3)",
+                                  where)
+        elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+            depth -= 1
+    return yaml.load(text, Loader=yaml.CSafeLoader)
+
+
 def _parse_yaml(text: str, where: str):
     try:
-        data = yaml.safe_load(text)
+        data = _safe_load(text, where)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         place = f"line {mark.line + 1}" if mark is not None else "?"
@@ -104,20 +124,36 @@ def _csv_number(value: str, where: str, place: str):
     return int(number) if number.is_integer() and "." not in value else number
 
 
+def _shown(value) -> str:
+    """A value for a message: containers by their kind (the repr of a list nested 3000 deep recurses), others
+    by a repr cut to a readable length."""
+    if isinstance(value, (list, tuple, dict, np.ndarray)):
+        return f"a {type(value).__name__}"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def _matrix(S, where: str) -> np.ndarray:
     if not isinstance(S, (list, tuple, np.ndarray)) or len(S) == 0:
         raise GarageError("S must be a non-empty list of rows", where)
+    # Sizes first: YAML aliases repeat a 500-cell row a million times in a few MB, and checking every value of
+    # such a matrix before its size would take minutes.
+    if len(S) > MAX_CELLS_PER_SIDE:
+        raise GarageError(f"S has {len(S)} rows; at most {MAX_CELLS_PER_SIDE} cells per side", where)
     width = None
     for i, row in enumerate(S):
         if not isinstance(row, (list, tuple, np.ndarray)) or len(row) == 0:
             raise GarageError(f"S row {i}: must be a non-empty list of integers", where)
+        if len(row) > MAX_CELLS_PER_SIDE:
+            raise GarageError(f"S row {i} has {len(row)} columns; at most {MAX_CELLS_PER_SIDE} cells per side",
+                              where)
         if width is None:
             width = len(row)
         elif len(row) != width:
             raise GarageError(f"S row {i}: {len(row)} columns, row 0 has {width} (ragged matrix)", where)
         for j, v in enumerate(row):
             if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
-                raise GarageError(f"S row {i}, column {j}: {v!r} is not an integer", where)
+                raise GarageError(f"S row {i}, column {j}: {_shown(v)} is not an integer", where)
             if not -1 <= int(v) <= 3:
                 shown = int(v) if abs(int(v)) < 10**6 else "out of range"  # str() of 5000 digits raises
                 raise GarageError(
@@ -157,7 +193,7 @@ def _vector(values, key: str, length: int, column: bool, where: str) -> np.ndarr
     lo, hi = METRES_RANGE
     for k, v in enumerate(flat):
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
-            raise GarageError(f"{key}[{k}]: {v!r} is not a number", where)
+            raise GarageError(f"{key}[{k}]: {_shown(v)} is not a number", where)
         try:
             f = float(v)
         except OverflowError:

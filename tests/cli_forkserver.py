@@ -1,0 +1,91 @@
+"""A fork server for the command line, so that dozens of bad-input runs do not each pay Python's and the
+project's start-up (~1 s). It imports what `python -m garage_exp` imports, then, per request, forks a child
+that does exactly what `python -m garage_exp ARGS` does - `garage_exp.app.cli()` with that argv, in that
+working dir and environment, its stdout and stderr in files - and answers with the child's exit code.
+
+Protocol: one JSON object per line on stdin {"argv", "cwd", "env", "stdout", "stderr"}, all before stdin
+closes; one per line on stdout {"id" (the request's index), "rc"} as the children finish. Only for tests
+(tests/test_reliability_inputs.py, which also runs a few entries as real subprocesses to compare).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+
+def preload() -> None:
+    import garage_exp.app  # noqa: F401  hydra, omegaconf, the schema
+    import garage_exp.assets.vehicles  # noqa: F401
+    import garage_exp.callbacks  # noqa: F401
+    import garage_exp.experiment  # noqa: F401  numpy, pandas, the scene description, the cases
+    import garage_exp.plan  # noqa: F401
+    import garage_exp.scene.lamps  # noqa: F401
+    import garage_exp.sensor  # noqa: F401
+    from hydra.core.plugins import Plugins
+
+    Plugins.instance()  # plugin discovery scans site-packages once
+
+
+def child(request: dict) -> int:
+    os.chdir(request["cwd"])
+    os.environ.update(request.get("env") or {})
+    out = os.open(request["stdout"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    err = os.open(request["stderr"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    os.dup2(out, 1)
+    os.dup2(err, 2)
+    sys.stdout = os.fdopen(1, "w", buffering=1)
+    sys.stderr = os.fdopen(2, "w", buffering=1)
+    import garage_exp
+
+    sys.argv = [os.path.join(os.path.dirname(garage_exp.__file__), "__main__.py"), *request["argv"]]
+    code = 0
+    try:
+        from garage_exp.app import cli
+
+        cli()
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if isinstance(exc.code, str):
+            print(exc.code, file=sys.stderr)
+    except BaseException:  # what the interpreter would print for an uncaught exception
+        import traceback
+
+        traceback.print_exc()
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    return code
+
+
+def main() -> None:
+    """Reads every request (until stdin closes), then runs them PARALLEL at a time; answers {"id", "rc"} as
+    they finish."""
+    preload()
+    requests = [json.loads(line) for line in sys.stdin if line.strip()]
+    parallel = int(os.environ.get("FORKSERVER_PARALLEL", "2"))
+    running: dict[int, int] = {}
+    pending = list(enumerate(requests))
+    while pending or running:
+        while pending and len(running) < parallel:
+            k, request = pending.pop(0)
+            pid = os.fork()
+            if pid == 0:
+                code = 70
+                try:
+                    code = child(request)
+                except BaseException:
+                    import traceback
+
+                    traceback.print_exc()
+                finally:
+                    os._exit(code)
+            running[pid] = k
+        pid, status = os.wait()
+        k = running.pop(pid)
+        print(json.dumps({"id": k, "rc": os.waitstatus_to_exitcode(status)}), flush=True)
+
+
+if __name__ == "__main__":
+    main()

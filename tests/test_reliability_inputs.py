@@ -1,0 +1,248 @@
+"""Bad input (issue 5): the corpus in tests/bad_inputs/cases.yaml, and config and plan files as data.
+
+Every corpus entry runs the command line (`garage_exp.app.cli`, in a child forked from a warm interpreter, see
+tests/cli_forkserver.py; the entries that start a job in a real subprocess) and must give exit code 2, one
+line on stderr naming what is wrong and where, no traceback, and leave nothing behind: no MLflow store, no
+Hydra run or sweep dir, no file in its working dir - except the FAILED run of the one entry whose problem can
+only show once the job runs.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import re
+import subprocess
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+import yaml
+from conftest import PYTHON, ROOT, run_app
+
+CORPUS = Path(__file__).resolve().parent / "bad_inputs"
+CASES = yaml.safe_load((CORPUS / "cases.yaml").read_text())
+BY_ID = {c["id"]: c for c in CASES}
+MLFLOW_LOG = re.compile(r"^\d{4}/\d\d/\d\d \d\d:\d\d:\d\d INFO mlflow")
+
+
+def test_corpus_is_large_and_well_formed():
+    assert len(CASES) >= 30
+    assert len(BY_ID) == len(CASES), "duplicate ids"
+    for case in CASES:
+        assert set(case) <= {"id", "args", "expect", "env", "generate", "absent", "started"}, case["id"]
+        assert case["expect"], case["id"]
+        for arg in case["args"]:
+            for path in re.findall(r"\{corpus\}/(\S+?)(?:\]|$)", arg):
+                assert (CORPUS / path).exists(), f"{case['id']}: {path} is not in the corpus"
+    kinds = {c["id"].split("-")[0] for c in CASES}
+    assert {"plan", "override", "sweep", "missing", "config"} <= kinds
+
+
+def generate(kind: str, work: Path) -> None:
+    """Big inputs are written at test time, not kept in git."""
+    if kind == "big_file":  # just over the 4 MB limit: refused before it is read
+        from garage_exp.plan.load import MAX_FILE_BYTES
+
+        with open(work / "big.yaml", "w") as f:
+            f.write("S: [[2, 1, 3]]\nR: [6]\nC: [3, 3, 3]\n# ")
+            f.write("x" * MAX_FILE_BYTES)
+    elif kind == "alias_rows":  # 400 kB that YAML expands to 100001 rows of 500 cells (50 M values)
+        row = "[" + ", ".join(["1"] * 500) + "]"
+        (work / "alias.yaml").write_text("S: [&r " + row + ", " + ", ".join(["*r"] * 100_000)
+                                         + "]\nR: [6]\nC: [3]\n")
+    else:
+        raise ValueError(kind)
+
+
+def files_under(path: Path) -> set[str]:
+    return {str(p.relative_to(path)) for p in path.rglob("*")}
+
+
+def forked_cli(batch: list[tuple[list[str], Path, dict]], scratch: Path) -> list[subprocess.CompletedProcess]:
+    """`python -m garage_exp ARGS` for each (args, cwd, env) of the batch, through tests/cli_forkserver.py (two
+    at a time, without paying the interpreter's start-up each time)."""
+    import os
+
+    requests, results = [], []
+    for k, (args, cwd, env) in enumerate(batch):
+        argv = [*args, f"hydra.run.dir={cwd}/run", f"hydra.sweep.dir={cwd}/sweep"]  # as conftest.run_app
+        requests.append({"argv": argv, "cwd": str(cwd), "env": env, "stdout": str(scratch / f"{k}.out"),
+                         "stderr": str(scratch / f"{k}.err")})
+    proc = subprocess.run([PYTHON, str(Path(__file__).with_name("cli_forkserver.py"))], cwd=scratch,
+                          input="".join(json.dumps(r) + "\n" for r in requests), capture_output=True, text=True,
+                          env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    codes = {a["id"]: a["rc"] for a in map(json.loads, proc.stdout.splitlines())}
+    for k, r in enumerate(requests):
+        results.append(subprocess.CompletedProcess(r["argv"], codes[k], Path(r["stdout"]).read_text(),
+                                                   Path(r["stderr"]).read_text()))
+    return results
+
+
+def prepare(case: dict, work: Path) -> tuple[list[str], dict, list[str]]:
+    fill = lambda s: s.replace("{corpus}", str(CORPUS)).replace("{work}", str(work))  # noqa: E731
+    if case.get("generate"):
+        generate(case["generate"], work)
+    args = [fill(a) for a in case["args"]] + [f"tracking.uri=sqlite:///{work}/mlflow.db"]
+    env = {k: fill(v) for k, v in (case.get("env") or {}).items()}
+    return args, env, [fill(e) for e in case["expect"]]
+
+
+def real_run(case: dict, work: Path) -> dict:
+    args, env, expect = prepare(case, work)
+    before = files_under(work)
+    proc = run_app(args, work, env=env, timeout=300)
+    return {"proc": proc, "before": before, "after": files_under(work), "work": work, "expect": expect}
+
+
+@pytest.fixture(scope="module")
+def corpus_results(request, tmp_path_factory):
+    """Runs the selected corpus entries: the ones that start a job as real subprocesses (in a thread), the
+    others through the fork server at the same time."""
+    selected = [item.callspec.params["case_id"] for item in request.session.items
+                if item.module is request.module and hasattr(item, "callspec") and "case_id" in item.callspec.params]
+    pool = ThreadPoolExecutor(max_workers=1)
+    started = {cid: pool.submit(real_run, BY_ID[cid], tmp_path_factory.mktemp(cid))
+               for cid in selected if BY_ID[cid].get("started")}
+    results, batch = {}, []
+    for cid in selected:
+        if cid not in started:
+            work = tmp_path_factory.mktemp(cid)
+            args, env, expect = prepare(BY_ID[cid], work)
+            results[cid] = {"before": files_under(work), "work": work, "expect": expect}
+            batch.append((args, work, env))
+    forked = [cid for cid in selected if cid not in started]
+    for cid, proc in zip(forked, forked_cli(batch, tmp_path_factory.mktemp("forkserver"))):
+        results[cid].update(proc=proc, after=files_under(results[cid]["work"]))
+    results.update({cid: f.result() for cid, f in started.items()})
+    pool.shutdown()
+    return results
+
+
+def test_fork_server_answers_as_the_real_command_line(tmp_path_factory):
+    """The fork server is a shortcut, not a different program: a few entries give the same exit code and the
+    same stderr either way."""
+    ids = ("plan-unreachable-lane", "sweep-bad-fov-in-2nd-job")
+    batch = []
+    for cid in ids:
+        work = tmp_path_factory.mktemp(cid)
+        args, env, _ = prepare(BY_ID[cid], work)
+        batch.append((args, work, env))
+    forked = forked_cli(batch, tmp_path_factory.mktemp("forkserver"))
+    for cid, fork in zip(ids, forked):
+        real = real_run(BY_ID[cid], tmp_path_factory.mktemp(cid))["proc"]
+        strip = lambda text: re.sub(r"/\S*/" + re.escape(cid) + r"\d*", "<work>", text)  # noqa: E731
+        assert (fork.returncode, strip(fork.stderr)) == (real.returncode, strip(real.stderr)), cid
+
+
+@pytest.mark.parametrize("case_id", list(BY_ID))
+def test_bad_input(case_id, corpus_results):
+    case = BY_ID[case_id]
+    result = corpus_results[case_id]
+    proc, work = result["proc"], result["work"]
+    assert proc.returncode == 2, f"exit {proc.returncode}\nstdout:\n{proc.stdout[-3000:]}\nstderr:\n{proc.stderr}"
+    assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
+    lines = [ln.strip() for ln in re.split(r"[\r\n]+", proc.stderr) if ln.strip()]
+    ours = [ln for ln in lines if ln.startswith("garage_exp: ")]
+    assert len(ours) == 1, proc.stderr
+    line = ours[0]
+    for text in result["expect"]:
+        assert text in line, f"{text!r} not in {line!r}"
+    for name in case.get("absent") or []:
+        assert not (work / name).exists(), f"{name} was created: the input ran code"
+    if not case.get("started"):
+        assert lines == [line], "stderr must hold the one line and nothing else"
+        # Nothing written: no MLflow store (not even an empty one), no run/sweep dir, no stray file.
+        assert result["after"] == result["before"], sorted(result["after"] - result["before"])
+        return
+    # The job had started: its run is the only thing in MLflow, FAILED with the error; nothing else.
+    from garage_exp import tracking
+
+    mlc = tracking.client(f"sqlite:///{work}/mlflow.db")
+    exp = mlc.get_experiment_by_name("garage_exp")
+    runs = mlc.search_runs([exp.experiment_id])
+    assert len(runs) == 1
+    run = runs[0]
+    assert run.info.status == "FAILED"
+    assert "cannot load openvino model" in run.data.tags["error"]
+    arts = {a.path for a in mlc.list_artifacts(run.info.run_id)}
+    assert {"config.yaml", "error.txt"} <= arts
+    assert all(not MLFLOW_LOG.match(ln) or "mlflow" in ln for ln in lines)
+
+
+# ------------------------------------------------------------------------ config and plan files are data
+
+UNSAFE_ATTRS = {("yaml", "unsafe_load"), ("yaml", "full_load"), ("yaml", "load_all"), ("yaml", "Loader"),
+                ("yaml", "UnsafeLoader"), ("yaml", "FullLoader"), ("yaml", "CLoader"), ("yaml", "CUnsafeLoader"),
+                ("yaml", "CFullLoader"), ("torch", "load"), ("pd", "read_pickle"), ("pandas", "read_pickle")}
+UNSAFE_MODULES = {"pickle", "cPickle", "dill", "cloudpickle", "marshal", "shelve", "jsonpickle"}
+
+
+def test_source_has_no_eval_pickle_or_unsafe_yaml():
+    """Static guard: no eval/exec, no pickle-family module, YAML only through safe loaders."""
+    problems = []
+    for path in sorted((ROOT / "garage_exp").rglob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            where = f"{path.relative_to(ROOT)}:{getattr(node, 'lineno', '?')}"
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in (
+                    "eval", "exec", "compile", "__import__"):
+                problems.append(f"{where}: {node.func.id}()")
+            if isinstance(node, ast.Import):
+                problems += [f"{where}: import {a.name}" for a in node.names if a.name.split(".")[0] in UNSAFE_MODULES]
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in UNSAFE_MODULES:
+                problems.append(f"{where}: from {node.module} import")
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and (
+                    node.value.id, node.attr) in UNSAFE_ATTRS:
+                problems.append(f"{where}: {node.value.id}.{node.attr}")
+            if isinstance(node, ast.Call) and any(k.arg == "allow_pickle" and not (
+                    isinstance(k.value, ast.Constant) and k.value.value is False) for k in node.keywords):
+                problems.append(f"{where}: allow_pickle")
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "load" \
+                    and isinstance(node.func.value, ast.Name) and node.func.value.id == "yaml":
+                loader = next((k.value for k in node.keywords if k.arg == "Loader"), None)
+                if loader is None or "SafeLoader" not in ast.unparse(loader):
+                    problems.append(f"{where}: yaml.load without a SafeLoader")
+    assert not problems, problems
+
+
+def test_no_evaluating_resolver():
+    """Interpolations in configs can read values (${oc.env:...}), never evaluate code."""
+    from omegaconf import OmegaConf
+
+    import garage_exp.app  # noqa: F401  registers the project's resolvers
+
+    for name in ("eval", "exec", "python", "py", "lambda"):
+        assert not OmegaConf.has_resolver(name)
+
+
+def test_override_value_is_never_evaluated(tmp_path):
+    """An override that looks like Python is a string to Hydra: a type error, not a call."""
+    r = run_app(['seed=__import__("os").system("touch pwned")', "dry_run=true", "plan=tiny"], tmp_path)
+    assert r.returncode == 2 and "seed" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "pwned").exists()
+
+
+def test_bad_input_in_a_single_run_leaves_no_run_dir(tmp_path):
+    """Hydra makes the run dir before the job starts; a job refused for bad input removes it again (only
+    when it holds nothing but Hydra's own files)."""
+    from garage_exp.app import _remove_untouched
+
+    hydra_only = tmp_path / "a"
+    (hydra_only / ".hydra").mkdir(parents=True)
+    (hydra_only / ".hydra" / "config.yaml").write_text("x: 1\n")
+    (hydra_only / "app.log").write_text("")
+    _remove_untouched(hydra_only)
+    assert not hydra_only.exists()
+    used = tmp_path / "b"
+    (used / ".hydra").mkdir(parents=True)
+    (used / "config.yaml").write_text("x: 1\n")
+    _remove_untouched(used)
+    assert (used / "config.yaml").exists()
+
+
+def test_hydra_full_error_still_gives_the_traceback(tmp_path):
+    """HYDRA_FULL_ERROR=1 (Hydra's documented debugging switch) bypasses the one-line report."""
+    r = run_app(["light=dusk"], tmp_path, env={"HYDRA_FULL_ERROR": "1"})
+    assert r.returncode != 0 and "Traceback" in r.stderr
