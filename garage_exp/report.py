@@ -19,6 +19,7 @@ import pandas as pd
 from garage_exp import tracking
 
 METRICS = ("confidence_mean", "recall", "difficulty", "visible_fraction_mean")
+BREAKDOWNS = ("label.", "model.")  # per-job mean confidence per label (colour, placement) and per model
 
 
 def parse_overrides(text: str) -> dict[str, str]:
@@ -45,6 +46,7 @@ def child_runs(mlc, parent_run_id: str, resumed: list[str] = ()) -> pd.DataFrame
                "skipped": r.info.run_id in skipped, "error": r.data.tags.get("error", "")}
         row.update({f"factor.{k}": v for k, v in parse_overrides(r.data.tags.get("overrides", "")).items()})
         row.update({m: r.data.metrics.get(m) for m in METRICS})
+        row.update({m: v for m, v in r.data.metrics.items() if m.startswith(BREAKDOWNS)})
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -70,6 +72,22 @@ def pair_effects(runs: pd.DataFrame, factors: list[str]) -> pd.DataFrame:
         g.insert(0, "pair", f"{a.removeprefix('factor.')} x {b.removeprefix('factor.')}")
         parts.append(g.rename(columns={a: "level_a", b: "level_b"}))
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+def breakdown(runs: pd.DataFrame, factors: list[str], prefix: str) -> pd.DataFrame:
+    """Mean composite confidence per label (or model) for every combination of the swept factors' levels:
+    the research's tables (colour x light preset, placement x light) come out of a sweep as they are."""
+    cols = sorted(c for c in runs.columns if c.startswith(prefix))
+    if not cols or runs.empty:
+        return pd.DataFrame()
+    long = runs.melt(id_vars=factors, value_vars=cols, var_name="what", value_name="confidence").dropna(
+        subset=["confidence"])
+    long["what"] = long["what"].str.removeprefix(prefix)
+    if not factors:
+        return long.groupby("what")[["confidence"]].mean()
+    long["levels"] = long[factors].astype(str).apply(
+        lambda r: ", ".join(f"{f.removeprefix('factor.')}={v}" for f, v in r.items()), axis=1)
+    return long.pivot_table(index="what", columns="levels", values="confidence", aggfunc="mean", sort=False)
 
 
 def heatmaps(runs: pd.DataFrame, factors: list[str], path: Path) -> Path | None:
@@ -98,7 +116,8 @@ def heatmaps(runs: pd.DataFrame, factors: list[str], path: Path) -> Path | None:
     return path
 
 
-def markdown(runs: pd.DataFrame, effects: pd.DataFrame, pairs: pd.DataFrame) -> str:
+def markdown(runs: pd.DataFrame, effects: pd.DataFrame, pairs: pd.DataFrame,
+             tables: dict[str, pd.DataFrame] | None = None) -> str:
     def table(df: pd.DataFrame) -> str:
         if df.empty:
             return "(none)\n"
@@ -117,6 +136,9 @@ def markdown(runs: pd.DataFrame, effects: pd.DataFrame, pairs: pd.DataFrame) -> 
             "## Pairs\n", table(pairs),
             "## Runs ranked by difficulty (1 - mean composite confidence)\n",
             table(ranked[["run_name", "confidence_mean", "recall", "difficulty"]])]
+    for title, df in (tables or {}).items():
+        if not df.empty:
+            text += [f"## {title}\n", table(df.reset_index())]
     if len(failed):
         text += ["## Failed runs\n", table(failed[["run_name", "status", "error"]])]
     if len(skipped):
@@ -170,7 +192,11 @@ def sweep_report(mlc, parent_run_id: str, out_dir: str | Path | None = None, res
         effects.to_csv(out / "main_effects.csv", index=False)
         pairs.to_csv(out / "pair_effects.csv", index=False)
         heatmaps(finished, factors, out / "heatmap.png")
-        (out / "report.md").write_text(markdown(runs, effects, pairs))
+        tables = {"Per label: mean composite confidence (colour, placement)": breakdown(finished, factors, "label."),
+                  "Per model: mean confidence": breakdown(finished, factors, "model.")}
+        tables["Per label: mean composite confidence (colour, placement)"].to_csv(out / "labels.csv")
+        tables["Per model: mean confidence"].to_csv(out / "models.csv")
+        (out / "report.md").write_text(markdown(runs, effects, pairs, tables))
         for _, row in effects.iterrows():
             key = f"effect.{row.factor}.{row.level}".replace("/", "_")
             tracking.retry(lambda k=key, v=row.confidence_mean: mlc.log_metric(parent_run_id, k, float(v)))

@@ -47,13 +47,14 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
         "frames": float(len(t)),
     }
     out["difficulty"] = 1.0 - out["confidence_mean"]
+    # Breakdowns the sweep report tabulates: per label (a colour, a case-3 placement), per model, per camera.
     for label, group in t.groupby("label", sort=False):
-        out[f"confidence_mean.{_metric_key(label)}"] = float(group.composite.mean())
+        out[f"label.{_metric_key(label)}"] = float(group.composite.mean())
     for col in [c for c in t.columns if c.startswith("conf_")]:
-        out[f"confidence_mean.{col[5:]}"] = float(t[col].mean())
+        out[f"model.{col[5:]}"] = float(t[col].mean())
     for cam, group in table.groupby("camera", sort=False):
         if cam != primary:
-            out[f"confidence_mean.camera_{_metric_key(cam)}"] = float(group.composite.mean())
+            out[f"camera.{_metric_key(cam)}"] = float(group.composite.mean())
     return out
 
 
