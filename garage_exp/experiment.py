@@ -1,9 +1,16 @@
-"""One job: build the garage for the case, render every shot, score the target with the detectors, log."""
+"""One job: build the garage for the case, render every shot, score the target with the detectors, log.
+
+The frame loop is a two-stage pipeline: this process renders (SAPIEN) while a child process detects the
+previous frame (garage_exp/detect/worker.py). Results come back in frame order, so the table is the serial
+loop's; benchmarks/RESULTS.md has the measured gain.
+"""
 
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from collections import deque
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +18,9 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from garage_exp import results
-from garage_exp.cases import CaseSetup, make_case
+from garage_exp.cases import CaseSetup, Shot, make_case
 from garage_exp.errors import GarageError
+from garage_exp.groundtruth import VehicleTruth
 from garage_exp.plan.classify import Classified
 from garage_exp.scene.description import CameraSpec, Pose, Scene
 
@@ -60,20 +68,81 @@ def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:
     return out
 
 
-def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> float:
+@dataclass
+class Rendered:
+    """One camera's frame as the detectors see it (after the sensor model), with its ground truth."""
+
+    shot: Shot
+    camera: str
+    rgb: np.ndarray
+    truth: list[VehicleTruth]
+    target: VehicleTruth | None
+
+
+def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sensor,
+                  sensor_rng: np.random.Generator) -> Iterator[Rendered]:
+    """Every camera of every shot, in order: the sensor's random stream is drawn in this order."""
     from tqdm import tqdm
 
-    from garage_exp.assets.vehicles import VehicleLibrary
-    from garage_exp.detect import Detector, score_target
     from garage_exp.groundtruth import ground_truth
+
+    for shot in tqdm(setup.shots, desc=f"case {cfg.case.name}", unit="frame", leave=False):
+        renderer.set_pose("ego", shot.ego)
+        for name, pose in shot.poses.items():
+            renderer.set_pose(name, pose if pose is not None else HIDDEN)
+        for cam in scene.cameras:
+            frame = renderer.render(cam.name)
+            in_view = [v.name for v in scene.vehicles() if v.role != "ego" and shot.poses.get(v.name, v.pose)]
+            silhouettes = renderer.unoccluded_ids(cam.name, in_view)
+            truth = ground_truth(frame, silhouettes, scene, renderer.ids)
+            rgb = sensor.apply(frame.rgb, sensor_rng)
+            if not scene.background:
+                rgb = renderer.blank_composite(rgb, frame, [shot.target])
+            target = next((t for t in truth if t.name == shot.target), None)
+            yield Rendered(shot, cam.name, rgb, truth, target)
+
+
+def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered, list]]:
+    """Each frame with its detections, in order. Frame k is submitted before frame k+1 is rendered, so the
+    detector (a child process) works on k while this process renders k+1."""
+    waiting: deque[Rendered] = deque()
+    rendered = iter(frames)
+    while True:
+        try:
+            frame = next(rendered)
+        except StopIteration:
+            break
+        except Exception as exc:
+            # Rendering failed: the frame already sent still gets its row, as the serial loop would have kept it.
+            while waiting:
+                yield waiting.popleft(), detector.result()
+            raise exc
+        detector.submit(frame.rgb)
+        waiting.append(frame)
+        if len(waiting) > 1:
+            yield waiting.popleft(), detector.result()
+    while waiting:
+        yield waiting.popleft(), detector.result()
+
+
+def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> float:
+    from garage_exp.assets.vehicles import VehicleLibrary
+    from garage_exp.detect import score_target
+    from garage_exp.detect.detector import spec_from_config
+    from garage_exp.detect.worker import DetectorProcess, cores, open_detector
     from garage_exp.render import get_renderer
+    from garage_exp.render.device import share_cores
     from garage_exp.scene.gltf import export_glb
     from garage_exp.sensor import make_sensor
 
+    # First, so that the models load in the detector's process while this one builds and loads the scene and
+    # compiles its shaders (the first frame).
+    detector = open_detector(spec_from_config(cfg.detector))
+    if isinstance(detector, DetectorProcess) and detector.threads > 0:
+        share_cores(max(1, cores() - detector.threads))  # the rest of the cores render
     rng = np.random.default_rng(cfg.seed)
     library = VehicleLibrary()
     scene, setup = build_scene(cfg, classified, library, rng)
-    detector = Detector.from_config(cfg.detector)
     sensor = make_sensor(cfg.sensor)
     renderer = get_renderer(max_lights=cfg.renderer.max_lights, shadows=cfg.renderer.shadows)
     renderer.load(scene)
@@ -86,33 +155,28 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     sensor_rng = np.random.default_rng(cfg.seed + 1)
     rows, keep = [], {}
     table_path = out / "frames.csv"
+    frames = render_frames(cfg, scene, setup, renderer, sensor, sensor_rng)
     try:
-        for shot in tqdm(setup.shots, desc=f"case {cfg.case.name}", unit="frame", leave=False):
-            renderer.set_pose("ego", shot.ego)
-            for name, pose in shot.poses.items():
-                renderer.set_pose(name, pose if pose is not None else HIDDEN)
-            for cam in scene.cameras:
-                frame = renderer.render(cam.name)
-                in_view = [v.name for v in scene.vehicles() if v.role != "ego" and shot.poses.get(v.name, v.pose)]
-                silhouettes = renderer.unoccluded_ids(cam.name, in_view)
-                truth = ground_truth(frame, silhouettes, scene, renderer.ids)
-                rgb = sensor.apply(frame.rgb, sensor_rng)
-                if not scene.background:
-                    rgb = renderer.blank_composite(rgb, frame, [shot.target])
-                dets = detector.detect(rgb)
-                target = next((t for t in truth if t.name == shot.target), None)
-                score = score_target(dets, target, truth, iou_threshold=cfg.detector.iou, match=cfg.detector.match,
-                                     threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes))
-                row = results.frame_row(shot, cam.name, target, score, detector.names)
-                rows.append(row)
-                if dataset is not None:
-                    dataset.add(f"{shot.index:04d}_{cam.name}", rgb, truth, scene)
-                keep[(shot.index, cam.name)] = (rgb, target, dets)
-                if cfg.renderer.save_frames == "all":
-                    results.save_frame(frames_dir / f"{shot.index:04d}_{cam.name}.png", rgb, target, dets, score)
-                if len(keep) > 3 * len(scene.cameras):
-                    keep = results.prune_key_frames(keep, rows)
+        for item, dets in overlapped(frames, detector):
+            shot, target = item.shot, item.target
+            score = score_target(dets, target, item.truth, iou_threshold=cfg.detector.iou, match=cfg.detector.match,
+                                 threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes))
+            row = results.frame_row(shot, item.camera, target, score, detector.names)
+            rows.append(row)
+            if dataset is not None:
+                dataset.add(f"{shot.index:04d}_{item.camera}", item.rgb, item.truth, scene)
+            keep[(shot.index, item.camera)] = (item.rgb, target, dets)
+            if cfg.renderer.save_frames == "all":
+                results.save_frame(frames_dir / f"{shot.index:04d}_{item.camera}.png", item.rgb, target, dets,
+                                   score)
+            if len(keep) > 3 * len(scene.cameras):
+                keep = results.prune_key_frames(keep, rows)
+    except KeyboardInterrupt:
+        detector.abandon()  # do not make Ctrl-C wait for a frame's detection or the models' loading
+        raise
     finally:
+        frames.close()
+        detector.drain()  # a failed job leaves no answer in the pipe for the next one
         table = pd.DataFrame(rows)
         table.to_csv(table_path, index=False)
         run.log_artifact(table_path)  # kept even when the job fails half-way

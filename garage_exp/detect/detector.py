@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
+from contextlib import contextmanager
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from garage_exp.errors import GarageError
 
 log = logging.getLogger("garage_exp")
 OPENVINO_SUFFIX = "_openvino_model"
-_LOADED: dict[Path, Any] = {}  # resolved path -> warmed-up ultralytics YOLO, so a process pays loading once
+_LOADED: dict[tuple[Path, int], Any] = {}  # (resolved path, threads) -> warmed-up YOLO: a process loads once
 
 
 @dataclass
@@ -85,11 +86,17 @@ def resolve_model(entry: str | Path) -> Path:
     return found
 
 
-def load_model(path: Path, imgsz: int = 640, device: str = "cpu") -> Any:
-    """The ultralytics model for a path, loaded and warmed up once per process."""
+def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int = 0) -> Any:
+    """The ultralytics model for a path, loaded and warmed up once per process.
+
+    threads > 0 caps OpenVINO's inference threads (0: OpenVINO's default, all cores). With rendering running
+    beside detection on a small machine, one thread each wastes less CPU than two each fighting for the same
+    cores (benchmarks/RESULTS.md). Ignored for .pt weights.
+    """
     path = path.resolve()
-    if path in _LOADED:
-        return _LOADED[path]
+    key = (path, threads)
+    if key in _LOADED:
+        return _LOADED[key]
     kind = model_format(path)
     prepare_offline()
     from ultralytics import YOLO
@@ -99,15 +106,54 @@ def load_model(path: Path, imgsz: int = 640, device: str = "cpu") -> Any:
         # task="detect" spares ultralytics a guess from the file and a warning; harmless for .pt weights.
         model = YOLO(str(path), task="detect")
         # The first predict compiles the OpenVINO network (seconds); pay it here, not in the first frame.
-        model.predict(np.zeros((imgsz, imgsz, 3), np.uint8), imgsz=imgsz, device=device, verbose=False)
+        with _openvino_threads(threads if kind == "openvino" else 0):
+            model.predict(np.zeros((imgsz, imgsz, 3), np.uint8), imgsz=imgsz, device=device, verbose=False)
     except GarageError:
         raise
     except Exception as exc:  # ultralytics raises many types; the user needs one line naming the model
         raise GarageError(f"cannot load {kind} model: {type(exc).__name__}: {exc}".splitlines()[0], str(path)) \
             from exc
+    if threads > 0 and kind == "openvino" and _openvino_thread_count(model) not in (threads, None):
+        log.warning("could not limit OpenVINO to %d threads for %s (ultralytics changed how it compiles)",
+                    threads, path.name)
     log.info("loaded %s model %s in %.1f s", kind, path.name, time.perf_counter() - start)
-    _LOADED[path] = model
+    _LOADED[key] = model
     return model
+
+
+@contextmanager
+def _openvino_threads(threads: int):
+    """Within this block, OpenVINO networks compile with INFERENCE_NUM_THREADS = threads (0: unchanged).
+
+    ultralytics compiles with {"PERFORMANCE_HINT": "LATENCY"} and no thread setting, and an ov.Core's
+    properties belong to that Core, which ultralytics makes itself; so the setting is added to every
+    compile_model call made here. ultralytics keeps the bound method for later recompiles, which keep it too.
+    Compiling twice instead (ultralytics', then ours) cost 1.5 s more per process.
+    """
+    if threads <= 0:
+        yield
+        return
+    import openvino as ov
+
+    original = ov.Core.compile_model
+
+    def compile_model(core, model, device_name=None, config=None, **kwargs):
+        return original(core, model, device_name, {**(config or {}), "INFERENCE_NUM_THREADS": threads}, **kwargs)
+
+    ov.Core.compile_model = compile_model
+    try:
+        yield
+    finally:
+        ov.Core.compile_model = original
+
+
+def _openvino_thread_count(model: Any) -> int | None:
+    """INFERENCE_NUM_THREADS of a loaded OpenVINO model, None when ultralytics' layout hides it."""
+    backend = getattr(getattr(getattr(model, "predictor", None), "model", None), "backend", None)
+    try:
+        return int(backend.ov_compiled_model.get_property("INFERENCE_NUM_THREADS"))
+    except Exception:  # noqa: BLE001 - only a check
+        return None
 
 
 @dataclass
@@ -116,7 +162,8 @@ class Detector:
 
     models: OpenVINO folders or .pt files (must exist). classes: the vehicle classes a target may be matched
     with. conf: lowest confidence kept (low, so that a weak hit scores its confidence instead of 0).
-    imgsz: network input size in pixels. device: torch/ultralytics device string.
+    imgsz: network input size in pixels. device: torch/ultralytics device string. threads: OpenVINO inference
+    threads (0: its default).
     """
 
     models: Sequence[str | Path]
@@ -124,6 +171,7 @@ class Detector:
     conf: float = 0.05
     imgsz: int = 640
     device: str = "cpu"
+    threads: int = 0
     names: list[str] = field(init=False)
     paths: list[Path] = field(init=False)
     _models: list[Any] = field(init=False, repr=False)
@@ -138,7 +186,7 @@ class Detector:
             model_format(path)  # fail on a bad path before spending seconds loading the others
         self.classes = tuple(self.classes)
         self.names = _unique([model_label(p) for p in self.paths])
-        self._models = [load_model(p, self.imgsz, self.device) for p in self.paths]
+        self._models = [load_model(p, self.imgsz, self.device, self.threads) for p in self.paths]
         for path, model in zip(self.paths, self._models):
             unknown = set(self.classes) - set(model.names.values())
             if unknown:
@@ -146,10 +194,9 @@ class Detector:
                                   "detector.classes")
 
     @classmethod
-    def from_config(cls, conf: Any) -> Detector:
+    def from_config(cls, conf: Any, threads: int = 0) -> Detector:
         """From a `DetectorConf` (Hydra node): model entries resolved against the models dir."""
-        return cls([resolve_model(m) for m in conf.models], classes=tuple(conf.classes), conf=float(conf.conf),
-                   imgsz=int(conf.imgsz), device=str(getattr(conf, "device", "cpu")))
+        return cls(**spec_from_config(conf), threads=threads)
 
     def detect(self, rgb: np.ndarray) -> list[ModelDetections]:
         """All classes' detections per model (non-vehicle classes are kept: they count as false positives)."""
@@ -172,6 +219,12 @@ class Detector:
                 ms=ms,
             ))
         return out
+
+
+def spec_from_config(conf: Any) -> dict[str, Any]:
+    """`Detector` arguments from a `DetectorConf`, as plain picklable values (a child process rebuilds it)."""
+    return {"models": [resolve_model(m) for m in conf.models], "classes": tuple(conf.classes),
+            "conf": float(conf.conf), "imgsz": int(conf.imgsz), "device": str(getattr(conf, "device", "cpu"))}
 
 
 def _unique(names: Iterable[str]) -> list[str]:

@@ -1,0 +1,97 @@
+"""Shared by the benchmarks: a job's pieces built as `run_experiment` builds them, without Hydra's run or MLflow,
+plus the machine description and CPU-time helpers the tables print."""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from garage_exp import app  # noqa: F401 - registers the config schema and the garage_root resolver
+from garage_exp.paths import PROJECT_ROOT
+
+
+def compose(overrides: list[str]):
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        return hydra_compose("config", overrides=app.quote_numeric_choices(overrides))
+
+
+@dataclass
+class Job:
+    cfg: object
+    scene: object
+    setup: object
+    renderer: object
+    sensor: object
+
+    def frames(self, n: int | None = None):
+        """The job's rendered frames (first n shots), as the experiment's render stage yields them."""
+        from garage_exp.experiment import render_frames
+
+        setup = self.setup if n is None else replace(self.setup, shots=self.setup.shots[:n])
+        return render_frames(self.cfg, self.scene, setup, self.renderer, self.sensor,
+                             np.random.default_rng(self.cfg.seed + 1))
+
+
+def build_job(overrides: list[str]) -> Job:
+    from garage_exp.assets.vehicles import VehicleLibrary
+    from garage_exp.experiment import build_scene
+    from garage_exp.plan import classify, load_plan
+    from garage_exp.render import get_renderer
+    from garage_exp.sensor import make_sensor
+
+    cfg = compose(overrides)
+    classified = classify(load_plan(app.resolve_plan_path(cfg.plan)))
+    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    renderer = get_renderer(max_lights=cfg.renderer.max_lights, shadows=cfg.renderer.shadows)
+    renderer.load(scene)
+    job = Job(cfg, scene, setup, renderer, make_sensor(cfg.sensor))
+    for _ in job.frames(1):  # the first frame compiles the shaders: a start-up cost, not a per-frame one
+        pass
+    return job
+
+
+def cpu_seconds(pids: list[int] | None = None) -> float:
+    """User + system CPU time of this process, or of the given processes (psutil), so far."""
+    if not pids:
+        t = os.times()
+        return t.user + t.system
+    import psutil
+
+    return sum(sum(psutil.Process(p).cpu_times()[:2]) for p in pids)
+
+
+def timed(fn, pids: list[int] | None = None) -> tuple[float, float]:
+    """Wall-clock seconds of fn() and the cores it kept busy on average (CPU seconds / wall seconds)."""
+    c0, t0 = cpu_seconds(pids), time.perf_counter()
+    fn()
+    wall = time.perf_counter() - t0
+    return wall, (cpu_seconds(pids) - c0) / wall
+
+
+def median(values: list[float]) -> float:
+    return statistics.median(values)
+
+
+def machine() -> str:
+    model = platform.processor() or "unknown CPU"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores, {model}, {platform.system()} {platform.release()}"
+
+
+def load() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min) {five:.2f} (5 min)"

@@ -1,0 +1,296 @@
+"""Detection beside rendering: the detectors run in a child process while the job renders the next frame.
+
+Why a process and not a thread: SAPIEN's `take_picture` holds the GIL for the whole render (a Python thread
+spinning beside it ran at 5% of its idle rate), so a detection thread stalls whenever it needs Python between
+OpenVINO calls; overlapped frames measured no faster than serial ones. A child has its own GIL.
+
+One child per process (`open_detector`), kept across jobs like the renderer, so a sweep worker loads the
+models once. Frames go down a pipe (0.9 MB at 640x480, about a millisecond); detections come back pickled. The
+child answers requests in order, so results are the frames' in submission order and every result is computed
+from its frame alone: overlap cannot change a confidence.
+
+`GARAGE_EXP_DETECT_PROCESS=0` runs the same interface in-process and serially: submit() only queues, result()
+detects.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+from collections import deque
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+
+from garage_exp.errors import GarageError
+
+log = logging.getLogger("garage_exp")
+
+
+def cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 2
+
+
+# OpenVINO threads in the child: half the cores, the renderer beside it keeps the rest busy. On 2 cores one
+# thread detects at 0.104 CPU s a frame against 0.125 with two (benchmarks/RESULTS.md), so the pair wastes
+# less. GARAGE_EXP_OV_THREADS overrides (0: OpenVINO's default, all cores).
+DEFAULT_THREADS = max(1, cores() // 2)
+
+
+class InlineDetector:
+    """The serial fallback: detection on the calling thread when its result is asked for."""
+
+    def __init__(self, spec: dict[str, Any], threads: int = 0):
+        from garage_exp.detect.detector import Detector
+
+        self._detector = Detector(**spec, threads=threads)
+        self.names = self._detector.names
+        self._queue: deque[np.ndarray] = deque()
+
+    def submit(self, rgb: np.ndarray) -> None:
+        self._queue.append(rgb)
+
+    def result(self) -> list:
+        return self._detector.detect(self._queue.popleft())
+
+    def drain(self) -> None:
+        self._queue.clear()
+
+    abandon = drain
+
+
+class DetectorProcess:
+    """A child process holding a `Detector`: `submit(rgb)` sends a frame, `result()` returns the oldest one's
+    detections. Reconfigure with `load(spec)`; the child keeps every model it loaded."""
+
+    def __init__(self, threads: int = DEFAULT_THREADS):
+        # A plain `python -m garage_exp.detect.worker` rather than multiprocessing: a spawn child re-imports the
+        # parent's __main__ and inherits its start method, and inside a joblib (loky) worker that method is
+        # "loky", which a spawn child cannot set up. Requests travel over a socket pair as pickles.
+        ours, theirs = socket.socketpair()
+        self._proc = subprocess.Popen([sys.executable, "-m", "garage_exp.detect.worker", str(theirs.fileno()),
+                                       str(threads)], pass_fds=(theirs.fileno(),))
+        theirs.close()
+        self._conn = Connection(ours.detach())
+        self.threads = threads
+        self._spec: dict[str, Any] | None = None
+        self._names: list[str] | None = None
+        self._loading = False
+        self._pending = 0  # frames sent and not yet answered
+
+    def load(self, spec: dict[str, Any]) -> None:
+        """Ask the child for these detectors; returns at once (loading overlaps the caller's start-up)."""
+        self.drain()
+        if spec == self._spec and not self._loading and self._names is not None:
+            return
+        self._send(("load", spec))
+        self._spec, self._names, self._loading = spec, None, True
+
+    @property
+    def names(self) -> list[str]:
+        """The models' names; waits for loading to finish (raises its GarageError)."""
+        if self._loading:
+            self._loading = False
+            self._names = self._receive()
+        if self._names is None:
+            raise RuntimeError("no detectors loaded: the last load failed")
+        return self._names
+
+    def submit(self, rgb: np.ndarray) -> None:
+        self.names  # noqa: B018 - a loading error surfaces here, not as a frame's result
+        self._send(("detect", rgb))
+        self._pending += 1
+
+    def result(self) -> list:
+        if self._pending <= 0:
+            raise RuntimeError("no detection pending")
+        self._pending -= 1
+        return self._receive()
+
+    def drain(self) -> None:
+        """Read and drop unanswered answers (after a failed job), so the next job starts in step. Called while
+        the job's own error propagates, so it raises nothing but a new Ctrl-C."""
+        try:
+            if self._loading:
+                try:
+                    self.names  # noqa: B018
+                except GarageError:
+                    pass
+            while self._pending > 0:
+                try:
+                    self.result()
+                except GarageError:
+                    pass
+        except Exception:  # noqa: BLE001 - a dead or confused child: the next job starts a new one
+            self._discard()
+
+    def abandon(self) -> None:
+        """Ctrl-C: stop the child now rather than wait for its frame or its models (a new one serves the next
+        job)."""
+        self._discard()
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def alive(self) -> bool:
+        return self._proc.poll() is None
+
+    def _discard(self) -> None:
+        """Kill the child: after an interrupted exchange the pipe is out of step and cannot be trusted."""
+        global _WORKER
+        if _WORKER is self:
+            _WORKER = None
+        self._pending, self._loading, self._names = 0, False, None
+        if self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        self._conn.close()
+
+    def close(self) -> None:
+        if self._conn.closed:
+            return
+        try:
+            self._conn.send(("exit", None))
+        except (OSError, ValueError):
+            pass
+        try:
+            self._proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+        self._conn.close()
+
+    def _send(self, message) -> None:
+        try:
+            self._conn.send(message)
+        except (OSError, ValueError) as exc:
+            raise self._died() from exc
+        except BaseException:  # Ctrl-C half-way through a frame
+            self._discard()
+            raise
+
+    def _receive(self):
+        try:
+            status, payload, records = self._conn.recv()
+        except (EOFError, OSError) as exc:
+            raise self._died() from exc
+        except BaseException:  # Ctrl-C half-way through an answer
+            self._discard()
+            raise
+        for level, message in records:  # the child's log lines go to the job's log, as they did in-process
+            log.log(level, message)
+        if status == "ok":
+            return payload
+        kind, message, where = payload
+        if kind == "GarageError":
+            raise GarageError(message, where)
+        raise RuntimeError(f"detector process: {kind}: {message}")
+
+    def _died(self) -> RuntimeError:
+        code = self._proc.poll()
+        self._discard()  # the next job starts a new child
+        return RuntimeError(f"the detector process died (exit code {code})")
+
+
+def _serve(conn, threads: int) -> None:
+    """The child's loop: one request, one answer, in order."""
+    # Ctrl-C and SIGTERM (sent to the whole group by a terminal or a scheduler) are the parent's to handle: it
+    # stops this child itself, and if it dies outright the pipe's end-of-file ends this loop.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    from garage_exp.detect.detector import Detector
+
+    records = _Collect()
+    log.addHandler(records)
+    log.setLevel(logging.INFO)
+    detector = None
+    while True:
+        try:
+            kind, payload = conn.recv()
+        except (EOFError, OSError):
+            return  # the parent is gone
+        if kind == "exit":
+            return
+        try:
+            if kind == "load":
+                detector = None  # a failed load must not leave the previous job's detectors in place
+                detector = Detector(**payload, threads=threads)
+                answer = detector.names
+            else:
+                answer = detector.detect(payload)
+            reply = ("ok", answer)
+        except GarageError as exc:
+            message = str(exc)[len(f"{exc.where}: "):] if exc.where else str(exc)
+            reply = ("error", ("GarageError", message, exc.where))
+        except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it in the job
+            reply = ("error", (type(exc).__name__, str(exc), None))
+        conn.send((*reply, records.take()))
+
+
+class _Collect(logging.Handler):
+    """Keeps the child's log records for the next answer."""
+
+    def __init__(self):
+        super().__init__(logging.INFO)
+        self._records: list[tuple[int, str]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self._records.append((record.levelno, record.getMessage()))
+
+    def take(self) -> list[tuple[int, str]]:
+        out, self._records = self._records, []
+        return out
+
+
+_WORKER: DetectorProcess | None = None
+
+
+def configured_threads() -> int:
+    raw = os.environ.get("GARAGE_EXP_OV_THREADS", str(DEFAULT_THREADS))
+    try:
+        return max(0, int(raw))
+    except ValueError:
+        raise GarageError(f"GARAGE_EXP_OV_THREADS must be an integer, got {raw!r}", "environment") from None
+
+
+def use_process() -> bool:
+    return os.environ.get("GARAGE_EXP_DETECT_PROCESS", "1").strip().lower() not in ("0", "false", "no")
+
+
+def open_detector(spec: dict[str, Any]) -> DetectorProcess | InlineDetector:
+    """The process's detector child, loading `spec` (started on first use, reused by later jobs)."""
+    global _WORKER
+    from garage_exp.detect.detector import model_format
+
+    for path in spec["models"]:
+        model_format(path)  # a bad path fails now, in the parent, as it did before detection had a child
+    threads = configured_threads()
+    if not use_process():
+        return InlineDetector(spec, threads=0)  # serial: nothing runs beside it, so OpenVINO takes all cores
+    if _WORKER is not None and (not _WORKER.alive() or _WORKER.threads != threads):
+        _WORKER.close()
+        _WORKER = None
+    if _WORKER is None:
+        _WORKER = DetectorProcess(threads)
+    _WORKER.load(spec)
+    return _WORKER
+
+
+@atexit.register
+def _close_worker() -> None:
+    if _WORKER is not None:
+        _WORKER.close()  # without this the child still exits, on end-of-file, once this process is gone
+
+
+if __name__ == "__main__":
+    _serve(Connection(int(sys.argv[1])), int(sys.argv[2]))
