@@ -39,6 +39,7 @@ def child_runs(mlc, parent_run_id: str, resumed: list[str] = ()) -> pd.DataFrame
         max_results=10000))
     known = {r.info.run_id for r in runs}
     runs = list(runs) + [tracking.retry(lambda r=r: mlc.get_run(r)) for r in resumed if r not in known]
+    runs.sort(key=lambda r: r.info.start_time or 0)  # the sweep's own order, for the tables' columns
     skipped = set(resumed)
     rows = []
     for r in runs:

@@ -59,7 +59,9 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
 
 
 def _metric_key(label: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "_-." else "_" for ch in str(label))
+    """An MLflow-safe name that still reads like the label: "close=large,far=small" -> "close-large/far-small"."""
+    text = str(label).replace("=", "-").replace(",", "/")
+    return "".join(ch if ch.isalnum() or ch in "_-./" else "_" for ch in text)
 
 
 def one_line(cfg, summary: dict, frames: int) -> str:
