@@ -371,6 +371,9 @@ def cli(argv: list[str] | None = None) -> None:
             print(f"garage_exp: {'terminated (SIGTERM)' if terminated else 'interrupted'}; rerun the same "
                   "command with resume=true to finish the sweep", file=sys.stderr)
             sys.exit(128 + (signal.SIGTERM if terminated else signal.SIGINT))
+        if isinstance(exc, ValueError) and str(exc).startswith("Only one of --run"):  # Hydra's own flag check
+            print(f"garage_exp: {exc} (--cfg prints a single job's config: drop -m)", file=sys.stderr)
+            sys.exit(2)
         raise
     finally:
         signal.signal(signal.SIGTERM, previous)
