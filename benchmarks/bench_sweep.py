@@ -144,6 +144,7 @@ def main() -> None:
             serial["joblib"] = run(["-m", *SWEEP, *extra, *joblib], tmp, "joblib_serial", off)
         one = job_durations(tmp, "one")
         basic = job_durations(tmp, "basic")
+        in_joblib = job_durations(tmp, "joblib")
     print(f"{'job (basic sweep)':>28} {'seconds':>8}")
     for run_name, secs, _ in basic:
         print(f"{run_name:>28} {secs:>8.2f}")
@@ -174,6 +175,8 @@ def main() -> None:
               f"peak GB per worker {max(sb.peak.values()) / 2**30:.2f}, {max(sj.peak.values()) / 2**30:.2f})")
         print(f"{'overlap gain, basic: serial/now':>34} {wb / w_basic:>10.2f}")
         print(f"{'overlap gain, joblib: serial/now':>34} {wj / w_joblib:>10.2f}")
+    print(f"# sum of job runs: basic {sum(d for _, d, _ in basic):.1f} s, joblib {sum(d for _, d, _ in in_joblib):.1f} s "
+          f"(two at a time: each job takes longer when it shares the cores)")
     print(f"# walls: one {w_one:.1f} s, basic {w_basic:.1f} s, joblib {w_joblib:.1f} s; sum of steady-state "
           f"{total_steady:.1f} s; peak total RSS basic {s_basic.peak_total / 2**30:.2f} GB, joblib "
           f"{s_joblib.peak_total / 2**30:.2f} GB")

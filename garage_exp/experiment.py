@@ -129,17 +129,14 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     from garage_exp.assets.vehicles import VehicleLibrary
     from garage_exp.detect import score_target
     from garage_exp.detect.detector import spec_from_config
-    from garage_exp.detect.worker import DetectorProcess, cores, open_detector
+    from garage_exp.detect.worker import open_detector
     from garage_exp.render import get_renderer
-    from garage_exp.render.device import share_cores
     from garage_exp.scene.gltf import export_glb
     from garage_exp.sensor import make_sensor
 
     # First, so that the models load in the detector's process while this one builds and loads the scene and
     # compiles its shaders (the first frame).
     detector = open_detector(spec_from_config(cfg.detector))
-    if isinstance(detector, DetectorProcess) and detector.threads > 0:
-        share_cores(max(1, cores() - detector.threads))  # the rest of the cores render
     rng = np.random.default_rng(cfg.seed)
     library = VehicleLibrary()
     scene, setup = build_scene(cfg, classified, library, rng)

@@ -25,18 +25,6 @@ _checked: str | None = None  # the device summary once a device was found
 _engine: object | None = None
 
 
-def share_cores(render_threads: int) -> None:
-    """Give lavapipe this many rasteriser threads (LP_NUM_THREADS) when detection runs beside rendering.
-
-    With one thread each for rendering and detection on 2 cores the pipeline measured 4-8% faster than with
-    lavapipe on all cores, and the pictures are the same bit for bit (benchmarks/RESULTS.md). Mesa reads the
-    variable once, when the device is made, so this does nothing after the first scene of a process, and a
-    user's own LP_NUM_THREADS wins.
-    """
-    if _checked is None and render_threads > 0 and "LP_NUM_THREADS" not in os.environ:
-        os.environ["LP_NUM_THREADS"] = str(render_threads)
-
-
 def gpu_present() -> bool:
     """True when a GPU device node exists: NVIDIA's (with its ICD) or a DRM render node (Mesa drivers)."""
     if glob.glob("/dev/nvidia[0-9]*") and any(glob.glob(f"{d}/nvidia*.json") for d in ICD_DIRS):
