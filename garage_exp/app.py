@@ -23,7 +23,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from garage_exp import config as schema
 from garage_exp import tracking
-from garage_exp.errors import GarageError
+from garage_exp.config import FOVY_RANGE, RESOLUTION_RANGE
+from garage_exp.errors import GarageError, check_range
 from garage_exp.paths import OUTPUTS_DIR, PLANS_DIR, PROJECT_ROOT
 
 log = logging.getLogger("garage_exp")
@@ -102,15 +103,6 @@ def _library():
     return _CACHE[("library", root)]
 
 
-def _in_range(value, lo: float, hi: float, where: str, what: str = "") -> None:
-    try:
-        ok = lo <= float(value) <= hi
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise GarageError(f"{what or value} is outside {lo:g}-{hi:g}", where)
-
-
 def check_config(cfg: DictConfig) -> None:
     """Value checks that need neither the plan nor the assets (the schema already checked the types)."""
     from garage_exp.detect.matching import MATCH_MODES
@@ -124,13 +116,13 @@ def check_config(cfg: DictConfig) -> None:
             raise GarageError(f"{value} is negative (seeds are >= 0)", key)
     check_garage(cfg.garage)
     check_light(cfg.light)
-    _in_range(cfg.palette.parked_occupancy, 0.0, 1.0, "palette.parked_occupancy")
+    check_range(cfg.palette.parked_occupancy, 0.0, 1.0, "palette.parked_occupancy")
     if not cfg.camera.cameras:
         raise GarageError("the rig has no camera", "camera.cameras")
-    for k, cam in enumerate(cfg.camera.cameras):  # the same limits as experiment.cameras()
-        _in_range(cam.fovy, 1.0, 170.0, f"camera.cameras.{k}.fovy", f"fovy {cam.fovy} degrees")
+    for k, cam in enumerate(cfg.camera.cameras):
+        check_range(cam.fovy, *FOVY_RANGE, f"camera.cameras.{k}.fovy", f"fovy {cam.fovy} degrees")
         for side in ("width", "height"):
-            _in_range(cam[side], 16, 4096, f"camera.cameras.{k}.{side}", f"{side} {cam[side]} px")
+            check_range(cam[side], *RESOLUTION_RANGE, f"camera.cameras.{k}.{side}", f"{side} {cam[side]} px")
     if cfg.case.kind in ("corner", "pass", "parked") and not float(cfg.case.step) > 0:
         raise GarageError(f"step must be positive, got {cfg.case.step}", "case.step")
     det = cfg.detector
@@ -140,13 +132,13 @@ def check_config(cfg: DictConfig) -> None:
         raise GarageError(f"conf {det.conf} is outside [0, 1)", "detector.conf")
     if not 0.0 < float(det.iou) <= 1.0:
         raise GarageError(f"iou {det.iou} is outside (0, 1]", "detector.iou")
-    _in_range(det.threshold, 0.0, 1.0, "detector.threshold")
-    _in_range(det.imgsz, 32, 4096, "detector.imgsz")
+    check_range(det.threshold, 0.0, 1.0, "detector.threshold")
+    check_range(det.imgsz, 32, 4096, "detector.imgsz")
     if det.match not in MATCH_MODES:
         raise GarageError(f"unknown match {det.match!r} ({' | '.join(MATCH_MODES)})", "detector.match")
     if cfg.renderer.backend != "sapien":
         raise GarageError(f"unknown backend {cfg.renderer.backend!r} (sapien)", "renderer.backend")
-    _in_range(cfg.renderer.max_lights, 1, 10, "renderer.max_lights")
+    check_range(cfg.renderer.max_lights, 1, 10, "renderer.max_lights")
     if cfg.renderer.save_frames not in ("all", "key", "none"):
         raise GarageError(f"unknown save_frames {cfg.renderer.save_frames!r} (all | key | none)",
                           "renderer.save_frames")

@@ -7,3 +7,13 @@ class GarageError(Exception):
     def __init__(self, message: str, where: str | None = None):
         self.where = where
         super().__init__(f"{where}: {message}" if where else message)
+
+
+def check_range(value, lo: float, hi: float, where: str, what: str = "") -> None:
+    """GarageError naming `where` unless lo <= value <= hi (a non-number is out of range too)."""
+    try:
+        ok = lo <= float(value) <= hi
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise GarageError(f"{what or value} is outside {lo:g}-{hi:g}", where)

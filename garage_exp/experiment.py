@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +19,8 @@ from omegaconf import DictConfig
 
 from garage_exp import results
 from garage_exp.cases import CaseSetup, Shot, make_case
-from garage_exp.errors import GarageError
+from garage_exp.config import FOVY_RANGE, RESOLUTION_RANGE
+from garage_exp.errors import GarageError, check_range
 from garage_exp.groundtruth import VehicleTruth
 from garage_exp.plan.classify import Classified
 from garage_exp.scene.description import CameraSpec, Pose, Scene
@@ -58,11 +59,9 @@ def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:
     roof = ego.extent[2] if cfg.camera.roof else 0.0
     out = []
     for cam in cfg.camera.cameras:
-        if not 1.0 <= cam.fovy <= 170.0:
-            raise GarageError(f"fovy {cam.fovy} is outside 1-170 degrees", f"camera.cameras.{cam.name}.fovy")
-        if cam.width < 16 or cam.height < 16 or cam.width > 4096 or cam.height > 4096:
-            raise GarageError(f"resolution {cam.width}x{cam.height} is outside 16-4096 px",
-                              f"camera.cameras.{cam.name}")
+        check_range(cam.fovy, *FOVY_RANGE, f"camera.cameras.{cam.name}.fovy", f"fovy {cam.fovy} degrees")
+        for side in ("width", "height"):
+            check_range(cam[side], *RESOLUTION_RANGE, f"camera.cameras.{cam.name}.{side}", f"{side} {cam[side]} px")
         out.append(CameraSpec(cam.name, Pose(cam.x, cam.y, roof + cam.z, cam.yaw), pitch=cam.pitch, fovy=cam.fovy,
                               width=cam.width, height=cam.height))
     return out

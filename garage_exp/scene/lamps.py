@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.errors import GarageError, check_range
 from garage_exp.plan.classify import Cell, Classified
 from garage_exp.scene import materials as mat
 from garage_exp.scene.bays import BAY_TYPES, Rect, overlap, pillar_rect, pillars_by_vertex
@@ -142,8 +142,7 @@ def lit(n: int, coverage: float, seed: int) -> list[bool]:
 def check_light(light) -> None:
     for name, lo, hi in (("coverage", 0.0, 1.0), ("intensity", 0.0, 1000.0), ("ambient", 0.0, 1.0)):
         value = float(getattr(light, name))
-        if not lo <= value <= hi:
-            raise GarageError(f"{name} = {value:g} is outside {lo:g}-{hi:g}", f"light.{name}")
+        check_range(value, lo, hi, f"light.{name}", f"{name} = {value:g}")
     colour = tuple(float(c) for c in light.colour)
     if len(colour) != 3 or not all(0.0 <= c <= 1.0 for c in colour):
         raise GarageError(f"colour {list(colour)} must be three values in 0-1", "light.colour")

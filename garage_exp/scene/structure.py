@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from garage_exp.errors import GarageError
+from garage_exp.errors import GarageError, check_range
 from garage_exp.plan.classify import Cell, Classified
 from garage_exp.plan.model import OPPOSITE
 from garage_exp.scene import materials as mat
@@ -33,8 +33,7 @@ GARAGE_RANGES = (
 def check_garage(garage) -> None:
     for name, lo, hi in GARAGE_RANGES:
         value = float(getattr(garage, name))
-        if not lo <= value <= hi:
-            raise GarageError(f"{name} = {value:g} is outside {lo:g}-{hi:g}", f"garage.{name}")
+        check_range(value, lo, hi, f"garage.{name}", f"{name} = {value:g}")
     size = tuple(float(v) for v in garage.lamp_size)
     if len(size) != 2 or not all(0.05 <= v <= 5.0 for v in size):
         raise GarageError(f"lamp_size {list(size)} must be two lengths in 0.05-5 m", "garage.lamp_size")
