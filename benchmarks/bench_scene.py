@@ -47,7 +47,7 @@ def main() -> None:
     args = parser.parse_args()
     renderer = None
     if not args.no_render:
-        from garage_exp.render import get_renderer
+        from garage_exp.render.sapien_backend import get_renderer
 
         renderer = get_renderer()
         renderer.load(build_garage(classify(grid_plan(4)), GarageConf(), LightConf()))  # Vulkan start-up

@@ -44,7 +44,7 @@ def build_job(overrides: list[str]) -> Job:
     from garage_exp.assets.vehicles import VehicleLibrary
     from garage_exp.experiment import build_scene
     from garage_exp.plan import classify, load_plan
-    from garage_exp.render import get_renderer
+    from garage_exp.render.sapien_backend import get_renderer
     from garage_exp.sensor import make_sensor
 
     cfg = compose(overrides)

@@ -65,7 +65,7 @@ def check_sweep(config: DictConfig) -> list[list[str]] | None:
         return None
     from hydra.core.global_hydra import GlobalHydra
 
-    from garage_exp.app import preflight
+    from garage_exp.preflight import preflight
 
     loader = GlobalHydra.instance().config_loader()
     for k, job in enumerate(jobs):
@@ -92,7 +92,7 @@ def _fatal(method):
             import sys
             import traceback
 
-            from garage_exp.app import EXIT_INPUT, input_error
+            from garage_exp.cli_errors import EXIT_INPUT, input_error
 
             line = input_error(exc)
             if line is not None:

@@ -135,8 +135,10 @@ class DetectorConf:
 
 @dataclass
 class RendererConf:
+    """The renderer: `_target_` names the backend's factory `make(conf) -> garage_exp.render.Renderer`."""
+
     name: str = "sapien"
-    backend: str = "sapien"
+    _target_: str = "garage_exp.render.sapien_backend.make"
     max_lights: int = 8
     shadows: bool = False
     save_frames: str = "key"  # all | key | none

@@ -19,10 +19,10 @@ from omegaconf import DictConfig
 
 from garage_exp import results
 from garage_exp.cases import CaseSetup, Shot, make_case
-from garage_exp.config import FOVY_RANGE, RESOLUTION_RANGE
-from garage_exp.errors import GarageError, check_range
+from garage_exp.errors import GarageError
 from garage_exp.groundtruth import VehicleTruth
 from garage_exp.plan.classify import Classified
+from garage_exp.scene.camera import rig_specs
 from garage_exp.scene.description import CameraSpec, Pose, Scene
 
 log = logging.getLogger("garage_exp")
@@ -56,15 +56,7 @@ def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[
 
 def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:
     ego = next(v for v in setup.vehicles if v.role == "ego")
-    roof = ego.extent[2] if cfg.camera.roof else 0.0
-    out = []
-    for cam in cfg.camera.cameras:
-        check_range(cam.fovy, *FOVY_RANGE, f"camera.cameras.{cam.name}.fovy", f"fovy {cam.fovy} degrees")
-        for side in ("width", "height"):
-            check_range(cam[side], *RESOLUTION_RANGE, f"camera.cameras.{cam.name}.{side}", f"{side} {cam[side]} px")
-        out.append(CameraSpec(cam.name, Pose(cam.x, cam.y, roof + cam.z, cam.yaw), pitch=cam.pitch, fovy=cam.fovy,
-                              width=cam.width, height=cam.height))
-    return out
+    return rig_specs(cfg.camera, ego.extent[2])
 
 
 @dataclass
@@ -129,7 +121,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     from garage_exp.detect import score_target
     from garage_exp.detect.detector import spec_from_config
     from garage_exp.detect.worker import open_detector
-    from garage_exp.render import get_renderer
+    from garage_exp.render import open_renderer
     from garage_exp.scene.gltf import export_glb
     from garage_exp.sensor import make_sensor
 
@@ -140,7 +132,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     library = VehicleLibrary()
     scene, setup = build_scene(cfg, classified, library, rng)
     sensor = make_sensor(cfg.sensor)
-    renderer = get_renderer(max_lights=cfg.renderer.max_lights, shadows=cfg.renderer.shadows)
+    renderer = open_renderer(cfg.renderer)
     renderer.load(scene)
     glb = export_glb(scene, out / "scene.glb")
     run.log_artifact(glb)

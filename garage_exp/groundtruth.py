@@ -29,6 +29,7 @@ from typing import Literal
 import numpy as np
 
 from garage_exp.render import Frame
+from garage_exp.scene.camera import to_camera, to_pixels
 from garage_exp.scene.description import Box, Entity, Pose, Scene
 
 BoxXYXY = tuple[int, int, int, int]
@@ -121,12 +122,10 @@ def world_corners(entity: Entity, pose: Pose) -> np.ndarray | None:
 
 def projected_truncation(frame: Frame, corners: np.ndarray, near: float = 0.05) -> float:
     """Share of the projected 3D box's rectangle outside the image (1.0 when it is behind the camera)."""
-    local = (corners - frame.cam_to_world[:3, 3]) @ frame.cam_to_world[:3, :3]
-    points = _clip_near(local, near)
+    points = _clip_near(to_camera(frame.cam_to_world, corners), near)
     if len(points) == 0:
         return 1.0
-    u = frame.cx - frame.fx * points[:, 1] / points[:, 0]
-    v = frame.cy - frame.fy * points[:, 2] / points[:, 0]
+    u, v = to_pixels(points, frame.intrinsics)
     area = (u.max() - u.min()) * (v.max() - v.min())
     if area <= 0:
         return 1.0

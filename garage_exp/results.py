@@ -216,6 +216,6 @@ def _vehicle_kind(scene, name: str) -> str:
         entity = scene.entity(name)
     except KeyError:
         return "car"
-    from garage_exp.assets.vehicles import kind_of
+    from garage_exp.scene.kinds import kind_of
 
     return kind_of(entity.model or "")

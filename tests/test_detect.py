@@ -8,7 +8,7 @@ import pytest
 
 from garage_exp.detect import GTBox, ModelDetections, iou, model_format, score_target
 from garage_exp.detect import detector as detector_module
-from garage_exp.detect import offline
+from garage_exp import offline
 from garage_exp.errors import GarageError
 
 DEFAULT_MODELS = ("yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model", "yolo26n_int8_openvino_model")

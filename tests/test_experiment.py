@@ -51,7 +51,7 @@ def pipeline():
     """The process's renderer and the default detectors (paid once for the module)."""
     _skip_without_backends()
     from garage_exp.detect import Detector
-    from garage_exp.render import get_renderer
+    from garage_exp.render.sapien_backend import get_renderer
 
     cfg = compose_cfg()
     return get_renderer(max_lights=cfg.renderer.max_lights), Detector.from_config(cfg.detector)

@@ -18,7 +18,8 @@ from garage_exp.groundtruth import (
     projected_truncation,
     world_corners,
 )
-from garage_exp.render import Frame, camera_to_world, intrinsics_of
+from garage_exp.render import Frame
+from garage_exp.scene.camera import camera_to_world, intrinsics_of
 from garage_exp.scene.description import Box, CameraSpec, Entity, Material, Pose, Scene
 
 W, H = 640, 480

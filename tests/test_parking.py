@@ -81,11 +81,13 @@ def test_parked_classes_are_respected(library):
     assert cars and {c.size_class for c in cars} == {"small"}
 
 
-def test_bad_occupancy_is_one_line(library):
+def test_bad_occupancy_is_one_line():
     from garage_exp.errors import GarageError
+    from garage_exp.scene.parking import check_palette
 
-    with pytest.raises(GarageError, match="parked_occupancy"):
-        park("research", 1.5, 0, library)
+    with pytest.raises(GarageError, match="parked_occupancy") as info:
+        check_palette(PaletteConf(parked_occupancy=1.5))
+    assert "\n" not in str(info.value)
 
 
 def test_case_3_cars_stand_in_the_bays_beside_the_lane(library):

@@ -227,7 +227,7 @@ def test_override_value_is_never_evaluated(tmp_path):
 def test_bad_input_in_a_single_run_leaves_no_run_dir(tmp_path):
     """Hydra makes the run dir before the job starts; a job refused for bad input removes it again (only
     when it holds nothing but Hydra's own files)."""
-    from garage_exp.app import _remove_untouched
+    from garage_exp.job import _remove_untouched
 
     hydra_only = tmp_path / "a"
     (hydra_only / ".hydra").mkdir(parents=True)

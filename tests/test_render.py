@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from garage_exp.groundtruth import ground_truth
-from garage_exp.render import BLANK_GREY, get_renderer
+from garage_exp.render import BLANK_GREY
+from garage_exp.render.sapien_backend import get_renderer
 from garage_exp.render.device import INSTALL_HINT, device_problem
 from garage_exp.scene.description import Box, CameraSpec, Entity, Light, Material, Mesh, Pose, Scene
 
@@ -162,7 +163,7 @@ def test_a_box_straight_ahead_is_at_the_image_centre(renderer, yaw, pitch):
 
 
 def camera_pose_of(scene: Scene) -> np.ndarray:
-    from garage_exp.render import camera_to_world
+    from garage_exp.scene.camera import camera_to_world
 
     return camera_to_world(scene.entity("ego").pose, scene.cameras[0])
 

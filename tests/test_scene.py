@@ -374,8 +374,12 @@ def test_accepts_hydra_configs():
     (GARAGE, LightConf(intensity=-1.0), "light.intensity"),
 ])
 def test_bad_factors_raise_one_line(garage, light, where):
+    from garage_exp.scene.lamps import check_light
+    from garage_exp.scene.structure import check_garage
+
     with pytest.raises(GarageError) as info:
-        build_garage(tiny(), garage, light)
+        check_garage(garage)
+        check_light(light)
     assert info.value.where == where and "\n" not in str(info.value)
 
 

@@ -151,7 +151,7 @@ def fetch_vehicles(force: bool = False) -> Path:
 
 def fetch_models(names: tuple[str, ...] = MODEL_WEIGHTS) -> Path:
     """Download the official Ultralytics weights into the cache's models folder; that folder."""
-    from garage_exp.detect.offline import prepare_offline
+    from garage_exp.offline import prepare_offline
 
     target = fetched_models_dir()
     target.mkdir(parents=True, exist_ok=True)

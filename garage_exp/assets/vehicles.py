@@ -33,6 +33,7 @@ from garage_exp import paths
 from garage_exp.assets.ac3d import AcFile, MeshPart, mesh_parts, nearest_lod, read_ac, to_scene
 from garage_exp.assets.locate import vehicles_dir
 from garage_exp.errors import GarageError
+from garage_exp.scene.kinds import kind_of
 
 log = logging.getLogger(__name__)
 
@@ -65,10 +66,7 @@ NOSE_FLIP: frozenset[str] = frozenset({"it_policecar1"})
 # Citroen Xsara police car 5.6 m long instead of 4.2 m, the Ducato ambulance 7.8 m instead of 5.8 m).
 SCALE: dict[str, float] = {"gr_policar1": 0.75, "gr_paramedic1": 0.75}
 
-# Name fragments, most specific first (minibus before bus, pickup before the colour words).
-_KIND_WORDS = (("minibus", "van"), ("motorhome", "van"), ("van", "van"), ("pickup", "pickup"),
-               ("dodgeram", "pickup"), ("crv", "suv"), ("bus", "bus"), ("truck", "truck"),
-               ("paramedic", "van"))
+# Name fragments, most specific first.
 _COLOUR_WORDS = (("yel", "yellow"), ("black", "black"), ("white", "white"), ("silver", "silver"), ("red", "red"),
                  ("blue", "blue"), ("green", "green"), ("yellow", "yellow"))
 
@@ -79,12 +77,6 @@ _FROM_Z_LENGTH = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _FROM_X_LENGTH = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
 _TURN = np.diag([-1.0, -1.0, 1.0])
 _WARNED: set[str] = set()  # excluded models already reported by this process
-
-
-def kind_of(name: str) -> str:
-    """The vehicle kind a model name says ('car' when it says none)."""
-    lower = name.lower()
-    return next((kind for word, kind in _KIND_WORDS if word in lower), "car")
 
 
 def colour_from_name(name: str) -> str | None:

@@ -6,7 +6,7 @@ Importing this package is cheap: ultralytics (and torch, ~5 s) load only when a 
 from garage_exp.detect.detector import Detector, ModelDetections, load_model, model_format, resolve_model
 from garage_exp.detect.matching import (MATCH_MODES, VEHICLE_CLASSES, GTBox, TargetScore, iou, iou_many,
                                         score_target)
-from garage_exp.detect.offline import prepare_offline
+from garage_exp.offline import prepare_offline
 
 __all__ = ["Detector", "ModelDetections", "load_model", "model_format", "resolve_model", "MATCH_MODES",
            "VEHICLE_CLASSES", "GTBox", "TargetScore", "iou", "iou_many", "score_target", "prepare_offline"]

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from garage_exp.detect.offline import prepare_offline
-from garage_exp.errors import GarageError
+from garage_exp.errors import GarageError, check_range
+from garage_exp.offline import prepare_offline
 
 log = logging.getLogger("garage_exp")
 OPENVINO_SUFFIX = "_openvino_model"
@@ -219,6 +219,22 @@ class Detector:
                 ms=ms,
             ))
         return out
+
+
+def check_detector(conf: Any) -> None:
+    """The `detector` group's values (that the weights exist is checked by `model_format(resolve_model(m))`)."""
+    from garage_exp.detect.matching import MATCH_MODES
+
+    if not conf.models:
+        raise GarageError("no detector models given", "detector.models")
+    if not 0.0 <= float(conf.conf) < 1.0:
+        raise GarageError(f"conf {conf.conf} is outside [0, 1)", "detector.conf")
+    if not 0.0 < float(conf.iou) <= 1.0:
+        raise GarageError(f"iou {conf.iou} is outside (0, 1]", "detector.iou")
+    check_range(conf.threshold, 0.0, 1.0, "detector.threshold")
+    check_range(conf.imgsz, 32, 4096, "detector.imgsz")
+    if conf.match not in MATCH_MODES:
+        raise GarageError(f"unknown match {conf.match!r} ({' | '.join(MATCH_MODES)})", "detector.match")
 
 
 def spec_from_config(conf: Any) -> dict[str, Any]:

@@ -39,8 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from garage_exp.errors import GarageError
-from garage_exp.render import BLANK_GREY, Frame, camera_to_world, intrinsics_of
+from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.device import ensure_device
+from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
 from garage_exp.scene.description import VEHICLE_ROLES, Box, CameraSpec, Entity, Material, Mesh, Pose, Scene
 
 # SAPIEN's point light adds albedo * colour * cos / (pi * d^2): a description intensity of 1.0 (a ~40 W LED
@@ -76,9 +77,6 @@ class SapienRenderer:
     """Renders `Scene` descriptions with SAPIEN. Reuse one instance (see `get_renderer`)."""
 
     def __init__(self, max_lights: int = 8, shadows: bool = False, batch_static: bool = True):
-        if not 1 <= max_lights <= 10:
-            raise GarageError(f"max_lights must be 1-10 (SAPIEN's default shader), got {max_lights}",
-                              "renderer.max_lights")
         self.max_lights = max_lights
         self.shadows = shadows
         self.batch_static = batch_static
@@ -395,14 +393,12 @@ def _image_rect(aabb: np.ndarray, cam_to_world: np.ndarray, spec: CameraSpec) ->
     """The image rectangle (x1, y1, x2, y2) that a world AABB can cover, or None when it misses the image."""
     lo, hi = np.asarray(aabb, dtype=float)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    local = (corners - cam_to_world[:3, 3]) @ cam_to_world[:3, :3]
+    local = to_camera(cam_to_world, corners)
     if np.all(local[:, 0] <= spec.near):
         return None
     if np.any(local[:, 0] <= spec.near):
         return 0.0, 0.0, float(spec.width), float(spec.height)  # straddles the camera: assume anywhere
-    fx, fy, cx, cy = intrinsics_of(spec)
-    u = cx - fx * local[:, 1] / local[:, 0]
-    v = cy - fy * local[:, 2] / local[:, 0]
+    u, v = to_pixels(local, intrinsics_of(spec))
     x1, x2 = max(u.min(), 0.0), min(u.max(), spec.width)
     y1, y2 = max(v.min(), 0.0), min(v.max(), spec.height)
     if x1 >= x2 or y1 >= y2:
@@ -431,13 +427,17 @@ _RENDERER: SapienRenderer | None = None
 
 
 def get_renderer(max_lights: int = 8, shadows: bool = False) -> SapienRenderer:
-    """The process's renderer; settings apply from the next `load()`."""
+    """The process's renderer (created on first call, then reused so shaders compile once per process);
+    settings apply from the next `load()`. max_lights: 1-10 (SAPIEN's default shader; render.check_renderer)."""
     global _RENDERER
     if _RENDERER is None:
         _RENDERER = SapienRenderer(max_lights=max_lights, shadows=shadows)
     else:
-        if not 1 <= max_lights <= 10:
-            raise GarageError(f"max_lights must be 1-10 (SAPIEN's default shader), got {max_lights}",
-                              "renderer.max_lights")
         _RENDERER.max_lights, _RENDERER.shadows = max_lights, shadows
     return _RENDERER
+
+
+def make(conf) -> SapienRenderer:
+    """The factory `conf/renderer/sapien.yaml` names (`_target_`): the process's renderer set up from the
+    `renderer` group."""
+    return get_renderer(max_lights=int(conf.max_lights), shadows=bool(conf.shadows))

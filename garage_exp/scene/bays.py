@@ -3,7 +3,7 @@
 A bay cell is k = max(1, floor(width along its lane edge / bay_width)) bays side by side, each running the
 cell's depth away from the lane. A pillar at one of the cell's corners narrows the bay it stands in, so a car
 centred in a `Bay` never stands in a pillar. Also home to the pillar and rectangle geometry the structure,
-lamps and markings share.
+lamps and markings share, and the beams between pillars.
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ BAY_TYPES = ("type1", "type2", "type3")
 SIDE_OF_YAW = {0.0: "E", 90.0: "N", 180.0: "W", 270.0: "S"}
 MIN_BAY_WIDTH = 1.0  # narrower than this after a pillar takes its share, it is no bay at all
 EPS = 1e-9
+BEAM_DEPTH = 0.25
+BEAM_WIDTH = 0.3  # narrower than the slimmest pillar level (0.4 m) so a beam never sticks out of one
 
 
 @dataclass(frozen=True)
@@ -148,4 +150,36 @@ def bays(classified: Classified, garage) -> list[Bay]:
         lay = layout(classified, cell, bay_width)
         if lay is not None:
             out.extend(cell_bays(classified, lay, pillar_size, by_vertex))
+    return out
+
+
+@dataclass(frozen=True)
+class Beam:
+    name: str
+    rect: Rect
+    cells: tuple[tuple[int, int], tuple[int, int]]  # the two cells whose shared edge the beam follows
+
+
+def beams(classified: Classified, garage) -> list[Beam]:
+    """Downstand beams from pillar to pillar along cell edges between two non-driveable cells (between bays),
+    where the two pillars line up. Beams never cross a lane, so the headroom over lanes stays the ceiling's."""
+    plan = classified.plan
+    size = float(garage.pillar_size)
+    by_vertex = pillars_by_vertex(classified)
+    h = BEAM_WIDTH / 2
+    out = []
+    for (a, b), p in by_vertex.items():  # classify lists pillars row by row already
+        x, y = pillar_centre(plan, p, size)
+        # Eastward along row line a: the edge between cells (a-1, b) and (a, b).
+        q = by_vertex.get((a, b + 1))
+        cells = ((a - 1, b), (a, b))
+        if q is not None and q.sy == p.sy and not any(plan.is_driveable(*c) for c in cells):
+            x2, _ = pillar_centre(plan, q, size)
+            out.append(Beam(f"beam_{a}_{b}_e", (x, y - h, x2, y + h), cells))
+        # Southward along column line b: the edge between cells (a, b-1) and (a, b).
+        q = by_vertex.get((a + 1, b))
+        cells = ((a, b - 1), (a, b))
+        if q is not None and q.sx == p.sx and not any(plan.is_driveable(*c) for c in cells):
+            _, y2 = pillar_centre(plan, q, size)
+            out.append(Beam(f"beam_{a}_{b}_s", (x - h, y2, x + h, y), cells))
     return out

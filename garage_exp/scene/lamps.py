@@ -15,9 +15,8 @@ import numpy as np
 from garage_exp.errors import GarageError, check_range
 from garage_exp.plan.classify import Cell, Classified
 from garage_exp.scene import materials as mat
-from garage_exp.scene.bays import BAY_TYPES, Rect, overlap, pillar_rect, pillars_by_vertex
+from garage_exp.scene.bays import BAY_TYPES, BEAM_DEPTH, Rect, beams, overlap, pillar_rect, pillars_by_vertex
 from garage_exp.scene.description import Box, Entity, Light, Pose
-from garage_exp.scene.structure import BEAM_DEPTH, beams
 
 PANEL_GAP = 0.05  # between the ceiling (or a beam's underside) and the panel's top
 PANEL_THICKNESS = 0.04
@@ -140,6 +139,7 @@ def lit(n: int, coverage: float, seed: int) -> list[bool]:
 
 
 def check_light(light) -> None:
+    """The `light` group's values."""
     for name, lo, hi in (("coverage", 0.0, 1.0), ("intensity", 0.0, 1000.0), ("ambient", 0.0, 1.0)):
         value = float(getattr(light, name))
         check_range(value, lo, hi, f"light.{name}", f"{name} = {value:g}")
@@ -150,8 +150,7 @@ def check_light(light) -> None:
 
 def build_lamps(classified: Classified, garage, light) -> tuple[list[Entity], list[Light]]:
     """A panel entity (role "lamp") and a point light per lamp site, both named lamp_<k>. Off lamps keep
-    their light at intensity 0 and a dark panel."""
-    check_light(light)
+    their light at intensity 0 and a dark panel. The values are checked once, by `check_light` (preflight)."""
     size = tuple(float(v) for v in garage.lamp_size)
     colour = tuple(float(c) for c in light.colour)
     intensity = float(light.intensity)

@@ -7,12 +7,12 @@ changes the scene description in place, so it works for every renderer and for t
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import replace
-from typing import Any, Callable
+from typing import Any
 
 from garage_exp.errors import GarageError
 from garage_exp.scene.description import Box, Pose, Scene
+from garage_exp.targets import check_target, resolve
 
 
 def remove_entity(scene: Scene, name: str) -> None:
@@ -75,12 +75,10 @@ def replace_conf(conf, **changes):
     return replace(conf, **changes)
 
 
-def resolve(target: str) -> Callable:
-    module, _, attr = target.rpartition(".")
-    try:
-        return getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError):
-        raise GarageError(f"cannot import scene modifier {target!r}", "_target_") from None
+def check_modifiers(modifiers: dict[str, Any]) -> None:
+    """The `modifiers` groups name only allowed functions (configs are data, see garage_exp.targets)."""
+    for group, spec in (modifiers or {}).items():
+        check_target(str((spec or {}).get("_target_") or ""), "a scene modifier", f"modifiers.{group}")
 
 
 def apply_modifiers(scene: Scene, classified, garage, modifiers: dict[str, Any]) -> None:

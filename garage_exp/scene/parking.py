@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.errors import check_range
 from garage_exp.scene.bays import Rect, bays, overlap
 from garage_exp.scene.description import Box, Entity, Mesh, Pose, Scene
 
@@ -25,14 +25,16 @@ def car_footprint(x: float, y: float, yaw: float, length: float, width: float) -
     return (x - hx, y - hy, x + hx, y + hy)
 
 
+def check_palette(palette) -> None:
+    check_range(palette.parked_occupancy, 0.0, 1.0, "palette.parked_occupancy")
+
+
 def park_vehicles(classified, garage, palette, library, rng: np.random.Generator, scene: Scene, exclude=()
                   ) -> list[Entity]:
     """Cars in round(occupancy * free bays) bays chosen at random, each aligned to its bay (nose to the lane)
     and picked from `palette.parked_classes` among the models that fit the bay, the ceiling and clear the
     scene's pillars; a bay nothing fits stays empty."""
     occupancy = float(palette.parked_occupancy)
-    if not 0.0 <= occupancy <= 1.0:
-        raise GarageError(f"parked_occupancy {occupancy} is outside 0-1", "palette.parked_occupancy")
     excluded = set(map(tuple, exclude))
     free = [b for b in bays(classified, garage) if (b.i, b.j, b.index) not in excluded]
     count = int(round(occupancy * len(free)))

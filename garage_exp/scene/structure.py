@@ -6,21 +6,18 @@ The floor's top is z = 0 (vehicles stand on it); the ceiling's underside is z = 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from garage_exp.errors import GarageError, check_range
 from garage_exp.plan.classify import Cell, Classified
 from garage_exp.plan.model import OPPOSITE
 from garage_exp.scene import materials as mat
-from garage_exp.scene.bays import Rect, pillar_centre, pillars_by_vertex
+from garage_exp.scene.bays import BEAM_DEPTH, Rect, beams, pillar_centre
 from garage_exp.scene.description import Box, Entity, Material, Pose, Scene
+from garage_exp.scene.lamps import build_lamps
 from garage_exp.scene.markings import build_markings
 
 FLOOR_DEPTH = 0.2
 WALL_BAND_HEIGHT = 1.0  # the dark band covers bumpers and mirrors
 PILLAR_BAND_HEIGHT = 1.0
-BEAM_DEPTH = 0.25
-BEAM_WIDTH = 0.3  # narrower than the slimmest pillar level (0.4 m) so a beam never sticks out of one
 
 # (name, minimum, maximum): values outside these are unit or typing mistakes.
 GARAGE_RANGES = (
@@ -31,6 +28,7 @@ GARAGE_RANGES = (
 
 
 def check_garage(garage) -> None:
+    """The `garage` group's values."""
     for name, lo, hi in GARAGE_RANGES:
         value = float(getattr(garage, name))
         check_range(value, lo, hi, f"garage.{name}", f"{name} = {value:g}")
@@ -155,38 +153,6 @@ def build_walls(classified: Classified, garage) -> list[Entity]:
     return out
 
 
-@dataclass(frozen=True)
-class Beam:
-    name: str
-    rect: Rect
-    cells: tuple[tuple[int, int], tuple[int, int]]  # the two cells whose shared edge the beam follows
-
-
-def beams(classified: Classified, garage) -> list[Beam]:
-    """Downstand beams from pillar to pillar along cell edges between two non-driveable cells (between bays),
-    where the two pillars line up. Beams never cross a lane, so the headroom over lanes stays the ceiling's."""
-    plan = classified.plan
-    size = float(garage.pillar_size)
-    by_vertex = pillars_by_vertex(classified)
-    h = BEAM_WIDTH / 2
-    out = []
-    for (a, b), p in by_vertex.items():  # classify lists pillars row by row already
-        x, y = pillar_centre(plan, p, size)
-        # Eastward along row line a: the edge between cells (a-1, b) and (a, b).
-        q = by_vertex.get((a, b + 1))
-        cells = ((a - 1, b), (a, b))
-        if q is not None and q.sy == p.sy and not any(plan.is_driveable(*c) for c in cells):
-            x2, _ = pillar_centre(plan, q, size)
-            out.append(Beam(f"beam_{a}_{b}_e", (x, y - h, x2, y + h), cells))
-        # Southward along column line b: the edge between cells (a, b-1) and (a, b).
-        q = by_vertex.get((a + 1, b))
-        cells = ((a, b - 1), (a, b))
-        if q is not None and q.sx == p.sx and not any(plan.is_driveable(*c) for c in cells):
-            _, y2 = pillar_centre(plan, q, size)
-            out.append(Beam(f"beam_{a}_{b}_s", (x - h, y2, x + h, y), cells))
-    return out
-
-
 def build_ceiling(classified: Classified, garage) -> list[Entity]:
     """The slab over the footprint and the walls, and the beams under it."""
     width, depth = classified.plan.size
@@ -198,17 +164,14 @@ def build_ceiling(classified: Classified, garage) -> list[Entity]:
 
 
 def build_structure(classified: Classified, garage) -> list[Entity]:
-    """Cells, then the pillar grid, then the walls and ceiling."""
-    check_garage(garage)
+    """Cells, then the pillar grid, then the walls and ceiling. The values are checked once, by
+    `check_garage` (preflight)."""
     return (build_cells(classified, garage) + build_pillars(classified, garage) + build_walls(classified, garage)
             + build_ceiling(classified, garage))
 
 
 def build_garage(classified: Classified, garage, light) -> Scene:
     """The empty garage: structure, markings, lamp panels and their lights; no vehicles and no cameras."""
-    # Imported here: the lamps avoid this module's beams, so a top-level import would cycle.
-    from garage_exp.scene.lamps import build_lamps
-
     entities = build_structure(classified, garage)
     entities += build_markings(classified, garage)
     lamp_entities, lights = build_lamps(classified, garage, light)

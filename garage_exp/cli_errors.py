@@ -1,0 +1,98 @@
+"""Exit codes and input errors: every input error - ours (GarageError) and Hydra's (unknown level, wrong type,
+bad override) - becomes one line on stderr and exit code 2; a bug keeps its traceback."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from garage_exp.errors import GarageError
+
+EXIT_INPUT = 2  # bad input: one line on stderr, nothing logged
+EXIT_FAILED_JOBS = 1  # a sweep ran to its end but some of its jobs failed (the summary lists them)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler's time limit, `kill`): handled like Ctrl-C, so the job's run ends KILLED and its
+    partial frame table is kept."""
+
+
+def on_sigterm(signum, frame):
+    raise Terminated(f"signal {signum} (SIGTERM)")
+
+
+def input_error(exc: BaseException) -> str | None:
+    """One line for an input error (ours or Hydra's), None for anything else (a bug: traceback)."""
+    import yaml
+    from hydra.errors import CompactHydraException, HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    if isinstance(exc, GarageError):
+        return str(exc)
+    if isinstance(exc, yaml.YAMLError):  # a config file that is not YAML, or asks for Python objects
+        return one_line(str(exc))
+    if isinstance(exc, OmegaConfBaseException) or (
+            isinstance(exc, HydraException) and (isinstance(exc, CompactHydraException)
+                                                 or not str(exc).startswith("Error executing job"))):
+        text = str(exc)
+        override = getattr(exc, "override", None)  # OverrideParseException: name the bad override
+        if override and override not in text:
+            text = f"override {override!r}: {text}"
+        cause = exc.__cause__
+        if isinstance(cause, OmegaConfBaseException) and str(cause).split("\n")[0] not in text:
+            text += "\n" + str(cause)
+        return one_line(text)
+    return None
+
+
+def one_line(text: str) -> str:
+    """Hydra's and OmegaConf's messages in one line: indented details (full_key, types) folded in, lists of
+    available options joined with commas."""
+    parts: list[str] = []
+    options: list[str] = []
+    for raw in text.split("Config search path:")[0].splitlines():
+        line = raw.strip()
+        if not line or line.startswith(("reference_type", "object_type", "Set the environment variable")):
+            continue
+        if raw.startswith("\t") and parts and parts[-1].endswith(":"):  # "Available options in 'light':"
+            if not line.endswith("_schema"):  # the structured-config schemas are not levels to choose
+                options.append(line)
+            continue
+        if options:
+            parts[-1] += " " + ", ".join(options)
+            options = []
+        if line.startswith("full_key:"):
+            line = f"(key {line.split(':', 1)[1].strip()})"
+        parts.append(line)
+    if options:
+        parts[-1] += " " + ", ".join(options)
+    return " ".join(p if p.endswith((".", ":", ")")) or k == len(parts) - 1 else p + ";"
+                    for k, p in enumerate(parts))
+
+
+def install_error_report() -> None:
+    """Hydra prints its own errors (several lines, exit 1) from `run_and_report`; ours prints input errors as
+    one line and exits 2, and leaves other errors (bugs) to Hydra's traceback. HYDRA_FULL_ERROR=1 bypasses
+    both, as documented by Hydra."""
+    import hydra._internal.utils as hydra_utils
+
+    original = hydra_utils.run_and_report
+    if getattr(original, "garage_exp", False):
+        return
+
+    def run_and_report(func):
+        try:
+            return func()
+        except Exception as exc:
+            if os.environ.get("HYDRA_FULL_ERROR") == "1":
+                raise
+            line = input_error(exc)
+            if line is None:
+                def reraise():
+                    raise exc
+                return original(reraise)
+            print(f"garage_exp: {line}", file=sys.stderr)
+            sys.exit(EXIT_INPUT)
+
+    run_and_report.garage_exp = True
+    hydra_utils.run_and_report = run_and_report

@@ -1,0 +1,87 @@
+"""One job of a run or a sweep: preflight, resume, its MLflow run, the experiment, and how the run ends."""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import traceback
+from pathlib import Path
+
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp import tracking
+from garage_exp.errors import GarageError
+from garage_exp.paths import OUTPUTS_DIR
+from garage_exp.preflight import preflight
+
+
+def run_name(cfg: DictConfig) -> str:
+    overrides = HydraConfig.get().overrides.task
+    return " ".join(overrides) if overrides else f"case={cfg.case.name} light={cfg.light.name}"
+
+
+def _remove_untouched(out: Path) -> None:
+    """Hydra makes a job's dir (config copies, log) before the job starts; a job refused for bad input
+    leaves nothing behind. Only a dir holding nothing but Hydra's own files is removed."""
+    try:
+        if not out.is_dir() or any(p.name != ".hydra" and p.suffix != ".log" for p in out.iterdir()):
+            return
+        shutil.rmtree(out)
+        parent = out.parent  # outputs/runs/<date>/<time>: drop the date level too when it is empty
+        if parent.parent == OUTPUTS_DIR / "runs" and not any(parent.iterdir()):
+            parent.rmdir()
+    except OSError:
+        pass
+
+
+def run_job(cfg: DictConfig) -> float:
+    """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job."""
+    hc = HydraConfig.get()
+    out = Path(hc.runtime.output_dir)
+    multirun = hc.mode == RunMode.MULTIRUN
+    try:
+        plan_path, classified = preflight(cfg)  # bad input fails here, before anything is logged
+    except GarageError:
+        _remove_untouched(out)
+        raise
+    digest = tracking.config_hash(cfg, tracking.file_digest(plan_path))
+    if cfg.resume:
+        done = tracking.finished_run(cfg, digest)
+        if done:
+            print(f"garage_exp: skipped {run_name(cfg)!r}: finished before as run {done}")
+            if multirun:
+                tracking.add_resumed(hc.sweep.dir, done)  # the sweep report counts it
+            return math.nan
+    parent = tracking.read_parent(hc.sweep.dir) if multirun else None
+    tags = {"plan": classified.plan.name, "overrides": " ".join(hc.overrides.task), "case": str(cfg.case.name),
+            "output_dir": str(out), "config_hash": digest, "host": os.uname().nodename, "pid": str(os.getpid())}
+    run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
+    try:
+        from garage_exp.plan.draw import draw_map  # matplotlib: not before the input is known to be good
+
+        if cfg.resume:  # the runs this one replaces (left RUNNING by a killed sweep, or failed)
+            gone = tracking.supersede(run.mlc, tracking.experiment_id(run.mlc, cfg.tracking.experiment), digest,
+                                      run.run_id)
+            if gone:
+                print(f"garage_exp: rerunning {run_name(cfg)!r}: replaces unfinished run(s) {', '.join(gone)}")
+        (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+        run.log_artifact(out / "config.yaml")
+        run.log_artifact(draw_map(classified, out / "plan_map.png"))
+        if cfg.dry_run:
+            difficulty = math.nan
+        else:
+            from garage_exp.experiment import run_experiment
+
+            difficulty = run_experiment(cfg, classified, out, run)
+    except BaseException as exc:
+        try:
+            run.set_tag("error", f"{type(exc).__name__}: {exc}".strip())
+            run.log_text(traceback.format_exc(), "error.txt")
+        finally:
+            run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
+        raise
+    run.end("FINISHED")
+    return difficulty

@@ -1,0 +1,108 @@
+"""Check a job before anything is written: its config, plan, weights, assets and scene (all but rendering).
+
+Each config group's values are checked by a `check_*` function beside the code that owns the group, called
+once, from here: a typo in a sweep's 40th job fails the sweep at once (callbacks.check_sweep), with one line
+naming the file or key.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp.errors import GarageError
+from garage_exp.paths import PLANS_DIR
+
+_CACHE: dict = {}  # plan path -> (stat key, classified); vehicles dir -> VehicleLibrary (sweeps check many jobs)
+
+
+def resolve_plan_path(plan_cfg) -> Path:
+    """`plan.file` (absolute, or relative to where the command was typed) wins over a shipped plan name."""
+    if plan_cfg.file:
+        import hydra
+
+        return Path(hydra.utils.to_absolute_path(str(plan_cfg.file)))
+    for suffix in (".yaml", ".yml", ".csv"):
+        candidate = PLANS_DIR / f"{plan_cfg.name}{suffix}"
+        if candidate.is_file():
+            return candidate
+    shipped = sorted(p.stem for p in PLANS_DIR.glob("*.*"))
+    raise GarageError(f"no shipped plan named {plan_cfg.name!r} (have: {', '.join(shipped)}); "
+                      "use plan.file=/path/to/plan.yaml for your own", "plan.name")
+
+
+def _classified(path: Path):
+    from garage_exp.plan import classify, load_plan
+
+    try:
+        st = path.stat()
+        key = (st.st_mtime_ns, st.st_size)
+    except OSError:
+        key = None
+    hit = _CACHE.get(("plan", path))
+    if key is not None and hit is not None and hit[0] == key:
+        return hit[1]
+    classified = classify(load_plan(path))  # bad plans fail here with the file and the place
+    if key is not None:
+        _CACHE[("plan", path)] = (key, classified)
+    return classified
+
+
+def _library():
+    from garage_exp.assets.locate import vehicles_dir
+    from garage_exp.assets.vehicles import VehicleLibrary
+
+    root = vehicles_dir()  # missing assets fail here, saying what to set or run
+    if ("library", root) not in _CACHE:
+        _CACHE[("library", root)] = VehicleLibrary(root)
+    return _CACHE[("library", root)]
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Every group's values, by its owner's check (the schema already checked the types); no plan or assets
+    needed."""
+    from garage_exp.detect.detector import check_detector
+    from garage_exp.render import check_renderer
+    from garage_exp.scene.camera import check_camera
+    from garage_exp.scene.lamps import check_light
+    from garage_exp.scene.modifiers import check_modifiers
+    from garage_exp.scene.parking import check_palette
+    from garage_exp.scene.structure import check_garage
+    from garage_exp.sensor import make_sensor
+
+    for key in ("seed", "light.seed", "palette.seed"):
+        value = OmegaConf.select(cfg, key)
+        if value is not None and int(value) < 0:
+            raise GarageError(f"{value} is negative (seeds are >= 0)", key)
+    check_garage(cfg.garage)
+    check_light(cfg.light)
+    check_palette(cfg.palette)
+    check_camera(cfg.camera)
+    if cfg.case.kind in ("corner", "pass", "parked") and not float(cfg.case.step) > 0:
+        raise GarageError(f"step must be positive, got {cfg.case.step}", "case.step")
+    check_detector(cfg.detector)
+    check_renderer(cfg.renderer)
+    make_sensor(cfg.sensor)  # the sensor model checks its own parameters
+    check_modifiers(cfg.get("modifiers") or {})
+
+
+def preflight(cfg: DictConfig):
+    """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
+    on the first problem. A dry run checks the config and the plan; a real job also the detector weights,
+    the vehicle assets, and builds its scene description (garage, case, palette, modifiers, cameras) - all
+    but rendering, in ~0.1 s. Returns (plan path, classified plan)."""
+    plan_path = resolve_plan_path(cfg.plan)
+    classified = _classified(plan_path)
+    check_config(cfg)
+    if cfg.dry_run:
+        return plan_path, classified
+    import numpy as np
+
+    from garage_exp.detect.detector import model_format, resolve_model
+    from garage_exp.experiment import build_scene
+
+    for entry in cfg.detector.models:
+        model_format(resolve_model(entry))  # missing weights fail here (nothing is downloaded)
+    build_scene(cfg, classified, _library(), np.random.default_rng(int(cfg.seed)))
+    return plan_path, classified

@@ -1,0 +1,87 @@
+"""What every renderer gives the job: a `Frame` per camera, and the `Renderer` interface.
+
+Plain data, no SAPIEN: ground truth and tests use `Frame` without a Vulkan device. A backend is a module with a
+factory `make(conf) -> Renderer` named by `_target_` in `conf/renderer/<name>.yaml`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from garage_exp.scene.camera import to_camera, to_pixels
+from garage_exp.scene.description import Pose, Scene
+
+BLANK_GREY = 128  # the blank control's background value (8-bit sRGB, all channels)
+
+
+@dataclass
+class Frame:
+    """One camera's picture.
+
+    rgb: HxWx3 uint8 (sRGB). ids: HxW int32, the id of the entity seen in each pixel (0: nothing; `Renderer.ids`
+    maps names to ids). cam_to_world: 4x4 pose of the camera with SAPIEN's camera axes (x forward, y left,
+    z up). fx, fy, cx, cy: pinhole intrinsics in pixels (garage_exp.scene.camera). poses: where each vehicle
+    (and the ego) stood when this was rendered.
+    """
+
+    camera: str
+    rgb: np.ndarray
+    ids: np.ndarray
+    cam_to_world: np.ndarray
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    poses: dict[str, Pose] = field(default_factory=dict)
+
+    @property
+    def width(self) -> int:
+        return int(self.ids.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.ids.shape[0])
+
+    @property
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        return self.fx, self.fy, self.cx, self.cy
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.cam_to_world[:3, 3].copy()
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (N x 3) -> pixel coordinates (N x 2, continuous) and depth along the view axis (N)."""
+        local = to_camera(self.cam_to_world, points)
+        depth = local[:, 0]
+        safe = np.where(np.abs(depth) < 1e-9, 1e-9, depth)
+        u, v = to_pixels(local, self.intrinsics, safe)
+        return np.stack([u, v], axis=1), depth
+
+
+class Renderer(Protocol):
+    """What the job needs from a renderer. One instance per process is expected (compiled shaders)."""
+
+    def load(self, scene: Scene) -> None:
+        """(Re)build from a scene description; cameras, lights and ids are replaced."""
+
+    @property
+    def ids(self) -> dict[str, int]:
+        """Entity name -> the id its pixels carry in `Frame.ids` (every entity that moves or is scored)."""
+
+    def set_pose(self, name: str, pose: Pose) -> None:
+        """Move an entity with its own id (a vehicle; the ego, which carries the cameras)."""
+
+    def render(self, camera_name: str) -> Frame:
+        """One camera's colour and ids, with its pose (garage_exp.scene.camera) and intrinsics."""
+
+    def unoccluded_ids(self, camera_name: str, names: Iterable[str]) -> dict[str, np.ndarray]:
+        """Each named entity's silhouette (HxW bool) as the camera would see it with nothing in the way; entities
+        outside the image are left out."""
+
+    def blank_composite(self, rgb: np.ndarray, frame: Frame, names: Iterable[str]) -> np.ndarray:
+        """The named entities' pixels of `rgb` (a picture of `frame`) on uniform BLANK_GREY."""
