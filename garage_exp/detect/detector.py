@@ -223,18 +223,14 @@ class Detector:
 
 def check_detector(conf: Any) -> None:
     """The `detector` group's values (that the weights exist is checked by `model_format(resolve_model(m))`)."""
-    from garage_exp.detect.matching import MATCH_MODES
+    from garage_exp.detect.matching import check_match
 
     if not conf.models:
         raise GarageError("no detector models given", "detector.models")
     if not 0.0 <= float(conf.conf) < 1.0:
         raise GarageError(f"conf {conf.conf} is outside [0, 1)", "detector.conf")
-    if not 0.0 < float(conf.iou) <= 1.0:
-        raise GarageError(f"iou {conf.iou} is outside (0, 1]", "detector.iou")
-    check_range(conf.threshold, 0.0, 1.0, "detector.threshold")
     check_range(conf.imgsz, 32, 4096, "detector.imgsz")
-    if conf.match not in MATCH_MODES:
-        raise GarageError(f"unknown match {conf.match!r} ({' | '.join(MATCH_MODES)})", "detector.match")
+    check_match(conf.match, conf.iou, conf.threshold)
 
 
 def spec_from_config(conf: Any) -> dict[str, Any]:

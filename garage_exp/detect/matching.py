@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.errors import GarageError, check_range
 
 Box = tuple[float, float, float, float]  # x1, y1, x2, y2 in pixels
 VEHICLE_CLASSES = ("car", "truck", "bus")
@@ -64,6 +64,15 @@ def target_iou(boxes: np.ndarray, truth: Any, match: str) -> np.ndarray:
     return np.maximum(iou_many(boxes, full), iou_many(boxes, visible))
 
 
+def check_match(match: str, iou_threshold: float, threshold: float) -> None:
+    """The `detector` group's matching values (detector.check_detector checks the rest)."""
+    if match not in MATCH_MODES:
+        raise GarageError(f"unknown match {match!r} ({' | '.join(MATCH_MODES)})", "detector.match")
+    if not 0.0 < float(iou_threshold) <= 1.0:
+        raise GarageError(f"iou {iou_threshold} is outside (0, 1]", "detector.iou")
+    check_range(threshold, 0.0, 1.0, "detector.threshold")
+
+
 def score_target(dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), iou_threshold: float = 0.5,
                  match: str = "full", threshold: float = 0.5, classes: Sequence[str] = VEHICLE_CLASSES,
                  fp_conf: float = 0.25) -> TargetScore:
@@ -81,12 +90,7 @@ def score_target(dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), io
     box whatever the match mode, so that occlusion does not manufacture false positives), or any detection of
     a non-vehicle class.
     """
-    if match not in MATCH_MODES:
-        raise GarageError(f"unknown match {match!r} ({' | '.join(MATCH_MODES)})", "detector.match")
-    if not 0.0 < iou_threshold <= 1.0:
-        raise GarageError(f"iou {iou_threshold} is outside (0, 1]", "detector.iou")
-    if not 0.0 <= threshold <= 1.0:
-        raise GarageError(f"threshold {threshold} is outside [0, 1]", "detector.threshold")
+    check_match(match, iou_threshold, threshold)
     vehicles = set(classes)
     others = list(truth)
     if target is not None and not any(t is target for t in others):
