@@ -66,7 +66,7 @@ NOSE_FLIP: frozenset[str] = frozenset({"it_policecar1"})
 # Citroen Xsara police car 5.6 m long instead of 4.2 m, the Ducato ambulance 7.8 m instead of 5.8 m).
 SCALE: dict[str, float] = {"gr_policar1": 0.75, "gr_paramedic1": 0.75}
 
-# Name fragments, most specific first.
+# Colour words in model names; the first that matches wins.
 _COLOUR_WORDS = (("yel", "yellow"), ("black", "black"), ("white", "white"), ("silver", "silver"), ("red", "red"),
                  ("blue", "blue"), ("green", "green"), ("yellow", "yellow"))
 
