@@ -33,7 +33,7 @@ run: setup
 	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open http://127.0.0.1:5000"
 
 test: setup
-	$(BIN)/lint-imports
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m pytest -q -p no:cacheprovider
 
 ui: python

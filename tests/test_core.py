@@ -24,6 +24,12 @@ def test_import_layers_hold():
     assert "0 broken" in r.stdout
 
 
+def test_app_holds_only_the_entry_point_and_the_command_line():
+    source = (PROJECT_ROOT / "garage_exp" / "app.py").read_text()
+    assert len(source.splitlines()) < 150
+    assert "def run_job" not in source and "def preflight" not in source and "def input_error" not in source
+
+
 def test_a_second_renderer_is_one_module_named_by_target(tmp_path, monkeypatch):
     from garage_exp.render import Frame, check_renderer, open_renderer
 
