@@ -46,10 +46,6 @@ class LightConf:
     seed: int = 0  # which lamps are off when coverage < 1
 
 
-FOVY_RANGE = (1.0, 170.0)  # degrees, vertical
-RESOLUTION_RANGE = (16, 4096)  # pixels per side
-
-
 @dataclass
 class CameraConf:
     """One camera on the ego: mount relative to the ego's origin (centre of its footprint, on the floor),

@@ -11,9 +11,11 @@ import math
 
 import numpy as np
 
-from garage_exp.config import FOVY_RANGE, RESOLUTION_RANGE
 from garage_exp.errors import GarageError, check_range
 from garage_exp.scene.description import CameraSpec, Pose
+
+FOVY_RANGE = (1.0, 170.0)  # degrees, vertical
+RESOLUTION_RANGE = (16, 4096)  # pixels per side
 
 
 def check_camera(rig) -> None:
