@@ -24,7 +24,9 @@ import pandas as pd
 import pytest
 from conftest import PYTHON, run_app
 
-FAULTS = str(Path(__file__).resolve().parent / "faults")
+# The fault-injection hooks, ahead of the caller's own PYTHONPATH (a work tree testing its own garage_exp).
+FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
+                         *filter(None, [os.environ.get("PYTHONPATH")])])
 JOB = ["plan=research", "case=light", "detector.models=[yolov8n_int8_openvino_model]",
        "camera.cameras.0.width=320", "camera.cameras.0.height=240"]
 FRAMES = 8  # the light case: 2 colours x 4 distances

@@ -14,7 +14,9 @@ from conftest import PYTHON, run_app
 
 from garage_exp import tracking
 
-FAULTS = str(Path(__file__).resolve().parent / "faults")
+# The fault-injection hooks, ahead of the caller's own PYTHONPATH (a work tree testing its own garage_exp).
+FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
+                         *filter(None, [os.environ.get("PYTHONPATH")])])
 SWEEP = ["-m", "dry_run=true", "plan=tiny", "light=bright,dim,clear"]
 
 
