@@ -123,8 +123,8 @@ def check_config(cfg: DictConfig) -> None:
         check_range(cam.fovy, *FOVY_RANGE, f"camera.cameras.{k}.fovy", f"fovy {cam.fovy} degrees")
         for side in ("width", "height"):
             check_range(cam[side], *RESOLUTION_RANGE, f"camera.cameras.{k}.{side}", f"{side} {cam[side]} px")
-    if cfg.case.kind in ("corner", "pass", "parked") and not float(cfg.case.step) > 0:
-        raise GarageError(f"step must be positive, got {cfg.case.step}", "case.step")
+    if cfg.case.motion.actor and not float(cfg.case.motion.step) > 0:
+        raise GarageError(f"step must be positive, got {cfg.case.motion.step}", "case.motion.step")
     det = cfg.detector
     if not det.models:
         raise GarageError("no detector models given", "detector.models")

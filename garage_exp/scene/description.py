@@ -77,6 +77,7 @@ class Entity:
     size_class: str | None = None
     extent: tuple[float, float, float] | None = None
     static: bool = True
+    kind: str | None = None  # an actor's kind: vehicle | person | box (None: structure)
 
 
 @dataclass(frozen=True)
