@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from garage_exp.assets.vehicles import COLOURS, SIZE_CLASSES
+from garage_exp.assets.vehicles import KINDS as VEHICLE_KINDS
 from garage_exp.errors import GarageError
 from garage_exp.scenario.place import site_bay
 from garage_exp.scene.description import Box, Entity, Material, Mesh, Pose
@@ -20,6 +22,7 @@ class Made:
     entity: Entity
     extent: tuple[float, float, float]  # length (along its heading), width, height
     bays: list[tuple[int, int, int]] = field(default_factory=list)  # bays it stands in: kept free of parked cars
+    source: str = ""  # the scenario's name for it (a palette-coloured actor's copies share one)
 
 
 def vehicle_entity(name: str, role: str, model, pose: Pose = Pose()) -> Entity:
@@ -28,14 +31,15 @@ def vehicle_entity(name: str, role: str, model, pose: Pose = Pose()) -> Entity:
                   kind="vehicle")
 
 
-def make(name: str, actor, cfg, library, site, bays: dict, rng) -> Made:
-    where = f"case.actors.{name}"
+def make(name: str, actor, cfg, library, site, bays: dict, rng, source: str = "") -> Made:
+    source = source or name
+    where = f"case.actors.{source}"
     if actor.role not in ROLES:
         raise GarageError(f"unknown role {actor.role!r} ({' | '.join(ROLES)})", where + ".role")
     used = [_bay_key(site_bay(site, ref, bays, where).bay) for ref in
             ([actor.bay] if actor.bay != "" else []) + list(actor.between)]
     if actor.kind == "vehicle":
-        model = vehicle_model(name, actor, cfg, library, site, bays, rng)
+        model = vehicle_model(source, actor, cfg, library, site, bays, rng)
         entity = vehicle_entity(name, actor.role, model)
     elif actor.kind == "person":
         entity = person_entity(name, actor)
@@ -43,7 +47,7 @@ def make(name: str, actor, cfg, library, site, bays: dict, rng) -> Made:
         entity = box_entity(name, actor)
     else:
         raise GarageError(f"unknown kind {actor.kind!r} ({' | '.join(KINDS)})", where + ".kind")
-    return Made(entity, entity.extent, used)
+    return Made(entity, entity.extent, used, source)
 
 
 def _bay_key(bay) -> tuple[int, int, int]:
@@ -55,6 +59,10 @@ def vehicle_model(name: str, actor, cfg, library, site, bays: dict, rng):
     colour); else a model drawn from the library by size class, colour and body that fits the garage."""
     palette = cfg.palette
     ceiling = cfg.garage.ceiling_height - 0.1
+    for value, allowed, key in ((actor.colour, COLOURS, "colour"), (actor.size, SIZE_CLASSES, "size"),
+                                (actor.body, VEHICLE_KINDS, "body")):
+        if value and value not in allowed:
+            raise GarageError(f"unknown {key} {value!r} ({', '.join(allowed)})", f"case.actors.{name}.{key}")
     if actor.model:
         return library.get(actor.model)
     if actor.role == "target" and actor.colour in palette.target_colours:

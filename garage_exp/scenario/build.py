@@ -9,11 +9,12 @@ a config key, so a sweep or a search can set it by an override.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 from omegaconf import OmegaConf
 
+from garage_exp.config import ActorConf
 from garage_exp.errors import GarageError
 from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
@@ -114,9 +115,45 @@ def frame_values(case, actor, site: Site, length: float, bays: dict) -> list[flo
     return steps(start, end, float(m.step))
 
 
+def scenario_file(cfg) -> str:
+    """The scenario's YAML file (the level named as the case), for error messages; else `case=NAME`."""
+    from pathlib import Path
+
+    from garage_exp.paths import PROJECT_ROOT
+
+    dirs = []
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        dirs = [s.path for s in HydraConfig.get().runtime.config_sources if s.schema == "file"]
+    except ValueError:  # composed outside a Hydra app (tests, the sweep's preflight)
+        pass
+    for folder in [*dirs, str(PROJECT_ROOT / "conf")]:
+        path = Path(folder) / "case" / f"{cfg.case.name}.yaml"
+        if path.is_file():
+            return str(path)
+    return f"case={cfg.case.name}"
+
+
 def make_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
+    """The scenario's shot list; a scenario error names its file and key path."""
+    try:
+        return build_case(cfg, classified, library, rng)
+    except GarageError as exc:
+        if exc.where and exc.where.startswith("case"):
+            raise GarageError(str(exc), scenario_file(cfg)) from None
+        raise
+
+
+def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
     case = cfg.case
     site = find_site(case.site, classified, cfg.garage)
+    known = {f.name for f in fields(ActorConf)}
+    for name, node in case.actors.items():
+        extra = sorted(set(node.keys()) - known)  # `+case.actors.x.key=...` forces a key past the schema
+        if extra:
+            raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
+                              f"case.actors.{name}.{extra[0]}")
     conf = {n: OmegaConf.to_object(a) for n, a in case.actors.items()}
     if EGO not in conf or conf[EGO].role != "ego":
         raise GarageError("a scenario needs an actor named 'ego' with role ego", "case.actors")
@@ -127,11 +164,12 @@ def make_case(cfg, classified: Classified, library, rng: np.random.Generator) ->
         raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
                           "case.motion.key")
     runs, conf = variants(case, conf, list(cfg.palette.target_colours))
+    source = {n: n.rpartition("_")[0] for n in conf if n not in case.actors}  # palette copies: the original
     # Actors are made in order of first use (the ego first): model draws from rng follow the scenario's order.
     order = [EGO] + [n for v in runs for n in v.show]
     made: dict[str, kinds.Made] = {}
     for name in dict.fromkeys(order):
-        made[name] = kinds.make(name, conf[name], cfg, library, site, bays, rng)
+        made[name] = kinds.make(name, conf[name], cfg, library, site, bays, rng, source.get(name, name))
     entities = [made[n].entity for n in made]
 
     shots: list[Shot] = []
@@ -176,7 +214,7 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
     def place(name: str, seen: tuple[str, ...] = ()) -> Pose:
         if name in poses:
             return poses[name]
-        a, where = actors[name], f"case.actors.{name}"
+        a, where = actors[name], f"case.actors.{made[name].source}"
         length = made[name].extent[0]
         if a.relative:
             if a.relative not in actors or a.relative in seen:

@@ -150,8 +150,18 @@ SITES = {"corner": corner, "bay_beside_pillar": bay_beside_pillar, "straight_run
 
 
 def find_site(name: str, classified: Classified, garage) -> Site:
+    """A shipped site by name, or a user's own: `site: my_sites.ramp` names a function (classified, garage) ->
+    Site in a module allowed by $GARAGE_EXP_MODIFIER_MODULES."""
+    if "." in name:
+        from garage_exp.scene.modifiers import resolve_allowed
+
+        site = resolve_allowed(name, "case.site", "site function")(classified, garage)
+        if not isinstance(site, Site):
+            raise GarageError(f"{name} returned {type(site).__name__}, not a Site", "case.site")
+        return site
     try:
         finder = SITES[name]
     except KeyError:
-        raise GarageError(f"unknown site {name!r} (have {', '.join(sorted(SITES))})", "case.site") from None
+        raise GarageError(f"unknown site {name!r} (have {', '.join(sorted(SITES))}, or a function "
+                          "module.name)", "case.site") from None
     return finder(classified, garage)
