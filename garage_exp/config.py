@@ -90,15 +90,6 @@ class PaletteConf:
 
 
 @dataclass
-class OccluderConf:
-    """The occluder a case places between the ego and its target."""
-
-    name: str = "pillar"
-    kind: str = "pillar"  # pillar | none
-    size: Optional[float] = None  # the case pillar's side (m); None: as the garage (and `pillar` factor) has it
-
-
-@dataclass
 class ActorConf:
     """One actor of a scenario. Every value is a plain key (`case.actors.target.offset=0.4`), so sweeps and
     searches reach it. Placement: exactly one of `path`, `bay`, `between` or `relative`."""
@@ -131,7 +122,19 @@ class ActorConf:
     gap: Optional[float] = None  # in a bay: front bumper this far behind the bay line (None: centred)
     between: list[str] = field(default_factory=list)  # in the gap between two bays ...
     out: float = 0.0  # ... this far past the bay line into the lane
-    relative: str = ""  # `distance` ahead of this actor along its heading, `offset` to its left
+    relative: str = ""  # `distance` ahead of this actor (or of `focus`) along its heading, `offset` to its left
+    nearest_bay: int = -1  # in the k-th free bay nearest the site's focus (0: the nearest), nose to the lane
+
+
+@dataclass
+class OccluderConf:
+    """The occluder arrangement, composed with any scenario: the site's pillar kept or removed, and actors of
+    its own placed around the site's focus (the pillar; else halfway between the ego and the target)."""
+
+    name: str = "pillar"
+    kind: str = "pillar"  # pillar: the site's pillar stands | none: it is removed
+    size: Optional[float] = None  # the pillar's side (m); None: as the garage (and `pillar` factor) has it
+    actors: dict[str, ActorConf] = field(default_factory=dict)  # shown in every variant of the scenario
 
 
 @dataclass

@@ -31,20 +31,22 @@ def vehicle_entity(name: str, role: str, model, pose: Pose = Pose()) -> Entity:
                   kind="vehicle")
 
 
-def make(name: str, actor, cfg, library, site, bays: dict, rng, source: str = "") -> Made:
-    source = source or name
-    where = f"case.actors.{source}"
+def make(name: str, actor, cfg, library, site, bays: dict, rng, source: str = "", bay=None) -> Made:
+    """The actor's entity. `bay`: the bay it was given (a free bay near the focus), when not named."""
+    where = source = source or f"case.actors.{name}"
     if actor.role not in ROLES:
         raise GarageError(f"unknown role {actor.role!r} ({' | '.join(ROLES)})", where + ".role")
-    used = [_bay_key(site_bay(site, ref, bays, where).bay) for ref in
-            ([actor.bay] if actor.bay != "" else []) + list(actor.between)]
+    own = [site_bay(site, ref, bays, where).bay for ref in ([actor.bay] if actor.bay != "" else [])
+           + list(actor.between)]
+    fit = bay or (own[0] if actor.bay != "" else None)
+    used = [_bay_key(b) for b in own + ([bay] if bay else [])]
     if actor.kind == "vehicle":
-        model = vehicle_model(source, actor, cfg, library, site, bays, rng)
+        model = vehicle_model(where, actor, cfg, library, rng, fit, narrow=bay is not None)
         entity = vehicle_entity(name, actor.role, model)
     elif actor.kind == "person":
         entity = person_entity(name, actor)
     elif actor.kind == "box":
-        entity = box_entity(name, actor)
+        entity = box_entity(name, actor, where)
     else:
         raise GarageError(f"unknown kind {actor.kind!r} ({' | '.join(KINDS)})", where + ".kind")
     return Made(entity, entity.extent, used, source)
@@ -54,7 +56,7 @@ def _bay_key(bay) -> tuple[int, int, int]:
     return (bay.i, bay.j, bay.index)
 
 
-def vehicle_model(name: str, actor, cfg, library, site, bays: dict, rng):
+def vehicle_model(where: str, actor, cfg, library, rng, bay=None, narrow: bool = False):
     """The named model; else the palette's pinned target of the actor's colour (targets copied per palette
     colour); else a model drawn from the library by size class, colour and body that fits the garage."""
     palette = cfg.palette
@@ -62,7 +64,7 @@ def vehicle_model(name: str, actor, cfg, library, site, bays: dict, rng):
     for value, allowed, key in ((actor.colour, COLOURS, "colour"), (actor.size, SIZE_CLASSES, "size"),
                                 (actor.body, VEHICLE_KINDS, "body")):
         if value and value not in allowed:
-            raise GarageError(f"unknown {key} {value!r} ({', '.join(allowed)})", f"case.actors.{name}.{key}")
+            raise GarageError(f"unknown {key} {value!r} ({', '.join(allowed)})", f"{where}.{key}")
     if actor.model:
         return library.get(actor.model)
     if actor.role == "target" and actor.colour in palette.target_colours:
@@ -74,8 +76,10 @@ def vehicle_model(name: str, actor, cfg, library, site, bays: dict, rng):
         return library.choose(size_class=actor.size or "medium", colour=actor.colour, max_height=ceiling,
                               kind=actor.body or "car", rng=rng)
     fit = dict(size_class=actor.size or None, max_height=ceiling, rng=rng, kind=actor.body or None)
-    if actor.bay != "":
-        fit["max_length"] = site_bay(site, actor.bay, bays, f"case.actors.{name}.bay").bay.depth + 0.3
+    if bay is not None:
+        fit["max_length"] = bay.depth + 0.3
+        if narrow:  # beside other cars in neighbouring bays: no wider than the bay
+            fit["max_width"] = bay.width - 0.05
     if actor.colour:
         try:
             return library.choose(colour=actor.colour, **fit)
@@ -94,15 +98,15 @@ def person_entity(name: str, actor) -> Entity:
                   kind="person")
 
 
-def box_entity(name: str, actor) -> Entity:
+def box_entity(name: str, actor, where: str) -> Entity:
     size = (float(actor.length or 1.0), float(actor.width or 0.3), float(actor.height or 1.0))
     if min(size) <= 0:
-        raise GarageError(f"a box needs a positive size, got {size}", f"case.actors.{name}")
+        raise GarageError(f"a box needs a positive size, got {size}", where)
     try:
         rgb = BOX_COLOURS[actor.colour or "grey"]
     except KeyError:
         raise GarageError(f"unknown box colour {actor.colour!r} ({', '.join(BOX_COLOURS)})",
-                          f"case.actors.{name}.colour") from None
+                          f"{where}.colour") from None
     material = Material(f"box_{actor.colour or 'grey'}", (*rgb, 1.0), roughness=0.8)
     return Entity(name=name, role=actor.role, pose=Pose(), shapes=[Box(size, material, Pose(0.0, 0.0, size[2] / 2))],
                   extent=size, static=False, kind="box")

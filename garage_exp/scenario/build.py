@@ -20,7 +20,9 @@ from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.place import (footprint, overlap, path_position, pose_between, pose_in_bay, pose_on_path,
                                        pose_relative, site_bay, site_path)
+from garage_exp.scenario import sites
 from garage_exp.scenario.sites import Site, find_site
+from garage_exp.scene.bays import bays as all_bays
 from garage_exp.scene.description import Entity, Pose
 
 EGO = "ego"
@@ -115,8 +117,8 @@ def frame_values(case, actor, site: Site, length: float, bays: dict) -> list[flo
     return steps(start, end, float(m.step))
 
 
-def scenario_file(cfg) -> str:
-    """The scenario's YAML file (the level named as the case), for error messages; else `case=NAME`."""
+def level_file(cfg, group: str) -> str:
+    """The YAML file of a group's level (named as its `name`), for error messages; else `group=NAME`."""
     from pathlib import Path
 
     from garage_exp.paths import PROJECT_ROOT
@@ -129,32 +131,38 @@ def scenario_file(cfg) -> str:
     except ValueError:  # composed outside a Hydra app (tests, the sweep's preflight)
         pass
     for folder in [*dirs, str(PROJECT_ROOT / "conf")]:
-        path = Path(folder) / "case" / f"{cfg.case.name}.yaml"
+        path = Path(folder) / group / f"{cfg[group].name}.yaml"
         if path.is_file():
             return str(path)
-    return f"case={cfg.case.name}"
+    return f"{group}={cfg[group].name}"
 
 
 def make_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
-    """The scenario's shot list; a scenario error names its file and key path."""
+    """The scenario's shot list; an error in the scenario or the arrangement names its file and key path."""
     try:
         return build_case(cfg, classified, library, rng)
     except GarageError as exc:
-        if exc.where and exc.where.startswith("case"):
-            raise GarageError(str(exc), scenario_file(cfg)) from None
+        group = (exc.where or "").split(".")[0]
+        if group in ("case", "occluder"):
+            raise GarageError(str(exc), level_file(cfg, group)) from None
         raise
+
+
+def actor_confs(nodes, prefix: str) -> dict:
+    """Actor nodes as ActorConf objects; a key forced past the schema (`+case.actors.x.key=...`) is refused."""
+    known = {f.name for f in fields(ActorConf)}
+    for name, node in (nodes or {}).items():
+        extra = sorted(set(node.keys()) - known)
+        if extra:
+            raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
+                              f"{prefix}.{name}.{extra[0]}")
+    return {str(n): OmegaConf.to_object(a) for n, a in (nodes or {}).items()}
 
 
 def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
     case = cfg.case
     site = find_site(case.site, classified, cfg.garage)
-    known = {f.name for f in fields(ActorConf)}
-    for name, node in case.actors.items():
-        extra = sorted(set(node.keys()) - known)  # `+case.actors.x.key=...` forces a key past the schema
-        if extra:
-            raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
-                              f"case.actors.{name}.{extra[0]}")
-    conf = {n: OmegaConf.to_object(a) for n, a in case.actors.items()}
+    conf = actor_confs(case.actors, "case.actors")
     if EGO not in conf or conf[EGO].role != "ego":
         raise GarageError("a scenario needs an actor named 'ego' with role ego", "case.actors")
     bays = {str(k): int(v) for k, v in (case.bays or {}).items()}
@@ -164,24 +172,22 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
         raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
                           "case.motion.key")
     runs, conf = variants(case, conf, list(cfg.palette.target_colours))
-    source = {n: n.rpartition("_")[0] for n in conf if n not in case.actors}  # palette copies: the original
     # Actors are made in order of first use (the ego first): model draws from rng follow the scenario's order.
-    order = [EGO] + [n for v in runs for n in v.show]
     made: dict[str, kinds.Made] = {}
-    for name in dict.fromkeys(order):
-        made[name] = kinds.make(name, conf[name], cfg, library, site, bays, rng, source.get(name, name))
-    entities = [made[n].entity for n in made]
+    for name in dict.fromkeys([EGO] + [n for v in runs for n in v.show]):
+        source = name if name in case.actors else name.rpartition("_")[0]  # palette copies: the original
+        made[name] = kinds.make(name, conf[name], cfg, library, site, bays, rng, f"case.actors.{source}")
 
     shots: list[Shot] = []
     for variant in runs:
-        moving = [n for n in [EGO, *variant.show] if n == case.motion.actor or n.startswith(f"{case.motion.actor}_")]
         actors = {n: conf[n] for n in [EGO, *variant.show]}
         for key, value in variant.set.items():
             name, _, attr = str(key).partition(".")
             if name not in actors or not hasattr(actors[name], attr):
                 raise GarageError(f"variant {variant.label!r} sets unknown {key!r}", "case.variants")
             actors[name] = replace(actors[name], **{attr: value})
-        mover = moving[0] if moving else None
+        mover = next((n for n in actors if n == case.motion.actor or made[n].source == f"case.actors."
+                      f"{case.motion.actor}"), None)
         values = (frame_values(case, actors[mover], site, _longest(made, case.motion.actor), bays) if mover
                   else [float("nan")])
         for value in values:
@@ -192,13 +198,56 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
             check_overlaps(poses, made, variant.label, value)
             shot_poses = {n: poses.get(n) for n in made if n != EGO}
             shots.append(Shot(len(shots), variant.label, value, poses[EGO], shot_poses, variant.target))
-    for entity in entities:
-        first = next((s.poses.get(entity.name) for s in shots if s.poses.get(entity.name)), None)
-        entity.pose = shots[0].ego if entity.name == EGO else first or entity.pose
     free = [site_bay(site, ref, bays, "case.keep_free").bay for ref in case.keep_free]
-    used = sorted({b for m in made.values() for b in m.bays} | {(b.i, b.j, b.index) for b in free})
-    return CaseSetup(entities, shots, occluder=site.pillar, used_bays=used,
+    taken = {b for m in made.values() for b in m.bays} | {(b.i, b.j, b.index) for b in free}
+    arrange(cfg, classified, library, site, bays, rng, made, shots, taken)
+    for name, m in made.items():
+        first = next((s.poses.get(name) for s in shots if s.poses.get(name)), None)
+        m.entity.pose = shots[0].ego if name == EGO else first or m.entity.pose
+    used = sorted({b for m in made.values() for b in m.bays} | taken)
+    return CaseSetup([m.entity for m in made.values()], shots, occluder=site.pillar, used_bays=used,
                      position_label=case.position_label or "position (m)")
+
+
+def arrange(cfg, classified, library, site: Site, bays: dict, rng, made: dict, shots: list[Shot],
+            taken: set) -> None:
+    """The occluder arrangement's own actors, static, around the site's focus, added to every shot."""
+    extra = actor_confs(cfg.occluder.get("actors"), "occluder.actors")
+    if not extra:
+        return
+    for name in extra:
+        if name in made:
+            raise GarageError(f"the scenario already has an actor {name!r}", f"occluder.actors.{name}")
+    focus = site.focus or sightline(shots[0])
+    free = sorted((b for b in all_bays(classified, cfg.garage) if (b.i, b.j, b.index) not in taken),
+                  key=lambda b: math.hypot(b.x - focus.x, b.y - focus.y))
+    axis = (math.cos(math.radians(focus.yaw)), math.sin(math.radians(focus.yaw)))
+    for name, a in extra.items():
+        where = f"occluder.actors.{name}"
+        bay = None
+        if a.nearest_bay >= 0:
+            if a.nearest_bay >= len(free):
+                raise GarageError(f"only {len(free)} free bays", where + ".nearest_bay")
+            bay = free[a.nearest_bay]
+        elif a.relative != "focus":
+            raise GarageError("an arrangement's actor stands in a nearest_bay or relative: focus", where)
+        made[name] = kinds.make(name, a, cfg, library, site, bays, rng, where, bay=bay)
+        if bay:
+            pose = pose_in_bay(site, replace(a, bay=sites.site_bay(bay)), made[name].extent[0], bays, where)
+        else:
+            pose = pose_relative(focus, axis, a)
+        for shot in shots:
+            shot.poses[name] = pose
+    for shot in shots:
+        poses = {EGO: shot.ego, **{n: p for n, p in shot.poses.items() if p is not None}}
+        check_overlaps(poses, made, shot.label, shot.position, only=set(extra), where="occluder.actors")
+
+
+def sightline(shot: Shot) -> Pose:
+    """Halfway between the ego and its target in a shot, heading from the ego to the target."""
+    t = shot.poses[shot.target]
+    yaw = math.degrees(math.atan2(t.y - shot.ego.y, t.x - shot.ego.x))
+    return Pose((shot.ego.x + t.x) / 2, (shot.ego.y + t.y) / 2, 0.0, yaw % 360.0)
 
 
 def _longest(made: dict, actor: str) -> float:
@@ -214,7 +263,7 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
     def place(name: str, seen: tuple[str, ...] = ()) -> Pose:
         if name in poses:
             return poses[name]
-        a, where = actors[name], f"case.actors.{made[name].source}"
+        a, where = actors[name], made[name].source
         length = made[name].extent[0]
         if a.relative:
             if a.relative not in actors or a.relative in seen:
@@ -243,14 +292,17 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
     return poses
 
 
-def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float) -> None:
+def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float, only: set | None = None,
+                   where: str = "case.actors") -> None:
+    """No two actors stand in one another (`only`: pairs with one of these)."""
     names = list(poses)
     feet = {n: footprint(poses[n], made[n].extent) for n in names}
     for k, a in enumerate(names):
         for b in names[k + 1:]:
+            if only is not None and a not in only and b not in only:
+                continue
             if overlap(feet[a], feet[b]):
-                raise GarageError(f"actors {a} and {b} overlap (variant {label!r}, position {value:g})",
-                                  "case.actors")
+                raise GarageError(f"actors {a} and {b} overlap (variant {label!r}, position {value:g})", where)
 
 
 __all__ = ["EGO", "Shot", "CaseSetup", "make_case", "steps", "path_position"]

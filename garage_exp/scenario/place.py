@@ -59,7 +59,7 @@ def pose_on_path(site: Site, actor, length: float, bays: dict, where: str) -> Po
 
 def pose_in_bay(site: Site, actor, length: float, bays: dict, where: str) -> Pose:
     """In a bay, nose to the lane, centred, or with the front bumper `gap` metres behind the bay line."""
-    sb = site_bay(site, actor.bay, bays, where + ".bay")
+    sb = actor.bay if isinstance(actor.bay, SiteBay) else site_bay(site, actor.bay, bays, where + ".bay")
     bay, u = sb.bay, sb.facing
     inset = 0.0
     if actor.gap is not None:

@@ -15,6 +15,7 @@ from garage_exp.plan.features import (UNIT, corner_nearest_entrance, entrance_di
                                       run_length)
 from garage_exp.plan.model import YAW
 from garage_exp.scene.bays import Bay, bays, pillar_centre
+from garage_exp.scene.description import Pose
 
 MARGIN = 0.2  # an actor on a path keeps this much room to the path's ends (m)
 
@@ -63,6 +64,7 @@ class Site:
     paths: dict[str, Path]
     bays: list[SiteBay] = field(default_factory=list)
     pillar: str | None = None  # entity name of the pillar the site is about (the `occluder` group's object)
+    focus: Pose | None = None  # where occlusion happens (the pillar's centre, heading along the main lane)
 
 
 def compass(yaw: float) -> str:
@@ -81,7 +83,9 @@ def corner(classified: Classified, garage) -> Site:
     u, v = UNIT[c.approach], UNIT[c.exit]
     approach = Path(centre, (-u[0], -u[1]), YAW[c.approach], 0.0, c.approach_length)
     exit_ = Path(centre, v, YAW[c.exit], 0.0, c.exit_length)
-    return Site("corner", {"approach": approach, "exit": exit_}, pillar=f"pillar_{c.pillar.a}_{c.pillar.b}")
+    focus = Pose(*pillar_centre(classified.plan, c.pillar, garage.pillar_size), 0.0, YAW[c.approach])
+    return Site("corner", {"approach": approach, "exit": exit_}, pillar=f"pillar_{c.pillar.a}_{c.pillar.b}",
+                focus=focus)
 
 
 def bay_beside_pillar(classified: Classified, garage) -> Site:
@@ -118,8 +122,9 @@ def bay_beside_pillar(classified: Classified, garage) -> Site:
     origin = (lx, bay.y) if side in "EW" else (bay.x, ly)  # the lane's centre line meets the bay's axis
     lane = Path(origin, UNIT[right], YAW[right], -run_length(plan, lane_i, lane_j, left),
                 run_length(plan, lane_i, lane_j, right))
+    focus = Pose(*pillar_centre(plan, pillar, garage.pillar_size), 0.0, YAW[right])
     return Site("bay_beside_pillar", {"lane": lane}, [SiteBay(bay, UNIT[side])],
-                pillar=f"pillar_{pillar.a}_{pillar.b}")
+                pillar=f"pillar_{pillar.a}_{pillar.b}", focus=focus)
 
 
 def straight_run(classified: Classified, garage) -> Site:
