@@ -149,3 +149,21 @@ def test_a_users_own_scenario_and_site_run_with_no_change_to_the_package(library
     monkeypatch.delenv("GARAGE_EXP_MODIFIER_MODULES")
     with pytest.raises(GarageError, match="cut_in.*case.site: 'my_sites.ramp' is not a site function"):
         build(library, "case=cut_in", config_dir=tmp_path)
+
+
+def test_the_readme_scenario_example_builds_as_it_says(library, tmp_path):
+    import re
+
+    readme = (PROJECT_ROOT / "README.md").read_text()
+    start = readme.index("Save it as\n`my_conf/case/cut_in.yaml`")
+    (tmp_path / "case").mkdir()
+    (tmp_path / "case" / "cut_in.yaml").write_text(re.search(r"```yaml\n(.*?)```", readme[start:], re.S).group(1))
+    _, setup = build(library, "case=cut_in", config_dir=tmp_path)
+    assert [s.label for s in setup.shots] == ["10 m"] * 5 + ["15 m"] * 5
+    assert [s.position for s in setup.shots[:5]] == [2.0, 1.5, 1.0, 0.5, 0.0]
+    ego = setup.shots[0].ego
+    ahead = [math.hypot(s.poses["car"].x - ego.x, s.poses["car"].y - ego.y) for s in setup.shots if s.position == 0]
+    assert np.allclose(ahead, [10.0, 15.0])
+    assert all(s.poses["van"] == setup.shots[0].poses["van"] for s in setup.shots)
+    with pytest.raises(GarageError, match="a variant sets an actor's placement"):
+        build(library, "case=cut_in", "case.variants=[{set: {car.body: van}}]", config_dir=tmp_path)

@@ -28,6 +28,7 @@ from garage_exp.scene.description import Entity, Pose
 EGO = "ego"
 PALETTE = "palette"  # an actor's colour: one copy per palette target colour, one variant each
 MOVABLE = ("distance", "offset", "yaw", "out", "gap")
+PLACEMENT = (*MOVABLE, "path", "align", "before", "bay", "between", "relative")
 
 
 @dataclass
@@ -183,8 +184,10 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
         actors = {n: conf[n] for n in [EGO, *variant.show]}
         for key, value in variant.set.items():
             name, _, attr = str(key).partition(".")
-            if name not in actors or not hasattr(actors[name], attr):
-                raise GarageError(f"variant {variant.label!r} sets unknown {key!r}", "case.variants")
+            if name not in actors or attr not in PLACEMENT:
+                raise GarageError(f"variant {variant.label!r} sets {key!r}: a variant sets an actor's placement "
+                                  f"({', '.join(PLACEMENT)}); another kind or model is another actor",
+                                  "case.variants")
             actors[name] = replace(actors[name], **{attr: value})
         mover = next((n for n in actors if n == case.motion.actor or made[n].source == f"case.actors."
                       f"{case.motion.actor}"), None)
