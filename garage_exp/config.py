@@ -106,6 +106,7 @@ class ActorConf:
     age: str = "adult"
     height: Optional[float] = None
     build: str = "average"
+    gender: str = "neutral"
     pose: str = "standing"
     clothing: str = "default"
     # box (a static occluder): its size in metres (height shared with people), colour by name
@@ -117,7 +118,7 @@ class ActorConf:
     offset: float = 0.0
     yaw: float = 0.0  # degrees, added to the heading the placement gives
     align: str = "centre"  # centre: distance is the actor's centre; start: its rear, from the path's start
-    before: str = ""  # with path: distance counted back from this bay
+    before: str = ""  # with path: distance counted back from this bay, or from this actor
     bay: str = ""  # in this bay of the site (a name from `bays`, or an index), nose to the lane
     gap: Optional[float] = None  # in a bay: front bumper this far behind the bay line (None: centred)
     between: list[str] = field(default_factory=list)  # in the gap between two bays ...
@@ -141,7 +142,8 @@ class OccluderConf:
 class MotionConf:
     """The per-frame sweep: one placement value of one actor (its copies, for a palette-coloured actor)."""
 
-    actor: str = ""  # empty: a static scenario (one frame per variant)
+    actor: str = ""  # empty: a static scenario (one frame per variant); `target` with no actor so named: each
+    # variant's target
     key: str = "distance"  # distance | offset | yaw | out | gap
     start: Optional[float] = None
     end: Optional[float] = None

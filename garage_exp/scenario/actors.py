@@ -44,7 +44,7 @@ def make(name: str, actor, cfg, library, site, bays: dict, rng, source: str = ""
         model = vehicle_model(where, actor, cfg, library, rng, fit, narrow=bay is not None)
         entity = vehicle_entity(name, actor.role, model)
     elif actor.kind == "person":
-        entity = person_entity(name, actor)
+        entity = person_entity(name, actor, where)
     elif actor.kind == "box":
         entity = box_entity(name, actor, where)
     else:
@@ -88,11 +88,14 @@ def vehicle_model(where: str, actor, cfg, library, rng, bay=None, narrow: bool =
     return library.choose(**fit)
 
 
-def person_entity(name: str, actor) -> Entity:
+def person_entity(name: str, actor, where: str) -> Entity:
     from garage_exp.assets.people import PeopleLibrary
 
-    body = PeopleLibrary().body(age_group=actor.age, height=actor.height, build=actor.build, pose=actor.pose,
-                                clothing=actor.clothing)
+    try:
+        body = PeopleLibrary().body(age_group=actor.age, height=actor.height, build=actor.build, pose=actor.pose,
+                                    clothing=actor.clothing, gender=actor.gender)
+    except GarageError as exc:  # the library names the parameter; the scenario names the actor
+        raise GarageError(str(exc).split(": ", 1)[-1], f"{where}.{(exc.where or '').rpartition('.')[2]}") from None
     return Entity(name=name, role=actor.role, pose=Pose(), shapes=[Mesh(body.glb)], model=body.name,
                   size_class=body.age_group, extent=(body.length, body.width, body.height), static=False,
                   kind="person")

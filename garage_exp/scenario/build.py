@@ -167,7 +167,7 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
     if EGO not in conf or conf[EGO].role != "ego":
         raise GarageError("a scenario needs an actor named 'ego' with role ego", "case.actors")
     bays = {str(k): int(v) for k, v in (case.bays or {}).items()}
-    if case.motion.actor and case.motion.actor not in conf:
+    if case.motion.actor and case.motion.actor not in conf and case.motion.actor != "target":
         raise GarageError(f"no actor {case.motion.actor!r} to move (have {', '.join(conf)})", "case.motion.actor")
     if case.motion.key not in MOVABLE:
         raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
@@ -191,7 +191,9 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
             actors[name] = replace(actors[name], **{attr: value})
         mover = next((n for n in actors if n == case.motion.actor or made[n].source == f"case.actors."
                       f"{case.motion.actor}"), None)
-        values = (frame_values(case, actors[mover], site, _longest(made, case.motion.actor), bays) if mover
+        if mover is None and case.motion.actor == "target":  # no actor named so: each variant's target
+            mover = variant.target
+        values = (frame_values(case, actors[mover], site, _longest(made, made[mover].source), bays) if mover
                   else [float("nan")])
         for value in values:
             placed = dict(actors)
@@ -253,9 +255,9 @@ def sightline(shot: Shot) -> Pose:
     return Pose((shot.ego.x + t.x) / 2, (shot.ego.y + t.y) / 2, 0.0, yaw % 360.0)
 
 
-def _longest(made: dict, actor: str) -> float:
+def _longest(made: dict, source: str) -> float:
     """The longest of an actor's copies (the palette's colours): the room on a path fits them all."""
-    return max(m.extent[0] for n, m in made.items() if n == actor or n.startswith(f"{actor}_"))
+    return max(m.extent[0] for m in made.values() if m.source == source)
 
 
 def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]:
@@ -275,6 +277,15 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
             ref = place(a.relative, (*seen, name))
             axes[name] = axes[a.relative]
             pose = pose_relative(ref, axes[a.relative], a)
+        elif a.path and a.before in actors:  # counted back from another actor (its projection on the path)
+            if a.before in seen:
+                raise GarageError(f"before {a.before!r} makes a cycle", where + ".before")
+            path = site_path(site, a.path, where + ".path")
+            ref = place(a.before, (*seen, name))
+            axes[name] = path.axis
+            x, y = path.at_world(path.along(ref.x, ref.y) - float(a.distance))
+            pose = Pose(x - a.offset * path.axis[1], y + a.offset * path.axis[0], 0.0,
+                        (path.heading + float(a.yaw)) % 360.0)
         elif a.path:
             axes[name] = site_path(site, a.path, where + ".path").axis
             pose = pose_on_path(site, a, length, bays, where)
