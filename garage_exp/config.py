@@ -168,7 +168,7 @@ class CaseConf:
     name: str = MISSING
     site: str = MISSING  # corner | bay_beside_pillar | straight_run (garage_exp/scenario/sites.py)
     position_label: str = "position (m)"  # the plot's x axis: what the motion moves
-    bays: dict[str, int] = field(default_factory=dict)  # names for the site's bays (far: 3)
+    bays: dict[str, str] = field(default_factory=dict)  # names for the site's bays (far: 3, mine: right:2)
     keep_free: list[str] = field(default_factory=list)  # bays kept free of the palette's parked cars (besides
     # those the actors stand in)
     actors: dict[str, ActorConf] = field(default_factory=dict)

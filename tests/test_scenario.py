@@ -167,3 +167,51 @@ def test_the_readme_scenario_example_builds_as_it_says(library, tmp_path):
     assert all(s.poses["van"] == setup.shots[0].poses["van"] for s in setup.shots)
     with pytest.raises(GarageError, match="a variant sets an actor's placement"):
         build(library, "case=cut_in", "case.variants=[{set: {car.body: van}}]", config_dir=tmp_path)
+
+
+def write_case(folder, text: str) -> None:
+    (folder / "case").mkdir(exist_ok=True)
+    (folder / "case" / "mine.yaml").write_text(textwrap.dedent(text))
+
+
+def test_a_t_junction_site_puts_a_crossing_car_on_the_through_lane(library, tmp_path):
+    write_case(tmp_path, """\
+        name: mine
+        site: t_junction
+        actors:
+          ego: {role: ego, model: "${palette.ego}", path: stem, distance: 12.0}
+          target: {role: moving, size: medium, colour: red, path: left, distance: 8.0, yaw: 180}
+        target: target
+        """)
+    _, setup = build(library, "case=mine", "plan=research", config_dir=tmp_path)
+    shot, = setup.shots
+    ego, car = shot.ego, shot.poses["target"]
+    assert math.isclose(math.hypot(car.x - ego.x, car.y - ego.y), math.hypot(12.0, 8.0), abs_tol=1e-6)
+    assert abs(((car.yaw - ego.yaw) % 360) - 270) < 1e-9  # comes from the ego's left, driving to its right
+    # the car is on the ego's left: the cross product of the heading and the offset is positive
+    hx, hy = math.cos(math.radians(ego.yaw)), math.sin(math.radians(ego.yaw))
+    assert hx * (car.y - ego.y) - hy * (car.x - ego.x) > 7.9
+
+
+def test_bays_on_either_side_of_the_straight_run(library, tmp_path):
+    write_case(tmp_path, """\
+        name: mine
+        site: straight_run
+        actors:
+          ego: {role: ego, model: "${palette.ego}", path: lane, distance: 2.0}
+          a: {role: target, size: medium, bay: "left:4"}
+          b: {role: parked, size: medium, bay: "right:4"}
+        """)
+    from garage_exp.scenario.sites import straight_run
+
+    cfg = compose_cfg("plan=realistic")
+    site = straight_run(classify(load_plan(resolve_plan_path(cfg.plan))), cfg.garage)
+    if len(site.sides) < 2:
+        pytest.fail(f"the realistic plan's longest straight run should have bays on both sides: {site.sides}")
+    _, setup = build(library, "case=mine", "plan=realistic", config_dir=tmp_path)
+    ego, a, b = setup.shots[0].ego, setup.shots[0].poses["a"], setup.shots[0].poses["b"]
+    hx, hy = math.cos(math.radians(ego.yaw)), math.sin(math.radians(ego.yaw))
+    side = [hx * (p.y - ego.y) - hy * (p.x - ego.x) for p in (a, b)]
+    assert side[0] > 2.0 and side[1] < -2.0
+    with pytest.raises(GarageError, match="no bay 'middle:1'"):
+        build(library, "case=mine", "plan=realistic", "case.actors.b.bay=middle:1", config_dir=tmp_path)

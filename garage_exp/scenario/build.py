@@ -91,6 +91,8 @@ def variants(case, actors: dict, colours: list[str]) -> tuple[list[Variant], dic
     for k, v in enumerate(listed):
         show = list(v.get("show") or [n for n in actors if n != EGO])
         target = v.get("target") or default_target
+        if not target:
+            raise GarageError("no target: give one actor role target, or name it in `target`", f"case.variants.{k}")
         for name in [*show, target]:
             if name not in actors:
                 raise GarageError(f"no actor {name!r} (have {', '.join(actors)})", f"case.variants.{k}")
@@ -166,7 +168,7 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
     conf = actor_confs(case.actors, "case.actors")
     if EGO not in conf or conf[EGO].role != "ego":
         raise GarageError("a scenario needs an actor named 'ego' with role ego", "case.actors")
-    bays = {str(k): int(v) for k, v in (case.bays or {}).items()}
+    bays = {str(k): str(v) for k, v in (case.bays or {}).items()}
     if case.motion.actor and case.motion.actor not in conf and case.motion.actor != "target":
         raise GarageError(f"no actor {case.motion.actor!r} to move (have {', '.join(conf)})", "case.motion.actor")
     if case.motion.key not in MOVABLE:

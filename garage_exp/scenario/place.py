@@ -13,14 +13,18 @@ from garage_exp.scene.description import Pose
 
 
 def site_bay(site: Site, ref, bays: dict, where: str) -> SiteBay:
-    """A bay of the site by the scenario's name for it (`bays: {far: 3}`) or by index."""
-    key = str(ref)
-    index = bays.get(key, key)
+    """A bay of the site by the scenario's name for it (`bays: {far: 3}`), by index, or by side and index
+    (`right:3`)."""
+    key = str(bays.get(str(ref), ref))
+    side, _, index = key.rpartition(":")
+    row = site.sides.get(side) if side else site.bays
     try:
-        return site.bays[int(index)]
-    except (ValueError, IndexError):
-        raise GarageError(f"the site {site.name} has no bay {key!r} ({len(site.bays)} bays; names: "
-                          f"{', '.join(bays) or 'none'})", where) from None
+        return row[int(index)]
+    except (TypeError, ValueError, IndexError):
+        sides = ", ".join(f"{k}: {len(v)}" for k, v in site.sides.items())
+        raise GarageError(f"the site {site.name} has no bay {str(ref)!r} ({len(site.bays)} bays"
+                          f"{'; by side ' + sides if sides else ''}; names: {', '.join(bays) or 'none'})",
+                          where) from None
 
 
 def site_path(site: Site, name: str, where: str) -> Path:

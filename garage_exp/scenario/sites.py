@@ -13,7 +13,7 @@ from garage_exp.errors import GarageError
 from garage_exp.plan.classify import Classified
 from garage_exp.plan.features import (UNIT, corner_nearest_entrance, entrance_distance, longest_straight_run,
                                       run_length)
-from garage_exp.plan.model import YAW
+from garage_exp.plan.model import OPPOSITE, YAW
 from garage_exp.scene.bays import Bay, bays, pillar_centre
 from garage_exp.scene.description import Pose
 
@@ -63,6 +63,7 @@ class Site:
     name: str
     paths: dict[str, Path]
     bays: list[SiteBay] = field(default_factory=list)
+    sides: dict[str, list[SiteBay]] = field(default_factory=dict)  # bays by side (`bay: right:2`)
     pillar: str | None = None  # entity name of the pillar the site is about (the `occluder` group's object)
     focus: Pose | None = None  # where occlusion happens (the pillar's centre, heading along the main lane)
 
@@ -117,7 +118,7 @@ def bay_beside_pillar(classified: Classified, garage) -> Site:
     found.sort(key=lambda t: t[:4])
     _, _, _, _, bay, pillar, side, (lane_i, lane_j) = found[0]
     lx, ly = plan.cell_center(lane_i, lane_j)
-    left = {"E": "N", "N": "W", "W": "S", "S": "E"}[side]
+    left = LEFT_OF[side]
     right = {"N": "S", "S": "N", "E": "W", "W": "E"}[left]
     origin = (lx, bay.y) if side in "EW" else (bay.x, ly)  # the lane's centre line meets the bay's axis
     lane = Path(origin, UNIT[right], YAW[right], -run_length(plan, lane_i, lane_j, left),
@@ -129,7 +130,8 @@ def bay_beside_pillar(classified: Classified, garage) -> Site:
 
 def straight_run(classified: Classified, garage) -> Site:
     """The longest straight lane. `lane`: its centre line in driving order, distance 0 at the first cell's
-    centre; bays 0, 1, 2, ...: the bays on its first bay side, in driving order."""
+    centre; bays 0, 1, 2, ...: the bays on its first bay side, in driving order; `left:k`, `right:k`: the k-th
+    bay on that side of the driving direction."""
     plan = classified.plan
     run = longest_straight_run(classified)
     first = run.cells[0]
@@ -137,21 +139,47 @@ def straight_run(classified: Classified, garage) -> Site:
     lengths = [float(plan.C[c.j] if run.heading == "E" else plan.R[c.i]) for c in run.cells]
     lane = Path(plan.cell_center(first.i, first.j), h, YAW[run.heading], -lengths[0] / 2,
                 sum(lengths) - lengths[0] / 2)
-    out = []
-    if run.bay_sides:
-        side = run.bay_sides[0]
+    sides = {}
+    for side in run.bay_sides:
         cells = {(c.i, c.j) for c in run.cells}
         u = UNIT[side]
+        found = []
         for bay in bays(classified, garage):
             cell = plan.cell_at(bay.x - u[0] * (bay.depth / 2 + 0.5), bay.y - u[1] * (bay.depth / 2 + 0.5))
             # a bay on `side` of the run faces back towards the lane (its yaw points opposite to `side`)
             if cell in cells and abs(((bay.yaw - YAW[side]) + 180) % 360 - 180) > 90:
-                out.append(bay)
-        out.sort(key=lambda b: b.x * h[0] + b.y * h[1])
-    return Site("straight_run", {"lane": lane}, [site_bay(b) for b in out])
+                found.append(bay)
+        found.sort(key=lambda b: b.x * h[0] + b.y * h[1])
+        sides[LEFT_OF[run.heading] == side and "left" or "right"] = [site_bay(b) for b in found]
+    first = sides.get("left" if run.bay_sides and LEFT_OF[run.heading] == run.bay_sides[0] else "right", [])
+    return Site("straight_run", {"lane": lane}, first, sides=sides)
 
 
-SITES = {"corner": corner, "bay_beside_pillar": bay_beside_pillar, "straight_run": straight_run}
+def t_junction(classified: Classified, garage) -> Site:
+    """The T-junction nearest the entrance. `stem`: the lane that ends at the junction, distance counted back
+    from the junction cell's centre, actors facing the junction; `left` and `right`: the through lane as a
+    car arriving on the stem sees it, distance from the centre, actors driving away from the junction."""
+    plan = classified.plan
+    dist = entrance_distance(plan)
+    cells = sorted(classified.of_type("t_junction"), key=lambda c: (dist[c.i, c.j], c.i, c.j))
+    if not cells:
+        raise GarageError("no T-junction lane cell (the site t_junction needs one)", plan.source)
+    cell = cells[0]
+    stem = next(d for d in cell.lanes if OPPOSITE[d] not in cell.lanes)
+    arrive = OPPOSITE[stem]  # heading of a car coming up the stem
+    left, right = LEFT_OF[arrive], OPPOSITE[LEFT_OF[arrive]]
+    centre = plan.cell_center(cell.i, cell.j)
+    paths = {"stem": Path(centre, UNIT[stem], YAW[arrive], 0.0, run_length(plan, cell.i, cell.j, stem))}
+    for name, d in (("left", left), ("right", right)):
+        paths[name] = Path(centre, UNIT[d], YAW[d], 0.0, run_length(plan, cell.i, cell.j, d))
+    return Site("t_junction", paths)
+
+
+LEFT_OF = {"E": "N", "N": "W", "W": "S", "S": "E"}  # the compass side to the left of a heading
+
+
+SITES = {"corner": corner, "bay_beside_pillar": bay_beside_pillar, "straight_run": straight_run,
+         "t_junction": t_junction}
 
 
 def find_site(name: str, classified: Classified, garage) -> Site:
