@@ -9,55 +9,25 @@ a config key, so a sweep or a search can set it by an override.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import replace
 
 import numpy as np
 from omegaconf import OmegaConf
 
-from garage_exp.config import ActorConf
 from garage_exp.errors import GarageError
 from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
-from garage_exp.scenario.place import (footprint, overlap, path_position, pose_between, pose_in_bay, pose_on_path,
+from garage_exp.scenario.arrange import arrange
+from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
+from garage_exp.scenario.place import (check_overlaps, pose_between, pose_in_bay, pose_on_path,
                                        pose_relative, site_bay, site_path)
-from garage_exp.scenario import sites
 from garage_exp.scenario.sites import Site, find_site
-from garage_exp.scene.bays import bays as all_bays
-from garage_exp.scene.description import Entity, Pose
+from garage_exp.scene.description import Pose
 
 EGO = "ego"
 PALETTE = "palette"  # an actor's colour: one copy per palette target colour, one variant each
 MOVABLE = ("distance", "offset", "yaw", "out", "gap")
 PLACEMENT = (*MOVABLE, "path", "align", "before", "bay", "between", "relative")
-
-
-@dataclass
-class Shot:
-    """One frame: the ego's pose, the pose of each case actor (None: not in the scene), the target."""
-
-    index: int
-    label: str  # the variant this frame belongs to: a colour, a placement ("far=large"), ...
-    position: float  # the plot's x value: the moved placement value
-    ego: Pose
-    poses: dict[str, Pose | None]
-    target: str
-
-
-@dataclass
-class CaseSetup:
-    vehicles: list[Entity]  # the case's actors (ego included), vehicles and people
-    shots: list[Shot]
-    occluder: str | None = None  # the structure entity the case is about (a pillar)
-    used_bays: list[tuple[int, int, int]] = field(default_factory=list)  # (i, j, k) kept free of parked cars
-    position_label: str = "position (m)"
-
-
-@dataclass
-class Variant:
-    label: str
-    show: list[str]
-    target: str
-    set: dict
 
 
 def steps(start: float, end: float, step: float) -> list[float]:
@@ -151,17 +121,6 @@ def make_case(cfg, classified: Classified, library, rng: np.random.Generator) ->
         raise
 
 
-def actor_confs(nodes, prefix: str) -> dict:
-    """Actor nodes as ActorConf objects; a key forced past the schema (`+case.actors.x.key=...`) is refused."""
-    known = {f.name for f in fields(ActorConf)}
-    for name, node in (nodes or {}).items():
-        extra = sorted(set(node.keys()) - known)
-        if extra:
-            raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
-                              f"{prefix}.{name}.{extra[0]}")
-    return {str(n): OmegaConf.to_object(a) for n, a in (nodes or {}).items()}
-
-
 def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
     case = cfg.case
     site = find_site(case.site, classified, cfg.garage)
@@ -216,47 +175,6 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
                      position_label=case.position_label or "position (m)")
 
 
-def arrange(cfg, classified, library, site: Site, bays: dict, rng, made: dict, shots: list[Shot],
-            taken: set) -> None:
-    """The occluder arrangement's own actors, static, around the site's focus, added to every shot."""
-    extra = actor_confs(cfg.occluder.get("actors"), "occluder.actors")
-    if not extra:
-        return
-    for name in extra:
-        if name in made:
-            raise GarageError(f"the scenario already has an actor {name!r}", f"occluder.actors.{name}")
-    focus = site.focus or sightline(shots[0])
-    free = sorted((b for b in all_bays(classified, cfg.garage) if (b.i, b.j, b.index) not in taken),
-                  key=lambda b: math.hypot(b.x - focus.x, b.y - focus.y))
-    axis = (math.cos(math.radians(focus.yaw)), math.sin(math.radians(focus.yaw)))
-    for name, a in extra.items():
-        where = f"occluder.actors.{name}"
-        bay = None
-        if a.nearest_bay >= 0:
-            if a.nearest_bay >= len(free):
-                raise GarageError(f"only {len(free)} free bays", where + ".nearest_bay")
-            bay = free[a.nearest_bay]
-        elif a.relative != "focus":
-            raise GarageError("an arrangement's actor stands in a nearest_bay or relative: focus", where)
-        made[name] = kinds.make(name, a, cfg, library, site, bays, rng, where, bay=bay)
-        if bay:
-            pose = pose_in_bay(site, replace(a, bay=sites.site_bay(bay)), made[name].extent[0], bays, where)
-        else:
-            pose = pose_relative(focus, axis, a)
-        for shot in shots:
-            shot.poses[name] = pose
-    for shot in shots:
-        poses = {EGO: shot.ego, **{n: p for n, p in shot.poses.items() if p is not None}}
-        check_overlaps(poses, made, shot.label, shot.position, only=set(extra), where="occluder.actors")
-
-
-def sightline(shot: Shot) -> Pose:
-    """Halfway between the ego and its target in a shot, heading from the ego to the target."""
-    t = shot.poses[shot.target]
-    yaw = math.degrees(math.atan2(t.y - shot.ego.y, t.x - shot.ego.x))
-    return Pose((shot.ego.x + t.x) / 2, (shot.ego.y + t.y) / 2, 0.0, yaw % 360.0)
-
-
 def _longest(made: dict, source: str) -> float:
     """The longest of an actor's copies (the palette's colours): the room on a path fits them all."""
     return max(m.extent[0] for m in made.values() if m.source == source)
@@ -308,17 +226,4 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
     return poses
 
 
-def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float, only: set | None = None,
-                   where: str = "case.actors") -> None:
-    """No two actors stand in one another (`only`: pairs with one of these)."""
-    names = list(poses)
-    feet = {n: footprint(poses[n], made[n].extent) for n in names}
-    for k, a in enumerate(names):
-        for b in names[k + 1:]:
-            if only is not None and a not in only and b not in only:
-                continue
-            if overlap(feet[a], feet[b]):
-                raise GarageError(f"actors {a} and {b} overlap (variant {label!r}, position {value:g})", where)
-
-
-__all__ = ["EGO", "Shot", "CaseSetup", "make_case", "steps", "path_position"]
+__all__ = ["EGO", "Shot", "CaseSetup", "make_case", "steps"]

@@ -112,3 +112,16 @@ def overlap(a: np.ndarray, b: np.ndarray, tolerance: float = 0.02) -> bool:
             if min(pa.max(), pb.max()) - max(pa.min(), pb.min()) <= tolerance:
                 return False
     return True
+
+
+def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float, only: set | None = None,
+                   where: str = "case.actors") -> None:
+    """No two actors stand in one another (`only`: pairs with one of these)."""
+    names = list(poses)
+    feet = {n: footprint(poses[n], made[n].extent) for n in names}
+    for k, a in enumerate(names):
+        for b in names[k + 1:]:
+            if only is not None and a not in only and b not in only:
+                continue
+            if overlap(feet[a], feet[b]):
+                raise GarageError(f"actors {a} and {b} overlap (variant {label!r}, position {value:g})", where)
