@@ -11,7 +11,11 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 Role = Literal["structure", "marking", "lamp", "parked", "target", "occluder", "ego", "moving"]
+# Roles of actors (vehicles and people): each has its own id, pose and ground truth. The name is older than the
+# people; `Entity.kind` tells a vehicle from a person.
 VEHICLE_ROLES = ("parked", "target", "occluder", "ego", "moving")
+ACTOR_ROLES = VEHICLE_ROLES
+Kind = Literal["vehicle", "person"]
 
 
 @dataclass(frozen=True)
@@ -72,11 +76,18 @@ class Entity:
     role: Role
     pose: Pose
     shapes: list[Shape] = field(default_factory=list)
-    # Vehicles: the model name, its size class and its extent (length, width, height).
+    # Actors: the model name, its size class and its extent (length, width, height; a person faces +x).
     model: str | None = None
     size_class: str | None = None
     extent: tuple[float, float, float] | None = None
     static: bool = True
+    # "vehicle" or "person" for an actor; None for structure, markings and lamps (and for a vehicle built
+    # before people existed: an actor without a kind is a vehicle, see `is_person`).
+    kind: Kind | None = None
+
+    @property
+    def is_person(self) -> bool:
+        return self.kind == "person"
 
 
 @dataclass(frozen=True)
@@ -124,5 +135,12 @@ class Scene:
     def by_role(self, *roles: str) -> list[Entity]:
         return [e for e in self.entities if e.role in roles]
 
+    def actors(self) -> list[Entity]:
+        """Vehicles and people (the entities with an actor's role)."""
+        return self.by_role(*ACTOR_ROLES)
+
     def vehicles(self) -> list[Entity]:
-        return self.by_role(*VEHICLE_ROLES)
+        return [e for e in self.actors() if not e.is_person]
+
+    def people(self) -> list[Entity]:
+        return [e for e in self.actors() if e.is_person]
