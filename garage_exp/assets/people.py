@@ -346,7 +346,7 @@ def build_body(spec: BodySpec, target: Path) -> dict:
     vertices = np.stack([-posed[:, 1], posed[:, 0], posed[:, 2]], axis=1) * scale
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     vertices -= [(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, low[2]]
-    faces = np.asarray(model.faces.cpu().numpy() if hasattr(model.faces, "cpu") else model.faces, dtype=np.int64)
+    faces = model.faces.cpu().numpy().astype(np.int64)
     body = trimesh.Trimesh(vertices, faces, process=False)
     normals = body.vertex_normals  # smooth normals over the whole body: no seams at the region borders
     face_region = region[faces[:, 0]]

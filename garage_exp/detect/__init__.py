@@ -9,4 +9,5 @@ from garage_exp.detect.matching import (MATCH_MODES, PERSON_CLASSES, VEHICLE_CLA
 from garage_exp.detect.offline import prepare_offline
 
 __all__ = ["Detector", "ModelDetections", "load_model", "model_format", "resolve_model", "MATCH_MODES",
-           "VEHICLE_CLASSES", "PERSON_CLASSES", "GTBox", "TargetScore", "iou", "iou_many", "score_target", "prepare_offline"]
+           "VEHICLE_CLASSES", "PERSON_CLASSES", "GTBox", "TargetScore", "iou", "iou_many", "score_target",
+           "prepare_offline"]

@@ -161,9 +161,9 @@ class Detector:
     """Several YOLO models run one after another on each frame.
 
     models: OpenVINO folders or .pt files (must exist). classes: the vehicle classes a vehicle target may be
-    matched with; person_classes: those of a person target. conf: lowest confidence kept (low, so that a weak hit scores its confidence instead of 0).
-    imgsz: network input size in pixels. device: torch/ultralytics device string. threads: OpenVINO inference
-    threads (0: its default).
+    matched with; person_classes: those of a person target. conf: lowest confidence kept (low, so that a weak
+    hit scores its confidence instead of 0). imgsz: network input size in pixels. device: torch/ultralytics
+    device string. threads: OpenVINO inference threads (0: its default).
     """
 
     models: Sequence[str | Path]
