@@ -40,7 +40,7 @@ from garage_exp.errors import GarageError
 log = logging.getLogger(__name__)
 
 # Bump whenever building changes what a GLB or its sidecar holds.
-BUILDER_VERSION = 1
+BUILDER_VERSION = 2
 
 # anny's age phenotype (0-1): 0.25 is a child of about 1.2 m, 0.5 a young adult.
 AGE_GROUPS = {"adult": 0.5, "child": 0.25}
@@ -78,20 +78,23 @@ _REGION_OF_BONE = (("finger", "skin"), ("metacarpal", "skin"), ("wrist", "skin")
                    ("upperarm", "shirt"), ("lowerarm", "shirt"))
 # Degrees about anny's world-aligned axes (x: the body's left, -y: where it faces, z: up) per bone and pose.
 # The rest pose holds the arms 45 degrees out with the elbows bent forward: the upper arms come down (about y)
-# and the forearms straighten (about x). Walking: mid-stride, left leg ahead, arms swinging against the legs.
+# and the forearms straighten (about x), the legs come a little closer (about y). Walking: mid-stride, left leg
+# ahead, arms swinging against the legs.
 _ARMS_DOWN = 36.0
+_LEGS_IN = 3.0  # the rest pose stands with the feet wide apart
 _POSE_ANGLES = {
     "standing": {"upperarm01.L": (0.0, _ARMS_DOWN, 0.0), "upperarm01.R": (0.0, -_ARMS_DOWN, 0.0),
-                 "lowerarm01.L": (40.0, 0.0, 0.0), "lowerarm01.R": (40.0, 0.0, 0.0)},
+                 "lowerarm01.L": (40.0, 0.0, 0.0), "lowerarm01.R": (40.0, 0.0, 0.0),
+                 "upperleg01.L": (0.0, _LEGS_IN, 0.0), "upperleg01.R": (0.0, -_LEGS_IN, 0.0)},
     "walking": {"upperarm01.L": (20.0, _ARMS_DOWN, 0.0), "upperarm01.R": (-20.0, -_ARMS_DOWN, 0.0),
                 "lowerarm01.L": (40.0, 0.0, 0.0), "lowerarm01.R": (25.0, 0.0, 0.0),
-                "upperleg01.L": (-22.0, 0.0, 0.0), "upperleg01.R": (14.0, 0.0, 0.0),
+                "upperleg01.L": (-22.0, _LEGS_IN, 0.0), "upperleg01.R": (14.0, -_LEGS_IN, 0.0),
                 "lowerleg01.L": (8.0, 0.0, 0.0), "lowerleg01.R": (22.0, 0.0, 0.0),
                 "foot.R": (-10.0, 0.0, 0.0)},
 }
 # The trousers' waistband above the hip joints, as a share of stature.
 _BELT = 0.045
-_TORSO_BONES = ("root", "pelvis", "spine")
+_ARM_BONES = ("clavicle", "shoulder", "upperarm", "lowerarm")
 
 _MODEL = None  # anny's model, loaded once per process
 
@@ -303,7 +306,7 @@ def _height_phenotype(model, spec: BodySpec) -> float:
 
 
 def regions_of(model, vertices: np.ndarray, heads: np.ndarray) -> np.ndarray:
-    """Clothing region index (into REGIONS) per vertex, from the skinning weights; the waistband and the hair
+    """Clothing region index (into REGIONS) per face, from the skinning weights; the waistband and the hair
     from the body's shape.
 
     vertices, heads: the standing body and its bone heads in anny's frame (z up, facing -y)."""
@@ -312,16 +315,12 @@ def regions_of(model, vertices: np.ndarray, heads: np.ndarray) -> np.ndarray:
                                                 "shirt")) for name in labels])
     weights = model.vertex_bone_weights.cpu().numpy()
     indices = model.vertex_bone_indices.cpu().numpy()
+    faces = model.faces.cpu().numpy()
     score = np.zeros((len(weights), len(REGIONS)))
     np.add.at(score, (np.arange(len(weights))[:, None], bone_region[indices]), weights)
     region = score.argmax(axis=1)
     dominant = indices[np.arange(len(indices)), weights.argmax(axis=1)]
     z = vertices[:, 2]
-    stature = _stature(vertices)
-    # The torso's bones blend across the waist: trousers below the waistband, shirt above it.
-    torso = np.isin(dominant, [k for k, name in enumerate(labels) if name.startswith(_TORSO_BONES)])
-    belt = heads[[labels.index("upperleg01.L"), labels.index("upperleg01.R")], 2].mean() + _BELT * stature
-    region[torso] = np.where(z[torso] < belt, REGIONS.index("trousers"), REGIONS.index("shirt"))
     # Hair: head vertices above the brow, or behind the ears above the nape (anny faces -y).
     head = dominant == labels.index("head")
     eye = vertices[np.isin(dominant, [labels.index("eye.L"), labels.index("eye.R")])].mean(axis=0)
@@ -329,7 +328,15 @@ def regions_of(model, vertices: np.ndarray, heads: np.ndarray) -> np.ndarray:
     above_brow = z > eye[2] + 0.3 * size
     behind = (vertices[:, 1] > eye[1] + 1.0 * size) & (z > eye[2] - 0.6 * size)
     region[head & (above_brow | behind)] = REGIONS.index("hair")
-    return region
+    out = region[faces[:, 0]]
+    # Hips and belly blend the spine's and the legs' weights: a straight waistband instead, trousers below it
+    # and shirt above, decided per face so that the line follows the mesh (sleeves stay shirt).
+    arm = np.isin(dominant, [k for k, name in enumerate(labels) if name.startswith(_ARM_BONES)])
+    clothed = np.isin(region, [REGIONS.index("shirt"), REGIONS.index("trousers")]) & ~arm
+    belt = heads[[labels.index("upperleg01.L"), labels.index("upperleg01.R")], 2].mean() + _BELT * _stature(vertices)
+    body = clothed[faces].all(axis=1)
+    out[body] = np.where(z[faces[body]].mean(axis=1) < belt, REGIONS.index("trousers"), REGIONS.index("shirt"))
+    return out
 
 
 def build_body(spec: BodySpec, target: Path) -> dict:
@@ -341,7 +348,7 @@ def build_body(spec: BodySpec, target: Path) -> dict:
     standing, heads = _posed(model, spec, height_phenotype, "standing")
     scale = spec.height / _stature(standing)
     posed = standing if spec.pose == "standing" else _posed(model, spec, height_phenotype, spec.pose)[0]
-    region = regions_of(model, standing, heads)
+    face_region = regions_of(model, standing, heads)
     # anny's frame (facing -y) turned 90 degrees about z to face +x: (x, y, z) -> (-y, x, z).
     vertices = np.stack([-posed[:, 1], posed[:, 0], posed[:, 2]], axis=1) * scale
     low, high = vertices.min(axis=0), vertices.max(axis=0)
@@ -349,7 +356,6 @@ def build_body(spec: BodySpec, target: Path) -> dict:
     faces = model.faces.cpu().numpy().astype(np.int64)
     body = trimesh.Trimesh(vertices, faces, process=False)
     normals = body.vertex_normals  # smooth normals over the whole body: no seams at the region borders
-    face_region = region[faces[:, 0]]
     colours = dict(spec.colours)
     scene = trimesh.Scene()
     for k, name in enumerate(REGIONS):
