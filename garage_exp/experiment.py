@@ -18,7 +18,7 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from garage_exp import results
-from garage_exp.cases import CaseSetup, Shot, make_case
+from garage_exp.scenario import CaseSetup, Shot, make_case
 from garage_exp.config import FOVY_RANGE, RESOLUTION_RANGE
 from garage_exp.errors import GarageError, check_range
 from garage_exp.groundtruth import VehicleTruth
@@ -91,7 +91,8 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
             renderer.set_pose(name, pose if pose is not None else HIDDEN)
         for cam in scene.cameras:
             frame = renderer.render(cam.name)
-            in_view = [v.name for v in scene.actors() if v.role != "ego" and shot.poses.get(v.name, v.pose)]
+            in_view = [v.name for v in scene.actors()
+                       if v.role != "ego" and v.kind != "box" and shot.poses.get(v.name, v.pose)]
             silhouettes = renderer.unoccluded_ids(cam.name, in_view)
             truth = ground_truth(frame, silhouettes, scene, renderer.ids)
             rgb = sensor.apply(frame.rgb, sensor_rng)

@@ -31,7 +31,7 @@ def street(tmp_path_factory):
     from garage_exp.results import save_frame
     from garage_exp.scene.description import Entity, Mesh, Pose
 
-    cfg = compose_cfg("case=light", "light=bright", "case.params.distances=[6.0]")
+    cfg = compose_cfg("case=light", "light=bright", "case.motion.values=[6.0]")
     classified = classify(load_plan(ROOT / "plans" / f"{cfg.plan.name}.yaml"))
     scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     library = PeopleLibrary(tmp_path_factory.mktemp("people"))

@@ -327,7 +327,7 @@ class VehicleLibrary:
 
     def choose(self, size_class: str | None = None, colour: str | None = None, kind: str | None = None,
                max_height: float | None = None, rng: np.random.Generator | None = None,
-               max_length: float | None = None) -> VehicleModel:
+               max_length: float | None = None, max_width: float | None = None) -> VehicleModel:
         """A model matching every given filter, drawn with rng (a fixed seed when None): same rng, same pick."""
         for value, allowed, what in ((size_class, SIZE_CLASSES, "size_class"), (colour, COLOURS, "colour"),
                                      (kind, KINDS, "kind")):
@@ -338,10 +338,11 @@ class VehicleLibrary:
                       and (colour is None or m.colour == colour)
                       and (kind is None or m.kind == kind)
                       and (max_height is None or m.height <= max_height)
-                      and (max_length is None or m.length <= max_length)]
+                      and (max_length is None or m.length <= max_length)
+                      and (max_width is None or m.width <= max_width)]
         if not candidates:
             asked = {"size_class": size_class, "colour": colour, "kind": kind, "max_height": max_height,
-                     "max_length": max_length}
+                     "max_length": max_length, "max_width": max_width}
             filters = ", ".join(f"{k}={v}" for k, v in asked.items() if v is not None) or "no filter"
             raise GarageError(f"no vehicle model matches {filters}", str(self.root))
         rng = rng if rng is not None else np.random.default_rng(0)

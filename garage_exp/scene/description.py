@@ -11,11 +11,10 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 Role = Literal["structure", "marking", "lamp", "parked", "target", "occluder", "ego", "moving"]
-# Roles of actors (vehicles and people): each has its own id, pose and ground truth. The name is older than the
-# people; `Entity.kind` tells a vehicle from a person.
+# Roles of actors (vehicles, people, box occluders): each has its own id and pose; vehicles and people get ground
+# truth. The name is older than the people; `Entity.kind` tells them apart.
 VEHICLE_ROLES = ("parked", "target", "occluder", "ego", "moving")
 ACTOR_ROLES = VEHICLE_ROLES
-Kind = Literal["vehicle", "person"]
 
 
 @dataclass(frozen=True)
@@ -81,9 +80,9 @@ class Entity:
     size_class: str | None = None
     extent: tuple[float, float, float] | None = None
     static: bool = True
-    # "vehicle" or "person" for an actor; None for structure, markings and lamps (and for a vehicle built
-    # before people existed: an actor without a kind is a vehicle, see `is_person`).
-    kind: Kind | None = None
+    # An actor's kind: "vehicle" | "person" | "box" (a static occluder); None for structure, markings and lamps
+    # (and for a vehicle built before kinds existed: an actor without a kind is a vehicle).
+    kind: str | None = None
 
     @property
     def is_person(self) -> bool:
@@ -136,11 +135,11 @@ class Scene:
         return [e for e in self.entities if e.role in roles]
 
     def actors(self) -> list[Entity]:
-        """Vehicles and people (the entities with an actor's role)."""
+        """Vehicles, people and box occluders (the entities with an actor's role)."""
         return self.by_role(*ACTOR_ROLES)
 
     def vehicles(self) -> list[Entity]:
-        return [e for e in self.actors() if not e.is_person]
+        return [e for e in self.actors() if e.kind not in ("person", "box")]
 
     def people(self) -> list[Entity]:
         return [e for e in self.actors() if e.is_person]
