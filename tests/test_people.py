@@ -115,6 +115,9 @@ def test_bad_body_parameters_name_the_key(kwargs, where):
     with pytest.raises(GarageError) as err:
         people.make_spec(**kwargs)
     assert err.value.where == where
+    with pytest.raises(GarageError) as err:
+        people.make_spec(**kwargs, where="case.actors.child")
+    assert err.value.where == where.replace("people", "case.actors.child")
 
 
 # --- ground truth and scoring for a person ---------------------------------------------------------------------

@@ -148,9 +148,9 @@ class PersonModel:
         return "person"
 
 
-def resolve_colours(clothing: str | dict) -> tuple[tuple[str, tuple[int, int, int]], ...]:
+def resolve_colours(clothing: str | dict, where: str = "people.clothing"
+                    ) -> tuple[tuple[str, tuple[int, int, int]], ...]:
     """Region colours from an outfit name or a dict (see OUTFITS and PALETTE)."""
-    where = "people.clothing"
     if isinstance(clothing, str):
         outfit, overrides = clothing, {}
     else:
@@ -180,17 +180,19 @@ def resolve_colours(clothing: str | dict) -> tuple[tuple[str, tuple[int, int, in
 
 
 def make_spec(age_group: str = "adult", height: float | None = None, build: str = "average",
-              gender: str = "neutral", pose: str = "standing", clothing: str | dict = "default") -> BodySpec:
-    """A checked BodySpec; GarageError naming the parameter for a bad value."""
+              gender: str = "neutral", pose: str = "standing", clothing: str | dict = "default",
+              where: str = "people") -> BodySpec:
+    """A checked BodySpec; GarageError naming `where`.<parameter> for a bad value (a scenario passes its
+    actor's key path, e.g. "case.actors.child")."""
     for value, allowed, what in ((age_group, AGE_GROUPS, "age_group"), (build, BUILDS, "build"),
                                  (gender, GENDERS, "gender"), (pose, POSES, "pose")):
         if value not in allowed:
-            raise GarageError(f"unknown {what} {value!r} (one of {', '.join(allowed)})", f"people.{what}")
+            raise GarageError(f"unknown {what} {value!r} (one of {', '.join(allowed)})", f"{where}.{what}")
     height = DEFAULT_HEIGHT[age_group] if height is None else float(height)
     low, high = HEIGHT_RANGE[age_group]
     if not low <= height <= high:
-        raise GarageError(f"height {height} m is outside {low}-{high} m for age group {age_group}", "people.height")
-    return BodySpec(age_group, round(height, 3), build, gender, pose, resolve_colours(clothing))
+        raise GarageError(f"height {height} m is outside {low}-{high} m for age group {age_group}", f"{where}.height")
+    return BodySpec(age_group, round(height, 3), build, gender, pose, resolve_colours(clothing, f"{where}.clothing"))
 
 
 # The small library `python -m garage_exp.assets ensure` builds: adults and children of a few heights and
@@ -219,9 +221,11 @@ class PeopleLibrary:
         self.built = 0  # bodies this library had to build (not found in the cache)
 
     def body(self, age_group: str = "adult", height: float | None = None, build: str = "average",
-             pose: str = "standing", clothing: str | dict = "default", gender: str = "neutral") -> PersonModel:
-        """The body for these parameters, from the cache or built now (loads anny once per process)."""
-        return self.get(make_spec(age_group, height, build, gender, pose, clothing))
+             pose: str = "standing", clothing: str | dict = "default", gender: str = "neutral",
+             where: str = "people") -> PersonModel:
+        """The body for these parameters, from the cache or built now (loads anny once per process). `where`
+        names the parameters' place in error messages."""
+        return self.get(make_spec(age_group, height, build, gender, pose, clothing, where))
 
     def get(self, spec: BodySpec) -> PersonModel:
         stem = f"{spec.name}-{spec.digest()}"
