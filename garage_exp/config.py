@@ -189,7 +189,8 @@ class DetectorConf:
     name: str = "coco3"
     models: list[str] = field(default_factory=lambda: ["yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model",
                                                          "yolo26n_int8_openvino_model"])
-    classes: list[str] = field(default_factory=lambda: ["car", "truck", "bus"])
+    classes: list[str] = field(default_factory=lambda: ["car", "truck", "bus"])  # a vehicle target's classes
+    person_classes: list[str] = field(default_factory=lambda: ["person"])  # a pedestrian target's classes
     conf: float = 0.05  # keep low detections: a miss scores 0, a weak hit its confidence
     iou: float = 0.5
     match: str = "full"  # full | visible | either

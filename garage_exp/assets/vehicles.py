@@ -212,9 +212,13 @@ def _plausible(extents: np.ndarray) -> str | None:
 
 
 def write_glb(conv: Converted, target: Path) -> Path:
-    """Export the converted model; written to a temp file and renamed so readers never see half a file."""
+    """Export the converted model."""
     scene = to_scene(conv.ac, conv.parts, conv.transform)
-    data = scene.export(file_type="glb", include_normals=True)
+    return write_atomic(scene.export(file_type="glb", include_normals=True), target)
+
+
+def write_atomic(data: bytes, target: Path) -> Path:
+    """Write to a temp file and rename, so readers (other jobs sharing the cache) never see half a file."""
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=target.stem, suffix=".tmp", dir=target.parent)
     try:
