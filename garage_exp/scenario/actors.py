@@ -92,13 +92,12 @@ def person_entity(name: str, actor, where: str) -> Entity:
     from garage_exp.assets.people import PeopleLibrary
 
     try:
-        body = PeopleLibrary().body(age_group=actor.age, height=actor.height, build=actor.build, pose=actor.pose,
-                                    clothing=actor.clothing, gender=actor.gender)
-    except GarageError as exc:  # the library names the parameter; the scenario names the actor
-        raise GarageError(str(exc).split(": ", 1)[-1], f"{where}.{(exc.where or '').rpartition('.')[2]}") from None
+        body = PeopleLibrary().body(age_group=actor.age, height=actor.height, build=actor.build,
+                                    pose=actor.pose, clothing=actor.clothing, gender=actor.gender, where=where)
+    except GarageError as exc:  # the library's `age_group` is the actor's `age`
+        raise GarageError(str(exc).split(": ", 1)[1], exc.where.replace(".age_group", ".age")) from None
     return Entity(name=name, role=actor.role, pose=Pose(), shapes=[Mesh(body.glb)], model=body.name,
-                  size_class=body.age_group, extent=(body.length, body.width, body.height), static=False,
-                  kind="person")
+                  size_class=body.age_group, extent=body.extent, static=False, kind="person")
 
 
 def box_entity(name: str, actor, where: str) -> Entity:
