@@ -79,8 +79,8 @@ def check_config(cfg: DictConfig) -> None:
     check_light(cfg.light)
     check_palette(cfg.palette)
     check_camera(cfg.camera)
-    if cfg.case.kind in ("corner", "pass", "parked") and not float(cfg.case.step) > 0:
-        raise GarageError(f"step must be positive, got {cfg.case.step}", "case.step")
+    if cfg.case.motion.actor and not float(cfg.case.motion.step) > 0:
+        raise GarageError(f"step must be positive, got {cfg.case.motion.step}", "case.motion.step")
     check_detector(cfg.detector)
     check_renderer(cfg.renderer)
     make_sensor(cfg.sensor)  # the sensor model checks its own parameters

@@ -1,4 +1,4 @@
-"""Functions named by configs (`_target_`: a scene modifier, a renderer factory). Configs are data: they may
+"""Functions named by configs (`_target_`: a scene modifier, a scenario's own site, a renderer factory). Configs are data: they may
 only name functions under `garage_exp.` or under the module prefixes listed, comma-separated, in
 $GARAGE_EXP_MODIFIER_MODULES; they cannot import arbitrary code."""
 
@@ -24,6 +24,15 @@ def check_target(target: str, what: str, where: str) -> None:
     if target and not target.startswith(allowed):
         raise GarageError(f"_target_ {target!r} is not {what} (allowed modules: {', '.join(allowed)}; "
                           "more via $GARAGE_EXP_MODIFIER_MODULES)", where)
+
+
+def resolve_allowed(target: str, where: str, what: str = "scene modifier") -> Callable:
+    """The function `target` names, if its module is allowed."""
+    allowed = allowed_modules()
+    if not target.startswith(allowed):
+        raise GarageError(f"{target!r} is not a {what} (allowed modules: {', '.join(allowed)}; more via "
+                          "$GARAGE_EXP_MODIFIER_MODULES)", where)
+    return resolve(target)
 
 
 def resolve(target: str, what: str = "scene modifier", where: str = "_target_") -> Callable:

@@ -12,7 +12,7 @@ from typing import Any
 
 from garage_exp.errors import GarageError
 from garage_exp.scene.description import Box, Pose, Scene
-from garage_exp.targets import check_target, resolve
+from garage_exp.targets import allowed_modules, check_target, resolve, resolve_allowed  # noqa: F401  (scenario sites)
 
 
 def remove_entity(scene: Scene, name: str) -> None:
