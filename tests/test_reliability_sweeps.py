@@ -78,7 +78,8 @@ def hanging(uri: str, sweep_dir: Path, light: str):
     _, runs = all_runs(uri)
     jobs = job_runs(runs)
     running = [r for r in jobs if r.info.status == "RUNNING"]
-    if len(running) == 1 and running[0].data.params["light.name"] == light:
+    # .get: a run just created may not have logged its params yet (polled again next time).
+    if len(running) == 1 and running[0].data.params.get("light.name") == light:
         return running[0]
     return None
 
