@@ -64,6 +64,7 @@ def check_config(cfg: DictConfig) -> None:
     needed."""
     from garage_exp.detect.detector import check_detector
     from garage_exp.render import check_renderer
+    from garage_exp.scenario import check_case
     from garage_exp.scene.camera import check_camera
     from garage_exp.scene.lamps import check_light
     from garage_exp.scene.modifiers import check_modifiers
@@ -79,8 +80,7 @@ def check_config(cfg: DictConfig) -> None:
     check_light(cfg.light)
     check_palette(cfg.palette)
     check_camera(cfg.camera)
-    if cfg.case.motion.actor and not float(cfg.case.motion.step) > 0:
-        raise GarageError(f"step must be positive, got {cfg.case.motion.step}", "case.motion.step")
+    check_case(cfg)
     check_detector(cfg.detector)
     check_renderer(cfg.renderer)
     make_sensor(cfg.sensor)  # the sensor model checks its own parameters

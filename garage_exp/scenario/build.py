@@ -30,6 +30,22 @@ MOVABLE = ("distance", "offset", "yaw", "out", "gap")
 PLACEMENT = (*MOVABLE, "path", "align", "before", "bay", "between", "relative")
 
 
+def check_case(cfg) -> None:
+    """What a scenario's values say before the plan is known (the rest needs the site: `make_case`)."""
+    try:
+        _check_motion(cfg.case)
+    except GarageError as exc:
+        raise GarageError(str(exc), level_file(cfg, "case")) from None
+
+
+def _check_motion(case) -> None:
+    if case.motion.actor and not float(case.motion.step) > 0:
+        raise GarageError(f"step must be positive, got {case.motion.step}", "case.motion.step")
+    if case.motion.key not in MOVABLE:
+        raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
+                          "case.motion.key")
+
+
 def steps(start: float, end: float, step: float) -> list[float]:
     """start, start +- step, ... up to end inclusive (either direction)."""
     if step <= 0:
@@ -130,9 +146,7 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
     bays = {str(k): str(v) for k, v in (case.bays or {}).items()}
     if case.motion.actor and case.motion.actor not in conf and case.motion.actor != "target":
         raise GarageError(f"no actor {case.motion.actor!r} to move (have {', '.join(conf)})", "case.motion.actor")
-    if case.motion.key not in MOVABLE:
-        raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
-                          "case.motion.key")
+    _check_motion(case)
     runs, conf = variants(case, conf, list(cfg.palette.target_colours))
     # Actors are made in order of first use (the ego first): model draws from rng follow the scenario's order.
     made: dict[str, kinds.Made] = {}
@@ -226,4 +240,4 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
     return poses
 
 
-__all__ = ["EGO", "Shot", "CaseSetup", "make_case", "steps"]
+__all__ = ["EGO", "Shot", "CaseSetup", "check_case", "make_case", "steps"]
