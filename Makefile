@@ -32,8 +32,9 @@ run: setup
 	$(BIN)/python -m garage_exp $(RUN_ARGS)
 	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open http://127.0.0.1:5000"
 
+# GARAGE_EXP_PROVISIONED: setup provided Vulkan, vehicles and weights, so a render/detect/slow skip is an error.
 test: setup
-	$(BIN)/python -m pytest -q -p no:cacheprovider
+	GARAGE_EXP_PROVISIONED=1 $(BIN)/python -m pytest -q -p no:cacheprovider
 
 ui: python
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000

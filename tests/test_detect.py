@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import require
 
 from garage_exp.detect import GTBox, ModelDetections, iou, model_format, score_target
 from garage_exp.detect import detector as detector_module
@@ -178,7 +179,10 @@ def test_fonts_are_installed_so_plots_never_download(tmp_path):
 
 def test_openvino_telemetry_opt_out(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path))
-    monkeypatch.delenv("CI", raising=False)
+    # setenv first so that monkeypatch restores "CI unset" afterwards: the opt-in case below sets CI=true, which
+    # must not leak into later tests (the conftest reads CI to make skips errors).
+    monkeypatch.setenv("CI", "unset-by-this-test")
+    monkeypatch.delenv("CI")
     offline._opt_out_of_openvino_telemetry()
     assert (tmp_path / "intel" / "openvino_telemetry").read_text() == "0"
     assert "CI" not in os.environ
@@ -190,21 +194,10 @@ def test_openvino_telemetry_opt_out(tmp_path, monkeypatch):
 
 # --- real models -------------------------------------------------------------------------------------------------
 
-def models_dir() -> Path:
-    try:
-        from garage_exp.assets.locate import models_dir as locate_models
-        return locate_models()
-    except (ImportError, GarageError):
-        from garage_exp.paths import shared_dir
-        return shared_dir() / "models"
-
-
 def default_models() -> list[Path]:
-    paths = [models_dir() / name for name in DEFAULT_MODELS]
-    missing = [p.name for p in paths if not p.is_dir()]
-    if missing:
-        pytest.skip(f"YOLO weights missing: {missing} (run `make data` or set GARAGE_EXP_MODELS)")
-    return paths
+    """The default detector's models, found as the product finds them (a skip only where they are missing)."""
+    require("models")
+    return [detector_module.resolve_model(name) for name in DEFAULT_MODELS]
 
 
 def bus_image() -> tuple[Path, np.ndarray]:

@@ -11,13 +11,12 @@ import textwrap
 
 import numpy as np
 import pytest
-from conftest import ROOT, run_app
+from conftest import ROOT, require, run_app
 from hydra import compose, initialize_config_dir
 
 from garage_exp import config as schema
 from garage_exp import tracking
 from garage_exp.app import quote_numeric_choices
-from garage_exp.render.device import device_problem
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
@@ -27,17 +26,7 @@ FRAME_COLUMNS = {"shot", "label", "position", "camera", "ego_x", "ego_y", "ego_y
 
 
 def _skip_without_backends():
-    problem = device_problem()
-    if problem:
-        pytest.skip(f"no Vulkan device for SAPIEN: {problem}")
-    from garage_exp.assets.locate import models_dir, vehicles_dir
-    from garage_exp.errors import GarageError
-
-    try:
-        vehicles_dir()
-        models_dir()
-    except GarageError as exc:
-        pytest.skip(f"vehicle assets or detector weights missing: {exc}")
+    require("vulkan", "vehicles", "models")
 
 
 def compose_cfg(*overrides: str):
