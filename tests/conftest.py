@@ -55,9 +55,12 @@ def missing(capability: str) -> str | None:
 
 
 def require(*capabilities: str) -> None:
-    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models" (see the hook)."""
+    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models"; under CI=true or
+    `make test` (STRICT_CI) fail instead, whatever the test's markers."""
     for capability in capabilities:
         problem = missing(capability)
+        if problem and STRICT_CI:
+            pytest.fail(f"{capability} missing under CI=true or make test: {problem}")
         if problem:
             pytest.skip(f"{capability}: {problem}")
 
