@@ -117,3 +117,19 @@ def test_case_2_runs(tmp_path, mlflow_uri):
     assert {x["target"] for x in rows} == {"target_black"}
     assert all(0 <= float(x["composite"]) <= 1 and 0 <= float(x["visible_fraction"]) <= 1 for x in rows)
     assert max(float(x["visible_fraction"]) for x in rows) > 0  # the passing car is in view
+
+
+PLANS = sorted(p.stem for p in (ROOT / "conf" / "plan").glob("*.yaml") if p.stem != "tiny")
+CASES = sorted(p.stem for p in (ROOT / "conf" / "case").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("plan", PLANS)
+@pytest.mark.parametrize("case", CASES)
+def test_every_case_is_built_on_every_experiment_plan(library, plan, case):
+    """The product's own feature finders find each case's feature on each shipped plan: the scene has the
+    case's vehicles and the shots place only those."""
+    _, classified, scene, setup = build(library, f"plan={plan}", f"case={case}")
+    names = {e.name for e in scene.entities}
+    assert setup.shots and all(s.target in names for s in setup.shots)
+    assert all(n in names for s in setup.shots for n in s.poses)
+    assert all(on_lane(classified, s.ego) or case == "2" for s in setup.shots)
