@@ -95,11 +95,20 @@ def mlflow_uri(tmp_path) -> str:
     return f"sqlite:///{tmp_path / 'mlflow.db'}"
 
 
+def child_env(env: dict | None = None) -> dict:
+    """os.environ with env on top; a PYTHONPATH in env is put before the inherited one (which may point at
+    the checkout under test), not in its place."""
+    full = {**os.environ, **(env or {})}
+    if env and env.get("PYTHONPATH") and os.environ.get("PYTHONPATH"):
+        full["PYTHONPATH"] = os.pathsep.join([env["PYTHONPATH"], os.environ["PYTHONPATH"]])
+    return full
+
+
 def run_app(args: list[str], tmp_path: Path, env: dict | None = None, timeout: int = 600):
     """Run `python -m garage_exp` in a subprocess with outputs under tmp_path."""
     import subprocess
 
-    full_env = {**os.environ, **(env or {})}
+    full_env = child_env(env)
     cmd = [PYTHON, "-m", "garage_exp", *args,
            f"hydra.run.dir={tmp_path}/run", f"hydra.sweep.dir={tmp_path}/sweep"]
     return subprocess.run(cmd, cwd=tmp_path, env=full_env, capture_output=True, text=True, timeout=timeout)

@@ -275,3 +275,28 @@ def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
     parent = next(x for x in runs if x.data.tags.get("sweep") == "parent")
     effects = read_table(mlc.download_artifacts(parent.info.run_id, "report/main_effects.csv"))
     assert {e["level"] for e in effects if e["factor"] == "barrier"} == {"low", "high"}
+
+
+def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
+    """`python -m garage_exp.report` (the latest sweep) and `--parent RUN_ID` write the report the sweep
+    logged: the same main effects."""
+    import subprocess
+
+    from conftest import PYTHON
+
+    tmp, mlc, runs = sweep
+    parent = next(r for r in runs if r.data.tags.get("sweep") == "parent").info.run_id
+    logged = read_table(mlc.download_artifacts(parent, "report/main_effects.csv"))
+    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    for extra in ([], ["--parent", parent]):
+        out = tmp_path / ("latest" if not extra else "parent")
+        r = subprocess.run([PYTHON, "-m", "garage_exp.report", "--uri", uri, "-o", str(out), *extra],
+                           capture_output=True, text=True, timeout=300, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr[-3000:]
+        written = out / parent / "report" / "report.md"
+        assert f"written: {written}" in r.stdout and "# Sweep report" in r.stdout
+        assert "4 runs, 0 not finished" in written.read_text()
+        again = read_table(out / parent / "report" / "main_effects.csv")
+        assert [(e["factor"], e["level"]) for e in again] == [(e["factor"], e["level"]) for e in logged]
+        for a, b in zip(again, logged):
+            assert float(a["confidence_mean"]) == pytest.approx(float(b["confidence_mean"]), abs=1e-9)

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import PYTHON, run_app
+from conftest import PYTHON, child_env, run_app
 
 from garage_exp import tracking
 
@@ -32,7 +32,7 @@ def all_runs(uri: str, deleted: bool = False):
 def start_sweep(args: list[str], tmp: Path, env: dict) -> subprocess.Popen:
     """The sweep in its own session (process group), as a user's shell would start it."""
     cmd = [PYTHON, "-m", "garage_exp", *args, f"hydra.run.dir={tmp}/run", f"hydra.sweep.dir={tmp}/sweep"]
-    return subprocess.Popen(cmd, cwd=tmp, env={**os.environ, **env}, stdout=open(tmp / "first.out", "w"),
+    return subprocess.Popen(cmd, cwd=tmp, env=child_env(env), stdout=open(tmp / "first.out", "w"),
                             stderr=subprocess.STDOUT, start_new_session=True)
 
 
