@@ -45,7 +45,7 @@ mutation: python
 	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt -e '.[mutation]'
 	rm -rf mutants
 	$(BIN)/mutmut run --max-children 2 $(MUTANTS)
-	$(BIN)/python scripts/mutation_score.py
+	$(BIN)/python scripts/mutation_score.py $(MUTANTS) | tee mutants/score.txt
 
 ui: python
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000

@@ -85,6 +85,7 @@ def pytest_runtest_makereport(item, call):
     report = outcome.get_result()
     if report.skipped and not hasattr(report, "wasxfail") and skips_are_errors(item):
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        reason = reason.removeprefix("Skipped: ")
         why = "CI=true or make test" if STRICT_CI else "this machine has the Vulkan device, vehicles and weights it needs"
         report.outcome = "failed"
         report.longrepr = f"skip is an error here ({why}): {reason}"
