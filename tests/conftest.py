@@ -96,6 +96,20 @@ def mlflow_uri(tmp_path) -> str:
     return f"sqlite:///{tmp_path / 'mlflow.db'}"
 
 
+def compose_cfg(*overrides: str, hydra: bool = False):
+    """The job's config as `python -m garage_exp OVERRIDES` composes it (numeric case levels quoted as the CLI
+    does); hydra=True keeps the hydra node (sweeper params, launcher)."""
+    from hydra import compose, initialize_config_dir
+
+    from garage_exp import config as schema
+    from garage_exp.app import quote_numeric_choices
+
+    schema.register()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=quote_numeric_choices(list(overrides)),
+                       return_hydra_config=hydra)
+
+
 def child_env(env: dict | None = None) -> dict:
     """os.environ with env on top; a PYTHONPATH in env is put before the inherited one (which may point at
     the checkout under test), not in its place."""

@@ -8,20 +8,11 @@ import math
 
 import numpy as np
 import pytest
-from conftest import ROOT, require, run_app
-from hydra import compose, initialize_config_dir
+from conftest import ROOT, compose_cfg, require, run_app
 
-from garage_exp import config as schema
-from garage_exp.app import quote_numeric_choices
 from garage_exp.paths import PLANS_DIR
 from garage_exp.plan import classify, load_plan
 from garage_exp.plan.classify import LANE_TYPES
-
-
-def compose_cfg(*overrides: str):
-    schema.register()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=quote_numeric_choices(list(overrides)))
 
 
 @pytest.fixture(scope="module")

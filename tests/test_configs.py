@@ -7,14 +7,12 @@ import shutil
 
 import pytest
 import yaml
+import conftest
 from conftest import ROOT
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from test_reliability_inputs import forked_cli
 
-from garage_exp import config as schema
 from garage_exp import tracking
-from garage_exp.app import quote_numeric_choices
 
 CONF = ROOT / "conf"
 GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir() and p.name not in ("hydra", "experiment"))
@@ -23,10 +21,7 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
 
 def compose_cfg(*overrides: str):
-    schema.register()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=quote_numeric_choices(list(overrides)),
-                       return_hydra_config=True)
+    return conftest.compose_cfg(*overrides, hydra=True)
 
 
 def test_every_group_has_levels_and_cases_and_experiments_exist():

@@ -11,12 +11,9 @@ import textwrap
 
 import numpy as np
 import pytest
-from conftest import ROOT, require, run_app
-from hydra import compose, initialize_config_dir
+from conftest import ROOT, compose_cfg, require, run_app
 
-from garage_exp import config as schema
 from garage_exp import tracking
-from garage_exp.app import quote_numeric_choices
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
@@ -27,12 +24,6 @@ FRAME_COLUMNS = {"shot", "label", "position", "camera", "ego_x", "ego_y", "ego_y
 
 def _skip_without_backends():
     require("vulkan", "vehicles", "models")
-
-
-def compose_cfg(*overrides: str):
-    schema.register()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=quote_numeric_choices(list(overrides)))
 
 
 @pytest.fixture(scope="module")

@@ -81,6 +81,17 @@ def hanging(uri: str, sweep_dir: Path, light: str):
     return None
 
 
+def signal_while_hanging(proc: subprocess.Popen, uri: str, sweep_dir: Path, light: str, sig: int):
+    """Send sig to the sweep once the job of that light level hangs; (that job's run, the exit code)."""
+    try:
+        run = wait_for(lambda: hanging(uri, sweep_dir, light), proc)
+        os.kill(proc.pid, sig)
+        return run, proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
 def test_kill_9_then_sigterm_then_resume(tmp_path, fresh_store):
     """A sweep of three jobs is killed with SIGKILL half-way; resumed, it is stopped by SIGTERM (a scheduler's
     time limit) in its last job; resumed again, it completes. Finished jobs are never rerun, unfinished ones
@@ -103,13 +114,7 @@ def test_kill_9_then_sigterm_then_resume(tmp_path, fresh_store):
 
     # 2. resume=true: job 0 is skipped, job 1 reruns (its stale run superseded), job 2 gets SIGTERM.
     proc = start_sweep([*args, "resume=true"], tmp_path, {"PYTHONPATH": FAULTS, "GARAGE_EXP_FAULT": "map:hang:2"})
-    try:
-        terminated = wait_for(lambda: hanging(uri, tmp_path / "sweep", "clear"), proc)
-        os.kill(proc.pid, signal.SIGTERM)
-        rc = proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+    terminated, rc = signal_while_hanging(proc, uri, tmp_path / "sweep", "clear", signal.SIGTERM)
     out = (tmp_path / "first.out").read_text()
     assert rc == 128 + signal.SIGTERM, out[-3000:]
     assert f"finished before as run {first_id}" in out
@@ -189,13 +194,7 @@ def test_ctrl_c_exits_130_and_leaves_nothing_running(tmp_path, fresh_store):
     uri = fresh_store
     proc = start_sweep([*SWEEP, f"tracking.uri={uri}"], tmp_path, {"PYTHONPATH": FAULTS,
                                                                    "GARAGE_EXP_FAULT": "map:hang:1"})
-    try:
-        wait_for(lambda: hanging(uri, tmp_path / "sweep", "dim"), proc)
-        os.kill(proc.pid, signal.SIGINT)
-        rc = proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+    _, rc = signal_while_hanging(proc, uri, tmp_path / "sweep", "dim", signal.SIGINT)
     out = (tmp_path / "first.out").read_text()
     assert rc == 130, out[-3000:]
     assert "garage_exp: interrupted; rerun the same command with resume=true" in out
