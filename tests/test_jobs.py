@@ -36,7 +36,7 @@ def test_surround_rig_lowlight_sensor_busy_palette_and_extra_factors_in_one_job(
     front = next(x for x in rows if x["camera"] == "front")
     assert float(front["visible_fraction"]) > 0  # the target ahead is in the front camera's view
     used = OmegaConf.load(tmp_path / "run" / "config.yaml")
-    assert used.sensor.kind == "lowlight" and used.palette.parked_occupancy == 0.7
+    assert used.sensor.name == "lowlight" and used.palette.parked_occupancy == 0.7
     assert used.modifiers.pillar.size == 0.9 and used.modifiers.wear.wear == 0.7
 
 
