@@ -1,14 +1,13 @@
-"""The cases as the experiment builds them (garage_exp.experiment.build_scene: scene + shots), and case 2 as a
-user runs it. Geometry only except the one tiny job at the end."""
+"""The cases as the experiment builds them (garage_exp.experiment.build_scene: scene + shots); geometry only.
+Case 2 as a user runs it: tests/test_jobs.py::test_case_2_runs_the_same_with_serial_and_overlapped_detection."""
 
 from __future__ import annotations
 
-import csv
 import math
 
 import numpy as np
 import pytest
-from conftest import ROOT, compose_cfg, require, run_app
+from conftest import ROOT, compose_cfg, require
 
 from garage_exp.paths import PLANS_DIR
 from garage_exp.plan import classify, load_plan
@@ -92,22 +91,6 @@ def test_case_2_is_built_with_a_car_passing_a_parked_ego(library):
         assert np.all(ahead > 0) and np.ptp(ahead) < 1e-6  # in front, on a line across the view
     pillar = next(e for e in scene.entities if e.name == setup.occluder)
     assert math.hypot(pillar.pose.x - ego.x, pillar.pose.y - ego.y) < 5  # the pillar is beside the ego
-
-
-@pytest.mark.render
-@pytest.mark.detect
-@pytest.mark.slow
-def test_case_2_runs(tmp_path, mlflow_uri):
-    """Case 2 as a user runs it, three frames: the passing car before, at and after the ego's axis."""
-    r = run_app(["case=2", "case.start=-1.0", "case.end=1.0", "case.step=1.0", "palette.target_colours=[black]",
-                 "renderer.save_frames=none", f"tracking.uri={mlflow_uri}"], tmp_path)
-    assert r.returncode == 0, r.stderr[-3000:]
-    with open(tmp_path / "run" / "frames.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    assert [float(x["position"]) for x in rows] == [-1.0, 0.0, 1.0]
-    assert {x["target"] for x in rows} == {"target_black"}
-    assert all(0 <= float(x["composite"]) <= 1 and 0 <= float(x["visible_fraction"]) <= 1 for x in rows)
-    assert max(float(x["visible_fraction"]) for x in rows) > 0  # the passing car is in view
 
 
 PLANS = sorted(p.stem for p in (ROOT / "conf" / "plan").glob("*.yaml") if p.stem != "tiny")

@@ -1,6 +1,6 @@
 """Levels that only a real job can prove: the surround rig, the low-light sensor, the busy palette and the
-extra factors (pillar, wear) in one tiny job; the official .pt detector; the serial and the overlapped
-detection loop with the real detector. Each job is a frame or two of case 1."""
+extra factors (pillar, wear) in one tiny job; the official .pt detector; case 2, run with the serial and with
+the overlapped detection loop and the real detectors. Each job is one to three frames."""
 
 from __future__ import annotations
 
@@ -62,11 +62,12 @@ def test_official_pt_detector_runs_or_names_the_missing_weights(tmp_path, mlflow
         assert not (tmp_path / "mlflow.db").exists() and not (tmp_path / "run" / "frames.csv").exists()
 
 
-def test_serial_and_overlapped_detection_loops_give_the_same_table(tmp_path):
-    """GARAGE_EXP_DETECT_PROCESS=0 (detection in the job's process, after each frame) and =1 (a detector
-    process overlapping the next frame's rendering): the same frame table with the real detectors."""
+def test_case_2_runs_the_same_with_serial_and_overlapped_detection(tmp_path):
+    """Case 2 as a user runs it, three frames (the passing car before, at and after the ego's axis), twice:
+    GARAGE_EXP_DETECT_PROCESS=0 (detection in the job's process, after each frame) and =1 (a detector process
+    overlapping the next frame's rendering) give the same frame table with the real detectors."""
     require("vulkan", "vehicles", "models")
-    args = ["case=1", "case.start=9.0", "case.end=8.0", "case.step=1.0", "palette.target_colours=[black]",
+    args = ["case=2", "case.start=-1.0", "case.end=1.0", "case.step=1.0", "palette.target_colours=[black]",
             "renderer.save_frames=none"]
     dirs = {mode: tmp_path / mode for mode in ("0", "1")}
     for d in dirs.values():
@@ -78,7 +79,10 @@ def test_serial_and_overlapped_detection_loops_give_the_same_table(tmp_path):
     for mode, r in done.items():
         assert r.returncode == 0, (mode, r.stderr[-3000:])
     serial, overlapped = table(dirs["0"]), table(dirs["1"])
-    assert len(serial) == len(overlapped) == 2
+    assert [float(x["position"]) for x in serial] == [-1.0, 0.0, 1.0]
+    assert {x["target"] for x in serial} == {"target_black"}
+    assert min(float(x["visible_fraction"]) for x in serial) > 0.5  # the passing car is in view
+    assert len(overlapped) == 3
     for a, b in zip(serial, overlapped):
         assert {k: v for k, v in a.items() if not k.startswith("conf_") and k != "composite"} == \
                {k: v for k, v in b.items() if not k.startswith("conf_") and k != "composite"}
