@@ -104,3 +104,33 @@ def test_breakdown_averages_repeats_and_drops_missing(runs):
     assert table.loc["black", "light=bright"] == pytest.approx((0.85 + 0.95) / 2 + 0.05)
     gaps = runs.assign(**{"label.white": [None] * 4})
     assert list(breakdown(gaps, ["factor.light"], "label.").index) == ["black"]
+
+
+def test_tables_keep_the_sweep_order_and_their_column_order():
+    rows = [{"run_id": str(k), "run_name": "", "status": "FINISHED", "skipped": False, "error": "",
+             "factor.light": light, "factor.case": case, "confidence_mean": c, "recall": c, "difficulty": 1 - c,
+             "label.white": c, "label.black": c / 2}
+            for k, (light, case, c) in enumerate([("dim", "2", 0.2), ("dim", "1", 0.4), ("bright", "2", 0.6),
+                                                  ("bright", "1", 0.8)])]
+    runs = pd.DataFrame(rows)
+    factors = factors_of(runs)
+    pairs = pair_effects(runs, factors)
+    assert list(pairs.columns) == ["pair", "level_a", "level_b", "confidence_mean", "recall"]
+    assert list(pairs.index) == [0, 1, 2, 3]
+    effects = main_effects(runs, factors)
+    assert list(effects.index) == [0, 1, 2, 3]  # one table, renumbered (not 0, 1 per factor)
+    table = breakdown(runs, factors, "label.")
+    assert list(table.columns) == ["light=dim, case=2", "light=dim, case=1", "light=bright, case=2",
+                                   "light=bright, case=1"]  # the sweep's order, not sorted
+    assert table.loc["white", "light=dim, case=2"] == pytest.approx(0.2)
+    assert breakdown(runs.iloc[0:0], factors, "label.").empty
+
+
+def test_summary_without_runs_or_expectation_and_long_errors(runs):
+    text, bad = summary(runs.iloc[0:0])
+    assert text == "garage_exp: sweep summary: 0 jobs: 0 finished, 0 skipped (finished before), 0 failed"
+    assert bad == 0
+    failed = runs.copy()
+    failed.loc[0, ["status", "error"]] = ["FAILED", "x" * 1000]
+    line = summary(failed)[0].splitlines()[1]
+    assert len(line) == 600 and line.endswith("x")
