@@ -412,3 +412,13 @@ def test_csv_comment_lines_are_skipped_even_when_indented(tmp_path):
     path = tmp_path / "p.csv"
     path.write_text("  # a note\n,3,3,3\n6,2,1,3\n5,0,0,0\n")
     assert load_plan(path).S.tolist() == [[2, 1, 3], [0, 0, 0]]
+
+
+def test_cell_geometry_of_a_small_plan():
+    """Row 0 is the north side: y grows upwards from the south edge, x with the column index."""
+    plan = plan_from_lists([[2, 1, 3], [0, 0, 0]], [6.0, 5.0], [3.0, 4.0, 2.0], "small")
+    assert plan.cell_rect(0, 1) == (3.0, 5.0, 7.0, 11.0)
+    assert plan.cell_center(0, 1) == (5.0, 8.0)
+    assert plan.cell_center(1, 2) == (8.0, 2.5)
+    assert plan.vertex(1, 1) == (3.0, 5.0)
+    assert plan.cell_at(5.0, 8.0) == (0, 1) and plan.cell_at(8.5, 1.0) == (1, 2)
