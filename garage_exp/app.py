@@ -35,9 +35,6 @@ schema.register()
 
 EXIT_INPUT = 2  # bad input: one line on stderr, nothing logged
 EXIT_FAILED_JOBS = 1  # a sweep ran to its end but some of its jobs failed (the summary lists them)
-# Modules a scene modifier's `_target_` may be imported from (config files are data: they name one of these
-# functions, they cannot run arbitrary code). More prefixes: $GARAGE_EXP_MODIFIER_MODULES, comma-separated.
-MODIFIER_MODULES = ("garage_exp.",)
 
 
 def quote_numeric_choices(argv: list[str]) -> list[str]:
@@ -123,8 +120,8 @@ def check_config(cfg: DictConfig) -> None:
         check_range(cam.fovy, *FOVY_RANGE, f"camera.cameras.{k}.fovy", f"fovy {cam.fovy} degrees")
         for side in ("width", "height"):
             check_range(cam[side], *RESOLUTION_RANGE, f"camera.cameras.{k}.{side}", f"{side} {cam[side]} px")
-    if cfg.case.kind in ("corner", "pass", "parked") and not float(cfg.case.step) > 0:
-        raise GarageError(f"step must be positive, got {cfg.case.step}", "case.step")
+    if cfg.case.motion.actor and not float(cfg.case.motion.step) > 0:
+        raise GarageError(f"step must be positive, got {cfg.case.motion.step}", "case.motion.step")
     det = cfg.detector
     if not det.models:
         raise GarageError("no detector models given", "detector.models")
@@ -143,8 +140,9 @@ def check_config(cfg: DictConfig) -> None:
         raise GarageError(f"unknown save_frames {cfg.renderer.save_frames!r} (all | key | none)",
                           "renderer.save_frames")
     make_sensor(cfg.sensor)
-    allowed = MODIFIER_MODULES + tuple(p.strip() for p in os.environ.get("GARAGE_EXP_MODIFIER_MODULES", "")
-                                       .split(",") if p.strip())
+    from garage_exp.scene.modifiers import allowed_modules
+
+    allowed = allowed_modules()
     for group, spec in (cfg.get("modifiers") or {}).items():
         target = str((spec or {}).get("_target_") or "")
         if target and not target.startswith(allowed):

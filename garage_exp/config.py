@@ -90,27 +90,91 @@ class PaletteConf:
 
 
 @dataclass
+class ActorConf:
+    """One actor of a scenario. Every value is a plain key (`case.actors.target.offset=0.4`), so sweeps and
+    searches reach it. Placement: exactly one of `path`, `bay`, `between` or `relative`."""
+
+    role: str = "target"  # ego | target | occluder | parked | moving
+    kind: str = "vehicle"  # vehicle | person | box
+    # vehicle: a model by name, or drawn by size class (small | medium | large), colour and body (car, van, ...);
+    # colour `palette`: one copy per palette target colour, one variant each (the research's black and white cars)
+    model: str = ""
+    size: str = ""
+    colour: str = ""
+    body: str = ""
+    # person: age group, height (m, None: the group's usual), build, pose (standing | walking), clothing palette
+    age: str = "adult"
+    height: Optional[float] = None
+    build: str = "average"
+    gender: str = "neutral"
+    pose: str = "standing"
+    clothing: str = "default"
+    # box (a static occluder): its size in metres (height shared with people), colour by name
+    length: Optional[float] = None
+    width: Optional[float] = None
+    # placement
+    path: str = ""  # a path of the site: `distance` metres along it, `offset` to its left
+    distance: float = 0.0
+    offset: float = 0.0
+    yaw: float = 0.0  # degrees, added to the heading the placement gives
+    align: str = "centre"  # centre: distance is the actor's centre; start: its rear, from the path's start
+    before: str = ""  # with path: distance counted back from this bay, or from this actor
+    bay: str = ""  # in this bay of the site (a name from `bays`, or an index), nose to the lane
+    gap: Optional[float] = None  # in a bay: front bumper this far behind the bay line (None: centred)
+    between: list[str] = field(default_factory=list)  # in the gap between two bays ...
+    out: float = 0.0  # ... this far past the bay line into the lane
+    relative: str = ""  # `distance` ahead of this actor (or of `focus`) along its heading, `offset` to its left
+    nearest_bay: int = -1  # in the k-th free bay nearest the site's focus (0: the nearest), nose to the lane
+
+
+@dataclass
 class OccluderConf:
-    """The occluder a case places between the ego and its target."""
+    """The occluder arrangement, composed with any scenario: the site's pillar kept or removed, and actors of
+    its own placed around the site's focus (the pillar; else halfway between the ego and the target)."""
 
     name: str = "pillar"
-    kind: str = "pillar"  # pillar | none
-    size: Optional[float] = None  # the case pillar's side (m); None: as the garage (and `pillar` factor) has it
+    kind: str = "pillar"  # pillar: the site's pillar stands | none: it is removed
+    size: Optional[float] = None  # the pillar's side (m); None: as the garage (and `pillar` factor) has it
+    actors: dict[str, ActorConf] = field(default_factory=dict)  # shown in every variant of the scenario
+
+
+@dataclass
+class MotionConf:
+    """The per-frame sweep: one placement value of one actor (its copies, for a palette-coloured actor)."""
+
+    actor: str = ""  # empty: a static scenario (one frame per variant); `target` with no actor so named: each
+    # variant's target
+    key: str = "distance"  # distance | offset | yaw | out | gap
+    start: Optional[float] = None
+    end: Optional[float] = None
+    step: float = 0.5
+    values: list[float] = field(default_factory=list)  # instead of start/end/step
+
+
+@dataclass
+class VariantConf:
+    """A run of frames with some of the actors standing (the others wait out of the scene)."""
+
+    label: str = ""  # the frame table's label; empty: the shown actors' names
+    show: list[str] = field(default_factory=list)  # the actors besides the ego; empty: all of them
+    target: str = ""  # the actor scored; empty: the scenario's target
+    set: dict[str, Any] = field(default_factory=dict)  # "actor.key": value for this variant only
 
 
 @dataclass
 class CaseConf:
-    """A scenario. `kind` picks the trajectory generator; the rest are its parameters (metres, degrees)."""
+    """A scenario (one YAML file of the `case` group): a site of the plan, actors, a motion, variants."""
 
     name: str = MISSING
-    kind: str = MISSING  # light | corner | pass | parked
-    step: float = 0.5
-    start: float = 0.0
-    end: float = 0.0
-    target_distance: float = 10.0
-    feature: str = ""
-    placements: list[Any] = field(default_factory=list)
-    params: dict[str, Any] = field(default_factory=dict)
+    site: str = MISSING  # corner | bay_beside_pillar | straight_run (garage_exp/scenario/sites.py)
+    position_label: str = "position (m)"  # the plot's x axis: what the motion moves
+    bays: dict[str, str] = field(default_factory=dict)  # names for the site's bays (far: 3, mine: right:2)
+    keep_free: list[str] = field(default_factory=list)  # bays kept free of the palette's parked cars (besides
+    # those the actors stand in)
+    actors: dict[str, ActorConf] = field(default_factory=dict)
+    motion: MotionConf = field(default_factory=MotionConf)
+    variants: list[VariantConf] = field(default_factory=list)
+    target: str = ""  # the actor scored when a variant does not say; empty: the actor with role target
 
 
 @dataclass
@@ -125,7 +189,8 @@ class DetectorConf:
     name: str = "coco3"
     models: list[str] = field(default_factory=lambda: ["yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model",
                                                          "yolo26n_int8_openvino_model"])
-    classes: list[str] = field(default_factory=lambda: ["car", "truck", "bus"])
+    classes: list[str] = field(default_factory=lambda: ["car", "truck", "bus"])  # a vehicle target's classes
+    person_classes: list[str] = field(default_factory=lambda: ["person"])  # a pedestrian target's classes
     conf: float = 0.05  # keep low detections: a miss scores 0, a weak hit its confidence
     iou: float = 0.5
     match: str = "full"  # full | visible | either

@@ -18,7 +18,7 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from garage_exp import results
-from garage_exp.cases import CaseSetup, Shot, make_case
+from garage_exp.scenario import CaseSetup, Shot, make_case
 from garage_exp.config import FOVY_RANGE, RESOLUTION_RANGE
 from garage_exp.errors import GarageError, check_range
 from garage_exp.groundtruth import VehicleTruth
@@ -91,7 +91,8 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
             renderer.set_pose(name, pose if pose is not None else HIDDEN)
         for cam in scene.cameras:
             frame = renderer.render(cam.name)
-            in_view = [v.name for v in scene.vehicles() if v.role != "ego" and shot.poses.get(v.name, v.pose)]
+            in_view = [v.name for v in scene.actors()
+                       if v.role != "ego" and v.kind != "box" and shot.poses.get(v.name, v.pose)]
             silhouettes = renderer.unoccluded_ids(cam.name, in_view)
             truth = ground_truth(frame, silhouettes, scene, renderer.ids)
             rgb = sensor.apply(frame.rgb, sensor_rng)
@@ -150,14 +151,17 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     dataset = results.DatasetWriter(out / "dataset") if cfg.dataset else None
     sensor_rng = np.random.default_rng(cfg.seed + 1)
     rows, keep = [], {}
+    # Tables of scenes with people say each target's kind; vehicle-only tables stay as they were.
+    kinds = {e.name: e.kind or "vehicle" for e in scene.actors()} if scene.people() else {}
     table_path = out / "frames.csv"
     frames = render_frames(cfg, scene, setup, renderer, sensor, sensor_rng)
     try:
         for item, dets in overlapped(frames, detector):
             shot, target = item.shot, item.target
             score = score_target(dets, target, item.truth, iou_threshold=cfg.detector.iou, match=cfg.detector.match,
-                                 threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes))
-            row = results.frame_row(shot, item.camera, target, score, detector.names)
+                                 threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes),
+                                 person_classes=tuple(cfg.detector.person_classes))
+            row = results.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target))
             rows.append(row)
             if dataset is not None:
                 dataset.add(f"{shot.index:04d}_{item.camera}", item.rgb, item.truth, scene)

@@ -1,4 +1,7 @@
-"""Per-vehicle ground truth of one rendered frame: visibility, 2D boxes, distance, truncation, KITTI level.
+"""Per-actor ground truth of one rendered frame: visibility, 2D boxes, distance, truncation, KITTI level.
+
+An actor is a vehicle or a person: both go by their entity's extent (a person's box: its length along +x, where
+it faces, its shoulder width and its height, feet at z=0), so everything below holds for people too.
 
 Inputs are plain arrays (no SAPIEN): the frame's id picture, each vehicle's unoccluded silhouette (the vehicle
 rendered with everything else hidden) and the scene description for roles and extents.
@@ -58,6 +61,7 @@ class VehicleTruth:
     truncation: float  # 0..1, see the module doc
     occlusion: int  # KITTI occlusion state 0..3 (OCCLUSION_NAMES)
     kitti: Kitti
+    kind: str = "vehicle"  # "vehicle" | "person" (the record is the same for both)
 
     @property
     def box_height(self) -> int:
@@ -171,7 +175,8 @@ def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Sce
             name=name, role=entity.role, visible_pixels=visible_pixels, unoccluded_pixels=unoccluded_pixels,
             visible_fraction=fraction, visible_box=mask_box(visible), full_box=full_box,
             distance=float(np.linalg.norm(centre - camera)), truncation=truncation, occlusion=occ,
-            kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation)))
+            kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation),
+            kind="person" if entity.is_person else "vehicle"))
     return out
 
 

@@ -19,7 +19,8 @@ import pandas as pd
 from garage_exp import tracking
 
 METRICS = ("confidence_mean", "recall", "difficulty", "visible_fraction_mean")
-BREAKDOWNS = ("label.", "model.")  # per-job mean confidence per label (colour, placement) and per model
+# Per-job mean confidence per label (colour, placement), per model and, in scenes with people, per target kind.
+BREAKDOWNS = ("label.", "model.", "kind.")
 
 
 def parse_overrides(text: str) -> dict[str, str]:
@@ -194,7 +195,9 @@ def sweep_report(mlc, parent_run_id: str, out_dir: str | Path | None = None, res
         pairs.to_csv(out / "pair_effects.csv", index=False)
         heatmaps(finished, factors, out / "heatmap.png")
         tables = {"Per label: mean composite confidence (colour, placement)": breakdown(finished, factors, "label."),
-                  "Per model: mean confidence": breakdown(finished, factors, "model.")}
+                  "Per model: mean confidence": breakdown(finished, factors, "model."),
+                  "Per target kind (vehicle, person): mean composite confidence": breakdown(finished, factors,
+                                                                                           "kind.")}
         tables["Per label: mean composite confidence (colour, placement)"].to_csv(out / "labels.csv")
         tables["Per model: mean confidence"].to_csv(out / "models.csv")
         (out / "report.md").write_text(markdown(runs, effects, pairs, tables))

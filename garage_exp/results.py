@@ -9,11 +9,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-COCO_IDS = {"car": 2, "bus": 5, "truck": 7}
+COCO_IDS = {"person": 0, "car": 2, "bus": 5, "truck": 7}
+PERSON_CLASSES = ("person",)
 KIND_TO_COCO = {"car": "car", "suv": "car", "pickup": "truck", "van": "truck", "bus": "bus", "truck": "truck"}
 
 
-def frame_row(shot, camera: str, target, score, model_names: list[str]) -> dict:
+def frame_row(shot, camera: str, target, score, model_names: list[str], target_kind: str | None = None) -> dict:
+    """One frame's row. target_kind ("vehicle" | "person") is a column only when given: scenes with people give
+    it on every row, vehicle-only scenes keep their tables as they were."""
     row = {
         "shot": shot.index, "label": shot.label, "position": shot.position, "camera": camera,
         "ego_x": round(shot.ego.x, 4), "ego_y": round(shot.ego.y, 4), "ego_yaw": round(shot.ego.yaw, 3),
@@ -25,6 +28,8 @@ def frame_row(shot, camera: str, target, score, model_names: list[str]) -> dict:
         "truncation": round(target.truncation, 4) if target else math.nan,
         "kitti": target.kitti if target else "out_of_view",
     }
+    if target_kind is not None:
+        row["target_kind"] = target_kind
     for name, conf in zip(model_names, score.per_model):
         row[f"conf_{name}"] = round(float(conf), 6)
     row["composite"] = round(float(score.composite), 6)
@@ -55,6 +60,9 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
     for cam, group in table.groupby("camera", sort=False):
         if cam != primary:
             out[f"camera.{_metric_key(cam)}"] = float(group.composite.mean())
+    if "target_kind" in t:  # scenes with people: the mean per kind of target
+        for kind, group in t.groupby("target_kind", sort=False):
+            out[f"kind.{_metric_key(kind)}"] = float(group.composite.mean())
     return out
 
 
@@ -108,11 +116,13 @@ def plot_confidence(table: pd.DataFrame, path: Path, xlabel: str, cfg) -> Path:
 
 def draw_boxes(rgb: np.ndarray, target, dets, score=None, min_conf: float = 0.25,
                classes=("car", "truck", "bus")) -> np.ndarray:
-    """Ground truth in green (full box) and yellow (visible part); vehicle detections at or above min_conf in
-    red with their model's confidence."""
+    """Ground truth in green (full box) and yellow (visible part); vehicle detections (and person detections
+    when the target is a person) at or above min_conf in red with their model's confidence."""
     import cv2
 
     img = np.ascontiguousarray(rgb).copy()
+    if getattr(target, "kind", "vehicle") == "person":
+        classes = (*classes, *PERSON_CLASSES)
     if target is not None and target.full_box:
         x1, y1, x2, y2 = map(int, target.full_box)
         cv2.rectangle(img, (x1, y1), (x2, y2), (0, 220, 0), 2)
@@ -169,8 +179,8 @@ def save_key_frames(keep: dict, table: pd.DataFrame, frames_dir: Path) -> list[P
 
 
 class DatasetWriter:
-    """Frames with YOLO-format labels from ground truth (class x_centre y_centre w h, normalised), so a
-    detector can be fine-tuned on the hard cases."""
+    """Frames with YOLO-format labels from ground truth (class x_centre y_centre w h, normalised; COCO ids:
+    person 0, car 2, bus 5, truck 7), so a detector can be fine-tuned on the hard cases."""
 
     def __init__(self, root: Path):
         self.root = root
@@ -186,9 +196,10 @@ class DatasetWriter:
         for t in truth:
             if not t.visible_box or t.visible_pixels == 0:
                 continue
-            kind = _vehicle_kind(scene, t.name)
+            coco = "person" if getattr(t, "kind", "vehicle") == "person" else \
+                KIND_TO_COCO.get(_vehicle_kind(scene, t.name), "car")
             x1, y1, x2, y2 = t.full_box
-            lines.append(f"{COCO_IDS[KIND_TO_COCO.get(kind, 'car')]} {(x1 + x2) / 2 / w:.6f} {(y1 + y2) / 2 / h:.6f} "
+            lines.append(f"{COCO_IDS[coco]} {(x1 + x2) / 2 / w:.6f} {(y1 + y2) / 2 / h:.6f} "
                          f"{(x2 - x1) / w:.6f} {(y2 - y1) / h:.6f}")
         (self.root / "labels" / f"{stem}.txt").write_text("\n".join(lines) + ("\n" if lines else ""))
 

@@ -23,7 +23,7 @@ def test_quote_numeric_group_choices():
 def test_cfg_job_prints_composed_config(tmp_path):
     r = run_app(["--cfg", "job", "case=2", "light=dim"], tmp_path)
     assert r.returncode == 0, r.stderr
-    assert "kind: pass" in r.stdout and "name: dim" in r.stdout
+    assert "site: bay_beside_pillar" in r.stdout and "name: dim" in r.stdout
 
 
 def test_unknown_level_fails_with_hydra_message(tmp_path):
@@ -99,12 +99,12 @@ def test_multirun_with_joblib_parents_children_in_other_processes(tmp_path, mlfl
 
 
 def test_sweep_with_a_bad_job_is_refused_before_any_job_runs(tmp_path, mlflow_uri):
-    # case.kind=nonsense passes the schema (a string) but not the check of every job that runs before the
+    # case.site=nonsense passes the schema (a string) but not the check of every job that runs before the
     # sweep opens its parent run. (A job that crashes after its start: tests/test_reliability_faults.py.)
-    r = run_app(["-m", "plan=tiny", "case.kind=nonsense,light", "light=bright", f"tracking.uri={mlflow_uri}"],
+    r = run_app(["-m", "plan=tiny", "case.site=nonsense,corner", "light=bright", f"tracking.uri={mlflow_uri}"],
                 tmp_path)
     assert r.returncode == 2
-    assert "case.kind" in r.stderr and "nonsense" in r.stderr and "Traceback" not in r.stderr
+    assert "case.site" in r.stderr and "nonsense" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "mlflow.db").exists() and not (tmp_path / "sweep").exists()
 
 

@@ -39,7 +39,7 @@ def pipeline():
 
 def shoot(pipeline, *overrides: str):
     """Build the case's scene, render its shots and score each target as a job does; (truth, score) per shot."""
-    from garage_exp.cases import EGO
+    from garage_exp.scenario import EGO
     from garage_exp.detect import score_target
     from garage_exp.experiment import HIDDEN, build_scene
     from garage_exp.groundtruth import ground_truth
@@ -70,7 +70,7 @@ def shoot(pipeline, *overrides: str):
 
 def test_unoccluded_car_ten_metres_ahead_is_detected_under_bright(pipeline):
     """The acceptance check of the 3D garage: a black sedan 10 m ahead in the lane, nothing in between."""
-    (shot, target, score, rgb), = shoot(pipeline, "case=light", "light=bright", "case.params.distances=[10.0]",
+    (shot, target, score, rgb), = shoot(pipeline, "case=light", "light=bright", "case.motion.values=[10.0]",
                                         "palette.target_colours=[black]")
     assert target.visible_fraction == 1.0 and target.kitti == "easy"
     assert 8.5 < target.distance < 11.0
@@ -79,7 +79,7 @@ def test_unoccluded_car_ten_metres_ahead_is_detected_under_bright(pipeline):
 
 
 def test_blank_control_keeps_the_car_and_drops_the_garage(pipeline):
-    (shot, target, score, rgb), = shoot(pipeline, "case=light", "light=bright", "case.params.distances=[10.0]",
+    (shot, target, score, rgb), = shoot(pipeline, "case=light", "light=bright", "case.motion.values=[10.0]",
                                         "palette.target_colours=[black]", "blank=true")
     x1, y1, x2, y2 = target.full_box
     outside = np.ones(rgb.shape[:2], bool)
@@ -93,7 +93,7 @@ def test_pillar_at_the_corner_hides_the_target_in_case_1(pipeline):
     """Case 1 on the research plan: far from the corner the target is only partly visible, the pillar cuts
     it; with occluder=none the same frames see more of it and the detectors are more confident (the README's
     control: removing the pillar restores confidence)."""
-    args = ("case=1", "light=bright", "case.start=11.0", "case.end=9.0", "case.step=1.0",
+    args = ("case=1", "light=bright", "case.motion.start=11.0", "case.motion.end=9.0", "case.motion.step=1.0",
             "palette.target_colours=[black]")
     with_pillar = shoot(pipeline, *args)
     without = shoot(pipeline, *args, "occluder=none")
@@ -117,7 +117,7 @@ def sweep(tmp_path_factory):
     _skip_without_backends()
     tmp = tmp_path_factory.mktemp("sweep")
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
-    r = run_app(["-m", "case=light,3", "light=bright,dim", "case.start=6.0", "case.end=6.0",
+    r = run_app(["-m", "case=light,3", "light=bright,dim", "case.motion.start=6.0", "case.motion.end=6.0",
                  "dataset=true", f"tracking.uri={uri}"], tmp)
     assert r.returncode == 0, r.stderr[-3000:]
     mlc = tracking.client(uri)
@@ -249,7 +249,7 @@ def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
             f"# @package modifiers.barrier\n_target_: user_mods.barrier\nheight: {height}\n")
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     r = run_app(["-m", "--config-dir", str(tmp_path / "conf"), "+barrier=low,high", "case=light",
-                 "case.params.distances=[10.0]", "palette.target_colours=[black]", f"tracking.uri={uri}"],
+                 "case.motion.values=[10.0]", "palette.target_colours=[black]", f"tracking.uri={uri}"],
                 tmp_path, env={"PYTHONPATH": str(tmp_path), "GARAGE_EXP_MODIFIER_MODULES": "user_mods"})
     assert r.returncode == 0, r.stderr[-3000:]
     mlc = tracking.client(uri)

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
-ONE_FRAME = ["case=1", "case.start=8.0", "case.end=8.0", "palette.target_colours=[black]",
+ONE_FRAME = ["case=1", "case.motion.start=8.0", "case.motion.end=8.0", "palette.target_colours=[black]",
              "renderer.save_frames=none"]
 
 
@@ -67,7 +67,7 @@ def test_case_2_runs_the_same_with_serial_and_overlapped_detection(tmp_path):
     GARAGE_EXP_DETECT_PROCESS=0 (detection in the job's process, after each frame) and =1 (a detector process
     overlapping the next frame's rendering) give the same frame table with the real detectors."""
     require("vulkan", "vehicles", "models")
-    args = ["case=2", "case.start=-1.0", "case.end=1.0", "case.step=1.0", "palette.target_colours=[black]",
+    args = ["case=2", "case.motion.start=-1.0", "case.motion.end=1.0", "case.motion.step=1.0", "palette.target_colours=[black]",
             "renderer.save_frames=none"]
     dirs = {mode: tmp_path / mode for mode in ("0", "1")}
     for d in dirs.values():

@@ -85,14 +85,19 @@ def test_bad_occupancy_is_one_line(library):
 
 
 def test_case_3_cars_stand_in_the_bays_beside_the_lane(library):
-    from garage_exp.cases import make_case
+    from garage_exp.scenario import make_case
+
+    from hydra import compose, initialize_config_dir
+
+    from garage_exp import config as schema
+    from garage_exp.paths import PROJECT_ROOT
 
     classified = classify(load_plan(PLANS_DIR / "research.yaml"))
-    cfg = OmegaConf.create({
-        "case": {"name": "3", "kind": "parked", "step": 1.0, "start": 8.0, "end": 4.0, "feature": "",
-                 "target_distance": 10.0, "params": {"distances": {"close": 1, "medium": 2, "far": 3}},
-                 "placements": [{"far": "small"}, {"close": "large", "far": "medium"}]},
-        "palette": OmegaConf.structured(PaletteConf()), "garage": OmegaConf.structured(GarageConf())})
+    schema.register()
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[
+            "case='3'", "case.variants=[{show: [far_small], target: far_small},"
+            "{show: [close_large, far_medium], target: far_medium}]"])
     setup = make_case(cfg, classified, library, np.random.default_rng(0))
     parked = [v for v in setup.vehicles if v.role == "parked"]
     assert {v.name for v in parked} == {"far_small", "close_large", "far_medium"}

@@ -1,9 +1,11 @@
-"""`python -m garage_exp.assets where|ensure|fetch|convert`.
+"""`python -m garage_exp.assets where|ensure|fetch|convert|people`.
 
 where:   print the vehicles and models folders in use (or what is missing).
-ensure:  like where, but fetch whatever is missing (used by `make data`; a no-op when ../shared has both).
+ensure:  like where, but fetch whatever is missing and build the people library (used by `make data`; a no-op
+         when ../shared has both and the bodies are in the cache).
 fetch:   download the FlightGear vehicles and the official Ultralytics weights into the cache.
 convert: convert every vehicle to GLB now instead of on first use, and list the library.
+people:  build the prebuilt people (anny bodies) if missing, and list them.
 """
 
 from __future__ import annotations
@@ -38,7 +40,9 @@ def _ensure() -> int:
     except GarageError:
         print(f"fetching detector weights {', '.join(locate.MODEL_WEIGHTS)} ...", flush=True)
         locate.fetch_models()
-    return _where()
+    found = _where()
+    _people(verbose=False)
+    return found
 
 
 def _fetch() -> int:
@@ -61,13 +65,29 @@ def _convert() -> int:
     return 0
 
 
+def _people(verbose: bool = True) -> int:
+    import time
+
+    from garage_exp.assets.people import PeopleLibrary
+
+    start = time.perf_counter()
+    library = PeopleLibrary()
+    models = library.library()
+    print(f"people: {len(models)} bodies in {library.root} ({library.built} built, "
+          f"{time.perf_counter() - start:.1f} s)")
+    for m in models if verbose else ():
+        print(f"{m.name:38s} {m.length:4.2f} x {m.width:4.2f} x {m.height:4.2f} m {m.glb}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m garage_exp.assets", description=__doc__.splitlines()[0])
-    parser.add_argument("command", choices=("where", "ensure", "fetch", "convert"))
+    parser.add_argument("command", choices=("where", "ensure", "fetch", "convert", "people"))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
     try:
-        return {"where": _where, "ensure": _ensure, "fetch": _fetch, "convert": _convert}[args.command]()
+        return {"where": _where, "ensure": _ensure, "fetch": _fetch, "convert": _convert,
+                "people": _people}[args.command]()
     except GarageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

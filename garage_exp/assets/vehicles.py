@@ -212,9 +212,13 @@ def _plausible(extents: np.ndarray) -> str | None:
 
 
 def write_glb(conv: Converted, target: Path) -> Path:
-    """Export the converted model; written to a temp file and renamed so readers never see half a file."""
+    """Export the converted model."""
     scene = to_scene(conv.ac, conv.parts, conv.transform)
-    data = scene.export(file_type="glb", include_normals=True)
+    return write_atomic(scene.export(file_type="glb", include_normals=True), target)
+
+
+def write_atomic(data: bytes, target: Path) -> Path:
+    """Write to a temp file and rename, so readers (other jobs sharing the cache) never see half a file."""
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=target.stem, suffix=".tmp", dir=target.parent)
     try:
@@ -323,7 +327,7 @@ class VehicleLibrary:
 
     def choose(self, size_class: str | None = None, colour: str | None = None, kind: str | None = None,
                max_height: float | None = None, rng: np.random.Generator | None = None,
-               max_length: float | None = None) -> VehicleModel:
+               max_length: float | None = None, max_width: float | None = None) -> VehicleModel:
         """A model matching every given filter, drawn with rng (a fixed seed when None): same rng, same pick."""
         for value, allowed, what in ((size_class, SIZE_CLASSES, "size_class"), (colour, COLOURS, "colour"),
                                      (kind, KINDS, "kind")):
@@ -334,10 +338,11 @@ class VehicleLibrary:
                       and (colour is None or m.colour == colour)
                       and (kind is None or m.kind == kind)
                       and (max_height is None or m.height <= max_height)
-                      and (max_length is None or m.length <= max_length)]
+                      and (max_length is None or m.length <= max_length)
+                      and (max_width is None or m.width <= max_width)]
         if not candidates:
             asked = {"size_class": size_class, "colour": colour, "kind": kind, "max_height": max_height,
-                     "max_length": max_length}
+                     "max_length": max_length, "max_width": max_width}
             filters = ", ".join(f"{k}={v}" for k, v in asked.items() if v is not None) or "no filter"
             raise GarageError(f"no vehicle model matches {filters}", str(self.root))
         rng = rng if rng is not None else np.random.default_rng(0)

@@ -160,10 +160,10 @@ def _openvino_thread_count(model: Any) -> int | None:
 class Detector:
     """Several YOLO models run one after another on each frame.
 
-    models: OpenVINO folders or .pt files (must exist). classes: the vehicle classes a target may be matched
-    with. conf: lowest confidence kept (low, so that a weak hit scores its confidence instead of 0).
-    imgsz: network input size in pixels. device: torch/ultralytics device string. threads: OpenVINO inference
-    threads (0: its default).
+    models: OpenVINO folders or .pt files (must exist). classes: the vehicle classes a vehicle target may be
+    matched with; person_classes: those of a person target. conf: lowest confidence kept (low, so that a weak
+    hit scores its confidence instead of 0). imgsz: network input size in pixels. device: torch/ultralytics
+    device string. threads: OpenVINO inference threads (0: its default).
     """
 
     models: Sequence[str | Path]
@@ -172,6 +172,7 @@ class Detector:
     imgsz: int = 640
     device: str = "cpu"
     threads: int = 0
+    person_classes: Sequence[str] = ("person",)
     names: list[str] = field(init=False)
     paths: list[Path] = field(init=False)
     _models: list[Any] = field(init=False, repr=False)
@@ -185,13 +186,15 @@ class Detector:
         for path in self.paths:
             model_format(path)  # fail on a bad path before spending seconds loading the others
         self.classes = tuple(self.classes)
+        self.person_classes = tuple(self.person_classes)
         self.names = _unique([model_label(p) for p in self.paths])
         self._models = [load_model(p, self.imgsz, self.device, self.threads) for p in self.paths]
         for path, model in zip(self.paths, self._models):
-            unknown = set(self.classes) - set(model.names.values())
-            if unknown:
-                raise GarageError(f"classes {sorted(unknown)} are not among {path.name}'s classes",
-                                  "detector.classes")
+            for key, wanted in (("classes", self.classes), ("person_classes", self.person_classes)):
+                unknown = set(wanted) - set(model.names.values())
+                if unknown:
+                    raise GarageError(f"classes {sorted(unknown)} are not among {path.name}'s classes",
+                                      f"detector.{key}")
 
     @classmethod
     def from_config(cls, conf: Any, threads: int = 0) -> Detector:
@@ -224,6 +227,7 @@ class Detector:
 def spec_from_config(conf: Any) -> dict[str, Any]:
     """`Detector` arguments from a `DetectorConf`, as plain picklable values (a child process rebuilds it)."""
     return {"models": [resolve_model(m) for m in conf.models], "classes": tuple(conf.classes),
+            "person_classes": tuple(getattr(conf, "person_classes", ("person",))),
             "conf": float(conf.conf), "imgsz": int(conf.imgsz), "device": str(getattr(conf, "device", "cpu"))}
 
 

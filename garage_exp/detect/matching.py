@@ -1,4 +1,8 @@
-"""Score one target vehicle from several models' detections (the research's composite confidence)."""
+"""Score one target (a vehicle or a person) from several models' detections (the research's composite
+confidence).
+
+Detection classes follow the actor: a vehicle target is matched by the vehicle classes (car, truck, bus), a
+person by the person classes. Ground truth says which it is by its `kind` ("vehicle" when it has none)."""
 
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ from garage_exp.errors import GarageError
 
 Box = tuple[float, float, float, float]  # x1, y1, x2, y2 in pixels
 VEHICLE_CLASSES = ("car", "truck", "bus")
+PERSON_CLASSES = ("person",)
 MATCH_MODES = ("full", "visible", "either")
 
 
@@ -22,11 +27,12 @@ class GTBox:
 
     full_box: Box | None
     visible_box: Box | None = None
+    kind: str = "vehicle"  # "vehicle" | "person"
 
 
 @dataclass
 class TargetScore:
-    per_model: list[float]  # best matching vehicle confidence per model, 0 when missed
+    per_model: list[float]  # best matching confidence (of the target's classes) per model, 0 when missed
     composite: float  # mean of per_model
     detected: bool  # composite >= threshold
     false_positives: int  # summed over models
@@ -66,20 +72,21 @@ def target_iou(boxes: np.ndarray, truth: Any, match: str) -> np.ndarray:
 
 def score_target(dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), iou_threshold: float = 0.5,
                  match: str = "full", threshold: float = 0.5, classes: Sequence[str] = VEHICLE_CLASSES,
-                 fp_conf: float = 0.25) -> TargetScore:
+                 fp_conf: float = 0.25, person_classes: Sequence[str] = PERSON_CLASSES) -> TargetScore:
     """Score the target in one frame.
 
     dets: per-model detections (`ModelDetections`: boxes, confs, classes). target: the target's ground truth,
     any object with `full_box` and `visible_box` (a `groundtruth` record or `GTBox`), a bare xyxy box (used as
-    both), or None when the target is out of view (scores 0). truth: every ground-truth vehicle in the frame
+    both), or None when the target is out of view (scores 0). truth: every ground-truth actor in the frame
     (the target may be among them), for false positives. match: which target box a detection must overlap
     with IoU >= iou_threshold: "full" | "visible" | "either". threshold: composite confidence counted as
-    detected. classes: the vehicle classes.
+    detected. classes: the vehicle classes; person_classes: the person classes. A target or truth record
+    whose `kind` is "person" is matched by the person classes, any other by the vehicle classes.
     fp_conf: detections below this confidence are not counted as false positives: the detector keeps hits
     down to ~0.05 so that weak target hits still score, but nobody would act on a 0.05 box.
-    A false positive is a vehicle detection overlapping no ground-truth vehicle's full or visible box (either
-    box whatever the match mode, so that occlusion does not manufacture false positives), or any detection of
-    a non-vehicle class.
+    A false positive is a vehicle (person) detection overlapping no ground-truth vehicle's (person's) full or
+    visible box (either box whatever the match mode, so that occlusion does not manufacture false positives),
+    or any detection of another class.
     """
     if match not in MATCH_MODES:
         raise GarageError(f"unknown match {match!r} ({' | '.join(MATCH_MODES)})", "detector.match")
@@ -87,7 +94,7 @@ def score_target(dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), io
         raise GarageError(f"iou {iou_threshold} is outside (0, 1]", "detector.iou")
     if not 0.0 <= threshold <= 1.0:
         raise GarageError(f"threshold {threshold} is outside [0, 1]", "detector.threshold")
-    vehicles = set(classes)
+    groups = {"vehicle": set(classes), "person": set(person_classes)}
     others = list(truth)
     if target is not None and not any(t is target for t in others):
         others.append(target)
@@ -95,29 +102,39 @@ def score_target(dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), io
     for model in dets:
         boxes = np.asarray(model.boxes, dtype=float).reshape(-1, 4)
         confs = np.asarray(model.confs, dtype=float).reshape(-1)
-        is_vehicle = np.array([c in vehicles for c in model.classes], dtype=bool)
+        of = {kind: np.array([c in names for c in model.classes], dtype=bool) for kind, names in groups.items()}
         best, best_index = 0.0, -1
         if target is not None and len(boxes):
-            hits = is_vehicle & (target_iou(boxes, target, match) >= iou_threshold)
+            hits = of[kind_of(target)] & (target_iou(boxes, target, match) >= iou_threshold)
             if hits.any():
                 best_index = int(np.flatnonzero(hits)[np.argmax(confs[hits])])
                 best = float(confs[best_index])
         per_model.append(best)
         matched.append(best_index)
-        fps.append(_false_positives(boxes, confs, is_vehicle, others, iou_threshold, fp_conf))
+        fps.append(_false_positives(boxes, confs, of, others, iou_threshold, fp_conf))
     composite = float(np.mean(per_model)) if per_model else 0.0
     return TargetScore(per_model=per_model, composite=composite, detected=composite >= threshold,
                        false_positives=int(sum(fps)), false_positives_per_model=fps, matched=matched)
 
 
-def _false_positives(boxes: np.ndarray, confs: np.ndarray, is_vehicle: np.ndarray, truth: Sequence[Any],
+def kind_of(truth: Any) -> str:
+    """"person" or "vehicle" for a ground-truth record, a `GTBox` or a bare box (a vehicle)."""
+    return "person" if getattr(truth, "kind", "vehicle") == "person" else "vehicle"
+
+
+def _false_positives(boxes: np.ndarray, confs: np.ndarray, of: dict[str, np.ndarray], truth: Sequence[Any],
                      iou_threshold: float, fp_conf: float) -> int:
+    """Confident detections of an actor class overlapping no ground truth of that kind, plus confident
+    detections of any other class."""
     confident = confs >= fp_conf
-    overlap = np.zeros(len(boxes))
-    for t in truth:
-        overlap = np.maximum(overlap, target_iou(boxes, t, "either"))
-    unmatched_vehicles = confident & is_vehicle & (overlap < iou_threshold)
-    return int(unmatched_vehicles.sum() + (confident & ~is_vehicle).sum())
+    unmatched = confident.copy()
+    for kind, is_kind in of.items():
+        overlap = np.zeros(len(boxes))
+        for t in truth:
+            if kind_of(t) == kind:
+                overlap = np.maximum(overlap, target_iou(boxes, t, "either"))
+        unmatched &= ~(is_kind & (overlap >= iou_threshold))
+    return int(unmatched.sum())
 
 
 def _boxes_of(truth: Any) -> tuple[Box | None, Box | None]:

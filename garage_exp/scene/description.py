@@ -11,7 +11,10 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 Role = Literal["structure", "marking", "lamp", "parked", "target", "occluder", "ego", "moving"]
+# Roles of actors (vehicles, people, box occluders): each has its own id and pose; vehicles and people get ground
+# truth. The name is older than the people; `Entity.kind` tells them apart.
 VEHICLE_ROLES = ("parked", "target", "occluder", "ego", "moving")
+ACTOR_ROLES = VEHICLE_ROLES
 
 
 @dataclass(frozen=True)
@@ -72,11 +75,18 @@ class Entity:
     role: Role
     pose: Pose
     shapes: list[Shape] = field(default_factory=list)
-    # Vehicles: the model name, its size class and its extent (length, width, height).
+    # Actors: the model name, its size class and its extent (length, width, height; a person faces +x).
     model: str | None = None
     size_class: str | None = None
     extent: tuple[float, float, float] | None = None
     static: bool = True
+    # An actor's kind: "vehicle" | "person" | "box" (a static occluder); None for structure, markings and lamps
+    # (and for a vehicle built before kinds existed: an actor without a kind is a vehicle).
+    kind: str | None = None
+
+    @property
+    def is_person(self) -> bool:
+        return self.kind == "person"
 
 
 @dataclass(frozen=True)
@@ -124,5 +134,12 @@ class Scene:
     def by_role(self, *roles: str) -> list[Entity]:
         return [e for e in self.entities if e.role in roles]
 
+    def actors(self) -> list[Entity]:
+        """Vehicles, people and box occluders (the entities with an actor's role)."""
+        return self.by_role(*ACTOR_ROLES)
+
     def vehicles(self) -> list[Entity]:
-        return self.by_role(*VEHICLE_ROLES)
+        return [e for e in self.actors() if e.kind not in ("person", "box")]
+
+    def people(self) -> list[Entity]:
+        return [e for e in self.actors() if e.is_person]

@@ -8,6 +8,7 @@ changes the scene description in place, so it works for every renderer and for t
 from __future__ import annotations
 
 import importlib
+import os
 from dataclasses import replace
 from typing import Any, Callable
 
@@ -73,6 +74,25 @@ def replace_conf(conf, **changes):
         copy = OmegaConf.to_object(conf) if OmegaConf.get_type(conf) is not dict else OmegaConf.to_container(conf)
         return replace(copy, **changes) if not isinstance(copy, dict) else {**copy, **changes}
     return replace(conf, **changes)
+
+
+# Modules a config's `_target_` (a scene modifier, a scenario's own site) may name: configs are data, they name
+# one of these functions, they cannot run arbitrary code. More prefixes: $GARAGE_EXP_MODIFIER_MODULES.
+MODULES = ("garage_exp.",)
+
+
+def allowed_modules() -> tuple[str, ...]:
+    extra = os.environ.get("GARAGE_EXP_MODIFIER_MODULES", "")
+    return MODULES + tuple(p.strip() for p in extra.split(",") if p.strip())
+
+
+def resolve_allowed(target: str, where: str, what: str = "scene modifier") -> Callable:
+    """The function `target` names, if its module is allowed."""
+    allowed = allowed_modules()
+    if not target.startswith(allowed):
+        raise GarageError(f"{target!r} is not a {what} (allowed modules: {', '.join(allowed)}; more via "
+                          "$GARAGE_EXP_MODIFIER_MODULES)", where)
+    return resolve(target)
 
 
 def resolve(target: str) -> Callable:

@@ -1,0 +1,114 @@
+"""What an actor is: a vehicle (by model, or size class, colour and body), a pedestrian (age group, height,
+build, pose, clothing) or a static occluder (a box: a barrier, a crate, a low wall), as a scene entity."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from garage_exp.assets.vehicles import COLOURS, SIZE_CLASSES
+from garage_exp.assets.vehicles import KINDS as VEHICLE_KINDS
+from garage_exp.errors import GarageError
+from garage_exp.scenario.place import site_bay
+from garage_exp.scene.description import Box, Entity, Material, Mesh, Pose
+
+KINDS = ("vehicle", "person", "box")
+ROLES = ("ego", "target", "occluder", "parked", "moving")
+BOX_COLOURS = {"grey": (0.35, 0.35, 0.34), "yellow": (0.85, 0.6, 0.05), "red": (0.6, 0.08, 0.06),
+               "white": (0.75, 0.75, 0.73), "blue": (0.1, 0.2, 0.55), "orange": (0.9, 0.35, 0.05)}
+
+
+@dataclass
+class Made:
+    entity: Entity
+    extent: tuple[float, float, float]  # length (along its heading), width, height
+    bays: list[tuple[int, int, int]] = field(default_factory=list)  # bays it stands in: kept free of parked cars
+    source: str = ""  # the scenario's name for it (a palette-coloured actor's copies share one)
+
+
+def vehicle_entity(name: str, role: str, model, pose: Pose = Pose()) -> Entity:
+    return Entity(name=name, role=role, pose=pose, shapes=[Mesh(model.glb)], model=model.name,
+                  size_class=model.size_class, extent=(model.length, model.width, model.height), static=False,
+                  kind="vehicle")
+
+
+def make(name: str, actor, cfg, library, site, bays: dict, rng, source: str = "", bay=None) -> Made:
+    """The actor's entity. `bay`: the bay it was given (a free bay near the focus), when not named."""
+    where = source = source or f"case.actors.{name}"
+    if actor.role not in ROLES:
+        raise GarageError(f"unknown role {actor.role!r} ({' | '.join(ROLES)})", where + ".role")
+    own = [site_bay(site, ref, bays, where).bay for ref in ([actor.bay] if actor.bay != "" else [])
+           + list(actor.between)]
+    fit = bay or (own[0] if actor.bay != "" else None)
+    used = [_bay_key(b) for b in own + ([bay] if bay else [])]
+    if actor.kind == "vehicle":
+        model = vehicle_model(where, actor, cfg, library, rng, fit, narrow=bay is not None)
+        entity = vehicle_entity(name, actor.role, model)
+    elif actor.kind == "person":
+        entity = person_entity(name, actor, where)
+    elif actor.kind == "box":
+        entity = box_entity(name, actor, where)
+    else:
+        raise GarageError(f"unknown kind {actor.kind!r} ({' | '.join(KINDS)})", where + ".kind")
+    return Made(entity, entity.extent, used, source)
+
+
+def _bay_key(bay) -> tuple[int, int, int]:
+    return (bay.i, bay.j, bay.index)
+
+
+def vehicle_model(where: str, actor, cfg, library, rng, bay=None, narrow: bool = False):
+    """The named model; else the palette's pinned target of the actor's colour (targets copied per palette
+    colour); else a model drawn from the library by size class, colour and body that fits the garage."""
+    palette = cfg.palette
+    ceiling = cfg.garage.ceiling_height - 0.1
+    for value, allowed, key in ((actor.colour, COLOURS, "colour"), (actor.size, SIZE_CLASSES, "size"),
+                                (actor.body, VEHICLE_KINDS, "body")):
+        if value and value not in allowed:
+            raise GarageError(f"unknown {key} {value!r} ({', '.join(allowed)})", f"{where}.{key}")
+    if actor.model:
+        return library.get(actor.model)
+    if actor.role == "target" and actor.colour in palette.target_colours:
+        pinned = dict(palette.get("target_models") or {})
+        if palette.target:
+            return library.get(palette.target)
+        if actor.colour in pinned:
+            return library.get(pinned[actor.colour])
+        return library.choose(size_class=actor.size or "medium", colour=actor.colour, max_height=ceiling,
+                              kind=actor.body or "car", rng=rng)
+    fit = dict(size_class=actor.size or None, max_height=ceiling, rng=rng, kind=actor.body or None)
+    if bay is not None:
+        fit["max_length"] = bay.depth + 0.3
+        if narrow:  # beside other cars in neighbouring bays: no wider than the bay
+            fit["max_width"] = bay.width - 0.05
+    if actor.colour:
+        try:
+            return library.choose(colour=actor.colour, **fit)
+        except GarageError:  # no model of that size in that colour: any colour
+            pass
+    return library.choose(**fit)
+
+
+def person_entity(name: str, actor, where: str) -> Entity:
+    from garage_exp.assets.people import PeopleLibrary
+
+    try:
+        body = PeopleLibrary().body(age_group=actor.age, height=actor.height, build=actor.build,
+                                    pose=actor.pose, clothing=actor.clothing, gender=actor.gender, where=where)
+    except GarageError as exc:  # the library's `age_group` is the actor's `age`
+        raise GarageError(str(exc).split(": ", 1)[1], exc.where.replace(".age_group", ".age")) from None
+    return Entity(name=name, role=actor.role, pose=Pose(), shapes=[Mesh(body.glb)], model=body.name,
+                  size_class=body.age_group, extent=body.extent, static=False, kind="person")
+
+
+def box_entity(name: str, actor, where: str) -> Entity:
+    size = (float(actor.length or 1.0), float(actor.width or 0.3), float(actor.height or 1.0))
+    if min(size) <= 0:
+        raise GarageError(f"a box needs a positive size, got {size}", where)
+    try:
+        rgb = BOX_COLOURS[actor.colour or "grey"]
+    except KeyError:
+        raise GarageError(f"unknown box colour {actor.colour!r} ({', '.join(BOX_COLOURS)})",
+                          f"{where}.colour") from None
+    material = Material(f"box_{actor.colour or 'grey'}", (*rgb, 1.0), roughness=0.8)
+    return Entity(name=name, role=actor.role, pose=Pose(), shapes=[Box(size, material, Pose(0.0, 0.0, size[2] / 2))],
+                  extent=size, static=False, kind="box")

@@ -1,0 +1,229 @@
+"""A scenario (one `case` YAML) turned into a shot list: where the ego, its target and every other actor stand
+in each frame.
+
+The scenario names a site (a plan feature), its actors (kind, role, placement), one motion (an actor's
+placement value swept frame by frame) and variants (which actors stand, run one after another). Every value is
+a config key, so a sweep or a search can set it by an override.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from garage_exp.errors import GarageError
+from garage_exp.plan.classify import Classified
+from garage_exp.scenario import actors as kinds
+from garage_exp.scenario.arrange import arrange
+from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
+from garage_exp.scenario.place import (check_overlaps, pose_between, pose_in_bay, pose_on_path,
+                                       pose_relative, site_bay, site_path)
+from garage_exp.scenario.sites import Site, find_site
+from garage_exp.scene.description import Pose
+
+EGO = "ego"
+PALETTE = "palette"  # an actor's colour: one copy per palette target colour, one variant each
+MOVABLE = ("distance", "offset", "yaw", "out", "gap")
+PLACEMENT = (*MOVABLE, "path", "align", "before", "bay", "between", "relative")
+
+
+def steps(start: float, end: float, step: float) -> list[float]:
+    """start, start +- step, ... up to end inclusive (either direction)."""
+    if step <= 0:
+        raise GarageError(f"step must be positive, got {step}", "case.motion.step")
+    n = int(math.floor(abs(end - start) / step + 1e-9))
+    sign = 1.0 if end >= start else -1.0
+    return [round(start + sign * k * step, 6) for k in range(n + 1)]
+
+
+def variants(case, actors: dict, colours: list[str]) -> tuple[list[Variant], dict]:
+    """The variants to run, and the actors with palette-coloured ones copied per colour."""
+    palette = [n for n, a in actors.items() if a.colour == PALETTE]
+    if len(palette) > 1:
+        raise GarageError(f"only one actor may take the palette's colours (have {', '.join(palette)})",
+                          "case.actors")
+    if palette:
+        if case.variants:
+            raise GarageError(f"actor {palette[0]!r} takes one variant per palette colour; give no variants",
+                              "case.variants")
+        name = palette[0]
+        copies = {f"{name}_{c}": replace(actors[name], colour=c) for c in colours}
+        rest = [n for n in actors if n not in (EGO, name)]
+        out = [Variant(c, [f"{name}_{c}", *rest], f"{name}_{c}", {}) for c in colours]
+        kept = {n: a for n, a in actors.items() if n != name}
+        return out, {**kept, **copies}
+    default_target = case.target or next((n for n, a in actors.items() if a.role == "target"), "")
+    listed = case.variants or [{}]
+    out = []
+    for k, v in enumerate(listed):
+        show = list(v.get("show") or [n for n in actors if n != EGO])
+        target = v.get("target") or default_target
+        if not target:
+            raise GarageError("no target: give one actor role target, or name it in `target`", f"case.variants.{k}")
+        for name in [*show, target]:
+            if name not in actors:
+                raise GarageError(f"no actor {name!r} (have {', '.join(actors)})", f"case.variants.{k}")
+        if target not in show:
+            raise GarageError(f"the target {target!r} is not among the shown actors", f"case.variants.{k}.target")
+        label = v.get("label") or ",".join(show)
+        out.append(Variant(label, show, target, dict(v.get("set") or {})))
+    return out, actors
+
+
+def frame_values(case, actor, site: Site, length: float, bays: dict) -> list[float]:
+    """The motion's values: listed, or start..end by step, trimmed to the room the path leaves the actor."""
+    m = OmegaConf.to_object(case.motion)  # a DictConfig's `.values` is its method, not the key
+    if m.values:
+        return [float(v) for v in m.values]
+    if m.start is None or m.end is None:
+        return [float(getattr(actor, m.key))]
+    start, end = float(m.start), float(m.end)
+    if m.key == "distance" and actor.path and not actor.before and not actor.relative and actor.align == "centre":
+        lo, hi = site_path(site, actor.path, f"case.actors.{m.actor}.path").room(length)
+        start, end = (min(start, hi), max(end, lo)) if start >= end else (max(start, lo), min(end, hi))
+        if (start < end) != (float(m.start) < float(m.end)) and start != end:
+            raise GarageError(f"the path {actor.path!r} leaves {lo:.1f}..{hi:.1f} m; motion {m.start}..{m.end} "
+                              "does not fit", "case.motion")
+    return steps(start, end, float(m.step))
+
+
+def level_file(cfg, group: str) -> str:
+    """The YAML file of a group's level (named as its `name`), for error messages; else `group=NAME`."""
+    from pathlib import Path
+
+    from garage_exp.paths import PROJECT_ROOT
+
+    dirs = []
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        dirs = [s.path for s in HydraConfig.get().runtime.config_sources if s.schema == "file"]
+    except ValueError:  # composed outside a Hydra app (tests, the sweep's preflight)
+        pass
+    for folder in [*dirs, str(PROJECT_ROOT / "conf")]:
+        path = Path(folder) / group / f"{cfg[group].name}.yaml"
+        if path.is_file():
+            return str(path)
+    return f"{group}={cfg[group].name}"
+
+
+def make_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
+    """The scenario's shot list; an error in the scenario or the arrangement names its file and key path."""
+    try:
+        return build_case(cfg, classified, library, rng)
+    except GarageError as exc:
+        group = (exc.where or "").split(".")[0]
+        if group in ("case", "occluder"):
+            raise GarageError(str(exc), level_file(cfg, group)) from None
+        raise
+
+
+def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
+    case = cfg.case
+    site = find_site(case.site, classified, cfg.garage)
+    conf = actor_confs(case.actors, "case.actors")
+    if EGO not in conf or conf[EGO].role != "ego":
+        raise GarageError("a scenario needs an actor named 'ego' with role ego", "case.actors")
+    bays = {str(k): str(v) for k, v in (case.bays or {}).items()}
+    if case.motion.actor and case.motion.actor not in conf and case.motion.actor != "target":
+        raise GarageError(f"no actor {case.motion.actor!r} to move (have {', '.join(conf)})", "case.motion.actor")
+    if case.motion.key not in MOVABLE:
+        raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
+                          "case.motion.key")
+    runs, conf = variants(case, conf, list(cfg.palette.target_colours))
+    # Actors are made in order of first use (the ego first): model draws from rng follow the scenario's order.
+    made: dict[str, kinds.Made] = {}
+    for name in dict.fromkeys([EGO] + [n for v in runs for n in v.show]):
+        source = name if name in case.actors else name.rpartition("_")[0]  # palette copies: the original
+        made[name] = kinds.make(name, conf[name], cfg, library, site, bays, rng, f"case.actors.{source}")
+
+    shots: list[Shot] = []
+    for variant in runs:
+        actors = {n: conf[n] for n in [EGO, *variant.show]}
+        for key, value in variant.set.items():
+            name, _, attr = str(key).partition(".")
+            if name not in actors or attr not in PLACEMENT:
+                raise GarageError(f"variant {variant.label!r} sets {key!r}: a variant sets an actor's placement "
+                                  f"({', '.join(PLACEMENT)}); another kind or model is another actor",
+                                  "case.variants")
+            actors[name] = replace(actors[name], **{attr: value})
+        mover = next((n for n in actors if n == case.motion.actor or made[n].source == f"case.actors."
+                      f"{case.motion.actor}"), None)
+        if mover is None and case.motion.actor == "target":  # no actor named so: each variant's target
+            mover = variant.target
+        values = (frame_values(case, actors[mover], site, _longest(made, made[mover].source), bays) if mover
+                  else [float("nan")])
+        for value in values:
+            placed = dict(actors)
+            if mover:
+                placed[mover] = replace(actors[mover], **{case.motion.key: value})
+            poses = resolve(placed, made, site, bays)
+            check_overlaps(poses, made, variant.label, value)
+            shot_poses = {n: poses.get(n) for n in made if n != EGO}
+            shots.append(Shot(len(shots), variant.label, value, poses[EGO], shot_poses, variant.target))
+    free = [site_bay(site, ref, bays, "case.keep_free").bay for ref in case.keep_free]
+    taken = {b for m in made.values() for b in m.bays} | {(b.i, b.j, b.index) for b in free}
+    arrange(cfg, classified, library, site, bays, rng, made, shots, taken)
+    for name, m in made.items():
+        first = next((s.poses.get(name) for s in shots if s.poses.get(name)), None)
+        m.entity.pose = shots[0].ego if name == EGO else first or m.entity.pose
+    used = sorted({b for m in made.values() for b in m.bays} | taken)
+    return CaseSetup([m.entity for m in made.values()], shots, occluder=site.pillar, used_bays=used,
+                     position_label=case.position_label or "position (m)")
+
+
+def _longest(made: dict, source: str) -> float:
+    """The longest of an actor's copies (the palette's colours): the room on a path fits them all."""
+    return max(m.extent[0] for m in made.values() if m.source == source)
+
+
+def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]:
+    """Every actor's pose in one frame; an actor placed relative to another follows it."""
+    poses: dict[str, Pose] = {}
+    axes: dict[str, tuple[float, float]] = {}
+
+    def place(name: str, seen: tuple[str, ...] = ()) -> Pose:
+        if name in poses:
+            return poses[name]
+        a, where = actors[name], made[name].source
+        length = made[name].extent[0]
+        if a.relative:
+            if a.relative not in actors or a.relative in seen:
+                raise GarageError(f"relative to {a.relative!r}: no such actor in this variant, or a cycle",
+                                  where + ".relative")
+            ref = place(a.relative, (*seen, name))
+            axes[name] = axes[a.relative]
+            pose = pose_relative(ref, axes[a.relative], a)
+        elif a.path and a.before in actors:  # counted back from another actor (its projection on the path)
+            if a.before in seen:
+                raise GarageError(f"before {a.before!r} makes a cycle", where + ".before")
+            path = site_path(site, a.path, where + ".path")
+            ref = place(a.before, (*seen, name))
+            axes[name] = path.axis
+            x, y = path.at_world(path.along(ref.x, ref.y) - float(a.distance))
+            pose = Pose(x - a.offset * path.axis[1], y + a.offset * path.axis[0], 0.0,
+                        (path.heading + float(a.yaw)) % 360.0)
+        elif a.path:
+            axes[name] = site_path(site, a.path, where + ".path").axis
+            pose = pose_on_path(site, a, length, bays, where)
+        elif a.bay != "":
+            sb = site_bay(site, a.bay, bays, where + ".bay")
+            axes[name] = sb.facing
+            pose = pose_in_bay(site, a, length, bays, where)
+        elif a.between:
+            axes[name] = site_bay(site, a.between[0], bays, where + ".between").facing
+            pose = pose_between(site, a, bays, where)
+        else:
+            raise GarageError("no placement: give path, bay, between or relative", where)
+        poses[name] = pose
+        return pose
+
+    for name in actors:
+        place(name)
+    return poses
+
+
+__all__ = ["EGO", "Shot", "CaseSetup", "make_case", "steps"]

@@ -1,0 +1,127 @@
+"""Where an actor stands: a placement on a site (a path, a bay, the gap between two bays, another actor) turned
+into a pose, and the footprint check that keeps two actors from standing in one another."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from garage_exp.errors import GarageError
+from garage_exp.scenario.sites import Path, Site, SiteBay
+from garage_exp.scene.description import Pose
+
+
+def site_bay(site: Site, ref, bays: dict, where: str) -> SiteBay:
+    """A bay of the site by the scenario's name for it (`bays: {far: 3}`), by index, or by side and index
+    (`right:3`)."""
+    key = str(bays.get(str(ref), ref))
+    side, _, index = key.rpartition(":")
+    row = site.sides.get(side) if side else site.bays
+    try:
+        return row[int(index)]
+    except (TypeError, ValueError, IndexError):
+        sides = ", ".join(f"{k}: {len(v)}" for k, v in site.sides.items())
+        raise GarageError(f"the site {site.name} has no bay {str(ref)!r} ({len(site.bays)} bays"
+                          f"{'; by side ' + sides if sides else ''}; names: {', '.join(bays) or 'none'})",
+                          where) from None
+
+
+def site_path(site: Site, name: str, where: str) -> Path:
+    try:
+        return site.paths[name]
+    except KeyError:
+        raise GarageError(f"the site {site.name} has no path {name!r} (have {', '.join(site.paths)})",
+                          where) from None
+
+
+def path_position(site: Site, actor, length: float, bays: dict, where: str) -> float:
+    """The actor's distance along its path (its centre), from `distance` and how it is counted."""
+    path = site_path(site, actor.path, where + ".path")
+    if actor.before:
+        bay = site_bay(site, actor.before, bays, where + ".before").bay
+        return path.along(bay.x, bay.y) - float(actor.distance)
+    if actor.align == "start":  # the actor's rear `distance` metres past the path's start
+        return path.lo + length / 2 + float(actor.distance)
+    if actor.align != "centre":
+        raise GarageError(f"unknown align {actor.align!r} (centre | start)", where + ".align")
+    lo, hi = path.room(length)  # trimmed to the room the path leaves (a short lane on a small plan)
+    return min(max(float(actor.distance), lo), hi) if lo <= hi else float(actor.distance)
+
+
+def pose_on_path(site: Site, actor, length: float, bays: dict, where: str) -> Pose:
+    path = site_path(site, actor.path, where + ".path")
+    s = path_position(site, actor, length, bays, where)
+    if actor.before:  # counted in the world's frame along the axis (the bay's projection onto the lane)
+        x, y = path.at_world(s)
+        if actor.offset:
+            x, y = x - actor.offset * path.axis[1], y + actor.offset * path.axis[0]
+    else:
+        x, y = path.point(s, float(actor.offset))
+    return Pose(x, y, 0.0, (path.heading + float(actor.yaw)) % 360.0)
+
+
+def pose_in_bay(site: Site, actor, length: float, bays: dict, where: str) -> Pose:
+    """In a bay, nose to the lane, centred, or with the front bumper `gap` metres behind the bay line."""
+    sb = actor.bay if isinstance(actor.bay, SiteBay) else site_bay(site, actor.bay, bays, where + ".bay")
+    bay, u = sb.bay, sb.facing
+    inset = 0.0
+    if actor.gap is not None:
+        gap = float(actor.gap)
+        if not 0.0 <= gap <= bay.depth - length:
+            raise GarageError(f"gap {gap} m does not fit a {length:.1f} m actor in a {bay.depth:.1f} m bay",
+                              where + ".gap")
+        inset = bay.depth / 2 - length / 2 - gap
+    return Pose(bay.x + u[0] * inset, bay.y + u[1] * inset, 0.0, (bay.yaw + float(actor.yaw)) % 360.0)
+
+
+def pose_between(site: Site, actor, bays: dict, where: str) -> Pose:
+    """In the gap between two neighbouring bays, `out` metres past the bay line into the lane, facing it."""
+    if len(actor.between) != 2:
+        raise GarageError(f"between names two bays, got {list(actor.between)}", where + ".between")
+    a, b = (site_bay(site, ref, bays, where + ".between") for ref in actor.between)
+    u = a.facing
+    mx, my = (a.bay.x + b.bay.x) / 2, (a.bay.y + b.bay.y) / 2
+    reach = a.bay.depth / 2 + float(actor.out)
+    yaw = math.degrees(math.atan2(u[1], u[0])) % 360.0
+    return Pose(mx + u[0] * reach, my + u[1] * reach, 0.0, (yaw + float(actor.yaw)) % 360.0)
+
+
+def pose_relative(ref: Pose, ref_axis: tuple[float, float], actor) -> Pose:
+    """`distance` metres ahead of another actor along its path's axis, `offset` to its left."""
+    d, o = float(actor.distance), float(actor.offset)
+    ax, ay = ref_axis
+    return Pose(ref.x + d * ax - o * ay, ref.y + d * ay + o * ax, 0.0, (ref.yaw + float(actor.yaw)) % 360.0)
+
+
+def footprint(pose: Pose, extent: tuple[float, float, float]) -> np.ndarray:
+    """The four corners (x, y) of an actor's footprint."""
+    c, s = math.cos(math.radians(pose.yaw)), math.sin(math.radians(pose.yaw))
+    hl, hw = extent[0] / 2, extent[1] / 2
+    local = np.array([[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]])
+    return local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
+
+
+def overlap(a: np.ndarray, b: np.ndarray, tolerance: float = 0.02) -> bool:
+    """Two convex footprints overlap by more than `tolerance` metres (separating-axis test)."""
+    for poly in (a, b):
+        for k in range(len(poly)):
+            edge = poly[(k + 1) % len(poly)] - poly[k]
+            normal = np.array([-edge[1], edge[0]]) / (np.hypot(*edge) or 1.0)
+            pa, pb = a @ normal, b @ normal
+            if min(pa.max(), pb.max()) - max(pa.min(), pb.min()) <= tolerance:
+                return False
+    return True
+
+
+def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float, only: set | None = None,
+                   where: str = "case.actors") -> None:
+    """No two actors stand in one another (`only`: pairs with one of these)."""
+    names = list(poses)
+    feet = {n: footprint(poses[n], made[n].extent) for n in names}
+    for k, a in enumerate(names):
+        for b in names[k + 1:]:
+            if only is not None and a not in only and b not in only:
+                continue
+            if overlap(feet[a], feet[b]):
+                raise GarageError(f"actors {a} and {b} overlap (variant {label!r}, position {value:g})", where)

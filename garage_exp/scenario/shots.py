@@ -1,0 +1,51 @@
+"""What a scenario becomes: the shot list (where every actor stands in each frame) and its variants."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+from omegaconf import OmegaConf
+
+from garage_exp.config import ActorConf
+from garage_exp.errors import GarageError
+from garage_exp.scene.description import Entity, Pose
+
+
+@dataclass
+class Shot:
+    """One frame: the ego's pose, the pose of each case actor (None: not in the scene), the target."""
+
+    index: int
+    label: str  # the variant this frame belongs to: a colour, a placement ("far=large"), ...
+    position: float  # the plot's x value: the moved placement value
+    ego: Pose
+    poses: dict[str, Pose | None]
+    target: str
+
+
+@dataclass
+class CaseSetup:
+    vehicles: list[Entity]  # the case's actors (ego included), vehicles and people
+    shots: list[Shot]
+    occluder: str | None = None  # the structure entity the case is about (a pillar)
+    used_bays: list[tuple[int, int, int]] = field(default_factory=list)  # (i, j, k) kept free of parked cars
+    position_label: str = "position (m)"
+
+
+@dataclass
+class Variant:
+    label: str
+    show: list[str]
+    target: str
+    set: dict
+
+
+def actor_confs(nodes, prefix: str) -> dict:
+    """Actor nodes as ActorConf objects; a key forced past the schema (`+case.actors.x.key=...`) is refused."""
+    known = {f.name for f in fields(ActorConf)}
+    for name, node in (nodes or {}).items():
+        extra = sorted(set(node.keys()) - known)
+        if extra:
+            raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
+                              f"{prefix}.{name}.{extra[0]}")
+    return {str(n): OmegaConf.to_object(a) for n, a in (nodes or {}).items()}

@@ -1,0 +1,200 @@
+"""Sites: the plan features a scenario stands at, as named paths (lane centre lines) and bays.
+
+A site turns a feature the plan model finds (the corner nearest the entrance, a bay beside a pillar, the
+longest straight lane) into geometry a scenario can name: `path: approach, distance: 12` or `bay: far`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from garage_exp.errors import GarageError
+from garage_exp.plan.classify import Classified
+from garage_exp.plan.features import (UNIT, corner_nearest_entrance, entrance_distance, longest_straight_run,
+                                      run_length)
+from garage_exp.plan.model import OPPOSITE, YAW
+from garage_exp.scene.bays import Bay, bays, pillar_centre
+from garage_exp.scene.description import Pose
+
+MARGIN = 0.2  # an actor on a path keeps this much room to the path's ends (m)
+
+
+@dataclass(frozen=True)
+class Path:
+    """A lane's centre line: points origin + s * axis for s in [lo, hi]; actors on it face `heading`."""
+
+    origin: tuple[float, float]
+    axis: tuple[float, float]  # a unit compass vector
+    heading: float  # yaw (degrees) of an actor driving along the path
+    lo: float
+    hi: float
+
+    def point(self, s: float, offset: float = 0.0) -> tuple[float, float]:
+        """The point s along the path, `offset` to the left of the axis."""
+        x, y = self.origin[0] + s * self.axis[0], self.origin[1] + s * self.axis[1]
+        if offset:
+            x, y = x - offset * self.axis[1], y + offset * self.axis[0]
+        return x, y
+
+    def along(self, x: float, y: float) -> float:
+        """World coordinate of (x, y) along the axis (the path's own frame counts from its origin)."""
+        return x * self.axis[0] + y * self.axis[1]
+
+    def at_world(self, t: float) -> tuple[float, float]:
+        """The point of the centre line whose world coordinate along the axis is t."""
+        ax, ay = self.axis
+        return self.origin[0] * (1 - abs(ax)) + t * ax, self.origin[1] * (1 - abs(ay)) + t * ay
+
+    def room(self, length: float) -> tuple[float, float]:
+        """Where the centre of an actor `length` long may stand on the path."""
+        half = length / 2 + MARGIN
+        return self.lo + half, self.hi - half
+
+
+@dataclass
+class SiteBay:
+    bay: Bay
+    facing: tuple[float, float]  # unit vector towards the lane (a parked car's nose)
+
+
+@dataclass
+class Site:
+    name: str
+    paths: dict[str, Path]
+    bays: list[SiteBay] = field(default_factory=list)
+    sides: dict[str, list[SiteBay]] = field(default_factory=dict)  # bays by side (`bay: right:2`)
+    pillar: str | None = None  # entity name of the pillar the site is about (the `occluder` group's object)
+    focus: Pose | None = None  # where occlusion happens (the pillar's centre, heading along the main lane)
+
+
+def compass(yaw: float) -> str:
+    return min(YAW, key=lambda d: abs(((YAW[d] - yaw) + 180) % 360 - 180))
+
+
+def site_bay(bay: Bay) -> SiteBay:
+    return SiteBay(bay, UNIT[compass(bay.yaw)])
+
+
+def corner(classified: Classified, garage) -> Site:
+    """The corner nearest the entrance. `approach`: the lane into the bend, distance counted back from the
+    corner cell's centre; `exit`: the lane after the bend, counted from the centre."""
+    c = corner_nearest_entrance(classified)
+    centre = classified.plan.cell_center(c.cell.i, c.cell.j)
+    u, v = UNIT[c.approach], UNIT[c.exit]
+    approach = Path(centre, (-u[0], -u[1]), YAW[c.approach], 0.0, c.approach_length)
+    exit_ = Path(centre, v, YAW[c.exit], 0.0, c.exit_length)
+    focus = Pose(*pillar_centre(classified.plan, c.pillar, garage.pillar_size), 0.0, YAW[c.approach])
+    return Site("corner", {"approach": approach, "exit": exit_}, pillar=f"pillar_{c.pillar.a}_{c.pillar.b}",
+                focus=focus)
+
+
+def bay_beside_pillar(classified: Classified, garage) -> Site:
+    """A Type3 bay facing a straight lane with a pillar at one of its lane-side corners, nearest the
+    entrance. Bay 0 is that bay; `lane` runs in front of it, left to right as a car parked nose to the lane
+    sees it, distance 0 on the bay's axis."""
+    plan = classified.plan
+    dist = entrance_distance(plan)
+    found = []
+    for bay in bays(classified, garage):
+        if bay.type != "type3":
+            continue
+        side = compass(bay.yaw)
+        u = UNIT[side]
+        lane_cell = plan.cell_at(bay.x + u[0] * (bay.depth / 2 + 0.5), bay.y + u[1] * (bay.depth / 2 + 0.5))
+        if lane_cell is None or classified.cell(*lane_cell).type != "straight":
+            continue
+        front = (bay.x + u[0] * bay.depth / 2, bay.y + u[1] * bay.depth / 2)
+        perp = (-u[1], u[0])
+        for pillar in classified.pillars:
+            px, py = pillar_centre(plan, pillar, garage.pillar_size)
+            for s in (-1, 1):
+                cx, cy = front[0] + s * perp[0] * bay.width / 2, front[1] + s * perp[1] * bay.width / 2
+                if math.hypot(px - cx, py - cy) <= garage.pillar_size:
+                    found.append((dist[lane_cell], bay.i, bay.j, bay.index, bay, pillar, side, lane_cell))
+    if not found:
+        raise GarageError("no Type3 bay facing a straight lane with a pillar beside it (the site "
+                          "bay_beside_pillar needs one)", plan.source)
+    found.sort(key=lambda t: t[:4])
+    _, _, _, _, bay, pillar, side, (lane_i, lane_j) = found[0]
+    lx, ly = plan.cell_center(lane_i, lane_j)
+    left = LEFT_OF[side]
+    right = {"N": "S", "S": "N", "E": "W", "W": "E"}[left]
+    origin = (lx, bay.y) if side in "EW" else (bay.x, ly)  # the lane's centre line meets the bay's axis
+    lane = Path(origin, UNIT[right], YAW[right], -run_length(plan, lane_i, lane_j, left),
+                run_length(plan, lane_i, lane_j, right))
+    focus = Pose(*pillar_centre(plan, pillar, garage.pillar_size), 0.0, YAW[right])
+    return Site("bay_beside_pillar", {"lane": lane}, [SiteBay(bay, UNIT[side])],
+                pillar=f"pillar_{pillar.a}_{pillar.b}", focus=focus)
+
+
+def straight_run(classified: Classified, garage) -> Site:
+    """The longest straight lane. `lane`: its centre line in driving order, distance 0 at the first cell's
+    centre; bays 0, 1, 2, ...: the bays on its first bay side, in driving order; `left:k`, `right:k`: the k-th
+    bay on that side of the driving direction."""
+    plan = classified.plan
+    run = longest_straight_run(classified)
+    first = run.cells[0]
+    h = UNIT[run.heading]
+    lengths = [float(plan.C[c.j] if run.heading == "E" else plan.R[c.i]) for c in run.cells]
+    lane = Path(plan.cell_center(first.i, first.j), h, YAW[run.heading], -lengths[0] / 2,
+                sum(lengths) - lengths[0] / 2)
+    sides = {}
+    for side in run.bay_sides:
+        cells = {(c.i, c.j) for c in run.cells}
+        u = UNIT[side]
+        found = []
+        for bay in bays(classified, garage):
+            cell = plan.cell_at(bay.x - u[0] * (bay.depth / 2 + 0.5), bay.y - u[1] * (bay.depth / 2 + 0.5))
+            # a bay on `side` of the run faces back towards the lane (its yaw points opposite to `side`)
+            if cell in cells and abs(((bay.yaw - YAW[side]) + 180) % 360 - 180) > 90:
+                found.append(bay)
+        found.sort(key=lambda b: b.x * h[0] + b.y * h[1])
+        sides[LEFT_OF[run.heading] == side and "left" or "right"] = [site_bay(b) for b in found]
+    first = sides.get("left" if run.bay_sides and LEFT_OF[run.heading] == run.bay_sides[0] else "right", [])
+    return Site("straight_run", {"lane": lane}, first, sides=sides)
+
+
+def t_junction(classified: Classified, garage) -> Site:
+    """The T-junction nearest the entrance. `stem`: the lane that ends at the junction, distance counted back
+    from the junction cell's centre, actors facing the junction; `left` and `right`: the through lane as a
+    car arriving on the stem sees it, distance from the centre, actors driving away from the junction."""
+    plan = classified.plan
+    dist = entrance_distance(plan)
+    cells = sorted(classified.of_type("t_junction"), key=lambda c: (dist[c.i, c.j], c.i, c.j))
+    if not cells:
+        raise GarageError("no T-junction lane cell (the site t_junction needs one)", plan.source)
+    cell = cells[0]
+    stem = next(d for d in cell.lanes if OPPOSITE[d] not in cell.lanes)
+    arrive = OPPOSITE[stem]  # heading of a car coming up the stem
+    left, right = LEFT_OF[arrive], OPPOSITE[LEFT_OF[arrive]]
+    centre = plan.cell_center(cell.i, cell.j)
+    paths = {"stem": Path(centre, UNIT[stem], YAW[arrive], 0.0, run_length(plan, cell.i, cell.j, stem))}
+    for name, d in (("left", left), ("right", right)):
+        paths[name] = Path(centre, UNIT[d], YAW[d], 0.0, run_length(plan, cell.i, cell.j, d))
+    return Site("t_junction", paths)
+
+
+LEFT_OF = {"E": "N", "N": "W", "W": "S", "S": "E"}  # the compass side to the left of a heading
+
+
+SITES = {"corner": corner, "bay_beside_pillar": bay_beside_pillar, "straight_run": straight_run,
+         "t_junction": t_junction}
+
+
+def find_site(name: str, classified: Classified, garage) -> Site:
+    """A shipped site by name, or a user's own: `site: my_sites.ramp` names a function (classified, garage) ->
+    Site in a module allowed by $GARAGE_EXP_MODIFIER_MODULES."""
+    if "." in name:
+        from garage_exp.scene.modifiers import resolve_allowed
+
+        site = resolve_allowed(name, "case.site", "site function")(classified, garage)
+        if not isinstance(site, Site):
+            raise GarageError(f"{name} returned {type(site).__name__}, not a Site", "case.site")
+        return site
+    try:
+        finder = SITES[name]
+    except KeyError:
+        raise GarageError(f"unknown site {name!r} (have {', '.join(sorted(SITES))}, or a function "
+                          "module.name)", "case.site") from None
+    return finder(classified, garage)

@@ -1,0 +1,69 @@
+"""Golden frame tables: today's outputs of small versions of the default sweep and the three `+experiment=`
+tables, pinned before a restructuring and compared after it.
+
+tests/golden/*.csv were written by the commands below on the code before the scenario language (issue 9).
+Geometry and ground truth must match exactly, confidences within 1e-6 (the table's own rounding).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+from conftest import run_app
+
+pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
+
+GOLDEN = Path(__file__).parent / "golden"
+CONFIDENCE = ("conf_", "composite")
+COMMON = ["renderer.save_frames=none"]
+# The default sweep (cases 1-3 x bright, dim), shortened: 4 m steps, four of case 3's placements (its own
+# sweep: cases 1 and 2 take one variant per palette colour).
+# (Before the scenario language: case.step=4 and case.placements=[{far: large},{close: small},
+# {far: medium, medium: large},{far: small, medium: medium, close: large}]; case.params.distances below.)
+CASES = ["-m", "case=1,2", "light=bright,dim", "case.motion.step=4"]
+CASE3 = ["-m", "case=3", "light=bright,dim", "case.motion.step=4",
+         "case.variants=[{label: 'far=large', show: [far_large], target: far_large},"
+         "{label: 'close=small', show: [close_small], target: close_small},"
+         "{label: 'medium=large,far=medium', show: [far_medium, medium_large], target: far_medium},"
+         "{label: 'close=large,medium=medium,far=small', show: [far_small, medium_medium, close_large],"
+         " target: far_small}]"]
+# light_table and light_sensor in one sweep: the lighting case at two distances, every sensor, blank or not.
+LIGHT = ["-m", "case=light", "light=bright,dim", "sensor=ideal,noisy,lowlight", "blank=false,true",
+         "case.motion.values=[6.0,12.0]"]
+
+
+def golden_name(job: Path) -> str:
+    cfg = yaml.safe_load((job / "config.yaml").read_text())
+    return (f"case{cfg['case']['name']}_{cfg['light']['name']}_{cfg['sensor']['name']}"
+            + ("_blank" if cfg["blank"] else ""))
+
+
+def compare(table: pd.DataFrame, golden: pd.DataFrame, name: str) -> None:
+    assert list(table.columns) == list(golden.columns), name
+    assert len(table) == len(golden), name
+    for col in golden.columns:
+        if col.startswith(CONFIDENCE):
+            diff = (table[col].astype(float) - golden[col].astype(float)).abs().max()
+            assert diff <= 1e-6, f"{name}: {col} moved by {diff}"
+        else:
+            a, b = table[col], golden[col]
+            moved = (a.astype(str) != b.astype(str)) & ~(a.isna() & b.isna())
+            assert not moved.any(), f"{name}: {col} moved in rows {list(table.index[moved])[:5]}"
+
+
+@pytest.mark.parametrize("args", [CASES, CASE3, LIGHT], ids=["cases", "case3", "light"])
+def test_frame_tables_match_the_golden_files(args, tmp_path, mlflow_uri):
+    proc = run_app([*args, *COMMON, f"tracking.uri={mlflow_uri}"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    jobs = sorted(p.parent for p in (tmp_path / "sweep").glob("*/frames.csv"))
+    assert jobs, proc.stderr[-2000:]
+    seen = set()
+    for job in jobs:
+        name = golden_name(job)
+        seen.add(name)
+        compare(pd.read_csv(job / "frames.csv"), pd.read_csv(GOLDEN / f"{name}.csv"), name)
+    expected = {id(CASES): 4, id(CASE3): 2, id(LIGHT): 12}[id(args)]
+    assert len(seen) == expected
