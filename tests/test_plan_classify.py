@@ -312,5 +312,5 @@ def test_case1_corner_has_room_for_the_default_run(path):
     case = yaml.safe_load((PROJECT_ROOT / "conf" / "case" / "1.yaml").read_text())
     corner = corner_nearest_entrance(classify(load_plan(path)))
     half_car = 2.5
-    assert corner.approach_length >= case["start"] + half_car + 0.2
-    assert corner.exit_length >= case["target_distance"] + half_car + 0.2
+    assert corner.approach_length >= case["motion"]["start"] + half_car + 0.2
+    assert corner.exit_length >= case["actors"]["target"]["distance"] + half_car + 0.2
