@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 RUN_ARGS ?= -m light=bright,dim case=1,2,3
 export YOLO_OFFLINE := 1
 
-.PHONY: setup system python data run test ui map bench clean
+.PHONY: setup system python data run test ui map bench clean mutation
 
 setup: system python data
 
@@ -32,9 +32,21 @@ run: setup
 	$(BIN)/python -m garage_exp $(RUN_ARGS)
 	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open http://127.0.0.1:5000"
 
+# GARAGE_EXP_PROVISIONED: setup provided Vulkan, vehicles and weights, so a render/detect/slow skip is an error.
 test: setup
 	$(BIN)/lint-imports --no-cache
-	$(BIN)/python -m pytest -q -p no:cacheprovider
+	GARAGE_EXP_PROVISIONED=1 $(BIN)/python -m pytest -q -p no:cacheprovider
+
+# Mutation testing of the pure modules ([tool.mutmut] in pyproject.toml; results in docs/testing.md). Not part
+# of `make test`: it runs the fast unit tests once per mutant (CPU-heavy).
+MUTANTS := 'garage_exp.plan.*' 'garage_exp.detect.matching.*' 'garage_exp.groundtruth.*' 'garage_exp.sensor.*' \
+	'garage_exp.report.x_main_effects*' 'garage_exp.report.x_pair_effects*' 'garage_exp.report.x_breakdown*' \
+	'garage_exp.report.x_factors_of*' 'garage_exp.report.x_summary*'
+mutation: python
+	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt -e '.[mutation]'
+	rm -rf mutants
+	$(BIN)/mutmut run --max-children 2 $(MUTANTS)
+	$(BIN)/python scripts/mutation_score.py $(MUTANTS) | tee mutants/score.txt
 
 ui: python
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
@@ -46,4 +58,4 @@ bench: setup
 	@for b in benchmarks/bench_*.py; do $(BIN)/python $$b; done
 
 clean:
-	rm -rf outputs
+	rm -rf outputs mutants

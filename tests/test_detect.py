@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import require
 
 from garage_exp.detect import GTBox, ModelDetections, iou, model_format, score_target
 from garage_exp.detect import detector as detector_module
@@ -168,6 +169,57 @@ def test_model_labels_are_short_and_unique():
     assert detector_module._unique(["a", "b", "a"]) == ["a", "b", "a_2"]
 
 
+def test_iou_of_degenerate_and_integer_boxes():
+    """Boxes with no area (or inverted) overlap nothing; integer boxes divide as floats."""
+    from garage_exp.detect.matching import iou_many
+
+    assert iou((0, 0, 3, 3), (1, 1, 2, 2)) == pytest.approx(1 / 9)  # ints: not floor division
+    assert iou((5, 5, 5, 5), (5, 5, 5, 5)) == 0.0  # both empty: no union, 0 not NaN
+    assert iou((10, 0, 0, 10), (0, 0, 10, 10)) == 0.0  # inverted width: no area, no overlap
+    assert iou((0, 10, 10, 0), (0, 0, 10, 10)) == 0.0
+    assert iou((0, 0, 10, 10), (10, 0, 0, 10)) == 0.0
+    assert iou((0, 0, 10, 10), (0, 10, 10, 0)) == 0.0
+    assert iou((0, 0, 0.5, 0.5), (0, 0, 0.5, 0.5)) == pytest.approx(1.0)  # sub-pixel boxes still count
+    assert iou((0, 0, 10, 0.5), (0, 0, 10, 0.5)) == pytest.approx(1.0)
+    assert iou((0, 0, 0.5, 10), (0, 0, 0.5, 10)) == pytest.approx(1.0)
+    many = iou_many(np.array([[0, 0, 10, 10], [0, 0, 5, 10]]), (0, 0, 10, 10))
+    assert many.dtype == float and many.shape == (2,) and many[1] == pytest.approx(0.5)
+    assert iou_many(np.array([[0, 0, 10, 10]]), None).tolist() == [0.0]
+    assert iou_many(np.zeros((0, 4)), (0, 0, 1, 1)).shape == (0,)
+
+
+def test_score_target_boundaries_and_messages():
+    target = GTBox((0, 0, 10, 10), (0, 0, 5, 10))
+    half = dets("m", (0, 0, 5, 10, 0.5, "car"))  # IoU 0.5 with the full box: exactly the threshold
+    score = score_target([half], target, match="full", iou_threshold=0.5, threshold=0.5)
+    assert score.per_model == [0.5] and score.detected  # IoU >= threshold matches, composite >= threshold
+    assert score_target([half], target, match="full", iou_threshold=1.0).per_model == [0.0]
+    assert score_target([half], target, match="either", iou_threshold=1.0).per_model == [0.5]  # the visible box
+    assert not score_target([half], target, threshold=0.51).detected
+    assert score_target([half], target, threshold=1.0).detected is False
+    assert score_target([half], target, threshold=0.0).detected
+    empty = score_target([], target)
+    assert empty.per_model == [] and empty.composite == 0.0 and not empty.detected
+    ints = dets("m", (0, 0, 10, 10, 1, "car"))
+    assert score_target([ints], target).per_model == [1.0]
+    for kwargs, where, message in (({"match": "box"}, "detector.match", "unknown match 'box' (full | visible | either)"),
+                                   ({"iou_threshold": 0.0}, "detector.iou", "iou 0.0 is outside (0, 1]"),
+                                   ({"iou_threshold": 1.5}, "detector.iou", "iou 1.5 is outside (0, 1]"),
+                                   ({"threshold": -0.1}, "detector.threshold", "threshold -0.1 is outside [0, 1]"),
+                                   ({"threshold": 1.1}, "detector.threshold", "threshold 1.1 is outside [0, 1]")):
+        with pytest.raises(GarageError) as err:
+            score_target([half], target, **kwargs)
+        assert err.value.where == where and message in str(err.value)
+
+
+def test_target_out_of_view_scores_zero_and_counts_no_target_hit():
+    car = dets("m", (0, 0, 10, 10, 0.9, "car"))
+    score = score_target([car], None, truth=[])
+    assert score.per_model == [0.0] and score.matched == [-1] and score.false_positives == 1
+    other = GTBox((0, 0, 10, 10))
+    assert score_target([car], None, truth=[other]).false_positives == 0
+
+
 # --- offline setup -----------------------------------------------------------------------------------------------
 
 def test_fonts_are_installed_so_plots_never_download(tmp_path):
@@ -178,7 +230,10 @@ def test_fonts_are_installed_so_plots_never_download(tmp_path):
 
 def test_openvino_telemetry_opt_out(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path))
-    monkeypatch.delenv("CI", raising=False)
+    # setenv first so that monkeypatch restores "CI unset" afterwards: the opt-in case below sets CI=true, which
+    # must not leak into later tests (the conftest reads CI to make skips errors).
+    monkeypatch.setenv("CI", "unset-by-this-test")
+    monkeypatch.delenv("CI")
     offline._opt_out_of_openvino_telemetry()
     assert (tmp_path / "intel" / "openvino_telemetry").read_text() == "0"
     assert "CI" not in os.environ
@@ -190,21 +245,10 @@ def test_openvino_telemetry_opt_out(tmp_path, monkeypatch):
 
 # --- real models -------------------------------------------------------------------------------------------------
 
-def models_dir() -> Path:
-    try:
-        from garage_exp.assets.locate import models_dir as locate_models
-        return locate_models()
-    except (ImportError, GarageError):
-        from garage_exp.paths import shared_dir
-        return shared_dir() / "models"
-
-
 def default_models() -> list[Path]:
-    paths = [models_dir() / name for name in DEFAULT_MODELS]
-    missing = [p.name for p in paths if not p.is_dir()]
-    if missing:
-        pytest.skip(f"YOLO weights missing: {missing} (run `make data` or set GARAGE_EXP_MODELS)")
-    return paths
+    """The default detector's models, found as the product finds them (a skip only where they are missing)."""
+    require("models")
+    return [detector_module.resolve_model(name) for name in DEFAULT_MODELS]
 
 
 def bus_image() -> tuple[Path, np.ndarray]:

@@ -11,13 +11,9 @@ import textwrap
 
 import numpy as np
 import pytest
-from conftest import ROOT, run_app
-from hydra import compose, initialize_config_dir
+from conftest import ROOT, compose_cfg, require, run_app
 
-from garage_exp import config as schema
 from garage_exp import tracking
-from garage_exp.app import quote_numeric_choices
-from garage_exp.render.device import device_problem
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
@@ -27,23 +23,7 @@ FRAME_COLUMNS = {"shot", "label", "position", "camera", "ego_x", "ego_y", "ego_y
 
 
 def _skip_without_backends():
-    problem = device_problem()
-    if problem:
-        pytest.skip(f"no Vulkan device for SAPIEN: {problem}")
-    from garage_exp.assets.locate import models_dir, vehicles_dir
-    from garage_exp.errors import GarageError
-
-    try:
-        vehicles_dir()
-        models_dir()
-    except GarageError as exc:
-        pytest.skip(f"vehicle assets or detector weights missing: {exc}")
-
-
-def compose_cfg(*overrides: str):
-    schema.register()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=quote_numeric_choices(list(overrides)))
+    require("vulkan", "vehicles", "models")
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +91,8 @@ def test_blank_control_keeps_the_car_and_drops_the_garage(pipeline):
 
 def test_pillar_at_the_corner_hides_the_target_in_case_1(pipeline):
     """Case 1 on the research plan: far from the corner the target is only partly visible, the pillar cuts
-    it; with occluder=none the same frames see more of it."""
+    it; with occluder=none the same frames see more of it and the detectors are more confident (the README's
+    control: removing the pillar restores confidence)."""
     args = ("case=1", "light=bright", "case.motion.start=11.0", "case.motion.end=9.0", "case.motion.step=1.0",
             "palette.target_colours=[black]")
     with_pillar = shoot(pipeline, *args)
@@ -120,6 +101,9 @@ def test_pillar_at_the_corner_hides_the_target_in_case_1(pipeline):
     for (_, a, _, _), (_, b, _, _) in zip(with_pillar, without):
         assert a.visible_fraction < b.visible_fraction - 0.05
     assert any(a.visible_fraction < 0.9 for _, a, _, _ in with_pillar)
+    hidden = np.mean([score.composite for _, _, score, _ in with_pillar])
+    restored = np.mean([score.composite for _, _, score, _ in without])
+    assert restored > hidden + 0.05, (hidden, restored)
 
 
 def read_table(path):
@@ -170,8 +154,12 @@ def test_each_job_logs_its_table_series_summary_and_artifacts(sweep):
         m = run.data.metrics
         assert m["difficulty"] == pytest.approx(1 - m["confidence_mean"])
         assert m["recall"] == pytest.approx(np.mean([float(r["composite"]) >= 0.5 for r in table]))
-        for key in ("confidence_min", "frames_under_threshold"):
-            assert key in m
+        composite = np.array([float(r["composite"]) for r in table])
+        assert m["confidence_mean"] == pytest.approx(composite.mean(), abs=1e-6)
+        assert m["confidence_min"] == pytest.approx(composite.min(), abs=1e-6)
+        assert m["frames_under_threshold"] == (composite < 0.5).sum()
+        assert m["visible_fraction_mean"] == pytest.approx(
+            np.mean([float(r["visible_fraction"]) for r in table]), abs=1e-6)
         arts = {a.path for a in mlc.list_artifacts(rid)}
         assert {"frames.csv", "confidence.png", "scene.glb", "plan_map.png", "config.yaml", "frames"} <= arts
         assert {a.path.split("/")[-1].split("_")[0] for a in mlc.list_artifacts(rid, "frames")} == {
@@ -203,7 +191,15 @@ def test_sweep_report_has_main_effects_pairs_and_heat_map(sweep):
     effects = read_table(path)
     assert {(e["factor"], e["level"]) for e in effects} == {("case", "light"), ("case", "3"), ("light", "bright"),
                                                              ("light", "dim")}
-    assert "effect.light.bright" in mlc.get_run(parent.info.run_id).data.metrics
+    # A main effect is the mean over the other factor's levels of the jobs' own confidence_mean.
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId")]
+    for e in effects:
+        key = {"case": "case.name", "light": "light.name"}[e["factor"]]
+        jobs = [c.data.metrics["confidence_mean"] for c in children if c.data.params[key] == e["level"]]
+        assert len(jobs) == 2 and float(e["confidence_mean"]) == pytest.approx(np.mean(jobs), abs=1e-6), e
+    metrics = mlc.get_run(parent.info.run_id).data.metrics
+    bright = [c.data.metrics["confidence_mean"] for c in children if c.data.params["light.name"] == "bright"]
+    assert metrics["effect.light.bright"] == pytest.approx(np.mean(bright), abs=1e-6)
 
 
 def test_dataset_export_writes_yolo_labels_from_ground_truth(sweep):
@@ -218,12 +214,19 @@ def test_dataset_export_writes_yolo_labels_from_ground_truth(sweep):
     assert len(images) == 8 and [x.replace(".png", ".txt") for x in images] == labels
     data = yaml.safe_load(open(f"{root}/data.yaml"))
     assert data["names"][2] == "car" and len(data["names"]) == 80  # COCO ids: fine-tune a COCO detector as is
+    table = {int(r["shot"]): r for r in read_table(f"{run.data.tags['output_dir']}/frames.csv")}
+    from PIL import Image
+
     for name in labels:
         lines = open(f"{root}/labels/{name}").read().split("\n")
         rows = [list(map(float, ln.split())) for ln in lines if ln]
         assert len(rows) == 1  # the one target in view; the ego is never labelled
         cls, x, y, w, h = rows[0]
         assert cls == 2 and all(0 < v <= 1 for v in (x, y, w, h))
+        # The label is the target's ground-truth box: its height in pixels is the frame table's box_height.
+        width, height = Image.open(f"{root}/images/{name.replace('.txt', '.png')}").size
+        row = table[int(name.split("_")[0])]
+        assert h * height == pytest.approx(float(row["box_height"]), abs=1.0), (name, row["box_height"])
 
 
 def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
@@ -263,3 +266,28 @@ def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
     parent = next(x for x in runs if x.data.tags.get("sweep") == "parent")
     effects = read_table(mlc.download_artifacts(parent.info.run_id, "report/main_effects.csv"))
     assert {e["level"] for e in effects if e["factor"] == "barrier"} == {"low", "high"}
+
+
+def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
+    """`python -m garage_exp.report` (the latest sweep) and `--parent RUN_ID` write the report the sweep
+    logged: the same main effects."""
+    import subprocess
+
+    from conftest import PYTHON
+
+    tmp, mlc, runs = sweep
+    parent = next(r for r in runs if r.data.tags.get("sweep") == "parent").info.run_id
+    logged = read_table(mlc.download_artifacts(parent, "report/main_effects.csv"))
+    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    for extra in ([], ["--parent", parent]):
+        out = tmp_path / ("latest" if not extra else "parent")
+        r = subprocess.run([PYTHON, "-m", "garage_exp.report", "--uri", uri, "-o", str(out), *extra],
+                           capture_output=True, text=True, timeout=300, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr[-3000:]
+        written = out / parent / "report" / "report.md"
+        assert f"written: {written}" in r.stdout and "# Sweep report" in r.stdout
+        assert "4 runs, 0 not finished" in written.read_text()
+        again = read_table(out / parent / "report" / "main_effects.csv")
+        assert [(e["factor"], e["level"]) for e in again] == [(e["factor"], e["level"]) for e in logged]
+        for a, b in zip(again, logged):
+            assert float(a["confidence_mean"]) == pytest.approx(float(b["confidence_mean"]), abs=1e-9)

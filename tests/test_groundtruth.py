@@ -212,3 +212,18 @@ def test_truth_invariants(x, y, yaw, hidden):
         vx1, vy1, vx2, vy2 = t.visible_box
         assert x1 <= vx1 < vx2 <= x2 and y1 <= vy1 < vy2 <= y2
     assert t.kitti in ("easy", "moderate", "hard", "ignored")
+
+
+def test_truncation_at_the_top_border_depends_on_the_camera_height():
+    """A side-on car raised so that its box's centre row sits on the top border: about half of it outside.
+    The camera's own height (0.75 m) counts: the same car seen from 2.75 m is almost all in view."""
+    frame = make_frame(np.zeros((H, W), np.int32), {})
+    d = 8.0
+    centre_z = 0.75 + (H / 2) / frame.fy * d  # the car's box centre on the top image row
+    corners = world_corners(car(), Pose(d, 0.0, centre_z - CAR[2] / 2, 90.0))
+    at_border = projected_truncation(frame, corners)
+    assert at_border == pytest.approx(0.5, abs=0.08)
+    assert projected_truncation(make_frame(np.zeros((H, W), np.int32), {}, cam_height=2.75), corners) < 0.1
+    assert projected_truncation(frame, world_corners(car(), Pose(d, 0.0, 0.0, 90.0))) == 0.0  # all in view
+    wholly_above = world_corners(car(), Pose(d, 0.0, centre_z + 3.0, 90.0))
+    assert projected_truncation(frame, wholly_above) == 1.0  # clipped to 1, not above

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import require
 from omegaconf import OmegaConf
 
 from garage_exp.config import GarageConf, LightConf, PaletteConf
@@ -16,14 +17,9 @@ from garage_exp.scene.structure import build_garage
 
 @pytest.fixture(scope="module")
 def library():
-    from garage_exp.assets.locate import vehicles_dir
     from garage_exp.assets.vehicles import VehicleLibrary
-    from garage_exp.errors import GarageError
 
-    try:
-        vehicles_dir()
-    except GarageError as exc:
-        pytest.skip(f"vehicle assets missing: {exc}")
+    require("vehicles")
     return VehicleLibrary()
 
 

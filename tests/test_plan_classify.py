@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from garage_exp.plan import classify, load_plan, plan_from_lists
+from garage_exp.plan import classify, features, load_plan, plan_from_lists
 from garage_exp.plan.model import STEPS
 from garage_exp.paths import PLANS_DIR
 
@@ -224,10 +224,18 @@ def case3_runs(c, min_cells: int = 4) -> list[list]:
 
 @pytest.mark.parametrize("path", EXPERIMENT_PLANS, ids=lambda p: p.name)
 def test_shipped_plan_has_what_the_cases_need(path):
+    """The product's feature finders (garage_exp.plan.features) find each case's feature on the shipped plan,
+    and what they find is what this file's independent helpers say the feature is. (Case 2's bay finder is
+    exercised through build_scene in tests/test_cases.py.)"""
     c = classify(load_plan(path))
-    assert case1_corners(c), "case 1: no corner lane cell with a pillar at its inner corner"
+    corner = features.corner_nearest_entrance(c)
+    assert corner.cell in case1_corners(c), "case 1: the product's corner has no pillar at its inner corner"
+    assert (corner.pillar.a, corner.pillar.b) == inner_vertex(corner.cell)
+    assert corner.approach_length > 10 and corner.exit_length > 5  # room for the approach and the target
     assert case2_bays(c), "case 2: no Type3 bay beside a pillar facing a straight lane"
-    assert case3_runs(c), "case 3: no straight lane run of 4+ cells with bays beside it"
+    run = features.longest_straight_run(c, 4)
+    assert any(run.cells == tuple(r) for r in case3_runs(c)), "case 3: the product's run is not a bay-lined run"
+    assert len(run.cells) == max(len(r) for r in case3_runs(c))
 
 
 @pytest.mark.parametrize("path", EXPERIMENT_PLANS, ids=lambda p: p.name)
@@ -304,5 +312,5 @@ def test_case1_corner_has_room_for_the_default_run(path):
     case = yaml.safe_load((PROJECT_ROOT / "conf" / "case" / "1.yaml").read_text())
     corner = corner_nearest_entrance(classify(load_plan(path)))
     half_car = 2.5
-    assert corner.approach_length >= case["start"] + half_car + 0.2
-    assert corner.exit_length >= case["target_distance"] + half_car + 0.2
+    assert corner.approach_length >= case["motion"]["start"] + half_car + 0.2
+    assert corner.exit_length >= case["actors"]["target"]["distance"] + half_car + 0.2

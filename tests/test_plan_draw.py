@@ -144,3 +144,11 @@ def test_cli_map_writes_the_png(tmp_path):
 
 def test_makefile_map_target_uses_this_cli():
     assert "python -m garage_exp.plan map" in (PROJECT_ROOT / "Makefile").read_text()
+
+
+@pytest.mark.parametrize("span, length", [(50.0, 10.0), (100.0, 20.0), (30.0, 5.0), (7.0, 1.0), (400.0, 100.0),
+                                          (0.6, 0.1), (0.0, 1e-9)])
+def test_scale_bar_is_a_round_length_near_a_fifth_of_the_span(span, length):
+    from garage_exp.plan.draw import _nice_length
+
+    assert _nice_length(span) == pytest.approx(length)

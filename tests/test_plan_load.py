@@ -392,3 +392,33 @@ def test_plan_from_lists_accepts_numpy_arrays():
 def test_plan_from_lists_names_its_place():
     with pytest.raises(GarageError, match=r"^conf\.plan: no entrance"):
         plan_from_lists([[0]], [5], [5], "x", where="conf.plan")
+
+
+@pytest.mark.parametrize("cell, shown", [
+    ("'" + "w" * 58 + "'", repr("w" * 58)),  # a repr of exactly 60 characters is shown whole
+    ("'" + "w" * 59 + "'", repr("w" * 59)[:57] + "..."),  # 61: cut to 57 and "..."
+    ("[1, 2]", "a list"),
+    ("{a: 1}", "a dict"),
+])
+def test_bad_values_are_shown_short_in_the_message(tmp_path, cell, shown):
+    path = tmp_path / "p.yaml"
+    path.write_text(f"S: [[2, {cell}, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
+    with pytest.raises(GarageError) as err:
+        load_plan(path)
+    assert f"S row 0, column 1: {shown} is not an integer" in str(err.value)
+
+
+def test_csv_comment_lines_are_skipped_even_when_indented(tmp_path):
+    path = tmp_path / "p.csv"
+    path.write_text("  # a note\n,3,3,3\n6,2,1,3\n5,0,0,0\n")
+    assert load_plan(path).S.tolist() == [[2, 1, 3], [0, 0, 0]]
+
+
+def test_cell_geometry_of_a_small_plan():
+    """Row 0 is the north side: y grows upwards from the south edge, x with the column index."""
+    plan = plan_from_lists([[2, 1, 3], [0, 0, 0]], [6.0, 5.0], [3.0, 4.0, 2.0], "small")
+    assert plan.cell_rect(0, 1) == (3.0, 5.0, 7.0, 11.0)
+    assert plan.cell_center(0, 1) == (5.0, 8.0)
+    assert plan.cell_center(1, 2) == (8.0, 2.5)
+    assert plan.vertex(1, 1) == (3.0, 5.0)
+    assert plan.cell_at(5.0, 8.0) == (0, 1) and plan.cell_at(8.5, 1.0) == (1, 2)

@@ -14,7 +14,6 @@ from conftest import ROOT, run_app
 from garage_exp import tracking
 
 LAUNCHERS = ROOT / "conf" / "hydra" / "launcher"
-HAS_SUBMITIT = importlib.util.find_spec("hydra_plugins.hydra_submitit_launcher") is not None
 HAS_RAY = importlib.util.find_spec("hydra_plugins.hydra_ray_launcher") is not None
 
 
@@ -27,7 +26,6 @@ def hydra_config(*overrides: str):
         return compose("config", overrides=list(overrides), return_hydra_config=True).hydra
 
 
-@pytest.mark.skipif(not HAS_SUBMITIT, reason="hydra-submitit-launcher is not installed")
 def test_slurm_launcher_config_composes():
     launcher = hydra_config("hydra/launcher=slurm").launcher
     assert launcher._target_.endswith("submitit_launcher.SlurmLauncher")
@@ -50,7 +48,6 @@ def test_ray_launcher_config_is_well_formed():
             hydra_config("hydra/launcher=ray_cluster")
 
 
-@pytest.mark.skipif(not HAS_SUBMITIT, reason="hydra-submitit-launcher is not installed")
 def test_submitit_local_sweep_runs_each_job_in_its_own_process(tmp_path, mlflow_uri):
     r = run_app(["-m", "hydra/launcher=local", "dry_run=true", "plan=tiny", "light=bright,dim",
                  f"tracking.uri={mlflow_uri}"], tmp_path)

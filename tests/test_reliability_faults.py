@@ -27,8 +27,11 @@ from conftest import PYTHON, run_app
 # The fault-injection hooks, ahead of the caller's own PYTHONPATH (a work tree testing its own garage_exp).
 FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
                          *filter(None, [os.environ.get("PYTHONPATH")])])
+# All the randomness the product has: parked cars drawn (busy palette), target models drawn from the library
+# (not pinned), sensor noise (noisy), lamps switched on at random (dim light).
 JOB = ["plan=research", "case=light", "detector.models=[yolov8n_int8_openvino_model]",
-       "camera.cameras.0.width=320", "camera.cameras.0.height=240"]
+       "camera.cameras.0.width=320", "camera.cameras.0.height=240", "palette=busy", "palette.target_models={}",
+       "sensor=noisy"]
 FRAMES = 8  # the light case: 2 colours x 4 distances
 GEOMETRY = ["shot", "label", "position", "camera", "ego_x", "ego_y", "ego_yaw", "target", "distance",
             "visible_fraction", "visible_pixels", "box_height", "truncation", "kitti"]
@@ -80,14 +83,18 @@ def mlflow_server(tmp_path_factory):
 @pytest.fixture(scope="module")
 def repeat_run(tmp_path_factory):
     """Job 1 of the sweep below (light=dim) as a single run in its own process and sqlite store, started at
-    once so that it runs while the sweep does (the determinism test compares the two)."""
+    once so that it runs while the sweep does (the determinism test compares the two); then the same job with
+    another seed."""
     from concurrent.futures import ThreadPoolExecutor
 
     tmp = tmp_path_factory.mktemp("repeat_run")
+    other = tmp_path_factory.mktemp("other_seed")
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
     pool = ThreadPoolExecutor(max_workers=1)
     future = pool.submit(run_app, [*JOB, "light=dim", f"tracking.uri={uri}"], tmp, timeout=900)
-    yield {"future": future, "tmp": tmp, "uri": uri}
+    reseeded = pool.submit(run_app, [*JOB, "light=dim", "seed=1", f"tracking.uri=sqlite:///{other}/mlflow.db"],
+                           other, timeout=900)
+    yield {"future": future, "tmp": tmp, "uri": uri, "reseeded": reseeded, "other": other}
     pool.shutdown(wait=True)
 
 
@@ -187,3 +194,19 @@ def test_same_config_and_seed_give_the_same_frame_table(faulty_sweep, repeat_run
     scores = [c for c in a.columns if c.startswith("conf_")] + ["composite"]
     assert (a[scores] - b[scores]).abs().to_numpy().max() <= 1e-6
     assert a.detected.tolist() == b.detected.tolist()
+
+
+def test_another_seed_gives_another_frame_table(faulty_sweep, repeat_run):
+    """The determinism above is not for want of randomness: with seed=1 the same job draws other parked cars,
+    target models and sensor noise, and its table differs (the geometry the seed does not touch stays)."""
+    r = repeat_run["reseeded"].result()
+    assert r.returncode == 0, r.stderr[-3000:]
+    a = pd.read_csv(repeat_run["tmp"] / "run" / "frames.csv")
+    b = pd.read_csv(repeat_run["other"] / "run" / "frames.csv")
+    assert len(a) == len(b) == FRAMES
+    pd.testing.assert_frame_equal(a[["shot", "label", "position", "ego_x", "ego_y", "ego_yaw"]],
+                                  b[["shot", "label", "position", "ego_x", "ego_y", "ego_yaw"]])
+    scores = [c for c in a.columns if c.startswith("conf_")]
+    assert (a[scores] - b[scores]).abs().to_numpy().max() > 1e-3  # other noise and cars: other confidences
+    configs = [(repeat_run[k] / "run" / "config.yaml").read_text() for k in ("tmp", "other")]
+    assert "seed: 0" in configs[0] and "seed: 1" in configs[1]

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import PYTHON, run_app
+from conftest import PYTHON, child_env, run_app
 
 from garage_exp import tracking
 
@@ -34,7 +34,7 @@ def all_runs(uri: str, deleted: bool = False):
 def start_sweep(args: list[str], tmp: Path, env: dict) -> subprocess.Popen:
     """The sweep in its own session (process group), as a user's shell would start it."""
     cmd = [PYTHON, "-m", "garage_exp", *args, f"hydra.run.dir={tmp}/run", f"hydra.sweep.dir={tmp}/sweep"]
-    return subprocess.Popen(cmd, cwd=tmp, env={**os.environ, **env}, stdout=open(tmp / "first.out", "w"),
+    return subprocess.Popen(cmd, cwd=tmp, env=child_env(env), stdout=open(tmp / "first.out", "w"),
                             stderr=subprocess.STDOUT, start_new_session=True)
 
 
@@ -84,6 +84,17 @@ def hanging(uri: str, sweep_dir: Path, light: str):
     return None
 
 
+def signal_while_hanging(proc: subprocess.Popen, uri: str, sweep_dir: Path, light: str, sig: int):
+    """Send sig to the sweep once the job of that light level hangs; (that job's run, the exit code)."""
+    try:
+        run = wait_for(lambda: hanging(uri, sweep_dir, light), proc)
+        os.kill(proc.pid, sig)
+        return run, proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
 def test_kill_9_then_sigterm_then_resume(tmp_path, fresh_store):
     """A sweep of three jobs is killed with SIGKILL half-way; resumed, it is stopped by SIGTERM (a scheduler's
     time limit) in its last job; resumed again, it completes. Finished jobs are never rerun, unfinished ones
@@ -106,13 +117,7 @@ def test_kill_9_then_sigterm_then_resume(tmp_path, fresh_store):
 
     # 2. resume=true: job 0 is skipped, job 1 reruns (its stale run superseded), job 2 gets SIGTERM.
     proc = start_sweep([*args, "resume=true"], tmp_path, {"PYTHONPATH": FAULTS, "GARAGE_EXP_FAULT": "map:hang:2"})
-    try:
-        terminated = wait_for(lambda: hanging(uri, tmp_path / "sweep", "clear"), proc)
-        os.kill(proc.pid, signal.SIGTERM)
-        rc = proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+    terminated, rc = signal_while_hanging(proc, uri, tmp_path / "sweep", "clear", signal.SIGTERM)
     out = (tmp_path / "first.out").read_text()
     assert rc == 128 + signal.SIGTERM, out[-3000:]
     assert f"finished before as run {first_id}" in out
@@ -166,6 +171,41 @@ def test_resume_identity_includes_the_plan_file_content(tmp_path):
     assert tracking.sweep_key(["light=a,b"]) != tracking.sweep_key(["light=a,c"])
 
 
+def test_resume_reruns_a_job_whose_plan_file_was_edited(tmp_path, fresh_store):
+    """resume=true skips a finished job; after the plan file is edited, the same command reruns it."""
+    plan = tmp_path / "mine.yaml"
+    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
+    args = ["-m", "dry_run=true", f"plan.file={plan}", "light=bright", f"tracking.uri={fresh_store}", "resume=true"]
+    first = run_app(args, tmp_path)
+    assert first.returncode == 0, first.stderr[-3000:]
+    again = run_app(args, tmp_path)
+    assert "sweep summary: 1 jobs: 0 finished, 1 skipped (finished before), 0 failed" in again.stdout, again.stdout
+    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 4]\n")  # a wider column: another garage
+    edited = run_app(args, tmp_path)
+    assert edited.returncode == 0, edited.stderr[-3000:]
+    # Rerun, not skipped. (The summary's "finished" count also holds the old plan's run, still a child of the
+    # same parent: "1 jobs: 2 finished"; reported to the lead, not pinned here.)
+    assert "0 skipped (finished before), 0 failed" in edited.stdout, edited.stdout
+    _, runs = all_runs(fresh_store)
+    jobs = job_runs(runs)
+    assert len(jobs) == 2 and len({j.data.tags["config_hash"] for j in jobs}) == 2
+    assert all(j.info.status == "FINISHED" for j in jobs)
+
+
+def test_ctrl_c_exits_130_and_leaves_nothing_running(tmp_path, fresh_store):
+    """SIGINT (Ctrl-C) in a running job: exit code 130, one line saying how to resume, no run left RUNNING."""
+    uri = fresh_store
+    proc = start_sweep([*SWEEP, f"tracking.uri={uri}"], tmp_path, {"PYTHONPATH": FAULTS,
+                                                                   "GARAGE_EXP_FAULT": "map:hang:1"})
+    _, rc = signal_while_hanging(proc, uri, tmp_path / "sweep", "dim", signal.SIGINT)
+    out = (tmp_path / "first.out").read_text()
+    assert rc == 130, out[-3000:]
+    assert "garage_exp: interrupted; rerun the same command with resume=true" in out
+    assert "Traceback" not in out
+    _, everything = all_runs(uri, deleted=True)
+    assert everything and not [x for x in everything if x.info.status == "RUNNING"]
+
+
 def test_joblib_two_workers_log_every_run_under_the_parent(tmp_path, fresh_store):
     """Two worker processes share one sqlite store: every run is logged (params, tags, artifacts), every job
     is a child of the sweep's parent, and the two workers really ran at once."""
@@ -182,7 +222,13 @@ def test_joblib_two_workers_log_every_run_under_the_parent(tmp_path, fresh_store
     assert {j.data.tags["mlflow.parentRunId"] for j in jobs} == {parents[0].info.run_id}
     assert all(j.info.status == "FINISHED" for j in jobs)
     assert sorted(j.data.params["light.name"] for j in jobs) == ["bright", "clear", "dim", "moderate"]
-    assert parents[0].data.tags["pid"] not in {j.data.tags["pid"] for j in jobs}  # the jobs ran in the workers
+    pids = {j.data.tags["pid"] for j in jobs}
+    assert len(pids) == 2 and parents[0].data.tags["pid"] not in pids  # two workers, neither the parent
+    # Each worker's span (its first run's start to its last run's end): the two spans overlap in time.
+    spans = [(min(j.info.start_time for j in jobs if j.data.tags["pid"] == pid),
+              max(j.info.end_time for j in jobs if j.data.tags["pid"] == pid)) for pid in pids]
+    (a0, a1), (b0, b1) = spans
+    assert max(a0, b0) < min(a1, b1), spans
     for j in jobs:
         assert {"config.yaml", "plan_map.png"} <= {a.path for a in mlc.list_artifacts(j.info.run_id)}
     assert "sweep summary: 4 jobs: 4 finished" in r.stdout

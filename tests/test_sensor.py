@@ -134,3 +134,81 @@ def test_unknown_kind_and_config_objects():
     sensor = make_sensor(conf)
     assert sensor.kind == "noisy" and sensor.full_well == LEVELS["noisy"]["params"]["full_well"]
     assert make_sensor(OmegaConf.structured(SensorConf)).kind == "ideal"
+
+
+@pytest.mark.parametrize("key, bad, good, message", [
+    ("full_well", 0.0, 1e-3, "full_well must be > 0 electrons"),
+    ("exposure", 0.0, 1e-3, "exposure must be > 0"),
+    ("read_noise", -1e-3, 0.0, "read_noise must be >= 0 electrons"),
+    ("target_brightness", 0.0, 1.0, "target_brightness must be in (0, 1]"),
+    ("target_brightness", 1.001, 1e-3, "target_brightness must be in (0, 1]"),
+    ("max_gain", 0.999, 1.0, "max_gain must be >= 1"),
+    ("blur_sigma", -1e-3, 0.0, "blur_sigma must be >= 0 pixels"),
+])
+def test_each_range_check_at_its_boundary(key, bad, good, message):
+    """The value just outside the range is refused with its own message naming the level; the boundary
+    itself (or the nearest value inside) is accepted."""
+    with pytest.raises(GarageError) as err:
+        make_sensor({"name": "mine", "kind": "noisy", "params": {key: bad}})
+    assert message in str(err.value) and err.value.where == "sensor.params (mine)"
+    assert getattr(make_sensor({"name": "mine", "kind": "noisy", "params": {key: good}}), key) == good
+
+
+def test_unknown_kind_message_lists_the_kinds():
+    with pytest.raises(GarageError) as err:
+        SensorModel(name="x", kind="thermal")
+    assert "unknown sensor kind 'thermal' (ideal | noisy)" in str(err.value) and err.value.where == "sensor.kind"
+
+
+@pytest.mark.parametrize("value", [True, float("inf"), float("nan"), None, "1.0"])
+def test_parameters_must_be_finite_numbers(value):
+    with pytest.raises(GarageError) as err:
+        make_sensor({"name": "n", "kind": "noisy", "params": {"read_noise": value}})
+    assert f"read_noise must be a finite number, got {value!r}" in str(err.value)
+    assert err.value.where == "sensor.params.read_noise"
+
+
+def test_make_sensor_messages_and_defaults():
+    with pytest.raises(GarageError) as err:
+        make_sensor({"name": "n", "kind": "noisy", "params": {"iso": 800, "zoom": 2}})
+    assert "unknown sensor parameter(s) ['iso', 'zoom']; allowed: ['blur_sigma', " in str(err.value)
+    assert err.value.where == "sensor.params"
+    with pytest.raises(GarageError) as err:
+        make_sensor({"name": "n", "kind": "noisy", "params": {"quantize": 1}})
+    assert "quantize must be true or false, got 1" in str(err.value)
+    assert err.value.where == "sensor.params.quantize"
+    plain = make_sensor({})
+    assert (plain.name, plain.kind) == ("ideal", "ideal") and plain.params() == SensorModel().params()
+    ints = make_sensor({"name": "n", "kind": "noisy", "params": {"full_well": 5000, "quantize": False}})
+    assert ints.full_well == 5000 and ints.quantize is False and ints.name == "n"
+    assert make_sensor({"name": "n", "kind": "noisy", "params": None}).kind == "noisy"
+
+
+def test_apply_refuses_frames_that_are_not_rgb_uint8():
+    sensor = noisy()
+    rng = np.random.default_rng(0)
+    for frame in (np.zeros((4, 4), np.uint8), np.zeros((4, 4, 4), np.uint8), np.zeros((4, 4, 3), np.float32)):
+        with pytest.raises(ValueError, match="expected an HxWx3 uint8 RGB frame"):
+            sensor.apply(frame, rng)
+    ideal = make_sensor({"kind": "ideal"})
+    with pytest.raises(ValueError):
+        ideal.apply(np.zeros((4, 4), np.uint8), rng)
+
+
+def test_exposure_and_gain_values():
+    s = noisy(exposure=0.25, target_brightness=0.18, max_gain=16.0)
+    assert s.exposure_and_gain(0.0) == (0.25, 16.0)  # black: longest exposure, full gain
+    exposure, gain = s.exposure_and_gain(1.44)  # 0.36 of full scale: half the exposure, no gain
+    assert exposure == pytest.approx(0.125) and gain == 1.0
+    exposure, gain = s.exposure_and_gain(0.36)  # 0.09: longest exposure, gain 2
+    assert exposure == 0.25 and gain == pytest.approx(2.0)
+    assert s.exposure_and_gain(0.72) == (0.25, 1.0)  # exactly on target
+    assert s.exposure_and_gain(1e-6)[1] == 16.0  # capped
+
+
+def test_unquantized_output_is_float_srgb_in_range():
+    out = noisy(quantize=False).apply(uniform(100), np.random.default_rng(0))
+    assert out.dtype == np.float32 and out.shape == (64, 64, 3)
+    assert 0.0 <= out.min() and out.max() <= 1.0
+    # The AE brings the uniform frame to its target (0.18 linear), sRGB-encoded, noise aside.
+    assert float(out.mean()) == pytest.approx(float(linear_to_srgb(np.array([0.18]))[0]), abs=0.01)

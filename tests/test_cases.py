@@ -1,0 +1,115 @@
+"""The cases as the experiment builds them (garage_exp.experiment.build_scene: scene + shots); geometry only.
+Case 2 as a user runs it: tests/test_jobs.py::test_case_2_runs_the_same_with_serial_and_overlapped_detection."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import ROOT, compose_cfg, require
+
+from garage_exp.paths import PLANS_DIR
+from garage_exp.plan import classify, load_plan
+from garage_exp.plan.classify import LANE_TYPES
+
+
+@pytest.fixture(scope="module")
+def library():
+    require("vehicles")
+    from garage_exp.assets.vehicles import VehicleLibrary
+
+    return VehicleLibrary()
+
+
+def build(library, *overrides: str):
+    from garage_exp.experiment import build_scene
+
+    cfg = compose_cfg(*overrides)
+    classified = classify(load_plan(PLANS_DIR / f"{cfg.plan.name}.yaml"))
+    scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    return cfg, classified, scene, setup
+
+
+def on_lane(classified, pose) -> bool:
+    cell = classified.plan.cell_at(pose.x, pose.y)
+    return cell is not None and classified.cell(*cell).type in LANE_TYPES
+
+
+def test_case_1_default_trajectory(library):
+    """Case 1 as configured: per target colour, the ego drives along one lane 0.5 m per step towards the corner
+    (from case.motion.start, or as far back as the lane allows, to case.motion.end), the target waits beyond the bend."""
+    cfg, classified, scene, setup = build(library)
+    colours = list(cfg.palette.target_colours)
+    assert [s.label for s in setup.shots] == [c for c in colours for _ in range(len(setup.shots) // len(colours))]
+    for colour in colours:
+        shots = [s for s in setup.shots if s.label == colour]
+        positions = [s.position for s in shots]
+        assert positions[0] <= cfg.case.motion.start and positions[-1] == pytest.approx(cfg.case.motion.end)
+        assert np.allclose(np.diff(positions), -cfg.case.motion.step)
+        assert len(shots) >= 20  # the research plan's lane is long enough for most of the 20 m approach
+        egos = np.array([(s.ego.x, s.ego.y) for s in shots])
+        steps = np.linalg.norm(np.diff(egos, axis=0), axis=1)
+        assert np.allclose(steps, cfg.case.motion.step)  # moves as far as the position says
+        assert len({round(s.ego.yaw, 6) for s in shots}) == 1  # one heading: a straight drive
+        assert all(on_lane(classified, s.ego) for s in shots)
+        target = {(p.x, p.y, p.yaw) for s in shots for n, p in s.poses.items() if n == s.target}
+        assert len(target) == 1 and all(s.target == f"target_{colour}" for s in shots)
+        tx, ty, tyaw = target.pop()
+        assert on_lane(classified, next(iter(shots)).poses[f"target_{colour}"])
+        assert abs(((tyaw - shots[0].ego.yaw) + 180) % 360 - 180) == pytest.approx(90)  # beyond the bend
+        dist = np.hypot(egos[:, 0] - tx, egos[:, 1] - ty)
+        assert np.all(np.diff(dist) < 0)  # the ego closes in on the target
+        others = [p for s in shots for n, p in s.poses.items() if n != s.target]
+        assert all(p is None for p in others)  # one target in the scene at a time
+    assert setup.occluder in {e.name for e in scene.entities}
+
+
+def test_case_1_without_the_pillar_removes_it(library):
+    _, _, scene, setup = build(library, "occluder=none")
+    assert setup.occluder and setup.occluder not in {e.name for e in scene.entities}
+
+
+def test_case_2_is_built_with_a_car_passing_a_parked_ego(library):
+    """Case 2: the ego stands still in a bay beside the pillar; the target passes across its view, 0.5 m per
+    step, on one straight line in the lane, from one side of the ego's axis to the other."""
+    cfg, classified, scene, setup = build(library, "case=2")
+    assert setup.shots and setup.occluder in {e.name for e in scene.entities}
+    assert len({(s.ego.x, s.ego.y, s.ego.yaw) for s in setup.shots}) == 1
+    ego = setup.shots[0].ego
+    assert not on_lane(classified, ego)  # parked in a bay
+    for colour in cfg.palette.target_colours:
+        shots = [s for s in setup.shots if s.label == colour]
+        poses = np.array([(s.poses[s.target].x, s.poses[s.target].y) for s in shots])
+        assert np.allclose(np.linalg.norm(np.diff(poses, axis=0), axis=1), cfg.case.motion.step)
+        assert np.allclose(np.diff([s.position for s in shots]), cfg.case.motion.step)
+        assert all(on_lane(classified, s.poses[s.target]) for s in shots)
+        heading = (math.cos(math.radians(ego.yaw)), math.sin(math.radians(ego.yaw)))
+        side = (poses[:, 0] - ego.x) * -heading[1] + (poses[:, 1] - ego.y) * heading[0]
+        assert side.min() < -3 and side.max() > 3  # crosses the ego's axis
+        ahead = (poses[:, 0] - ego.x) * heading[0] + (poses[:, 1] - ego.y) * heading[1]
+        assert np.all(ahead > 0) and np.ptp(ahead) < 1e-6  # in front, on a line across the view
+    pillar = next(e for e in scene.entities if e.name == setup.occluder)
+    assert math.hypot(pillar.pose.x - ego.x, pillar.pose.y - ego.y) < 5  # the pillar is beside the ego
+
+
+PLANS = sorted(p.stem for p in (ROOT / "conf" / "plan").glob("*.yaml") if p.stem != "tiny")
+CASES = sorted(p.stem for p in (ROOT / "conf" / "case").glob("*.yaml"))
+
+
+# Found by this test (reported to the lead): on the obstacles plan the pedestrian case asks its site for a bay
+# named 'left' the straight run does not name. Strict: the mark must go when it is fixed.
+KNOWN = {("pedestrian", "obstacles"): "site straight_run has no bay 'left' on the obstacles plan"}
+
+
+@pytest.mark.parametrize("case, plan", [
+    pytest.param(c, p, marks=[pytest.mark.xfail(reason=KNOWN[c, p], strict=True)] if (c, p) in KNOWN else [])
+    for c in CASES for p in PLANS])
+def test_every_case_is_built_on_every_experiment_plan(library, plan, case):
+    """The product's own feature finders find each case's feature on each shipped plan: the scene has the
+    case's vehicles and the shots place only those."""
+    _, classified, scene, setup = build(library, f"plan={plan}", f"case={case}")
+    names = {e.name for e in scene.entities}
+    assert setup.shots and all(s.target in names for s in setup.shots)
+    assert all(n in names for s in setup.shots for n in s.poses)
+    assert all(on_lane(classified, s.ego) or case == "2" for s in setup.shots)
