@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import require
-from omegaconf import OmegaConf
 
 from garage_exp.config import GarageConf, LightConf, PaletteConf
 from garage_exp.paths import PLANS_DIR

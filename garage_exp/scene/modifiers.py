@@ -11,7 +11,7 @@ from dataclasses import replace
 from typing import Any
 
 from garage_exp.errors import GarageError
-from garage_exp.scene.description import Box, Pose, Scene
+from garage_exp.scene.description import Box, Scene
 from garage_exp.targets import allowed_modules, check_target, resolve, resolve_allowed  # noqa: F401  (scenario sites)
 
 
