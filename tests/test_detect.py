@@ -206,7 +206,7 @@ def test_score_target_boundaries_and_messages():
                                    ({"iou_threshold": 0.0}, "detector.iou", "iou 0.0 is outside (0, 1]"),
                                    ({"iou_threshold": 1.5}, "detector.iou", "iou 1.5 is outside (0, 1]"),
                                    ({"threshold": -0.1}, "detector.threshold", "-0.1 is outside 0-1"),
-                                   ({"threshold": 1.1}, "detector.threshold", "threshold 1.1 is outside [0, 1]")):
+                                   ({"threshold": 1.1}, "detector.threshold", "1.1 is outside 0-1")):
         with pytest.raises(GarageError) as err:
             score_target([half], target, **kwargs)
         assert err.value.where == where and message in str(err.value)
