@@ -40,8 +40,7 @@ test: setup
 # Mutation testing of the pure modules ([tool.mutmut] in pyproject.toml; results in docs/testing.md). Not part
 # of `make test`: it runs the fast unit tests once per mutant (CPU-heavy).
 MUTANTS := 'garage_exp.plan.*' 'garage_exp.detect.matching.*' 'garage_exp.groundtruth.*' 'garage_exp.sensor.*' \
-	'garage_exp.report.x_main_effects*' 'garage_exp.report.x_pair_effects*' 'garage_exp.report.x_breakdown*' \
-	'garage_exp.report.x_factors_of*' 'garage_exp.report.x_summary*'
+	'garage_exp.report.tables.x_*' 'garage_exp.stats.x_*'
 mutation: python
 	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt -e '.[mutation]'
 	rm -rf mutants

@@ -213,6 +213,17 @@ class TrackingConf:
 
 
 @dataclass
+class ReplicateConf:
+    """What changes between the replicates of a cell (replicate 0 is the scenario as written): uniform draws in
+    +-these ranges, seeded by (seed, replicate) so replicate k is the same in every cell and every rerun."""
+
+    offset: float = 0.3  # each target's lateral offset (m)
+    yaw: float = 5.0  # each target's yaw (degrees)
+    ego_offset: float = 0.3  # the ego's lateral position (m)
+    models: bool = True  # each vehicle target's model drawn from its size class and colour
+
+
+@dataclass
 class Config:
     plan: PlanConf = field(default_factory=PlanConf)
     garage: GarageConf = field(default_factory=GarageConf)
@@ -228,6 +239,8 @@ class Config:
     # Extra factors: config groups whose YAML names a scene modifier with `_target_` (see conf/pillar/).
     modifiers: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
+    replicates: int = 1  # each cell run this many times with seeded nuisance variation (`replicate` node)
+    replicate: ReplicateConf = field(default_factory=ReplicateConf)
     blank: bool = False  # the blank control: only the vehicles, background removed
     dataset: bool = False  # also write frames with YOLO-format labels
     resume: bool = False

@@ -153,7 +153,8 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
             score = score_target(dets, target, item.truth, iou_threshold=cfg.detector.iou, match=cfg.detector.match,
                                  threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes),
                                  person_classes=tuple(cfg.detector.person_classes))
-            row = results.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target))
+            row = results.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target),
+                                    replicated=cfg.replicates > 1)
             rows.append(row)
             if dataset is not None:
                 dataset.add(f"{shot.index:04d}_{item.camera}", item.rgb, item.truth, scene)

@@ -14,11 +14,13 @@ PERSON_CLASSES = ("person",)
 KIND_TO_COCO = {"car": "car", "suv": "car", "pickup": "truck", "van": "truck", "bus": "bus", "truck": "truck"}
 
 
-def frame_row(shot, camera: str, target, score, model_names: list[str], target_kind: str | None = None) -> dict:
+def frame_row(shot, camera: str, target, score, model_names: list[str], target_kind: str | None = None,
+              replicated: bool = False) -> dict:
     """One frame's row. target_kind ("vehicle" | "person") is a column only when given: scenes with people give
-    it on every row, vehicle-only scenes keep their tables as they were."""
+    it on every row, vehicle-only scenes keep their tables as they were; so is `replicate`, when replicates > 1."""
     row = {
-        "shot": shot.index, "label": shot.label, "position": shot.position, "camera": camera,
+        "shot": shot.index, **({"replicate": shot.replicate} if replicated else {}),
+        "label": shot.label, "position": shot.position, "camera": camera,
         "ego_x": round(shot.ego.x, 4), "ego_y": round(shot.ego.y, 4), "ego_yaw": round(shot.ego.yaw, 3),
         "target": shot.target,
         "distance": round(target.distance, 4) if target else math.nan,

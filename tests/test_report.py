@@ -1,22 +1,50 @@
-"""The sweep report's tables, on hand-made run tables (no MLflow, no rendering)."""
+"""The sweep report's tables, intervals and tests, on hand-made run and frame tables (no MLflow, no rendering)."""
 
+import math
+
+import numpy as np
 import pandas as pd
 import pytest
 
-from garage_exp.report import breakdown, factors_of, main_effects, markdown, pair_effects, summary
+from garage_exp import stats
+from garage_exp.report import markdown
+from garage_exp.report import visibility as vis
+from garage_exp.report.tables import (breakdown, factors_of, main_effects, pair_effects, pivot, significance,
+                                      summary, units)
+
+LIGHTS = {"bright": 0.8, "dim": 0.5}
+BLANKS = {"False": 0.0, "True": 0.1}
 
 
 @pytest.fixture
 def runs():
     rows = []
-    for light, base in (("bright", 0.8), ("dim", 0.6)):
-        for blank, bonus in (("False", 0.0), ("True", 0.1)):
+    for light, base in LIGHTS.items():
+        for blank, bonus in BLANKS.items():
             conf = base + bonus
             rows.append({"run_id": f"{light}{blank}", "run_name": f"light={light} blank={blank}",
-                         "status": "FINISHED", "skipped": False, "error": "", "factor.light": light,
-                         "factor.blank": blank, "factor.seed": "0", "confidence_mean": conf, "recall": conf,
-                         "difficulty": 1 - conf, "label.black": conf + 0.05, "label.white": conf - 0.05,
-                         "model.yolo11n_int8": conf - 0.1})
+                         "status": "FINISHED", "skipped": False, "error": "", "threshold": 0.5,
+                         "factor.light": light, "factor.blank": blank, "factor.seed": "0", "confidence_mean": conf,
+                         "recall": conf, "difficulty": 1 - conf})
+    return pd.DataFrame(rows)
+
+
+def frames_for(runs, replicates=4, noise=0.05, seed=0):
+    """Frame tables: per run and replicate, a black and a white trajectory of 3 frames each; the replicate adds
+    a shift shared by its frames (the reason frames are not independent units)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _, r in runs.iterrows():
+        for k in range(replicates):
+            shift = rng.normal(0, noise)
+            for label, d in (("black", 0.05), ("white", -0.05)):
+                for pos in range(3):
+                    c = float(np.clip(r.confidence_mean + d + shift, 0, 1))
+                    vf = [0.1, 0.5, 0.9][pos]
+                    rows.append({"run_id": r.run_id, "shot": pos, "replicate": k, "label": label, "position": pos,
+                                 "camera": "front", "visible_fraction": vf,
+                                 "kitti": ["ignored", "hard", "easy"][pos], "conf_yolo11n": c - 0.1,
+                                 "conf_yolov8n": c + 0.1, "composite": c})
     return pd.DataFrame(rows)
 
 
@@ -24,56 +52,163 @@ def test_only_swept_factors_count(runs):
     assert factors_of(runs) == ["factor.light", "factor.blank"]
 
 
-def test_main_effects_average_over_the_other_factors(runs):
-    effects = main_effects(runs, factors_of(runs)).set_index(["factor", "level"])
-    assert effects.loc[("light", "bright"), "confidence_mean"] == pytest.approx(0.85)
-    assert effects.loc[("blank", "True"), "confidence_mean"] == pytest.approx(0.8)
-    pairs = pair_effects(runs, factors_of(runs))
-    assert len(pairs) == 4 and set(pairs.pair) == {"light x blank"}
+def test_units_are_a_runs_replicates_not_its_frames(runs):
+    frames = frames_for(runs, replicates=3)
+    obs = units(runs, frames, factors_of(runs))
+    assert len(obs) == 4 * 3 and set(obs.replicate) == {0, 1, 2}
+    one = frames[(frames.run_id == "dimTrue") & (frames.replicate == 1)]
+    row = obs[(obs.run_id == "dimTrue") & (obs.replicate == 1)].iloc[0]
+    assert row.confidence_mean == pytest.approx(one.composite.mean())
+    assert row.recall == pytest.approx((one.composite >= 0.5).mean())
+    assert row.difficulty == pytest.approx(1 - row.confidence_mean)
+    # A run without a frame table (a dry run's, an old run's) is one unit from its metrics; a failed run none.
+    runs.loc[3, "status"] = "FAILED"
+    obs = units(runs, frames[frames.run_id != "brightFalse"], factors_of(runs))
+    assert len(obs) == 2 * 3 + 1
+    assert obs[obs.run_id == "brightFalse"].confidence_mean.tolist() == [pytest.approx(0.8)]
+    assert "dimTrue" not in set(obs.run_id)
 
 
-def test_breakdown_is_the_research_table_shape(runs):
-    table = breakdown(runs, factors_of(runs), "label.")
-    assert list(table.index) == ["black", "white"]
+def test_other_cameras_do_not_enter_the_units(runs):
+    frames = frames_for(runs, replicates=2)
+    rear = frames.assign(camera="rear", composite=0.0)
+    obs = units(runs, pd.concat([frames, rear]), factors_of(runs))
+    assert obs.confidence_mean.min() > 0.3  # the rear camera's zeros are not averaged in
+
+
+def test_main_effects_carry_intervals_over_units(runs):
+    obs = units(runs, frames_for(runs, replicates=5), factors_of(runs))
+    effects = main_effects(obs, factors_of(runs))
+    assert list(effects.columns) == ["factor", "level", "n", "confidence_mean", "confidence_mean_low",
+                                     "confidence_mean_high", "recall", "recall_low", "recall_high", "difficulty"]
+    by = effects.set_index(["factor", "level"])
+    assert by.loc[("light", "bright"), "n"] == 10  # 2 blank levels x 5 replicates
+    assert by.loc[("light", "bright"), "confidence_mean"] == pytest.approx(0.85, abs=0.03)
+    assert by.loc[("light", "dim"), "confidence_mean"] == pytest.approx(0.55, abs=0.03)
+    for _, r in effects.iterrows():
+        assert r.confidence_mean_low <= r.confidence_mean <= r.confidence_mean_high
+        assert r.confidence_mean_high - r.confidence_mean_low > 0
+    assert by.loc[("light", "dim"), "difficulty"] == pytest.approx(1 - by.loc[("light", "dim"), "confidence_mean"])
+    assert list(effects.index) == [0, 1, 2, 3]  # one table, renumbered, in the sweep's order of levels
+    assert list(effects.level) == ["bright", "dim", "False", "True"]
+
+
+def test_pair_cells_with_one_unit_have_no_interval(runs):
+    obs = units(runs, pd.DataFrame(), factors_of(runs))  # no frames: one unit per run
+    pairs = pair_effects(obs, factors_of(runs)).set_index(["level_a", "level_b"])
+    assert pairs.loc[("dim", "True"), "confidence_mean"] == pytest.approx(0.6)
+    assert pairs.loc[("dim", "True"), "n"] == 1 and math.isnan(pairs.loc[("dim", "True"), "confidence_mean_low"])
+    assert main_effects(obs, []).empty and pair_effects(obs, ["factor.light"]).empty
+
+
+def test_anova_finds_the_real_effect_and_not_the_null_ones(runs):
+    """Light matters, blank does not, and they do not interact: over 20 simulated sweeps the real effect is
+    always found and the null ones about as often as the 5 % level allows."""
+    runs = runs.assign(confidence_mean=[0.8, 0.8, 0.5, 0.5])
+    found = {"light": 0, "blank": 0, "light x blank": 0}
+    for seed in range(20):
+        obs = units(runs, frames_for(runs, replicates=6, noise=0.03, seed=seed), factors_of(runs))
+        table = significance(obs, factors_of(runs))
+        conf = table[table.response == "confidence_mean"].set_index("term")
+        assert list(conf.index) == ["light", "blank", "replicate", "light x blank"]
+        assert ((conf.partial_eta2 >= 0) & (conf.partial_eta2 <= 1)).all() and (conf.units == 24).all()
+        assert conf.loc["light", "partial_eta2"] > 0.9
+        for term in found:
+            found[term] += conf.loc[term, "significant"] == "yes"
+    assert found["light"] == 20
+    assert found["blank"] <= 3 and found["light x blank"] <= 3
+
+
+def test_anova_without_replicates_drops_the_interaction_it_cannot_test(runs):
+    obs = units(runs, pd.DataFrame(), factors_of(runs))  # 2 x 2 cells, one unit each: saturated with a x b
+    table = significance(obs, factors_of(runs))
+    assert set(table.term) == {"light", "blank"}
+    one = runs.iloc[:1]
+    assert significance(units(one, pd.DataFrame(), []), []).empty
+
+
+def test_breakdowns_per_label_and_model_with_intervals(runs):
+    frames = frames_for(runs, replicates=3)
+    labels = breakdown(frames, runs, factors_of(runs), "label")
+    assert set(labels.what) == {"black", "white"} and (labels.n == 3).all()
+    table = pivot(labels)
     assert list(table.columns) == ["light=bright, blank=False", "light=bright, blank=True",
                                    "light=dim, blank=False", "light=dim, blank=True"]
-    assert table.loc["black", "light=dim, blank=True"] == pytest.approx(0.75)
-    assert table.loc["white", "light=bright, blank=False"] == pytest.approx(0.75)
-    models = breakdown(runs, factors_of(runs), "model.")
-    assert list(models.index) == ["yolo11n_int8"]
+    assert table.loc["black", "light=dim, blank=True"].startswith("0.6")
+    assert "[" in table.loc["black", "light=dim, blank=True"]
+    models = breakdown(frames, runs, factors_of(runs), "model")
+    assert set(models.what) == {"yolo11n", "yolov8n"}
+    assert breakdown(frames, runs, factors_of(runs), "kind").empty  # no people in these scenes
+    assert breakdown(pd.DataFrame(), runs, factors_of(runs), "label").empty
 
 
-def test_breakdown_without_metrics_or_factors(runs):
-    assert breakdown(runs.drop(columns=["label.black", "label.white"]), ["factor.light"], "label.").empty
-    single = breakdown(runs.iloc[:1], [], "label.")
-    assert single.loc["black", "confidence"] == pytest.approx(0.85)
-
-
-def test_markdown_holds_every_section(runs):
-    text = markdown(runs, main_effects(runs, factors_of(runs)), pair_effects(runs, factors_of(runs)),
-                    {"Per label": breakdown(runs, factors_of(runs), "label.")})
-    for heading in ("## Main effects", "## Pairs", "## Runs ranked by difficulty", "## Per label"):
+def test_markdown_prints_intervals_and_dashes_never_nan(runs):
+    frames = frames_for(runs, replicates=3)
+    factors = factors_of(runs)
+    obs = units(runs, frames, factors)
+    text = markdown(runs, obs, main_effects(obs, factors), pair_effects(obs, factors), significance(obs, factors),
+                    {"Per label": breakdown(frames, runs, factors, "label")}, vis.by_bins(frames, runs),
+                    vis.curves(frames, runs))
+    for heading in ("## Main effects", "## Significance", "## Pairs", "## Runs ranked by difficulty",
+                    "## Per label", "## Detection against visibility", "## Visible fraction at which recall"):
         assert heading in text
-    assert "| what | light=bright, blank=False |" in text
+    assert "nan" not in text.lower().replace("nanos", "")
+    assert "| light | bright | 6 | 0.8" in text and " [0." in text
+    alone = units(runs, pd.DataFrame(), factors)
+    text = markdown(runs, alone, main_effects(alone, factors), pair_effects(alone, factors),
+                    significance(alone, factors))
+    assert "0.600 [-]" in text  # one unit: a mean without an interval
 
 
-def test_main_and_pair_effects_values(runs):
-    effects = main_effects(runs, factors_of(runs))
-    assert list(effects.columns) == ["factor", "level", "confidence_mean", "recall", "difficulty"]
-    by = effects.set_index(["factor", "level"])
-    assert by.loc[("light", "dim"), "confidence_mean"] == pytest.approx(0.65)
-    assert by.loc[("light", "dim"), "difficulty"] == pytest.approx(0.35)
-    assert by.loc[("blank", "False"), "recall"] == pytest.approx(0.7)
-    pairs = pair_effects(runs, factors_of(runs)).set_index(["level_a", "level_b"])
-    assert list(pairs.columns) == ["pair", "confidence_mean", "recall"]
-    assert pairs.loc[("dim", "True"), "confidence_mean"] == pytest.approx(0.7)
-    assert pairs.loc[("bright", "False"), "recall"] == pytest.approx(0.8)
-    assert main_effects(runs, []).empty and pair_effects(runs, ["factor.light"]).empty
+def test_mean_ci_covers_the_true_mean_about_95_percent_of_the_time():
+    rng = np.random.default_rng(1)
+    hits = 0
+    for trial in range(80):
+        _, lo, hi = stats.mean_ci(rng.normal(0.5, 0.1, size=25), seed=trial)
+        hits += lo <= 0.5 <= hi
+    assert 68 <= hits <= 80  # 95 % nominal; percentile bootstrap runs a little narrow at n = 25
+    assert math.isnan(stats.mean_ci([0.4])[1]) and stats.mean_ci([0.3, 0.3])[1:] == (0.3, 0.3)
+    assert math.isnan(stats.mean_ci([])[0])
 
 
-def test_factors_of_ignores_unswept_and_missing_levels(runs):
-    runs = runs.assign(**{"factor.case": ["1", "1", None, "1"], "other": ["a", "b", "c", "d"]})
-    assert factors_of(runs) == ["factor.light", "factor.blank"]  # one level (NaN aside) is no factor
+def test_cluster_interval_is_wider_than_pretending_frames_are_independent():
+    rng = np.random.default_rng(2)
+    clusters = np.repeat(np.arange(6), 20)
+    values = np.repeat(rng.uniform(0, 1, 6), 20)  # frames of a trajectory move together
+    mean, lo, hi, n = stats.ratio_ci(values, clusters)
+    _, flo, fhi, _ = stats.ratio_ci(values, np.arange(len(values)))
+    assert n == 6 and lo <= mean <= hi
+    assert (hi - lo) > 3 * (fhi - flo)
+
+
+def test_recall_curve_recovers_a_known_crossing():
+    rng = np.random.default_rng(3)
+    vf = rng.uniform(0, 1, 600)
+    p = 1 / (1 + np.exp(-12 * (vf - 0.4)))
+    frames = pd.DataFrame({"hit": (rng.uniform(size=600) < p).astype(float), "visible_fraction": vf,
+                           "trajectory": np.repeat(np.arange(60), 10)})
+    fit = stats.recall_curve(frames, "hit", 0.5)
+    assert fit["v50_low"] <= 0.4 <= fit["v50_high"] and abs(fit["v50"] - 0.4) < 0.05 and fit["slope"] > 5
+    flat = frames.assign(hit=1.0)
+    assert math.isnan(stats.recall_curve(flat, "hit", 0.5)["v50"])  # always detected: no crossing
+
+
+def test_visibility_bins_per_model_and_level(runs):
+    frames = frames_for(runs, replicates=2)
+    bins = vis.by_bins(frames, runs)
+    assert set(bins.model) == {"yolo11n", "yolov8n", "composite"}
+    comp = bins[(bins.model == "composite") & (bins.by == "visible fraction")].set_index("bin")
+    assert list(comp.index) == ["reasonable (>= 0.65)", "heavy (0.2-0.65)", "< 0.2"]
+    assert (comp.frames == 4 * 2 * 2).all() and (comp.trajectories == 16).all()
+    kitti = bins[(bins.model == "composite") & (bins.by == "KITTI level")].set_index("bin")
+    assert kitti.loc["easy", "frames"] == 16 and kitti.loc["moderate", "frames"] == 0
+    assert math.isnan(kitti.loc["moderate", "recall"])
+    hard = frames.assign(composite=np.where(frames.visible_fraction < 0.65, 0.0, 0.9))
+    ratio = vis.miss_rate_ratio(vis.by_bins(hard, runs))
+    assert math.isnan(ratio)  # no miss among reasonable frames: the ratio is undefined, not infinite
+    some = hard.assign(composite=np.where((hard.visible_fraction > 0.65) & (hard.replicate == 0)
+                                          & (hard.label == "black"), 0.0, hard.composite))
+    assert vis.miss_rate_ratio(vis.by_bins(some, runs)) == pytest.approx(1.0 / 0.25)
 
 
 def test_summary_counts_and_lists_failures(runs):
@@ -95,35 +230,6 @@ def test_summary_counts_and_lists_failures(runs):
     assert bad == 0
     runs.loc[1, "error"] = ""
     assert summary(runs)[0].splitlines()[1].endswith("no error recorded")
-
-
-def test_breakdown_averages_repeats_and_drops_missing(runs):
-    twice = pd.concat([runs, runs.assign(**{"label.black": runs["label.black"] + 0.1})], ignore_index=True)
-    table = breakdown(twice, ["factor.light"], "label.")
-    assert list(table.columns) == ["light=bright", "light=dim"]
-    assert table.loc["black", "light=bright"] == pytest.approx((0.85 + 0.95) / 2 + 0.05)
-    gaps = runs.assign(**{"label.white": [None] * 4})
-    assert list(breakdown(gaps, ["factor.light"], "label.").index) == ["black"]
-
-
-def test_tables_keep_the_sweep_order_and_their_column_order():
-    rows = [{"run_id": str(k), "run_name": "", "status": "FINISHED", "skipped": False, "error": "",
-             "factor.light": light, "factor.case": case, "confidence_mean": c, "recall": c, "difficulty": 1 - c,
-             "label.white": c, "label.black": c / 2}
-            for k, (light, case, c) in enumerate([("dim", "2", 0.2), ("dim", "1", 0.4), ("bright", "2", 0.6),
-                                                  ("bright", "1", 0.8)])]
-    runs = pd.DataFrame(rows)
-    factors = factors_of(runs)
-    pairs = pair_effects(runs, factors)
-    assert list(pairs.columns) == ["pair", "level_a", "level_b", "confidence_mean", "recall"]
-    assert list(pairs.index) == [0, 1, 2, 3]
-    effects = main_effects(runs, factors)
-    assert list(effects.index) == [0, 1, 2, 3]  # one table, renumbered (not 0, 1 per factor)
-    table = breakdown(runs, factors, "label.")
-    assert list(table.columns) == ["light=dim, case=2", "light=dim, case=1", "light=bright, case=2",
-                                   "light=bright, case=1"]  # the sweep's order, not sorted
-    assert table.loc["white", "light=dim, case=2"] == pytest.approx(0.2)
-    assert breakdown(runs.iloc[0:0], factors, "label.").empty
 
 
 def test_summary_without_runs_or_expectation_and_long_errors(runs):

@@ -18,6 +18,7 @@ from garage_exp.errors import GarageError
 from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
+from garage_exp.scenario.replicate import build_replicate, merge
 from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
 from garage_exp.scenario.place import (check_overlaps, pose_between, pose_in_bay, pose_on_path,
                                        pose_relative, site_bay, site_path)
@@ -32,6 +33,11 @@ PLACEMENT = (*MOVABLE, "path", "align", "before", "bay", "between", "relative")
 
 def check_case(cfg) -> None:
     """What a scenario's values say before the plan is known (the rest needs the site: `make_case`)."""
+    if int(cfg.get("replicates", 1)) < 1:
+        raise GarageError(f"replicates must be >= 1, got {cfg.replicates}", "replicates")
+    for key in ("offset", "yaw", "ego_offset"):
+        if float(cfg.replicate[key]) < 0:
+            raise GarageError(f"a range is >= 0, got {cfg.replicate[key]}", f"replicate.{key}")
     try:
         _check_motion(cfg.case)
     except GarageError as exc:
@@ -127,9 +133,13 @@ def level_file(cfg, group: str) -> str:
 
 
 def make_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
-    """The scenario's shot list; an error in the scenario or the arrangement names its file and key path."""
+    """The scenario's shot list, replicate after replicate (`replicates`); an error in the scenario or the
+    arrangement names its file and key path."""
     try:
-        return build_case(cfg, classified, library, rng)
+        setup = build_case(cfg, classified, library, rng)
+        for k in range(1, int(cfg.get("replicates", 1))):
+            setup = merge(setup, build_replicate(build_case, cfg, classified, library, k), k)
+        return setup
     except GarageError as exc:
         group = (exc.where or "").split(".")[0]
         if group in ("case", "occluder"):
@@ -137,7 +147,8 @@ def make_case(cfg, classified: Classified, library, rng: np.random.Generator) ->
         raise
 
 
-def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
+def build_case(cfg, classified: Classified, library, rng: np.random.Generator, adjust=None) -> CaseSetup:
+    """One replicate of the case. `adjust(actors, targets)`: a replicate's variation of the actors' values."""
     case = cfg.case
     site = find_site(case.site, classified, cfg.garage)
     conf = actor_confs(case.actors, "case.actors")
@@ -148,6 +159,8 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator) -
         raise GarageError(f"no actor {case.motion.actor!r} to move (have {', '.join(conf)})", "case.motion.actor")
     _check_motion(case)
     runs, conf = variants(case, conf, list(cfg.palette.target_colours))
+    if adjust is not None:
+        conf = adjust(conf, {v.target for v in runs})
     # Actors are made in order of first use (the ego first): model draws from rng follow the scenario's order.
     made: dict[str, kinds.Made] = {}
     for name in dict.fromkeys([EGO] + [n for v in runs for n in v.show]):

@@ -62,7 +62,8 @@ def pose_on_path(site: Site, actor, length: float, bays: dict, where: str) -> Po
 
 
 def pose_in_bay(site: Site, actor, length: float, bays: dict, where: str) -> Pose:
-    """In a bay, nose to the lane, centred, or with the front bumper `gap` metres behind the bay line."""
+    """In a bay, nose to the lane, centred, or with the front bumper `gap` metres behind the bay line; `offset`
+    metres to the left of its heading."""
     sb = actor.bay if isinstance(actor.bay, SiteBay) else site_bay(site, actor.bay, bays, where + ".bay")
     bay, u = sb.bay, sb.facing
     inset = 0.0
@@ -72,7 +73,9 @@ def pose_in_bay(site: Site, actor, length: float, bays: dict, where: str) -> Pos
             raise GarageError(f"gap {gap} m does not fit a {length:.1f} m actor in a {bay.depth:.1f} m bay",
                               where + ".gap")
         inset = bay.depth / 2 - length / 2 - gap
-    return Pose(bay.x + u[0] * inset, bay.y + u[1] * inset, 0.0, (bay.yaw + float(actor.yaw)) % 360.0)
+    side = float(actor.offset)
+    return Pose(bay.x + u[0] * inset - u[1] * side, bay.y + u[1] * inset + u[0] * side, 0.0,
+                (bay.yaw + float(actor.yaw)) % 360.0)
 
 
 def pose_between(site: Site, actor, bays: dict, where: str) -> Pose:

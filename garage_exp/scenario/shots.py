@@ -21,6 +21,7 @@ class Shot:
     ego: Pose
     poses: dict[str, Pose | None]
     target: str
+    replicate: int = 0  # which replicate of the scenario (garage_exp/scenario/replicate.py)
 
 
 @dataclass

@@ -1,0 +1,5 @@
+import sys
+
+from garage_exp.report import main
+
+sys.exit(main())

@@ -1,0 +1,86 @@
+"""Replicates: the same scenario again with variation that should not matter to the question asked.
+
+Replicate 0 is the scenario as written. Replicate k >= 1 draws, from a generator seeded by (seed, k) alone, a
+lateral offset and a yaw for every variant's target, a lateral offset for the ego, and the target's model from
+its size class and colour (instead of the palette's pinned model); every other model the scenario leaves to
+chance is drawn from the same generator. So replicate k is the same in every cell of a sweep and in every rerun:
+cells compare like with like (common random numbers), and a cell's replicates show how much a result owes to
+one particular car standing in one particular spot.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from garage_exp.errors import GarageError
+from garage_exp.scenario.shots import CaseSetup
+
+EGO = "ego"
+SHRINK = (1.0, 0.5, 0.25, 0.0)  # jitter scales tried in turn when a jittered actor would overlap another
+
+
+def replicate_rng(seed: int, k: int) -> np.random.Generator:
+    return np.random.default_rng([int(seed), int(k)])
+
+
+def jitter(spec, rng: np.random.Generator, cfg, library):
+    """A function that moves a case's actors for one replicate at a given scale: `adjust(conf, targets, scale)`.
+    The draws are made once, on first use, in the scenario's actor order, so every scale moves the same way."""
+    draws: dict[str, tuple[float, float, str]] = {}
+
+    def draw(name: str, actor, is_target: bool) -> tuple[float, float, str]:
+        if name not in draws:
+            offset, yaw = rng.uniform(-1.0, 1.0, size=2)
+            model = ""
+            if is_target and spec.models and actor.kind == "vehicle" and not actor.model:
+                model = library.choose(size_class=actor.size or "medium", colour=actor.colour or None,
+                                       kind=actor.body or "car", max_height=cfg.garage.ceiling_height - 0.1,
+                                       rng=rng).name
+            draws[name] = (float(offset), float(yaw), model)
+        return draws[name]
+
+    def adjust(conf: dict, targets: set[str], scale: float) -> dict:
+        out = dict(conf)
+        for name, actor in conf.items():
+            if name == EGO:
+                offset, _, _ = draw(name, actor, False)
+                out[name] = replace(actor, offset=actor.offset + scale * spec.ego_offset * offset)
+            elif name in targets:
+                offset, yaw, model = draw(name, actor, True)
+                out[name] = replace(actor, offset=actor.offset + scale * spec.offset * offset,
+                                    yaw=actor.yaw + scale * spec.yaw * yaw, model=model or actor.model)
+        return out
+
+    return adjust
+
+
+def build_replicate(build, cfg, classified, library, k: int) -> CaseSetup:
+    """Replicate k of the case; when its jitter makes two actors overlap, the jitter shrinks (then vanishes)."""
+    for scale in SHRINK:
+        rng = replicate_rng(cfg.seed, k)
+        adjust = jitter(cfg.replicate, rng, cfg, library)
+        try:
+            return build(cfg, classified, library, rng, adjust=lambda c, t, s=scale: adjust(c, t, s))
+        except GarageError as exc:
+            if "overlap" not in str(exc) or scale == 0.0:
+                raise
+    raise AssertionError("unreachable: the last scale has no jitter")
+
+
+def merge(first: CaseSetup, other: CaseSetup, k: int) -> CaseSetup:
+    """Replicate k's actors join the scene under their own names (`target_black_r1`), its shots follow."""
+    rename = {e.name: f"{e.name}_r{k}" for e in other.vehicles if e.name != EGO}
+    for entity in other.vehicles:
+        if entity.name != EGO:
+            entity.name = rename[entity.name]
+            first.vehicles.append(entity)
+    for shot in other.shots:
+        shot.index = len(first.shots)
+        shot.replicate = k
+        shot.poses = {rename[n]: p for n, p in shot.poses.items()}
+        shot.target = rename[shot.target]
+        first.shots.append(shot)
+    first.used_bays = sorted(set(first.used_bays) | set(other.used_bays))
+    return first
