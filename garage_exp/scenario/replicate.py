@@ -18,11 +18,11 @@ from garage_exp.errors import GarageError
 from garage_exp.scenario.shots import CaseSetup
 
 EGO = "ego"
-SHRINK = (1.0, 0.5, 0.25, 0.0)  # jitter scales tried in turn when a jittered actor would overlap another
+ATTEMPTS = 8  # draws of a replicate tried in turn while its actors overlap
 
 
-def replicate_rng(seed: int, k: int) -> np.random.Generator:
-    return np.random.default_rng([int(seed), int(k)])
+def replicate_rng(seed: int, k: int, attempt: int = 0) -> np.random.Generator:
+    return np.random.default_rng([int(seed), int(k)] + ([attempt] if attempt else []))
 
 
 def jitter(spec, rng: np.random.Generator, cfg, library):
@@ -32,13 +32,14 @@ def jitter(spec, rng: np.random.Generator, cfg, library):
 
     def draw(name: str, actor, is_target: bool) -> tuple[float, float, str]:
         if name not in draws:
-            offset, yaw = rng.uniform(-1.0, 1.0, size=2)
+            offset, yaw = (float(v) for v in rng.uniform(-1.0, 1.0, size=2))
             model = ""
-            if is_target and spec.models and actor.kind == "vehicle" and not actor.model:
-                model = library.choose(size_class=actor.size or "medium", colour=actor.colour or None,
+            if is_target and spec.models and pinned(actor, cfg.palette):
+                # as the build draws an unpinned target (scenario/actors.py: vehicle_model)
+                model = library.choose(size_class=actor.size or "medium", colour=actor.colour,
                                        kind=actor.body or "car", max_height=cfg.garage.ceiling_height - 0.1,
                                        rng=rng).name
-            draws[name] = (float(offset), float(yaw), model)
+            draws[name] = (offset, yaw, model)
         return draws[name]
 
     def adjust(conf: dict, targets: set[str], scale: float) -> dict:
@@ -56,17 +57,28 @@ def jitter(spec, rng: np.random.Generator, cfg, library):
     return adjust
 
 
+def pinned(actor, palette) -> bool:
+    """The palette pins this target's model (so that every run compares the same cars): a replicate draws it
+    instead. Models the scenario leaves to chance are drawn by the build, from the replicate's generator."""
+    if actor.kind != "vehicle" or actor.model or actor.role != "target":
+        return False
+    return actor.colour in palette.target_colours and bool(
+        palette.target or actor.colour in (palette.get("target_models") or {}))
+
+
 def build_replicate(build, cfg, classified, library, k: int) -> CaseSetup:
-    """Replicate k of the case; when its jitter makes two actors overlap, the jitter shrinks (then vanishes)."""
-    for scale in SHRINK:
-        rng = replicate_rng(cfg.seed, k)
+    """Replicate k of the case. When its draws make two actors overlap (a jitter too wide, or a wider model in
+    a neighbouring bay), it draws again from a generator seeded (seed, k, attempt) with half the jitter: still
+    the same in every cell and every rerun."""
+    for attempt in range(ATTEMPTS):
+        rng = replicate_rng(cfg.seed, k, attempt)
         adjust = jitter(cfg.replicate, rng, cfg, library)
         try:
-            return build(cfg, classified, library, rng, adjust=lambda c, t, s=scale: adjust(c, t, s))
+            return build(cfg, classified, library, rng, adjust=lambda c, t, s=0.5 ** attempt: adjust(c, t, s))
         except GarageError as exc:
-            if "overlap" not in str(exc) or scale == 0.0:
+            if "overlap" not in str(exc) or attempt == ATTEMPTS - 1:
                 raise
-    raise AssertionError("unreachable: the last scale has no jitter")
+    raise AssertionError("unreachable")
 
 
 def merge(first: CaseSetup, other: CaseSetup, k: int) -> CaseSetup:
@@ -83,4 +95,9 @@ def merge(first: CaseSetup, other: CaseSetup, k: int) -> CaseSetup:
         shot.target = rename[shot.target]
         first.shots.append(shot)
     first.used_bays = sorted(set(first.used_bays) | set(other.used_bays))
+    # Every shot places every actor: another replicate's actors wait out of the scene (None), not where they
+    # were first put.
+    names = [e.name for e in first.vehicles if e.name != EGO]
+    for shot in first.shots:
+        shot.poses = {n: shot.poses.get(n) for n in names}
     return first
