@@ -186,7 +186,12 @@ def test_sweep_report_has_main_effects_pairs_and_heat_map(sweep):
     _, mlc, runs = sweep
     parent = next(r for r in runs if r.data.tags.get("sweep") == "parent")
     arts = {a.path for a in mlc.list_artifacts(parent.info.run_id, "report")}
-    assert {"report/report.md", "report/main_effects.csv", "report/pair_effects.csv", "report/heatmap.png"} <= arts
+    assert {"report/report.md", "report/main_effects.csv", "report/pair_effects.csv", "report/heatmap.png",
+            "report/anova.csv", "report/units.csv", "report/main_effects.png", "report/interactions.png",
+            "report/visibility_bins.csv", "report/visibility_curve.csv", "report/visibility.png"} <= arts
+    text = open(mlc.download_artifacts(parent.info.run_id, "report/report.md")).read()
+    assert "## Significance" in text and "## Detection against visibility" in text and " [0." in text
+    assert "nan" not in text.lower()
     path = mlc.download_artifacts(parent.info.run_id, "report/main_effects.csv")
     effects = read_table(path)
     assert {(e["factor"], e["level"]) for e in effects} == {("case", "light"), ("case", "3"), ("light", "bright"),
