@@ -80,7 +80,8 @@ def test_main_effects_carry_intervals_over_units(runs):
     obs = units(runs, frames_for(runs, replicates=5), factors_of(runs))
     effects = main_effects(obs, factors_of(runs))
     assert list(effects.columns) == ["factor", "level", "n", "confidence_mean", "confidence_mean_low",
-                                     "confidence_mean_high", "recall", "recall_low", "recall_high", "difficulty"]
+                                     "confidence_mean_high", "recall", "recall_low", "recall_high", "difficulty",
+                                     "difficulty_low", "difficulty_high"]
     by = effects.set_index(["factor", "level"])
     assert by.loc[("light", "bright"), "n"] == 10  # 2 blank levels x 5 replicates
     assert by.loc[("light", "bright"), "confidence_mean"] == pytest.approx(0.85, abs=0.03)

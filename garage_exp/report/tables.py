@@ -93,11 +93,12 @@ def units(runs: pd.DataFrame, frames: pd.DataFrame, factors: list[str]) -> pd.Da
 
 def main_effects(obs: pd.DataFrame, factors: list[str]) -> pd.DataFrame:
     """Per factor and level (mean over the other factors): units n, mean composite confidence and recall with
-    their 95 % bootstrap intervals over units, and the difficulty (1 - confidence)."""
+    their 95 % bootstrap intervals over units, and the difficulty (1 - confidence) with its interval."""
     parts = []
     for f in factors:
         g = stats.group_cis(obs, [f], RESPONSES)
         g["difficulty"] = 1.0 - g.confidence_mean
+        g["difficulty_low"], g["difficulty_high"] = 1.0 - g.confidence_mean_high, 1.0 - g.confidence_mean_low
         g.insert(0, "factor", f.removeprefix("factor."))
         parts.append(g.rename(columns={f: "level"}))
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
