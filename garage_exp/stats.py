@@ -18,6 +18,7 @@ ALPHA = 0.05
 # CityPersons' visibility bins (Zhang et al., 2017): "reasonable" >= 0.65, "heavy" 0.2-0.65, and the rest.
 VISIBILITY_BINS = (("reasonable (>= 0.65)", 0.65, 1.01), ("heavy (0.2-0.65)", 0.2, 0.65), ("< 0.2", 0.0, 0.2))
 KITTI_ORDER = ("easy", "moderate", "hard", "ignored")
+MIN_SPREAD = 0.3  # the least range of visible fractions a recall curve is fitted over
 
 
 def mean_ci(values, seed: int = 0) -> tuple[float, float, float]:
@@ -136,7 +137,8 @@ def recall_curve(frames: pd.DataFrame, score: str, threshold: float, cluster: st
     y = (d[score] >= threshold).astype(float).to_numpy()
     out = {"frames": float(len(d)), "v50": math.nan, "v50_low": math.nan, "v50_high": math.nan,
            "slope": math.nan}
-    if len(d) < 3 or y.min() == y.max() or d.visible_fraction.nunique() < 2:
+    # A curve needs targets seen over a range of visibility (not only unoccluded ones) and both outcomes.
+    if len(d) < 3 or y.min() == y.max() or np.ptp(d.visible_fraction.to_numpy(dtype=float)) < MIN_SPREAD:
         return out
     x = sm.add_constant(d.visible_fraction.to_numpy(dtype=float))
     groups = pd.factorize(d[cluster])[0]

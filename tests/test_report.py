@@ -192,6 +192,8 @@ def test_recall_curve_recovers_a_known_crossing():
     assert fit["v50_low"] <= 0.4 <= fit["v50_high"] and abs(fit["v50"] - 0.4) < 0.05 and fit["slope"] > 5
     flat = frames.assign(hit=1.0)
     assert math.isnan(stats.recall_curve(flat, "hit", 0.5)["v50"])  # always detected: no crossing
+    seen = frames.assign(visible_fraction=0.9 + 0.1 * frames.visible_fraction)
+    assert math.isnan(stats.recall_curve(seen, "hit", 0.5)["v50"])  # all unoccluded: no curve to fit
 
 
 def test_visibility_bins_per_model_and_level(runs):

@@ -18,7 +18,7 @@ import pandas as pd
 
 from garage_exp import stats, tracking
 from garage_exp.report import plots, visibility
-from garage_exp.report.tables import (breakdown, child_runs, factors_of, main_effects, markdown_table,
+from garage_exp.report.tables import (breakdown, child_runs, factors_of, main_effects, markdown_table, number,
                                       pair_effects, parse_overrides, pivot, significance, summary, units)
 
 __all__ = ["child_runs", "factors_of", "main_effects", "markdown", "pair_effects", "parse_overrides",
@@ -54,10 +54,10 @@ def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs
         if not df.empty:
             text += [f"## {title}\n", markdown_table(pivot(df).reset_index())]
     if bins is not None and not bins.empty:
+        ratio = visibility.miss_rate_ratio(bins)
         text += ["## Detection against visibility (target in view; intervals over trajectories)\n",
                  markdown_table(bins),
-                 f"Miss rate, heavy over reasonable (composite): "
-                 f"{visibility.miss_rate_ratio(bins):.2f}x (CityPersons: 3-4x).\n"]
+                 f"Miss rate, heavy over reasonable (composite): {number(ratio)}x (CityPersons: 3-4x).\n"]
     if curves is not None and not curves.empty:
         text += ["## Visible fraction at which recall crosses 0.5 (logistic fit, 95 % CI)\n",
                  markdown_table(curves.drop(columns="fit"))]
