@@ -57,7 +57,9 @@ def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs
         ratio = visibility.miss_rate_ratio(bins)
         text += ["## Detection against visibility (target in view; intervals over trajectories)\n",
                  markdown_table(bins),
-                 f"Miss rate, heavy over reasonable (composite): {number(ratio)}x (CityPersons: 3-4x).\n"]
+                 f"Miss rate, heavy over reasonable (composite): "
+                 f"{number(ratio) + 'x' if ratio == ratio else '- (needs misses in both bins)'} "
+                 "(CityPersons: 3-4x).\n"]
     if curves is not None and not curves.empty:
         text += ["## Visible fraction at which recall crosses 0.5 (logistic fit, 95 % CI)\n",
                  markdown_table(curves.drop(columns="fit"))]
