@@ -75,12 +75,12 @@ def devkit_corners(hwl, xyz, ry) -> np.ndarray:
     return (rot @ np.array([x, y, z])).T + np.array(xyz)
 
 
-def in_image_bounds(uv: np.ndarray) -> list[float]:
+def in_image_bounds(uv: np.ndarray, width: int = W, height: int = H) -> list[float]:
     """Bounds (x1, y1, x2, y2) of the points' convex hull clipped to the image (Sutherland-Hodgman)."""
     import cv2
 
     poly = [tuple(p) for p in cv2.convexHull(uv.astype(np.float32))[:, 0].astype(float)]
-    for axis, limit, keep_below in ((0, 0.0, False), (0, W, True), (1, 0.0, False), (1, H, True)):
+    for axis, limit, keep_below in ((0, 0.0, False), (0, width, True), (1, 0.0, False), (1, height, True)):
         inside = (lambda p: p[axis] <= limit) if keep_below else (lambda p: p[axis] >= limit)
         out = []
         for a, b in zip(poly, poly[1:] + poly[:1]):
