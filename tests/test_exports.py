@@ -270,3 +270,40 @@ def test_an_actor_without_a_box_gets_kittis_unknown_3d_fields():
     line = kitti.label_line("car", t, None).split()
     assert line[0] == "Car" and line[3] == "-10.0000"
     assert [float(v) for v in line[8:]] == [-1, -1, -1, -1000, -1000, -1000, -10]
+
+
+def test_readme_says_the_codes_ids_and_types():
+    from conftest import ROOT
+
+    readme = (ROOT / "README.md").read_text()
+    assert ", ".join(f"{c['name']} {c['id']}" for c in coco.CATEGORIES) in readme
+    assert "Car for cars and SUVs, Van, Truck for pickups and trucks, Pedestrian, Misc for buses" in readme
+    assert kitti.KITTI_TYPES == {"car": "Car", "suv": "Car", "van": "Van", "pickup": "Truck", "truck": "Truck",
+                                 "bus": "Misc", "person": "Pedestrian"}
+
+
+def test_the_show_command_draws_a_frame_from_its_files(exported, tmp_path, capsys):
+    from garage_exp.exports.__main__ import main
+
+    root, truth, frame, _ = exported
+    out = tmp_path / "check.png"
+    assert main([str(root), "-o", str(out)]) == 0
+    drawn = np.asarray(Image.open(out)).astype(int)
+    red = (np.abs(drawn - [230, 30, 30]).sum(axis=2) < 60)
+    green = (np.abs(drawn - [0, 220, 0]).sum(axis=2) < 60)
+    assert red.sum() > 500 and green.sum() > 500
+    # The 3D box of the walker (whole, in the middle of the frame) is drawn around its 2D box's corners.
+    x1, y1, x2, y2 = next(t for t in truth if t.name == "walker").full_box
+    assert red[max(y1 - 3, 0):y1 + 4, x1 - 3:x2 + 4].any() and red[y2 - 4:y2 + 3, x1 - 3:x2 + 4].any()
+
+
+def test_the_show_command_says_what_is_wrong_in_one_line(exported, tmp_path, capsys):
+    from garage_exp.exports.__main__ import main
+
+    assert main([str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip().count("\n") == 0
+    root = exported[0]
+    (root / "kitti" / "label_2" / "000000.txt").write_text("Car 0.0 0\n")
+    assert main([str(root), "-o", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "label_2/000000.txt:1" in err and "\n" not in err and not (tmp_path / "x.png").exists()
