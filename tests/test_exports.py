@@ -307,3 +307,12 @@ def test_the_show_command_says_what_is_wrong_in_one_line(exported, tmp_path, cap
     assert main([str(root), "-o", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err.strip()
     assert "label_2/000000.txt:1" in err and "\n" not in err and not (tmp_path / "x.png").exists()
+
+
+def test_the_show_command_names_a_missing_kitti_file(exported, tmp_path, capsys):
+    from garage_exp.exports.__main__ import main
+
+    root = exported[0]
+    (root / "kitti" / "calib" / "000000.txt").unlink()
+    assert main([str(root), "-o", str(tmp_path / "x.png")]) == 2
+    assert capsys.readouterr().err.strip().endswith("calib/000000.txt: missing")

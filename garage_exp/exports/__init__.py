@@ -49,12 +49,8 @@ class DatasetExports:
         for t in results.labelled(truth):
             kind = "person" if t.kind == "person" else results.vehicle_kind(scene, t.name)
             objects.append((results.coco_class(scene, t), kind, t))
-            try:
-                entity = scene.entity(t.name)
-            except KeyError:
-                box = None
-            else:
-                box = kitti.box3d(entity, geometry.poses.get(t.name, entity.pose), geometry.cam_to_world)
+            entity = scene.entity(t.name)  # ground truth exists only for the scene's actors
+            box = kitti.box3d(entity, geometry.poses.get(t.name, entity.pose), geometry.cam_to_world)
             lines.append(kitti.label_line(kind, t, box))
         h, w = rgb.shape[:2]
         self.coco.add(image.name, w, h, camera, objects)

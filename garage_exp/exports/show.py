@@ -57,7 +57,10 @@ def draw(root: Path, image_name: str | None = None) -> tuple[np.ndarray, str]:
     name = image_name or next(iter(images), None)
     if name not in images:
         raise GarageError(f"no image {name!r} in it", str(coco_path))
-    rgb = cv2.cvtColor(cv2.imread(str(root / "images" / name)), cv2.COLOR_BGR2RGB)
+    picture = cv2.imread(str(root / "images" / name))
+    if picture is None:
+        raise GarageError("missing or unreadable", str(root / "images" / name))
+    rgb = cv2.cvtColor(picture, cv2.COLOR_BGR2RGB)
     for ann in gt.loadAnns(gt.getAnnIds(imgIds=[images[name]["id"]])):
         x, y, w, h = map(int, ann["bbox"])
         cv2.rectangle(rgb, (x, y), (x + w - 1, y + h - 1), (0, 220, 0), 2)
@@ -65,12 +68,15 @@ def draw(root: Path, image_name: str | None = None) -> tuple[np.ndarray, str]:
         cv2.rectangle(rgb, (vx, vy), (vx + vw - 1, vy + vh - 1), (240, 220, 0), 1)
         text = f"{gt.loadCats(ann['category_id'])[0]['name']} vis {ann['attributes']['visible_fraction']:.2f}"
         cv2.putText(rgb, text, (x + 2, max(10, y - 4)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 0), 1, cv2.LINE_AA)
-    with open(root / "kitti" / "frames.csv") as fh:
-        ids = {row["image"]: row["kitti_id"] for row in csv.DictReader(fh)}
+    frames = root / "kitti" / "frames.csv"
+    with open(_existing(frames)) as fh:
+        ids = {row.get("image"): row.get("kitti_id") for row in csv.DictReader(fh)}
+    if Path(name).stem not in ids:
+        raise GarageError(f"no KITTI frame for {name!r}", str(frames))
     frame_id = ids[Path(name).stem]
-    p2 = read_p2(root / "kitti" / "calib" / f"{frame_id}.txt")
+    p2 = read_p2(_existing(root / "kitti" / "calib" / f"{frame_id}.txt"))
     size = (rgb.shape[1], rgb.shape[0])
-    for _, _, box in read_label(root / "kitti" / "label_2" / f"{frame_id}.txt"):
+    for _, _, box in read_label(_existing(root / "kitti" / "label_2" / f"{frame_id}.txt")):
         if box is None:
             continue
         corners = kitti.corners(box)
@@ -94,3 +100,9 @@ def _in_front(a: np.ndarray, b: np.ndarray, near: float = 0.1):
         cut = a + t * (b - a)
         return (cut, b) if a[2] < near else (a, cut)
     return a, b
+
+
+def _existing(path: Path) -> Path:
+    if not path.is_file():
+        raise GarageError("missing", str(path))
+    return path
