@@ -110,8 +110,8 @@ def label_line(kind: str, truth: VehicleTruth, box: Box3D | None) -> str:
 
 
 def calib_text(p2: np.ndarray) -> str:
-    """A KITTI object calib file. One camera: P0-P3 are all P2. Tr_velo_to_cam maps a lidar-style frame at the
-    camera (x forward, y left, z up, level) to the label frame, so lidar-based tools read the boxes as well."""
+    """A KITTI object calib file. One camera: P0-P3 are all P2. There is no lidar: Tr_velo_to_cam maps a level
+    frame at the camera with a lidar's axes (x forward, y left, z up) to the label frame, for tools that read it."""
     velo = np.hstack([TO_KITTI, np.zeros((3, 1))])
     rows = [(f"P{k}", p2) for k in range(4)] + [("R0_rect", np.eye(3)), ("Tr_velo_to_cam", velo),
                                                 ("Tr_imu_to_velo", np.hstack([np.eye(3), np.zeros((3, 1))]))]
