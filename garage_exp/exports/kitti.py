@@ -8,8 +8,9 @@ no pitch) and P2 carries the pitch, P2 = K [R | 0]. With the default front camer
 P2 = [K | 0], as in KITTI.
 
 The 2D box is the actor's full (amodal) box within the image, as in the YOLO and COCO files: a projected 3D box
-bounds the actor's silhouette, so its corners land on or just outside that box (beyond it where the actor is
-cut by the image edge).
+bounds the actor's silhouette, so its corners land on or outside that box: a few pixels for whole actors at a
+distance, tens of pixels where the box reaches the floor under a close car's overhang or the actor is cut by the
+image edge (README, Dataset exports).
 """
 
 from __future__ import annotations
