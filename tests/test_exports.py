@@ -243,6 +243,11 @@ def test_kitti_frame_conventions():
     assert right.location == pytest.approx((2.0, 1.55, 10.0)) and right.rotation_y == pytest.approx(0.0, abs=1e-9)
     facing = kitti.box3d(actor("f", Pose()), Pose(10.3, 0.0, 0.0, 180.0), cam)
     assert facing.rotation_y == pytest.approx(math.pi / 2)
+    # A camera looking straight down keeps its heading: the car below, nose along the camera's yaw, has ry -pi/2.
+    down = camera_to_world(Pose(0.0, 0.0, 0.0, 30.0), CameraSpec("down", Pose(0.0, 0.0, 3.0), pitch=90.0))
+    below = kitti.box3d(actor("b", Pose()), Pose(0.0, 0.0, 0.0, 30.0), down)
+    assert below.location == pytest.approx((0.0, 3.0, 0.0), abs=1e-9)
+    assert below.rotation_y == pytest.approx(-math.pi / 2)
     # A level camera's P2 is [K | 0], as KITTI's.
     fx, fy, cx, cy = intrinsics_of(FRONT)
     assert kitti.projection(cam, (fx, fy, cx, cy)) == pytest.approx(

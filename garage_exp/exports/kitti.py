@@ -51,9 +51,10 @@ class Box3D:
 
 
 def level_rotation(cam_to_world: np.ndarray) -> np.ndarray:
-    """World axes -> the camera's level frame (SAPIEN axes): its yaw only."""
-    forward = cam_to_world[:3, 0]
-    yaw = math.atan2(forward[1], forward[0])
+    """World axes -> the camera's level frame (SAPIEN axes): its yaw only. Read from the camera's left axis, which
+    pitch leaves level (its forward axis has no heading when it looks straight down)."""
+    left = cam_to_world[:3, 1]
+    yaw = math.atan2(-left[0], left[1])
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
 
