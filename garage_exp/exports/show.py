@@ -3,7 +3,9 @@ KITTI 3D boxes projected with the frame's calib P2. A check that the exports sit
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +54,8 @@ def draw(root: Path, image_name: str | None = None) -> tuple[np.ndarray, str]:
     coco_path = root / "coco.json"
     if not coco_path.is_file():
         raise GarageError("no coco.json: not a dataset written with dataset=true", str(root))
-    gt = COCO(str(coco_path))
+    with contextlib.redirect_stdout(io.StringIO()):  # pycocotools reports its loading on stdout
+        gt = COCO(str(coco_path))
     images = {img["file_name"]: img for img in gt.dataset["images"]}
     name = image_name or next(iter(images), None)
     if name not in images:
