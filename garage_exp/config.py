@@ -242,7 +242,7 @@ class Config:
     replicates: int = 1  # each cell run this many times with seeded nuisance variation (`replicate` node)
     replicate: ReplicateConf = field(default_factory=ReplicateConf)
     blank: bool = False  # the blank control: only the vehicles, background removed
-    dataset: bool = False  # also write frames with YOLO-format labels
+    dataset: bool = False  # also write frames with YOLO, COCO and KITTI labels (garage_exp/exports)
     resume: bool = False
     dry_run: bool = False  # plan + map + MLflow only: no rendering or detection
 
