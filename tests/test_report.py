@@ -194,6 +194,7 @@ def test_recall_curve_recovers_a_known_crossing():
     assert math.isnan(stats.recall_curve(flat, "hit", 0.5)["v50"])  # always detected: no crossing
     seen = frames.assign(visible_fraction=0.9 + 0.1 * frames.visible_fraction)
     assert math.isnan(stats.recall_curve(seen, "hit", 0.5)["v50"])  # all unoccluded: no curve to fit
+    assert vis.reading(0.4) == "" and "below 0.5" in vis.reading(1.06) and "no fit" in vis.reading(math.nan)
 
 
 def test_visibility_bins_per_model_and_level(runs):

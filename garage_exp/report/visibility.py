@@ -83,8 +83,19 @@ def curves(frames: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
         fit = stats.recall_curve(f.assign(score_hit=(f[score] >= f.threshold).astype(float)), "score_hit", 0.5)
         rows.append({"model": score.removeprefix("conf_"), "frames": int(fit["frames"]), "v50": fit["v50"],
                      "v50_low": fit["v50_low"], "v50_high": fit["v50_high"], "slope": fit["slope"],
-                     "fit": fit.get("fit")})
+                     "reading": reading(fit["v50"]), "fit": fit.get("fit")})
     return pd.DataFrame(rows)
+
+
+def reading(v50: float) -> str:
+    """What a crossing outside 0..1 means: the fit extrapolates past what a visible fraction can be."""
+    if v50 != v50:
+        return "no fit (one outcome, or too little spread of visibility)"
+    if v50 > 1:
+        return "recall stays below 0.5 even fully visible"
+    if v50 < 0:
+        return "recall is above 0.5 even fully hidden"
+    return ""
 
 
 def miss_rate_ratio(bins: pd.DataFrame, model: str = "composite") -> float:
