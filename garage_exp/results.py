@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from garage_exp import stats
+
 COCO_IDS = {"person": 0, "car": 2, "bus": 5, "truck": 7}
 PERSON_CLASSES = ("person",)
 KIND_TO_COCO = {"car": "car", "suv": "car", "pickup": "truck", "van": "truck", "bus": "bus", "truck": "truck"}
@@ -54,6 +56,10 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
         "frames": float(len(t)),
     }
     out["difficulty"] = 1.0 - out["confidence_mean"]
+    if "replicate" in t and t.replicate.nunique() > 1:  # the interval over replicates, as the report gives it
+        per = t.groupby("replicate").composite.mean()
+        _, out["confidence_mean_low"], out["confidence_mean_high"] = stats.mean_ci(per)
+        out["replicates"] = float(len(per))
     # Breakdowns the sweep report tabulates: per label (a colour, a case-3 placement), per model, per camera.
     for label, group in t.groupby("label", sort=False):
         out[f"label.{_metric_key(label)}"] = float(group.composite.mean())

@@ -117,3 +117,15 @@ def test_a_replicated_job_renders_replicate_zero_as_before(tmp_path, mlflow_uri)
     one = table[table.replicate == 1]
     assert list(one.target) == [f"{t}_r1" for t in zero.target] and list(one.position) == list(zero.position)
     assert (one.visible_fraction > 0.9).all() and (one.composite > 0).any()
+
+
+def test_a_replicated_jobs_summary_carries_its_interval_over_replicates():
+    from garage_exp.results import summarise
+
+    rows = [{"camera": "front", "replicate": k, "label": "black", "composite": c, "visible_fraction": 1.0,
+             "false_positives": 0} for k, c in enumerate([0.2, 0.4, 0.6, 0.8]) for _ in range(3)]
+    out = summarise(pd.DataFrame(rows), 0.5, "front")
+    assert out["confidence_mean"] == pytest.approx(0.5) and out["replicates"] == 4
+    assert 0.2 <= out["confidence_mean_low"] < 0.5 < out["confidence_mean_high"] <= 0.8
+    single = summarise(pd.DataFrame(rows).assign(replicate=0), 0.5, "front")
+    assert "confidence_mean_low" not in single
