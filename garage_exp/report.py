@@ -193,20 +193,21 @@ def sweep_report(mlc, parent_run_id: str, out_dir: str | Path | None = None, res
         runs.to_csv(out / "runs.csv", index=False)
         effects.to_csv(out / "main_effects.csv", index=False)
         pairs.to_csv(out / "pair_effects.csv", index=False)
-        heatmaps(finished, factors, out / "heatmap.png")
+        figure = heatmaps(finished, factors, out / "heatmap.png")
         tables = {"Per label: mean composite confidence (colour, placement)": breakdown(finished, factors, "label."),
                   "Per model: mean confidence": breakdown(finished, factors, "model."),
                   "Per target kind (vehicle, person): mean composite confidence": breakdown(finished, factors,
                                                                                            "kind.")}
         tables["Per label: mean composite confidence (colour, placement)"].to_csv(out / "labels.csv")
         tables["Per model: mean confidence"].to_csv(out / "models.csv")
-        (out / "report.md").write_text(markdown(runs, effects, pairs, tables))
+        figures = f"\n## Figures\n\n![Mean composite confidence per pair of factors]({figure.name})\n" if figure else ""
+        (out / "report.md").write_text(markdown(runs, effects, pairs, tables) + figures)
         for _, row in effects.iterrows():
             key = f"effect.{row.factor}.{row.level}".replace("/", "_")
             tracking.retry(lambda k=key, v=row.confidence_mean: mlc.log_metric(parent_run_id, k, float(v)))
         tracking.retry(lambda: mlc.log_metric(parent_run_id, "runs_failed", float((runs.status != "FINISHED").sum())))
         tracking.retry(lambda: mlc.log_metric(parent_run_id, "runs_skipped", float(runs.skipped.sum())))
-    tracking.retry(lambda: mlc.log_artifacts(parent_run_id, str(out), "report"))
+    tracking.log_report(mlc, parent_run_id, out)
     return out / "report.md"
 
 
