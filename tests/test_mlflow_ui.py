@@ -79,7 +79,7 @@ def ui(tmp_path_factory):
     finally:
         os.killpg(proc.pid, signal.SIGTERM)  # the server and its worker: its own process group
         try:
-            proc.wait(timeout=15)
+            proc.wait(timeout=3)  # uvicorn waits for idle connections to close; a temp store has nothing to save
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
