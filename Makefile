@@ -15,6 +15,7 @@ setup: system python data
 
 system:
 	@bash scripts/setup_vulkan.sh
+	@bash scripts/setup_browser.sh
 
 python: $(STAMP)
 
@@ -30,7 +31,7 @@ data: python
 
 run: setup
 	$(BIN)/python -m garage_exp $(RUN_ARGS)
-	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open http://127.0.0.1:5000"
+	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open the link it prints"
 
 # GARAGE_EXP_PROVISIONED: setup provided Vulkan, vehicles and weights, so a render/detect/slow skip is an error.
 test: setup
@@ -48,6 +49,7 @@ mutation: python
 	$(BIN)/python scripts/mutation_score.py $(MUTANTS) | tee mutants/score.txt
 
 ui: python
+	@$(BIN)/python -m garage_exp.tracking --uri sqlite:///$(CURDIR)/outputs/mlflow.db
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
 
 map: python

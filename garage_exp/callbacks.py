@@ -114,6 +114,7 @@ class MlflowSweepCallback(Callback):
     def __init__(self) -> None:
         self.parent_run_id: str | None = None
         self.uri: str | None = None
+        self.experiment_id: str | None = None
         self.jobs: int | None = None
         self.failures = 0
         self.ended = False
@@ -128,7 +129,7 @@ class MlflowSweepCallback(Callback):
         self.jobs = len(jobs) if jobs is not None else None
         self.uri = config.tracking.uri
         mlc = tracking.client(self.uri)
-        exp_id = tracking.experiment_id(mlc, config.tracking.experiment)
+        exp_id = self.experiment_id = tracking.experiment_id(mlc, config.tracking.experiment)
         task = list(config.hydra.overrides.task)
         overrides = " ".join(task)
         key = tracking.sweep_key(task)
@@ -145,7 +146,7 @@ class MlflowSweepCallback(Callback):
                 tracking.retry(lambda k=k, v=v: mlc.set_tag(self.parent_run_id, k, v))
             print(f"garage_exp: resuming sweep {self.parent_run_id} ({overrides})")
         else:
-            tags[MLFLOW_RUN_NAME] = f"sweep {overrides}".strip()
+            tags[MLFLOW_RUN_NAME] = f"sweep {tracking.run_name(task)}".strip()
             run = tracking.retry(lambda: mlc.create_run(exp_id, tags=tags))
             self.parent_run_id = run.info.run_id
         tracking.write_parent(config.hydra.sweep.dir, self.parent_run_id)
@@ -169,11 +170,18 @@ class MlflowSweepCallback(Callback):
             report_error = exc
         runs = child_runs(mlc, self.parent_run_id, resumed)
         text, self.failures = summary(runs, self.jobs)
-        print(text + (f"\n  report: {report_path}" if report_path else ""))
+        report_line = [f"  report: {report_path}"] if report_path else []
+        print("\n".join([text, *report_line, ui_hint(self.uri, self.experiment_id)]))
         status = "FAILED" if self.failures or report_error else "FINISHED"
         tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "jobs_failed", str(self.failures)))
         tracking.retry(lambda: mlc.set_terminated(self.parent_run_id, status))
         self.ended = True
+
+
+def ui_hint(uri: str | None, experiment_id: str) -> str:
+    """Where the sweep is in the MLflow UI, and how to serve a local store's UI."""
+    serve = tracking.ui_command(uri)
+    return f"  MLflow UI: {tracking.ui_link(uri, experiment_id)}" + (f" (after: {serve})" if serve else "")
 
 
 def close_dead_children(mlc, parent_run_id: str) -> None:

@@ -18,9 +18,26 @@ from garage_exp.paths import OUTPUTS_DIR
 from garage_exp.preflight import preflight
 
 
+def name_levels(cfg: DictConfig, plan_name: str) -> None:
+    """Make every `name` in the config say what runs, before it is logged: `plan.name` is the name of the plan
+    file actually loaded (with `plan.file=big.yaml` the group's default name `research` would stay), and a
+    group level's name is the level composed (a user's `conf/light/night.yaml` without `name:`, or copied from
+    bright.yaml, would log `light.name=bright`). A `GROUP.name=...` given on the command line is kept (not
+    `plan.name`: with `plan.file` it is not what ran)."""
+    hc = HydraConfig.get()
+    given = {o.split("=", 1)[0].lstrip("+~") for o in hc.overrides.task}
+    cfg.plan.name = plan_name
+    for group, level in hc.runtime.choices.items():
+        if group == "plan" or "/" in group or level is None or f"{group}.name" in given:
+            continue
+        node = OmegaConf.select(cfg, group, default=None)
+        if isinstance(node, DictConfig) and "name" in node:
+            node.name = str(level)
+
+
 def run_name(cfg: DictConfig) -> str:
-    overrides = HydraConfig.get().overrides.task
-    return " ".join(overrides) if overrides else f"case={cfg.case.name} light={cfg.light.name}"
+    return (tracking.run_name(HydraConfig.get().overrides.task)
+            or f"plan={cfg.plan.name} case={cfg.case.name} light={cfg.light.name}")
 
 
 def _remove_untouched(out: Path) -> None:
@@ -47,6 +64,7 @@ def run_job(cfg: DictConfig) -> float:
     except GarageError:
         _remove_untouched(out)
         raise
+    name_levels(cfg, classified.plan.name)
     digest = tracking.config_hash(cfg, tracking.file_digest(plan_path))
     if cfg.resume:
         done = tracking.finished_run(cfg, digest)
@@ -84,4 +102,6 @@ def run_job(cfg: DictConfig) -> float:
             run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
         raise
     run.end("FINISHED")
+    if not multirun:  # a sweep prints its own link, to all its runs
+        print(f"garage_exp: MLflow UI: {tracking.ui_link(cfg.tracking.uri, run.experiment_id, run.run_id)}")
     return difficulty

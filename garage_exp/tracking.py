@@ -66,14 +66,48 @@ def artifact_location(uri: str | None, name: str) -> str | None:
     return str(db.parent / "mlartifacts" / (re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "experiment"))
 
 
+# MLflow 3 opens an experiment without this tag in its GenAI view (traces, "evaluation runs"); ours are classic
+# model experiments: runs with params, metrics and artifacts. The UI's own switch sets the same tag.
+EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
+# What decides the view of a link whatever the tag or the browser's last choice (kept in its local storage).
+UI_VIEW = "workflowType=machine_learning"
+UI_ADDRESS = "http://127.0.0.1:5000"  # where `make ui` serves the project's store
+# A saved view of the runs table (the UI's "Views" menu; a link opens it with viewStateShareKey): the factors
+# and the key metrics as columns, a run name wide enough to read the overrides. Without it the table shows
+# only names, dates and durations.
+VIEW_KEY = "factors"
+VIEW_PARAMS = ("plan.name", "case.name", "light.name", "occluder.name", "sensor.name", "camera.name")
+VIEW_METRICS = ("confidence_mean", "recall", "difficulty")
+
+
+def saved_view() -> tuple[str, str]:
+    """The experiment tag of the saved view: MLflow's envelope {name, createdAt, state}, state a JSON string
+    of the runs table's UI state (column keys as the UI writes them: params.`KEY`, metrics.`KEY`)."""
+    import json
+
+    columns = [f"metrics.`{k}`" for k in VIEW_METRICS] + [f"params.`{k}`" for k in VIEW_PARAMS]
+    # The UI applies widths only to the columns of columnOrder (its own ids: run name, created, duration).
+    order = ["attributes.`Run Name`", "runDateAndNestInfo", "duration", *columns]
+    state = {"selectedColumns": columns, "columnOrder": order, "columnWidths": {"attributes.`Run Name`": 340}}
+    envelope = {"name": "factors and key metrics", "createdAt": int(time.time() * 1000), "state": json.dumps(state)}
+    return f"mlflow.sharedViewState.{VIEW_KEY}", json.dumps(envelope)
+
+
+def experiment_tags() -> dict[str, str]:
+    return dict([EXPERIMENT_KIND, saved_view()])
+
+
 def experiment_id(mlc, name: str) -> str:
     def get_or_create():
         exp = mlc.get_experiment_by_name(name)
         if exp is not None:
+            for key, value in experiment_tags().items():  # an experiment made by an older version lacks them
+                if key not in exp.tags:
+                    mlc.set_experiment_tag(exp.experiment_id, key, value)
             return exp.experiment_id
         try:
             return mlc.create_experiment(name, artifact_location=artifact_location(
-                getattr(mlc, "tracking_uri", None), name))
+                getattr(mlc, "tracking_uri", None), name), tags=experiment_tags())
         except Exception:  # another worker created it first
             exp = mlc.get_experiment_by_name(name)
             if exp is None:
@@ -81,6 +115,26 @@ def experiment_id(mlc, name: str) -> str:
             return exp.experiment_id
 
     return retry(get_or_create)
+
+
+def ui_link(uri: str | None, experiment: str, run_id: str | None = None, view: bool = True) -> str:
+    """The MLflow UI's page of an experiment (in the runs view, with the saved view when `view`) or of one of
+    its runs. A tracking server serves its own UI; a local store is served by `make ui` or `ui_command`."""
+    uri = tracking_uri(uri)
+    base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else UI_ADDRESS
+    if run_id:
+        return f"{base}/#/experiments/{experiment}/runs/{run_id}?{UI_VIEW}"
+    return f"{base}/#/experiments/{experiment}/runs?{UI_VIEW}" + (f"&viewStateShareKey={VIEW_KEY}" if view else "")
+
+
+def ui_command(uri: str | None) -> str | None:
+    """The command that serves a local store's UI at UI_ADDRESS (None for a tracking server: it has its UI)."""
+    uri = tracking_uri(uri)
+    if uri.startswith(("http://", "https://")):
+        return None
+    if uri == f"sqlite:///{OUTPUTS_DIR / 'mlflow.db'}":
+        return "make ui"
+    return f"mlflow ui --backend-store-uri {uri} --host 127.0.0.1 --port 5000"
 
 
 @functools.lru_cache(maxsize=1)
@@ -135,17 +189,24 @@ def config_hash(cfg: DictConfig, plan_digest: str = "") -> str:
     return hashlib.sha256(json.dumps(container, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def describes_run(override: str) -> bool:
+    """Whether an override changes what runs: `resume` and `tracking.*` (where it is logged) do not."""
+    key = override.split("=", 1)[0].lstrip("+~")
+    return key != "resume" and not key.startswith("tracking.") and key != "tracking"
+
+
+def run_name(task_overrides: list[str]) -> str:
+    """A run's name: the overrides that change what runs (a store's path in every name hides the factors)."""
+    return " ".join(o for o in task_overrides if describes_run(o))
+
+
 def sweep_key(task_overrides: list[str]) -> str:
     """Identity of a sweep: its task overrides, sorted, without `resume` and `tracking.*` (the same sweep
     resumed, or pointed at another store, is the same sweep)."""
     import hashlib
     import json
 
-    def keep(override: str) -> bool:
-        key = override.split("=", 1)[0].lstrip("+~")
-        return key != "resume" and not key.startswith("tracking.") and key != "tracking"
-
-    kept = sorted(o for o in task_overrides if keep(o))
+    kept = sorted(o for o in task_overrides if describes_run(o))
     return hashlib.sha256(json.dumps(kept).encode()).hexdigest()[:16]
 
 
@@ -193,8 +254,8 @@ class JobRun:
     """The MLflow run of one job. Logging goes through the client (no global active run), so a sweep's
     parent run and the jobs of one process never interfere."""
 
-    def __init__(self, mlc, run_id: str):
-        self.mlc, self.run_id = mlc, run_id
+    def __init__(self, mlc, run_id: str, experiment_id: str | None = None):
+        self.mlc, self.run_id, self.experiment_id = mlc, run_id, experiment_id
 
     def log_metric(self, key: str, value: float, step: int = 0) -> None:
         retry(lambda: self.mlc.log_metric(self.run_id, key, float(value), step=step))
@@ -240,11 +301,22 @@ def start_job_run(cfg: DictConfig, run_name: str, tags: dict[str, str], parent_r
     if parent_run_id:
         all_tags[MLFLOW_PARENT_RUN_ID] = parent_run_id
     run = retry(lambda: mlc.create_run(exp_id, run_name=run_name, tags=all_tags))
-    job = JobRun(mlc, run.info.run_id)
+    job = JobRun(mlc, run.info.run_id, exp_id)
     params = [Param(k, v) for k, v in sorted(config_params(cfg).items())]
     for k in range(0, len(params), 100):
         retry(lambda part=params[k:k + 100]: mlc.log_batch(job.run_id, params=part))
     return job
+
+
+def log_report(mlc, run_id: str, folder: str | Path, artifact_path: str = "report") -> None:
+    """Log a report folder (report.md and its figures) with report.html written beside report.md: the page
+    the MLflow UI's artifact preview shows with its figures (it shows neither a markdown file's images nor
+    files an HTML page links to)."""
+    from garage_exp.page import html_page
+
+    if (Path(folder) / "report.md").is_file():
+        html_page(Path(folder) / "report.md")
+    retry(lambda: mlc.log_artifacts(run_id, str(folder), artifact_path))
 
 
 def write_parent(sweep_dir: str | Path, run_id: str) -> None:
@@ -276,3 +348,24 @@ def read_resumed(sweep_dir: str | Path) -> list[str]:
 def clear_resumed(sweep_dir: str | Path) -> None:
     """A sweep starting in a used sweep dir must not count the skips of an earlier one."""
     (Path(sweep_dir) / RESUMED_FILE).unlink(missing_ok=True)
+
+
+def links(uri: str | None = None) -> str:
+    """Where each experiment of a store opens in the UI (`make ui` prints this before it starts the UI)."""
+    mlc = client(uri)
+    exps = [e for e in retry(mlc.search_experiments)  # MLflow's own empty "Default" is noise
+            if e.name != "Default" or retry(lambda e=e: mlc.search_runs([e.experiment_id], max_results=1))]
+    if not exps:
+        return f"garage_exp: no experiment in {tracking_uri(uri)} yet (make run, or python -m garage_exp ...)"
+    lines = [f"garage_exp: the MLflow UI of {tracking_uri(uri)}; each experiment in the runs view:"]
+    lines += [f"  {e.name}: {ui_link(uri, e.experiment_id, view=saved_view()[0] in e.tags)}"
+              for e in sorted(exps, key=lambda e: e.name)]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.tracking", description=links.__doc__)
+    ap.add_argument("--uri", default=None, help="the MLflow store (default: $MLFLOW_TRACKING_URI or outputs/mlflow.db)")
+    print(links(ap.parse_args().uri))

@@ -24,7 +24,9 @@ prepare_offline()
 # three) or under CI=true, such a skip is an error carrying the skip's reason: a bug in the asset lookup or the
 # device check then fails the suite instead of silently skipping it. CI is read before prepare_offline() above
 # may set it for openvino's sake.
-NEEDS = {"render": ("vulkan",), "detect": ("models",), "slow": ("vulkan", "vehicles", "models")}
+NEEDS = {"render": ("vulkan",), "detect": ("models",), "slow": ("vulkan", "vehicles", "models"),
+         "browser": ("browser",)}
+CHROMIUM = ("chromium", "chromium-browser")  # Debian's package (scripts/setup_browser.sh), Ubuntu's name
 _have: dict[str, str | None] = {}
 
 
@@ -39,6 +41,8 @@ def missing(capability: str) -> str | None:
                 from garage_exp.render.device import device_problem
 
                 problem = device_problem()
+            elif capability == "browser":
+                problem = browser_problem()
             elif capability == "vehicles":
                 from garage_exp.assets.locate import vehicles_dir
 
@@ -54,8 +58,26 @@ def missing(capability: str) -> str | None:
     return _have[capability]
 
 
+def chromium() -> str | None:
+    import shutil
+
+    return next((path for name in CHROMIUM if (path := shutil.which(name))), None)
+
+
+def browser_problem() -> str | None:
+    """Why Playwright cannot drive a browser here: it drives the system's chromium (its own download cannot
+    work here), so both must be installed."""
+    import importlib.util
+
+    if chromium() is None:
+        return f"no chromium on PATH (looked for {', '.join(CHROMIUM)}; scripts/setup_browser.sh installs it)"
+    if importlib.util.find_spec("playwright") is None:
+        return "the playwright package is not installed (pip install -e '.[test]')"
+    return None
+
+
 def require(*capabilities: str) -> None:
-    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models"; under CI=true or
+    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models", "browser"; under CI=true or
     `make test` (STRICT_CI) fail instead, whatever the test's markers."""
     for capability in capabilities:
         problem = missing(capability)

@@ -86,7 +86,7 @@ def sweep_report(mlc, parent_run_id: str, out_dir: str | Path | None = None, res
         (out / "report.md").write_text("# Sweep report\n\nNo runs.\n")
     else:
         write_report(mlc, parent_run_id, runs, out)
-    tracking.retry(lambda: mlc.log_artifacts(parent_run_id, str(out), "report"))
+    tracking.log_report(mlc, parent_run_id, out)
     return out / "report.md"
 
 
