@@ -219,10 +219,12 @@ def test_the_sweep_report_previews_with_its_figure(ui, page):
     page.frame_locator("iframe").first.locator("h1").wait_for()  # the UI shows an HTML artifact in a frame
     frame = page.locator("iframe").first.element_handle().content_frame()
     assert frame.locator("h1").inner_text() == "Sweep report"
-    figure = frame.locator("img")
-    assert figure.count() == 1
+    names = [a.path.split("/")[-1] for a in ui["mlc"].list_artifacts(parent.info.run_id, "report")
+             if a.path.endswith(".png")]
+    assert frame.locator("img").count() == len(names) >= 3  # main effects, interactions, heat map, ...
+    figure = frame.locator("img[alt='heatmap.png']")
     figure.scroll_into_view_if_needed()
-    frame.wait_for_function("document.querySelector('img').naturalWidth > 0")
+    frame.wait_for_function("[...document.images].every(i => i.complete && i.naturalWidth > 0)")
     from PIL import Image
 
     sweep_dir = Path(parent.data.tags["sweep_dir"])
