@@ -29,8 +29,12 @@ def tracking_uri(uri: str | None = None) -> str:
 def client(uri: str | None = None):
     import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
 
-    mlflow.set_tracking_uri(tracking_uri(uri))
-    return retry(mlflow.MlflowClient)  # the client opens (and may create) the store: a write
+    from garage_exp.store import open_store
+
+    uri = tracking_uri(uri)
+    mlflow.set_tracking_uri(uri)
+    # The client opens (and may create) the store: a write, made once under the store's lock.
+    return open_store(uri, lambda: retry(mlflow.MlflowClient))
 
 
 # sqlite answers "database is locked" (or "database table is locked") when another process holds the write
