@@ -33,7 +33,10 @@ def abandon_sweep(exc: BaseException) -> None:
     status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
     try:
         mlc = tracking.client(sweep.uri)
-        reason = f"sweep interrupted: {type(exc).__name__}: {exc}".strip()
+        from garage_exp.cli_errors import SweepStopped
+
+        reason = f"sweep stopped: {exc}" if isinstance(exc, SweepStopped) else \
+            f"sweep interrupted: {type(exc).__name__}: {exc}".strip()
         tracking.retry(lambda: mlc.set_tag(sweep.parent_run_id, "error", reason[:5000]))
         tracking.retry(lambda: mlc.set_terminated(sweep.parent_run_id, status))
         sweep.ended = True
@@ -65,16 +68,20 @@ def check_sweep(config: DictConfig) -> list[list[str]] | None:
         return None
     from hydra.core.global_hydra import GlobalHydra
 
-    from garage_exp.preflight import preflight
+    from garage_exp.diskspace import check_free
+    from garage_exp.preflight import preflight, store_dir
 
     loader = GlobalHydra.instance().config_loader()
+    needs: list[tuple[int, int]] = []
     for k, job in enumerate(jobs):
         job_cfg = loader.load_sweep_config(config, job)  # Hydra's errors (unknown level, wrong type) raise here
         try:
-            preflight(job_cfg)
+            preflight(job_cfg, needs)
         except GarageError as exc:
             shown = " ".join(o for o in job if not o.lstrip("+~").startswith("tracking."))
             raise GarageError(str(exc), f"sweep job {k} ({shown})") from None
+    check_free([(config.hydra.sweep.dir, sum(n[0] for n in needs)), (store_dir(config), sum(n[1] for n in needs))],
+               f"the sweep ({len(jobs)} jobs)")
     return jobs
 
 

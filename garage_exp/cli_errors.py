@@ -17,6 +17,20 @@ class Terminated(KeyboardInterrupt):
     partial frame table is kept."""
 
 
+class SweepStopped(BaseException):
+    """A fault that every later job would meet too (a full disk, a tracking server that stays away): the job
+    that met it has closed what it could, and the sweep stops here with one line and exit code 1. Not an
+    Exception, so that neither the job's handler nor Hydra's launcher go on to the next job."""
+
+    def __init__(self, what: str, hint: str):
+        super().__init__(what)
+        self.what, self.hint = what, hint
+
+    def line(self, finished: int | None, jobs: int | None) -> str:
+        done = f": {finished} of {jobs} jobs finished" if jobs is not None and finished is not None else ""
+        return f"{self.what}{done}; {self.hint}"
+
+
 def on_sigterm(signum, frame):
     raise Terminated(f"signal {signum} (SIGTERM)")
 

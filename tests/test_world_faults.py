@@ -104,3 +104,214 @@ def test_only_repeated_deaths_fail_the_job(spec, frames, monkeypatch):
         assert not child.alive()
     finally:
         child.close()
+
+
+# --- the sqlite store: two sweeps at once on a fresh one; one left broken -------------------------------------
+
+def sweep_cmd(tmp: Path, name: str, *args: str) -> list[str]:
+    return [PYTHON, "-m", "garage_exp", "-m", *DRY, *args, f"hydra.sweep.dir={tmp}/{name}",
+            f"hydra.run.dir={tmp}/{name}_run"]
+
+
+def store_runs(uri: str):
+    mlc = tracking.client(uri)
+    exp = mlc.get_experiment_by_name("garage_exp")
+    return [] if exp is None else mlc.search_runs([exp.experiment_id], max_results=1000)
+
+
+def test_sweeps_started_together_on_a_fresh_store_all_finish(tmp_path):
+    """Three sweeps started at once on a store that does not exist yet (the first use, or the first after
+    `make clean`): one creates MLflow's schema under the store's lock, the others wait for it. Without the
+    lock two of three such processes crashed ("table _alembic_tmp_experiments already exists", "duplicate
+    column name", "Online migration expected to match one row") and left the store broken."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    lights = ["bright", "dim", "clear"]
+    procs = [subprocess.Popen(sweep_cmd(tmp_path, f"s{k}", f"light={light}", f"tracking.uri={uri}"), cwd=tmp_path,
+                              env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for k, light in enumerate(lights)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    for p, (out, err) in zip(procs, outs):
+        assert p.returncode == 0 and "Traceback" not in err, err[-3000:]
+    runs = store_runs(uri)  # a later client opens the store as `make ui` would
+    parents = [r for r in runs if r.data.tags.get("sweep") == "parent"]
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId")]
+    assert len(parents) == 3 and len(children) == 3
+    assert {r.info.status for r in runs} == {"FINISHED"}
+    assert sorted(r.data.params["light.name"] for r in children) == sorted(lights)
+
+
+def break_store(path: Path) -> None:
+    """What an interrupted schema creation leaves: every table, but no recorded schema version, and
+    alembic's half-done copy of a table."""
+    with sqlite3.connect(path) as con:
+        con.execute("delete from alembic_version")
+        con.execute("create table _alembic_tmp_experiments (experiment_id integer)")
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("store") / "template.db"
+    tracking.client(f"sqlite:///{path}")
+    return path
+
+
+def test_a_broken_store_is_one_line_naming_it_and_the_way_back(tmp_path, template):
+    import hashlib
+    import shutil
+
+    db = tmp_path / "mlflow.db"
+    shutil.copy(template, db)
+    break_store(db)
+    before = hashlib.sha256(db.read_bytes()).hexdigest()
+    uri = f"sqlite:///{db}"
+    proc = run_app(["-m", *DRY, f"tracking.uri={uri}"], tmp_path)
+    line = one_line_error(proc.stderr)
+    assert proc.returncode == 2
+    assert line.startswith(f"garage_exp: {db}: broken MLflow store (schema found version None, but expected ")
+    assert line.endswith(f"it holds no runs: delete it (rm {db}) and rerun (a store is created under a lock now, "
+                         "so concurrent sweeps cannot break it again)")
+    assert hashlib.sha256(db.read_bytes()).hexdigest() == before  # nothing written into it
+    assert not (tmp_path / "sweep").exists()
+    db.unlink()  # as the line says
+    again = run_app(["-m", *DRY, f"tracking.uri={uri}"], tmp_path)
+    assert again.returncode == 0, again.stderr[-3000:]
+
+
+def test_store_diagnosis_of_the_races_errors_and_of_a_store_with_runs(tmp_path, template):
+    import shutil
+
+    from garage_exp.store import diagnose, open_store
+
+    empty = tmp_path / "empty.db"
+    shutil.copy(template, empty)
+    for message in ("(sqlite3.OperationalError) table _alembic_tmp_experiments already exists",
+                    "Online migration expected to match one row when updating '867495a8f9d4' to '5b0e9adcef9c' in "
+                    "'alembic_version'; 0 found", "(sqlite3.OperationalError) duplicate column name: step"):
+        line = diagnose(empty, RuntimeError(message + "\n[SQL: ALTER TABLE ...]"))
+        assert line.startswith("broken MLflow store (") and "delete it (rm " in line and "\n" not in line
+    assert diagnose(empty, RuntimeError("database is locked")) is None  # not a broken store: retried elsewhere
+    used = tmp_path / "used.db"
+    shutil.copy(template, used)
+    mlc = tracking.client(f"sqlite:///{used}")
+    mlc.create_run(tracking.experiment_id(mlc, "garage_exp"))
+    break_store(used)
+
+    def fail():
+        raise RuntimeError("Detected out-of-date database schema (found version None, but expected x). Take ...")
+
+    with pytest.raises(GarageError) as err:
+        open_store(f"sqlite:///{used}?fresh", fail)
+    assert str(err.value) == (f"{used}: MLflow store cannot be opened (schema found version None, but expected x); "
+                              f"it holds 1 runs: back it up (cp {used} {used}.bak), then run "
+                              f"`mlflow db upgrade sqlite:///{used}`")
+    junk = tmp_path / "junk.db"
+    junk.write_bytes(b"not sqlite at all" * 100)
+    with pytest.raises(GarageError, match="not an MLflow sqlite store"):
+        tracking.client(f"sqlite:///{junk}")
+
+
+# --- a full disk ------------------------------------------------------------------------------------------------
+
+@pytest.fixture
+def small_fs(tmp_path):
+    """A 16 MB tmpfs (as root, where mounting works), else a plain directory: the full disk is then faked by a
+    plan-map writer that raises ENOSPC (tests/faults/sitecustomize.py `disk:raise`)."""
+    fs = tmp_path / "fs"
+    fs.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=16m", "tmpfs", str(fs)],
+                             capture_output=True).returncode == 0 if os.geteuid() == 0 else False
+    yield fs, mounted
+    if mounted:
+        subprocess.run(["umount", "-l", str(fs)], check=True)
+
+
+FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
+                         *filter(None, [os.environ.get("PYTHONPATH")])])
+LIGHTS = "light=bright,dim,clear,moderate"
+
+
+def test_a_full_disk_stops_the_sweep_in_one_line_keeping_the_finished_runs(small_fs, template):
+    """Four jobs writing to a small filesystem that job 2 fills: jobs 0 and 1 are kept whole, job 2's run ends
+    FAILED saying the disk is full (the store shares the disk, so job 2's partial files are deleted to make
+    room for that), job 3 does not start, nothing stays RUNNING, one line, exit 1; once there is space,
+    resume=true finishes the sweep."""
+    import shutil
+
+    fs, mounted = small_fs
+    shutil.copy(template, fs / "mlflow.db")
+    uri = f"sqlite:///{fs / 'mlflow.db'}"
+    args = ["-m", *DRY, LIGHTS, f"tracking.uri={uri}", f"hydra.sweep.dir={fs}/sweep"]
+    fault = "disk:fill:2" if mounted else "disk:raise:2"
+    proc = subprocess.run([PYTHON, "-m", "garage_exp", *args], cwd=fs, capture_output=True, text=True, timeout=300,
+                          env=child_env({"PYTHONPATH": FAULTS, "GARAGE_EXP_FAULT": fault}))
+    line = one_line_error(proc.stderr)
+    assert proc.returncode == 1
+    assert line.startswith(f"garage_exp: disk full at {fs}/sweep/2")
+    assert line.endswith(": 2 of 4 jobs finished; free space and rerun with resume=true")
+    assert len([ln for ln in proc.stderr.splitlines() if "disk full" in ln]) == 1
+    runs = store_runs(uri)
+    jobs = {r.data.params["light.name"]: r for r in runs if r.data.tags.get("mlflow.parentRunId")}
+    parent = next(r for r in runs if r.data.tags.get("sweep") == "parent")
+    assert set(jobs) == {"bright", "dim", "clear"}  # moderate never started
+    assert jobs["bright"].info.status == jobs["dim"].info.status == "FINISHED"
+    assert jobs["clear"].info.status == "FAILED" and jobs["clear"].data.tags["error"].startswith("disk full at")
+    assert parent.info.status == "FAILED" and "disk full" in parent.data.tags["error"]
+    for k in (0, 1):  # the finished jobs' files and their artifacts are whole
+        assert (fs / "sweep" / str(k) / "plan_map.png").stat().st_size > 10_000
+    for name in ("bright", "dim"):
+        arts = {a.path for a in tracking.client(uri).list_artifacts(jobs[name].info.run_id)}
+        assert arts == {"config.yaml", "plan_map.png"}
+    if mounted:  # the store shared the full disk: job 2's own files made room to record its failure
+        assert "partial outputs were deleted" in jobs["clear"].data.tags["error"]
+        assert not (fs / "sweep" / "2" / "filler").exists()
+    again = run_app([*args, "resume=true"], fs)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "2 finished, 2 skipped (finished before), 0 failed" in again.stdout
+
+
+def test_preflight_refuses_a_sweep_the_free_space_cannot_hold(small_fs, monkeypatch):
+    from garage_exp import diskspace
+
+    fs, mounted = small_fs
+    if mounted:  # a real filesystem with 1 MB free: four plan-only jobs need about 4 MB with their store
+        with open(fs / "filler", "wb") as fh:
+            fh.write(b"\0" * (15 << 20))
+        proc = run_app(["-m", *DRY, LIGHTS, f"tracking.uri=sqlite:///{fs}/mlflow.db"], fs)
+        line = one_line_error(proc.stderr)
+        assert proc.returncode == 2
+        assert line.startswith(f"garage_exp: {fs}: not enough free disk space: the sweep (4 jobs) will write about ")
+        assert "1.0 MB is free" in line
+        assert sorted(p.name for p in fs.iterdir()) == ["filler", "sweep"] or \
+            sorted(p.name for p in fs.iterdir()) == ["filler"]
+        assert not (fs / "mlflow.db").exists()
+    # The same check with the free space faked, wherever the test runs.
+    monkeypatch.setattr(diskspace.shutil, "disk_usage", lambda path: shutil_usage(free=3 << 20))
+    diskspace.check_free([(fs, 1 << 20), (fs / "store", 1 << 20)], "the sweep (2 jobs)")  # 2 MB fit in 3
+    with pytest.raises(GarageError, match=r"the sweep \(3 jobs\) will write about 4.0 MB on this filesystem and "
+                                          r"3.0 MB is free"):
+        diskspace.check_free([(fs, 3 << 20), (fs / "not" / "yet", 1 << 20)], "the sweep (3 jobs)")
+
+
+def shutil_usage(free: int):
+    import shutil
+
+    return shutil._ntuple_diskusage(16 << 20, (16 << 20) - free, free)
+
+
+def test_a_full_disk_is_recognised_whoever_raised_it():
+    import errno
+
+    from garage_exp.diskspace import full_disk
+
+    assert full_disk(OSError(errno.ENOSPC, "No space left on device", "/x/frames.csv")) == "/x/frames.csv"
+    wrapped = RuntimeError("MlflowException: (sqlite3.OperationalError) database or disk is full")
+    assert full_disk(wrapped) == ""
+    try:
+        try:
+            raise OSError(errno.EDQUOT, "Disk quota exceeded")
+        except OSError as inner:
+            raise ValueError("could not save the figure") from inner
+    except ValueError as outer:
+        assert full_disk(outer) == ""
+    assert full_disk(OSError(errno.EACCES, "Permission denied")) is None
+    assert full_disk(RuntimeError("boom")) is None
