@@ -22,7 +22,7 @@ from garage_exp import callbacks
 from garage_exp import config as schema
 from garage_exp import job
 from garage_exp.cli_errors import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
-                                   on_sigterm)
+                                   on_sigint, on_sigterm)
 from garage_exp.errors import GarageError
 from garage_exp.job import run_job
 from garage_exp.paths import PROJECT_ROOT
@@ -74,6 +74,7 @@ def cli(argv: list[str] | None = None) -> None:
     # logging default); the job reports the full disk once instead.
     logging.raiseExceptions = False
     previous = signal.signal(signal.SIGTERM, on_sigterm)
+    previous_int = signal.signal(signal.SIGINT, on_sigint)
     try:
         main()
     except BaseException as exc:
@@ -93,6 +94,7 @@ def cli(argv: list[str] | None = None) -> None:
         raise
     finally:
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, previous_int)
     sweep = callbacks.current_sweep()
     if sweep is not None and sweep.failures:
         sys.exit(EXIT_FAILED_JOBS)

@@ -40,6 +40,8 @@ def abandon_sweep(exc: BaseException) -> None:
         tracking.retry(lambda: mlc.set_tag(sweep.parent_run_id, "error", reason[:5000]))
         tracking.retry(lambda: mlc.set_terminated(sweep.parent_run_id, status))
         sweep.ended = True
+    except tracking.TrackingAway:  # the parent stays open on the server; resume=true reopens it
+        pass
     except Exception as err:  # never hide the original exception
         log.error("could not close the sweep's parent run: %s", err)
 
@@ -105,6 +107,10 @@ def _fatal(method):
             if line is not None:
                 print(f"garage_exp: {line}", file=sys.stderr)
                 raise SystemExit(EXIT_INPUT) from None
+            if isinstance(exc, tracking.TrackingAway):
+                print(f"garage_exp: {exc}; rerun the same command with resume=true once the server is back",
+                      file=sys.stderr)
+                raise SystemExit(1) from None
             traceback.print_exc()
             print(f"garage_exp: sweep aborted: {method.__name__} failed: {type(exc).__name__}: {exc}",
                   file=sys.stderr)

@@ -31,8 +31,30 @@ class SweepStopped(BaseException):
         return f"{self.what}{done}; {self.hint}"
 
 
+_stopping = False
+
+
+def stopping() -> bool:
+    """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry)."""
+    return _stopping
+
+
+def _stop_now() -> None:
+    global _stopping
+    _stopping = True
+    # A request already on its way to a server that hangs must not hold the exit either.
+    os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] = "3"
+    os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] = "0"
+
+
 def on_sigterm(signum, frame):
+    _stop_now()
     raise Terminated(f"signal {signum} (SIGTERM)")
+
+
+def on_sigint(signum, frame):
+    _stop_now()
+    raise KeyboardInterrupt
 
 
 def input_error(exc: BaseException) -> str | None:

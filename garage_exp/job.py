@@ -83,8 +83,19 @@ def _close_on_full_disk(run, out: Path, where: str) -> None:
     run.end("FAILED")
 
 
+AWAY_HINT = "rerun the same command with resume=true once the server is back"
+
+
 def run_job(cfg: DictConfig) -> float:
-    """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job."""
+    """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job. A
+    tracking server that stays away stops the sweep (every later job would wait for it too)."""
+    try:
+        return _run_job(cfg)
+    except tracking.TrackingAway as exc:
+        raise SweepStopped(str(exc), AWAY_HINT) from None
+
+
+def _run_job(cfg: DictConfig) -> float:
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)
     multirun = hc.mode == RunMode.MULTIRUN
@@ -102,10 +113,18 @@ def run_job(cfg: DictConfig) -> float:
                 tracking.add_resumed(hc.sweep.dir, done)  # the sweep report counts it
             _count_finished()
             return math.nan
+        kept = tracking.kept_run(cfg, digest)
+        if kept:  # finished while the tracking server was away: log what it kept, do not render again
+            tracking.replay_pending(cfg, *kept)
+            print(f"garage_exp: logged {run_name(cfg)!r} from the outputs kept in {kept[1].parent} (run {kept[0]}); "
+                  "not rendered again")
+            _count_finished()
+            return math.nan
     parent = tracking.read_parent(hc.sweep.dir) if multirun else None
     tags = {"plan": classified.plan.name, "overrides": " ".join(hc.overrides.task), "case": str(cfg.case.name),
             "output_dir": str(out), "config_hash": digest, "host": os.uname().nodename, "pid": str(os.getpid())}
     run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
+    run.pending = out / tracking.PENDING_FILE  # calls the tracking server cannot take wait there
     try:
         from garage_exp.plan.draw import draw_map  # matplotlib: not before the input is known to be good
 
@@ -136,5 +155,8 @@ def run_job(cfg: DictConfig) -> float:
             run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
         raise
     run.end("FINISHED")
+    if run.kept:
+        raise SweepStopped(f"tracking server {tracking.tracking_uri(cfg.tracking.uri)} away: job {run_name(cfg)!r} "
+                           f"finished, its outputs kept in {out}", AWAY_HINT + " (it logs them without rendering again)")
     _count_finished()
     return difficulty

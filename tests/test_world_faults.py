@@ -315,3 +315,129 @@ def test_a_full_disk_is_recognised_whoever_raised_it():
         assert full_disk(outer) == ""
     assert full_disk(OSError(errno.EACCES, "Permission denied")) is None
     assert full_disk(RuntimeError("boom")) is None
+
+
+# --- the tracking server goes away ------------------------------------------------------------------------------
+
+class Server:
+    """`mlflow server` on 127.0.0.1 (sqlite backend, proxied artifacts), stopped and started again on the
+    same port and store."""
+
+    def __init__(self, root: Path):
+        from test_reliability_faults import free_port
+
+        self.root, self.port = root, free_port()
+        self.uri = f"http://127.0.0.1:{self.port}"
+        self.proc = None
+
+    def start(self) -> None:
+        import urllib.request
+
+        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MLFLOW_TRACKING_URI")}
+        log = open(self.root / "server.log", "a")
+        self.proc = subprocess.Popen(
+            [str(Path(PYTHON).with_name("mlflow")), "server", "--host", "127.0.0.1", "--port", str(self.port),
+             "--workers", "1", "--backend-store-uri", f"sqlite:///{self.root}/backend.db",
+             "--artifacts-destination", str(self.root / "artifacts")],
+            stdout=log, stderr=subprocess.STDOUT, env=env, cwd=self.root, start_new_session=True)
+        deadline = time.monotonic() + 180
+        while True:
+            try:
+                with urllib.request.urlopen(f"{self.uri}/health", timeout=2) as r:
+                    if r.status == 200:
+                        return
+            except OSError:
+                pass
+            assert self.proc.poll() is None, (self.root / "server.log").read_text()[-3000:]
+            assert time.monotonic() < deadline, "mlflow server did not come up"
+            time.sleep(0.3)
+
+    def stop(self) -> None:
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        os.killpg(self.proc.pid, signal.SIGCONT)
+        os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(timeout=30)
+
+
+@pytest.fixture
+def server(tmp_path):
+    srv = Server(tmp_path)
+    srv.start()
+    yield srv
+    srv.stop()
+
+
+def start_sweep(tmp: Path, args: list[str], env: dict) -> subprocess.Popen:
+    return subprocess.Popen([PYTHON, "-m", "garage_exp", *args, f"hydra.sweep.dir={tmp}/sweep"], cwd=tmp,
+                            env=child_env({"PYTHONPATH": FAULTS, "GARAGE_EXP_FAULT_GO": str(tmp / "go"), **env}),
+                            stdout=open(tmp / "out.txt", "w"), stderr=open(tmp / "err.txt", "w"),
+                            start_new_session=True)
+
+
+def wait_for_text(path: Path, text: str, proc: subprocess.Popen, timeout: float = 180) -> None:
+    deadline = time.monotonic() + timeout
+    while text not in path.read_text():
+        assert proc.poll() is None, (path.parent / "err.txt").read_text()[-3000:]
+        assert time.monotonic() < deadline, f"timed out waiting for {text!r}"
+        time.sleep(0.2)
+
+
+def test_a_tracking_server_gone_mid_sweep_keeps_the_outputs_and_resume_logs_them(tmp_path, server):
+    """The server dies while job 1 runs: job 1 waits for it (one line), gives up after the wait
+    ($GARAGE_EXP_TRACKING_WAIT, 3 s here), finishes its files, keeps the calls the server missed, and the sweep
+    stops (one line, exit 1). With the server back, resume=true logs job 1 into its own run from the kept
+    files without running it again, and runs job 2."""
+    env = {"MLFLOW_TRACKING_URI": server.uri, "GARAGE_EXP_TRACKING_WAIT": "3", "GARAGE_EXP_FAULT": "map:wait:1"}
+    args = ["-m", *DRY, "light=bright,dim,clear"]
+    proc = start_sweep(tmp_path, args, env)
+    wait_for_text(tmp_path / "out.txt", "FAULT: job 1 waits", proc)
+    server.stop()
+    (tmp_path / "go").touch()
+    assert proc.wait(timeout=120) == 1
+    err = (tmp_path / "err.txt").read_text()
+    line = one_line_error(err)
+    job1 = tmp_path / "sweep" / "1"
+    assert line.startswith(f"garage_exp: tracking server {server.uri} away: job 'dry_run=True plan=tiny light=dim' "
+                           f"finished, its outputs kept in {job1}: 1 of 3 jobs finished; rerun the same command")
+    waiting = [ln for ln in err.splitlines() if "not answering" in ln]
+    assert waiting == [f"garage_exp: tracking server {server.uri} not answering; retrying for up to 3 s "
+                       "(GARAGE_EXP_TRACKING_WAIT)"]
+    assert (job1 / "plan_map.png").is_file() and (job1 / tracking.PENDING_FILE).is_file()
+    drawn = (job1 / "plan_map.png").stat().st_mtime_ns
+    assert not (tmp_path / "sweep" / "2" / "plan_map.png").exists()  # the sweep stopped
+
+    server.start()
+    again = subprocess.run([PYTHON, "-m", "garage_exp", *args, "resume=true", f"hydra.sweep.dir={tmp_path}/sweep"],
+                           cwd=tmp_path, env=child_env({"MLFLOW_TRACKING_URI": server.uri}), capture_output=True,
+                           text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert f"from the outputs kept in {job1} (run " in again.stdout and "not rendered again" in again.stdout
+    assert (job1 / "plan_map.png").stat().st_mtime_ns == drawn  # not drawn again
+    runs = store_runs(server.uri)
+    jobs = {r.data.params["light.name"]: r for r in runs if r.data.tags.get("mlflow.parentRunId")}
+    assert sorted(jobs) == ["bright", "clear", "dim"] and len(runs) == 4  # one parent, no duplicate runs
+    assert {r.info.status for r in runs} == {"FINISHED"}
+    arts = {a.path for a in tracking.client(server.uri).list_artifacts(jobs["dim"].info.run_id)}
+    assert arts == {"config.yaml", "plan_map.png"}
+
+
+def test_sigterm_ends_a_sweep_within_seconds_whatever_the_server_does(tmp_path, server):
+    """The server hangs (SIGSTOP: connections are accepted, nothing answers) while a job logs to it, with a
+    wait of ten minutes allowed: SIGTERM still ends the sweep in seconds, with one line and exit 143."""
+    env = {"MLFLOW_TRACKING_URI": server.uri, "GARAGE_EXP_TRACKING_WAIT": "600", "GARAGE_EXP_FAULT": "map:wait:0"}
+    proc = start_sweep(tmp_path, ["-m", *DRY, "light=bright,dim"], env)
+    wait_for_text(tmp_path / "out.txt", "FAULT: job 0 waits", proc)
+    os.killpg(server.proc.pid, signal.SIGSTOP)
+    (tmp_path / "go").touch()
+    time.sleep(3)  # the job is now blocked in a request to the hung server
+    assert proc.poll() is None
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    code = proc.wait(timeout=60)
+    took = time.monotonic() - sent
+    line = one_line_error((tmp_path / "err.txt").read_text())
+    assert code == 143
+    assert line == "garage_exp: terminated (SIGTERM); rerun the same command with resume=true to finish the sweep"
+    assert took < 10, took
+    assert (tmp_path / "sweep" / "0" / "plan_map.png").is_file()  # the job's files are kept

@@ -4,6 +4,7 @@ does nothing unless $GARAGE_EXP_FAULT is set, to one of:
     map:raise:JOB         job JOB (hydra.job.num) raises RuntimeError while drawing its plan map (after its
                           MLflow run started; works with dry_run=true)
     map:hang:JOB          job JOB sleeps there until it is killed (a sweep to kill -9 half-way)
+    map:wait:JOB          job JOB waits there until the file $GARAGE_EXP_FAULT_GO exists (the test acts meanwhile)
     frame:raise:JOB:N     job JOB raises RuntimeError on its frame N+1 (N frames done: a partial frame table)
     disk:fill:JOB         job JOB fills the filesystem of its output dir (a file `filler` in that dir, written
                           until the kernel says ENOSPC), then draws its plan map there: a real full disk
@@ -45,6 +46,13 @@ def _install(spec: str) -> None:
 
                     print(f"FAULT: job {job} hangs", flush=True)
                     time.sleep(3600)
+                if action == "wait":
+                    import time
+
+                    print(f"FAULT: job {job} waits", flush=True)
+                    while not os.path.exists(os.environ["GARAGE_EXP_FAULT_GO"]):
+                        time.sleep(0.1)
+                    return real(classified, path, *args, **kwargs)
                 raise RuntimeError(f"injected fault in job {job}")
             return real(classified, path, *args, **kwargs)
 
