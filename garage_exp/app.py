@@ -81,7 +81,8 @@ def cli(argv: list[str] | None = None) -> None:
         callbacks.abandon_sweep(exc)  # the parent run of an interrupted sweep must not stay RUNNING
         if isinstance(exc, SweepStopped):  # a full disk, a tracking server away: the job said what it kept
             sweep = callbacks.current_sweep()
-            print(f"garage_exp: {exc.line(job.finished_jobs, sweep.jobs if sweep else None)}", file=sys.stderr)
+            jobs = sweep.jobs if sweep is not None and sweep.in_process else None
+            print(f"garage_exp: {exc.line(job.finished_jobs, jobs)}", file=sys.stderr)
             sys.exit(EXIT_FAILED_JOBS)
         if isinstance(exc, KeyboardInterrupt):  # the job's run already ended KILLED, its partial table kept
             terminated = isinstance(exc, Terminated)

@@ -14,6 +14,7 @@ from garage_exp.errors import GarageError
 
 log = logging.getLogger(__name__)
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+BASIC_LAUNCHER = "hydra._internal.core_plugins.basic_launcher.BasicLauncher"
 _CURRENT: MlflowSweepCallback | None = None
 
 
@@ -128,6 +129,7 @@ class MlflowSweepCallback(Callback):
         self.parent_run_id: str | None = None
         self.uri: str | None = None
         self.jobs: int | None = None
+        self.in_process = False
         self.failures = 0
         self.ended = False
 
@@ -139,6 +141,8 @@ class MlflowSweepCallback(Callback):
         _CURRENT = self
         jobs = check_sweep(config)  # before anything is written
         self.jobs = len(jobs) if jobs is not None else None
+        # Jobs in this very process (Hydra's basic launcher): a stopped sweep can count the finished ones.
+        self.in_process = OmegaConf.select(config, "hydra.launcher._target_") == BASIC_LAUNCHER
         self.uri = config.tracking.uri
         mlc = tracking.client(self.uri)
         exp_id = tracking.experiment_id(mlc, config.tracking.experiment)

@@ -113,9 +113,9 @@ def sweep_cmd(tmp: Path, name: str, *args: str) -> list[str]:
             f"hydra.run.dir={tmp}/{name}_run"]
 
 
-def store_runs(uri: str):
+def store_runs(uri: str, experiment: str = "garage_exp"):
     mlc = tracking.client(uri)
-    exp = mlc.get_experiment_by_name("garage_exp")
+    exp = mlc.get_experiment_by_name(experiment)
     return [] if exp is None else mlc.search_runs([exp.experiment_id], max_results=1000)
 
 
@@ -360,9 +360,11 @@ class Server:
         self.proc.wait(timeout=30)
 
 
-@pytest.fixture
-def server(tmp_path):
-    srv = Server(tmp_path)
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """One server for the module (starting one takes 10-30 s here); each test logs to its own experiment and
+    leaves the server running."""
+    srv = Server(tmp_path_factory.mktemp("server"))
     srv.start()
     yield srv
     srv.stop()
@@ -383,13 +385,38 @@ def wait_for_text(path: Path, text: str, proc: subprocess.Popen, timeout: float 
         time.sleep(0.2)
 
 
+def test_sigterm_ends_a_sweep_within_seconds_whatever_the_server_does(tmp_path, server):
+    """The server hangs (SIGSTOP: connections are accepted, nothing answers) while a job logs to it, with a
+    wait of ten minutes allowed: SIGTERM still ends the sweep in seconds, with one line and exit 143."""
+    env = {"MLFLOW_TRACKING_URI": server.uri, "GARAGE_EXP_TRACKING_WAIT": "600", "GARAGE_EXP_FAULT": "map:wait:0"}
+    proc = start_sweep(tmp_path, ["-m", *DRY, "light=bright,dim", "tracking.experiment=hung"], env)
+    wait_for_text(tmp_path / "out.txt", "FAULT: job 0 waits", proc)
+    os.killpg(server.proc.pid, signal.SIGSTOP)
+    try:
+        (tmp_path / "go").touch()
+        time.sleep(3)  # the job is now blocked in a request to the hung server
+        assert proc.poll() is None
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=60)
+        took = time.monotonic() - sent
+    finally:
+        os.killpg(server.proc.pid, signal.SIGCONT)
+    print(f"SIGTERM to exit: {took:.1f} s")
+    line = one_line_error((tmp_path / "err.txt").read_text())
+    assert code == 143
+    assert line == "garage_exp: terminated (SIGTERM); rerun the same command with resume=true to finish the sweep"
+    assert took < 10, took
+    assert (tmp_path / "sweep" / "0" / "plan_map.png").is_file()  # the job's files are kept
+
+
 def test_a_tracking_server_gone_mid_sweep_keeps_the_outputs_and_resume_logs_them(tmp_path, server):
     """The server dies while job 1 runs: job 1 waits for it (one line), gives up after the wait
     ($GARAGE_EXP_TRACKING_WAIT, 3 s here), finishes its files, keeps the calls the server missed, and the sweep
     stops (one line, exit 1). With the server back, resume=true logs job 1 into its own run from the kept
     files without running it again, and runs job 2."""
     env = {"MLFLOW_TRACKING_URI": server.uri, "GARAGE_EXP_TRACKING_WAIT": "3", "GARAGE_EXP_FAULT": "map:wait:1"}
-    args = ["-m", *DRY, "light=bright,dim,clear"]
+    args = ["-m", *DRY, "light=bright,dim,clear", "tracking.experiment=away"]
     proc = start_sweep(tmp_path, args, env)
     wait_for_text(tmp_path / "out.txt", "FAULT: job 1 waits", proc)
     server.stop()
@@ -398,7 +425,8 @@ def test_a_tracking_server_gone_mid_sweep_keeps_the_outputs_and_resume_logs_them
     err = (tmp_path / "err.txt").read_text()
     line = one_line_error(err)
     job1 = tmp_path / "sweep" / "1"
-    assert line.startswith(f"garage_exp: tracking server {server.uri} away: job 'dry_run=True plan=tiny light=dim' "
+    assert line.startswith(f"garage_exp: tracking server {server.uri} away: job 'dry_run=True plan=tiny light=dim "
+                           "tracking.experiment=away' "
                            f"finished, its outputs kept in {job1}: 1 of 3 jobs finished; rerun the same command")
     waiting = [ln for ln in err.splitlines() if "not answering" in ln]
     assert waiting == [f"garage_exp: tracking server {server.uri} not answering; retrying for up to 3 s "
@@ -414,30 +442,9 @@ def test_a_tracking_server_gone_mid_sweep_keeps_the_outputs_and_resume_logs_them
     assert again.returncode == 0, again.stderr[-3000:]
     assert f"from the outputs kept in {job1} (run " in again.stdout and "not rendered again" in again.stdout
     assert (job1 / "plan_map.png").stat().st_mtime_ns == drawn  # not drawn again
-    runs = store_runs(server.uri)
+    runs = store_runs(server.uri, "away")
     jobs = {r.data.params["light.name"]: r for r in runs if r.data.tags.get("mlflow.parentRunId")}
     assert sorted(jobs) == ["bright", "clear", "dim"] and len(runs) == 4  # one parent, no duplicate runs
     assert {r.info.status for r in runs} == {"FINISHED"}
     arts = {a.path for a in tracking.client(server.uri).list_artifacts(jobs["dim"].info.run_id)}
     assert arts == {"config.yaml", "plan_map.png"}
-
-
-def test_sigterm_ends_a_sweep_within_seconds_whatever_the_server_does(tmp_path, server):
-    """The server hangs (SIGSTOP: connections are accepted, nothing answers) while a job logs to it, with a
-    wait of ten minutes allowed: SIGTERM still ends the sweep in seconds, with one line and exit 143."""
-    env = {"MLFLOW_TRACKING_URI": server.uri, "GARAGE_EXP_TRACKING_WAIT": "600", "GARAGE_EXP_FAULT": "map:wait:0"}
-    proc = start_sweep(tmp_path, ["-m", *DRY, "light=bright,dim"], env)
-    wait_for_text(tmp_path / "out.txt", "FAULT: job 0 waits", proc)
-    os.killpg(server.proc.pid, signal.SIGSTOP)
-    (tmp_path / "go").touch()
-    time.sleep(3)  # the job is now blocked in a request to the hung server
-    assert proc.poll() is None
-    sent = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    code = proc.wait(timeout=60)
-    took = time.monotonic() - sent
-    line = one_line_error((tmp_path / "err.txt").read_text())
-    assert code == 143
-    assert line == "garage_exp: terminated (SIGTERM); rerun the same command with resume=true to finish the sweep"
-    assert took < 10, took
-    assert (tmp_path / "sweep" / "0" / "plan_map.png").is_file()  # the job's files are kept
