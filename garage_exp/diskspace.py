@@ -31,8 +31,12 @@ def existing(path: Path) -> Path:
     return path
 
 
+class NotEnoughSpace(GarageError):
+    """The free space cannot hold what is about to be written."""
+
+
 def check_free(needs: list[tuple[Path, int]], what: str) -> None:
-    """GarageError when the bytes to be written under each directory do not fit the free space of its
+    """NotEnoughSpace (a GarageError) when the bytes to be written under each directory do not fit the free space of its
     filesystem (directories on one filesystem add up)."""
     per_fs: dict[int, list] = {}
     for directory, n in needs:
@@ -44,7 +48,7 @@ def check_free(needs: list[tuple[Path, int]], what: str) -> None:
     for where, need in per_fs.values():
         free = shutil.disk_usage(where).free
         if need > free:
-            raise GarageError(f"not enough free disk space: {what} will write about {mb(need)} on this "
+            raise NotEnoughSpace(f"not enough free disk space: {what} will write about {mb(need)} on this "
                               f"filesystem and {mb(free)} is free; free some space, or write elsewhere "
                               "(hydra.sweep.dir=..., tracking.uri=...), or save fewer frames "
                               "(renderer.save_frames=key)", str(where))

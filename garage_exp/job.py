@@ -14,7 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from garage_exp import tracking
 from garage_exp.cli_errors import SweepStopped
-from garage_exp.diskspace import full_disk
+from garage_exp.diskspace import NotEnoughSpace, full_disk
 from garage_exp.errors import GarageError
 from garage_exp.paths import OUTPUTS_DIR
 from garage_exp.preflight import preflight
@@ -101,8 +101,10 @@ def _run_job(cfg: DictConfig) -> float:
     multirun = hc.mode == RunMode.MULTIRUN
     try:
         plan_path, classified = preflight(cfg)  # bad input fails here, before anything is logged
-    except GarageError:
+    except GarageError as exc:
         _remove_untouched(out)
+        if multirun and isinstance(exc, NotEnoughSpace):  # the disk filled since the sweep's own check
+            raise SweepStopped(str(exc), "free space and rerun with resume=true") from None
         raise
     digest = tracking.config_hash(cfg, tracking.file_digest(plan_path))
     if cfg.resume:

@@ -33,7 +33,12 @@ def open_store(uri: str, make):
     from filelock import FileLock
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    with FileLock(f"{path}.lock"):
+    lock = FileLock(f"{path}.lock")
+    try:
+        lock.acquire()
+    except OSError:  # a read-only place: nobody can create a schema there either
+        lock = None
+    try:
         try:
             client = make()
         except Exception as exc:  # noqa: BLE001 - MlflowException, sqlalchemy's errors: diagnosed below
@@ -41,6 +46,9 @@ def open_store(uri: str, make):
             if problem is None:
                 raise
             raise GarageError(problem, str(path)) from None
+    finally:
+        if lock is not None:
+            lock.release()
     _OPENED.add(uri)
     return client
 
