@@ -83,3 +83,27 @@ def diagnose(path: Path, exc: BaseException) -> str | None:
                 "(a store is created under a lock now, so concurrent sweeps cannot break it again)")
     return (f"MLflow store cannot be opened ({first}); it holds {runs} runs: back it up (cp {path} "
             f"{path}.bak), then run `mlflow db upgrade sqlite:///{path}`")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m garage_exp.store PATH`: create the sqlite store at PATH (under its lock) or check that MLflow
+    can open it; `make ui` runs it first, so a broken store is one line instead of the UI's traceback."""
+    import sys
+
+    import mlflow
+
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m garage_exp.store PATH_TO_SQLITE_STORE", file=sys.stderr)
+        return 2
+    uri = f"sqlite:///{Path(args[0]).absolute()}"
+    try:
+        open_store(uri, lambda: mlflow.MlflowClient(uri))
+    except GarageError as exc:
+        print(f"garage_exp: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

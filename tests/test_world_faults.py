@@ -177,6 +177,12 @@ def test_a_broken_store_is_one_line_naming_it_and_the_way_back(tmp_path, templat
     assert again.returncode == 0, again.stderr[-3000:]
 
 
+def runs_in_new(path: Path) -> int:
+    from garage_exp.store import runs_in
+
+    return runs_in(path)
+
+
 def test_store_diagnosis_of_the_races_errors_and_of_a_store_with_runs(tmp_path, template):
     import shutil
 
@@ -204,6 +210,10 @@ def test_store_diagnosis_of_the_races_errors_and_of_a_store_with_runs(tmp_path, 
     assert str(err.value) == (f"{used}: MLflow store cannot be opened (schema found version None, but expected x); "
                               f"it holds 1 runs: back it up (cp {used} {used}.bak), then run "
                               f"`mlflow db upgrade sqlite:///{used}`")
+    from garage_exp.store import main as store_main  # what `make ui` runs before the UI
+
+    assert store_main([str(used)]) == 2
+    assert store_main([str(tmp_path / "new.db")]) == 0 and runs_in_new(tmp_path / "new.db") == 0
     junk = tmp_path / "junk.db"
     junk.write_bytes(b"not sqlite at all" * 100)
     with pytest.raises(GarageError, match="not an MLflow sqlite store"):
@@ -448,3 +458,111 @@ def test_a_tracking_server_gone_mid_sweep_keeps_the_outputs_and_resume_logs_them
     assert {r.info.status for r in runs} == {"FINISHED"}
     arts = {a.path for a in tracking.client(server.uri).list_artifacts(jobs["dim"].info.run_id)}
     assert arts == {"config.yaml", "plan_map.png"}
+
+
+class Refused(Exception):
+    pass
+
+
+REFUSED = Refused("API request to http://127.0.0.1:1/api/2.0/mlflow/runs/create failed with exception "
+                  "HTTPConnectionPool(host='127.0.0.1', port=1): Max retries exceeded with url: ... "
+                  "(Caused by NewConnectionError(...: Failed to establish a new connection: [Errno 111] "
+                  "Connection refused'))")
+
+
+@pytest.fixture
+def fresh_outage(monkeypatch):
+    """retry()'s outage state as in a new process, and sleeps that only count."""
+    from garage_exp import cli_errors
+
+    monkeypatch.setattr(tracking, "_down_since", None)
+    monkeypatch.setattr(tracking, "_given_up", False)
+    monkeypatch.setattr(cli_errors, "_stopping", False)
+    monkeypatch.setattr(tracking, "_uri", lambda: "http://127.0.0.1:1")
+    slept = []
+    clock = [1000.0]
+
+    def sleep(s):
+        slept.append(s)
+        clock[0] += s
+
+    monkeypatch.setattr(tracking.time, "sleep", sleep)
+    monkeypatch.setattr(tracking.time, "monotonic", lambda: clock[0])
+    return slept
+
+
+def test_retry_waits_a_bounded_time_for_the_server_and_says_so_once(fresh_outage, monkeypatch, capsys):
+    monkeypatch.setenv("GARAGE_EXP_TRACKING_WAIT", "60")
+    calls = []
+
+    def back_after_five():
+        calls.append(1)
+        if len(calls) <= 5:
+            raise REFUSED
+        return "ok"
+
+    assert tracking.retry(back_after_five) == "ok"
+    assert fresh_outage == [1.0, 2.0, 4.0, 8.0, 16.0]  # exponential back-off
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["garage_exp: tracking server http://127.0.0.1:1 not answering; retrying for up to 60 s "
+                   "(GARAGE_EXP_TRACKING_WAIT)", "garage_exp: tracking server http://127.0.0.1:1 answers again after 31 s"]
+
+    def never():
+        raise REFUSED
+
+    fresh_outage.clear()
+    with pytest.raises(tracking.TrackingAway, match="away for 60 s"):
+        tracking.retry(never)
+    assert sum(fresh_outage) == pytest.approx(60, abs=0.1) and max(fresh_outage) <= 30
+    fresh_outage.clear()
+    with pytest.raises(tracking.TrackingAway):  # given up: later calls do not wait again
+        tracking.retry(lambda: "never called")
+    assert fresh_outage == []
+
+
+def test_after_a_signal_retry_never_waits(fresh_outage):
+    from garage_exp import cli_errors
+
+    cli_errors._stopping = True
+    calls = []
+
+    def refused():
+        calls.append(1)
+        raise REFUSED
+
+    with pytest.raises(tracking.TrackingAway):
+        tracking.retry(refused)
+    assert calls == [1] and fresh_outage == []  # one attempt, no sleep
+    with pytest.raises(tracking.TrackingAway):  # the server failed once: no attempt at all
+        tracking.retry(refused)
+    assert calls == [1]
+
+
+def test_a_job_run_keeps_what_the_server_missed_and_resume_replays_it(tmp_path, template, fresh_outage, monkeypatch):
+    import shutil
+
+    from omegaconf import OmegaConf
+
+    shutil.copy(template, tmp_path / "mlflow.db")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    mlc = tracking.client(uri)
+    run_id = mlc.create_run(tracking.experiment_id(mlc, "garage_exp"), tags={"config_hash": "h",
+                                                                            "output_dir": str(tmp_path)}).info.run_id
+    monkeypatch.setattr(tracking, "_given_up", True)  # the server is away
+    run = tracking.JobRun(mlc, run_id, pending=tmp_path / tracking.PENDING_FILE)
+    (tmp_path / "table.csv").write_text("a\n1\n")
+    run.log_series("confidence", [0.5, 0.25])
+    run.log_metrics({"recall": 1.0})
+    run.log_artifact(tmp_path / "table.csv")
+    run.end("FINISHED")
+    assert run.kept == 4 and mlc.get_run(run_id).info.status == "RUNNING"
+    monkeypatch.setattr(tracking, "_given_up", False)  # it is back
+    cfg = OmegaConf.create({"tracking": {"uri": uri, "experiment": "garage_exp"}})
+    kept = tracking.kept_run(cfg, "h")
+    assert kept == (run_id, tmp_path / tracking.PENDING_FILE)
+    tracking.replay_pending(cfg, *kept)
+    got = mlc.get_run(run_id)
+    assert got.info.status == "FINISHED" and got.data.metrics == {"confidence": 0.25, "recall": 1.0}
+    assert [m.value for m in mlc.get_metric_history(run_id, "confidence")] == [0.5, 0.25]
+    assert [a.path for a in mlc.list_artifacts(run_id)] == ["table.csv"]
+    assert tracking.kept_run(cfg, "h") is None  # logged once
