@@ -147,10 +147,11 @@ def job_bytes(cfg: DictConfig, scene, setup) -> tuple[int, int]:
     if scene is not None:
         frames = len(setup.shots) * len(scene.cameras)
         png = PNG_PER_PIXEL * sum(c.width * c.height for c in scene.cameras) / len(scene.cameras)
-        glb = 0
+        glb, meshes = 0, set()
         for entity in scene.entities:
             for shape in entity.shapes:
-                if isinstance(shape, Mesh):
+                if isinstance(shape, Mesh) and shape.path not in meshes:  # the GLB holds a model once
+                    meshes.add(shape.path)
                     glb += os.path.getsize(shape.path) if os.path.isfile(shape.path) else 0
                 elif isinstance(shape, Box):
                     glb += 1000

@@ -8,6 +8,7 @@ does nothing unless $GARAGE_EXP_FAULT is set, to one of:
     frame:raise:JOB:N     job JOB raises RuntimeError on its frame N+1 (N frames done: a partial frame table)
     disk:fill:JOB         job JOB fills the filesystem of its output dir (a file `filler` in that dir, written
                           until the kernel says ENOSPC), then draws its plan map there: a real full disk
+    disk:fill:JOB:N       the same when job JOB renders its frame N+1 (frames being written when the disk fills)
     disk:raise:JOB        job JOB's plan map write raises OSError ENOSPC (when no small filesystem can be mounted)
     detector:kill:JOB:N,M job JOB's detector process is killed (SIGKILL) right after frames N, M, ... (0-based)
                           are sent to it
@@ -80,6 +81,31 @@ def _install(spec: str) -> None:
             return model
 
         sensor.make_sensor = make_sensor
+    elif where == "disk" and rest:
+        import garage_exp.sensor as sensor
+
+        after = int(rest[0])
+        real_make = sensor.make_sensor
+
+        def make_sensor(conf):
+            model = real_make(conf)
+            if _job_num() != job:
+                return model
+            real_apply = model.apply
+            done = [0]
+
+            def apply(rgb, rng):
+                if done[0] == after:
+                    from hydra.core.hydra_config import HydraConfig
+
+                    _fill(os.path.join(HydraConfig.get().runtime.output_dir, "filler"))
+                done[0] += 1
+                return real_apply(rgb, rng)
+
+            object.__setattr__(model, "apply", apply)
+            return model
+
+        sensor.make_sensor = make_sensor
     elif where == "disk":
         import errno
 
@@ -91,15 +117,7 @@ def _install(spec: str) -> None:
             if _job_num() == job:
                 if action == "raise":
                     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-                chunk = b"\0" * 65536
-                with open(os.path.join(os.path.dirname(path), "filler"), "wb", buffering=0) as fh:
-                    try:
-                        while True:
-                            fh.write(chunk)
-                    except OSError as exc:
-                        if exc.errno != errno.ENOSPC:
-                            raise
-                        print(f"FAULT: job {job} filled the disk", flush=True)
+                _fill(os.path.join(os.path.dirname(path), "filler"))
             return real_draw(classified, path, *args, **kwargs)
 
         draw.draw_map = draw_map
@@ -125,6 +143,20 @@ def _install(spec: str) -> None:
         after_import("garage_exp.detect.worker", patch)
     else:
         raise ValueError(f"GARAGE_EXP_FAULT: unknown fault {spec!r}")
+
+
+def _fill(path: str) -> None:
+    """Write zeros to path until the filesystem is full."""
+    import errno
+
+    with open(path, "wb", buffering=0) as fh:
+        try:
+            while True:
+                fh.write(b"\0" * 65536)
+        except OSError as exc:
+            if exc.errno != errno.ENOSPC:
+                raise
+    print(f"FAULT: filled the disk ({path})", flush=True)
 
 
 def after_import(name: str, patch) -> None:
