@@ -229,7 +229,7 @@ class Config:
     modifiers: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
     blank: bool = False  # the blank control: only the vehicles, background removed
-    dataset: bool = False  # also write frames with YOLO-format labels
+    dataset: bool = False  # also write frames with YOLO, COCO and KITTI labels (garage_exp/exports)
     resume: bool = False
     dry_run: bool = False  # plan + map + MLflow only: no rendering or detection
 

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from garage_exp import results
+from garage_exp import exports, results
 from garage_exp.errors import GarageError
 from garage_exp.groundtruth import VehicleTruth
 from garage_exp.plan.classify import Classified
@@ -68,6 +68,7 @@ class Rendered:
     rgb: np.ndarray
     truth: list[VehicleTruth]
     target: VehicleTruth | None
+    geometry: exports.FrameGeometry  # the camera and the actors' poses, for the dataset's 3D labels
 
 
 def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sensor,
@@ -91,7 +92,7 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
             if not scene.background:
                 rgb = renderer.blank_composite(rgb, frame, [shot.target])
             target = next((t for t in truth if t.name == shot.target), None)
-            yield Rendered(shot, cam.name, rgb, truth, target)
+            yield Rendered(shot, cam.name, rgb, truth, target, exports.FrameGeometry.of(frame))
 
 
 def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered, list]]:
@@ -140,7 +141,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
 
     frames_dir = out / "frames"
     frames_dir.mkdir(exist_ok=True)
-    dataset = results.DatasetWriter(out / "dataset") if cfg.dataset else None
+    dataset = exports.DatasetExports(out / "dataset") if cfg.dataset else None
     sensor_rng = np.random.default_rng(cfg.seed + 1)
     rows, keep = [], {}
     # Tables of scenes with people say each target's kind; vehicle-only tables stay as they were.
@@ -156,7 +157,8 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
             row = results.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target))
             rows.append(row)
             if dataset is not None:
-                dataset.add(f"{shot.index:04d}_{item.camera}", item.rgb, item.truth, scene)
+                dataset.add(f"{shot.index:04d}_{item.camera}", item.camera, item.rgb, item.truth, scene,
+                            item.geometry)
             keep[(shot.index, item.camera)] = (item.rgb, target, dets)
             if cfg.renderer.save_frames == "all":
                 results.save_frame(frames_dir / f"{shot.index:04d}_{item.camera}.png", item.rgb, target, dets,

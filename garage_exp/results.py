@@ -193,13 +193,9 @@ class DatasetWriter:
         h, w = rgb.shape[:2]
         Image.fromarray(rgb).save(self.root / "images" / f"{stem}.png")
         lines = []
-        for t in truth:
-            if not t.visible_box or t.visible_pixels == 0:
-                continue
-            coco = "person" if getattr(t, "kind", "vehicle") == "person" else \
-                KIND_TO_COCO.get(_vehicle_kind(scene, t.name), "car")
+        for t in labelled(truth):
             x1, y1, x2, y2 = t.full_box
-            lines.append(f"{COCO_IDS[coco]} {(x1 + x2) / 2 / w:.6f} {(y1 + y2) / 2 / h:.6f} "
+            lines.append(f"{COCO_IDS[coco_class(scene, t)]} {(x1 + x2) / 2 / w:.6f} {(y1 + y2) / 2 / h:.6f} "
                          f"{(x2 - x1) / w:.6f} {(y2 - y1) / h:.6f}")
         (self.root / "labels" / f"{stem}.txt").write_text("\n".join(lines) + ("\n" if lines else ""))
 
@@ -222,7 +218,20 @@ def coco_names() -> dict[int, str]:
     return {int(k): str(v) for k, v in yaml.safe_load(text)["names"].items()}
 
 
-def _vehicle_kind(scene, name: str) -> str:
+def labelled(truth) -> list:
+    """The actors a dataset labels (in every format): those with at least one visible pixel."""
+    return [t for t in truth if t.visible_box and t.visible_pixels > 0]
+
+
+def coco_class(scene, t) -> str:
+    """The COCO class name of a ground-truth record: person, or its vehicle kind's (car, bus, truck)."""
+    if getattr(t, "kind", "vehicle") == "person":
+        return "person"
+    return KIND_TO_COCO.get(vehicle_kind(scene, t.name), "car")
+
+
+def vehicle_kind(scene, name: str) -> str:
+    """car, suv, pickup, van, bus or truck, from the entity's model name ('car' when the scene lacks it)."""
     try:
         entity = scene.entity(name)
     except KeyError:

@@ -24,3 +24,8 @@ def test_a_child_hidden_between_cars_is_missed_and_found_once_in_the_lane(tmp_pa
     labels = (tmp_path / "run" / "dataset" / "labels" / "0001_front.txt").read_text().split("\n")
     assert any(line.startswith("0 ") for line in labels)  # COCO's person
     assert any(line.startswith(("2 ", "7 ")) for line in labels)  # and the parked cars, as cars or trucks
+    # The same frame in KITTI: the child a Pedestrian whose 3D box stands on the floor before the camera.
+    kitti = (tmp_path / "run" / "dataset" / "kitti" / "label_2" / "000001.txt").read_text().splitlines()
+    [child] = [line.split() for line in kitti if line.startswith("Pedestrian ")]
+    height, x, y, z = float(child[8]), *map(float, child[11:14])
+    assert 1.0 < height < 1.4 and y > 1.0 and z > 2.0 and abs(x) < 3.0
