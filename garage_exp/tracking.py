@@ -51,7 +51,7 @@ TRANSIENT = ("database is locked", "database table is locked")
 # A tracking server that does not answer: refused or reset connections, timeouts, a proxy's 502-504.
 UNREACHABLE = ("max retries exceeded", "connection refused", "connection aborted", "connection reset",
                "read timed out", "connecttimeout", "remotedisconnected", "failed to establish a new connection",
-               "error code 502", "error code 503", "error code 504")
+               "error code 429", "error code 502", "error code 503", "error code 504")
 
 
 class TrackingAway(Exception):
