@@ -567,3 +567,18 @@ def test_a_job_run_keeps_what_the_server_missed_and_resume_replays_it(tmp_path, 
     assert [m.value for m in mlc.get_metric_history(run_id, "confidence")] == [0.5, 0.25]
     assert [a.path for a in mlc.list_artifacts(run_id)] == ["table.csv"]
     assert tracking.kept_run(cfg, "h") is None  # logged once
+
+
+def test_a_server_that_is_away_when_the_sweep_starts_is_one_line(tmp_path):
+    """Nothing listens on the port: the sweep waits the allowed time (1 s here), then says so in one line,
+    exit 1, nothing logged anywhere."""
+    from test_reliability_faults import free_port
+
+    uri = f"http://127.0.0.1:{free_port()}"
+    proc = run_app(["-m", *DRY, "light=bright,dim"], tmp_path,
+                   env={"MLFLOW_TRACKING_URI": uri, "GARAGE_EXP_TRACKING_WAIT": "1"})
+    line = one_line_error(proc.stderr)
+    assert proc.returncode == 1
+    assert line.startswith(f"garage_exp: tracking server {uri} away for ")
+    assert line.endswith(" s; rerun the same command with resume=true once the server is back")
+    assert not (tmp_path / "sweep" / "0").exists()
