@@ -70,10 +70,6 @@ def tracking_wait() -> float:
         return 180.0
 
 
-def server_away() -> bool:
-    return _given_up
-
-
 def _unreachable(exc: BaseException) -> bool:
     text = f"{type(exc).__name__}: {exc}".lower()
     return any(t in text for t in UNREACHABLE)
