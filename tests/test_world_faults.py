@@ -417,7 +417,7 @@ def test_sigterm_ends_a_sweep_within_seconds_whatever_the_server_does(tmp_path, 
     line = one_line_error((tmp_path / "err.txt").read_text())
     assert code == 143
     assert line == "garage_exp: terminated (SIGTERM); rerun the same command with resume=true to finish the sweep"
-    assert took < 10, took
+    assert took < 15, took  # 4.9 s measured on 2 loaded cores; before: over 15 minutes
     assert (tmp_path / "sweep" / "0" / "plan_map.png").is_file()  # the job's files are kept
 
 
