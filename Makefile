@@ -49,6 +49,7 @@ mutation: python
 	$(BIN)/python scripts/mutation_score.py $(MUTANTS) | tee mutants/score.txt
 
 ui: python
+	@$(BIN)/python -m garage_exp.store $(CURDIR)/outputs/mlflow.db
 	@$(BIN)/python -m garage_exp.tracking --uri sqlite:///$(CURDIR)/outputs/mlflow.db
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
 

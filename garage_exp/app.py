@@ -20,7 +20,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from garage_exp import callbacks
 from garage_exp import config as schema
-from garage_exp.cli_errors import EXIT_FAILED_JOBS, EXIT_INPUT, Terminated, install_error_report, on_sigterm
+from garage_exp import job
+from garage_exp.cli_errors import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
+                                   on_sigint, on_sigterm)
 from garage_exp.errors import GarageError
 from garage_exp.job import run_job
 from garage_exp.paths import PROJECT_ROOT
@@ -68,11 +70,20 @@ def cli(argv: list[str] | None = None) -> None:
     143 SIGTERM (the running job's run ends KILLED; resume=true finishes the sweep)."""
     sys.argv[1:] = quote_numeric_choices(sys.argv[1:] if argv is None else list(argv))
     install_error_report()
+    # On a full disk every log record that cannot be written would print a traceback of its own (Python's
+    # logging default); the job reports the full disk once instead.
+    logging.raiseExceptions = False
     previous = signal.signal(signal.SIGTERM, on_sigterm)
+    previous_int = signal.signal(signal.SIGINT, on_sigint)
     try:
         main()
     except BaseException as exc:
         callbacks.abandon_sweep(exc)  # the parent run of an interrupted sweep must not stay RUNNING
+        if isinstance(exc, SweepStopped):  # a full disk, a tracking server away: the job said what it kept
+            sweep = callbacks.current_sweep()
+            jobs = sweep.jobs if sweep is not None and sweep.in_process else None
+            print(f"garage_exp: {exc.line(job.finished_jobs, jobs)}", file=sys.stderr)
+            sys.exit(EXIT_FAILED_JOBS)
         if isinstance(exc, KeyboardInterrupt):  # the job's run already ended KILLED, its partial table kept
             terminated = isinstance(exc, Terminated)
             print(f"garage_exp: {'terminated (SIGTERM)' if terminated else 'interrupted'}; rerun the same "
@@ -84,6 +95,7 @@ def cli(argv: list[str] | None = None) -> None:
         raise
     finally:
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, previous_int)
     sweep = callbacks.current_sweep()
     if sweep is not None and sweep.failures:
         sys.exit(EXIT_FAILED_JOBS)

@@ -14,6 +14,7 @@ from garage_exp.errors import GarageError
 
 log = logging.getLogger(__name__)
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+BASIC_LAUNCHER = "hydra._internal.core_plugins.basic_launcher.BasicLauncher"
 _CURRENT: MlflowSweepCallback | None = None
 
 
@@ -33,10 +34,15 @@ def abandon_sweep(exc: BaseException) -> None:
     status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
     try:
         mlc = tracking.client(sweep.uri)
-        reason = f"sweep interrupted: {type(exc).__name__}: {exc}".strip()
+        from garage_exp.cli_errors import SweepStopped
+
+        reason = f"sweep stopped: {exc}" if isinstance(exc, SweepStopped) else \
+            f"sweep interrupted: {type(exc).__name__}: {exc}".strip()
         tracking.retry(lambda: mlc.set_tag(sweep.parent_run_id, "error", reason[:5000]))
         tracking.retry(lambda: mlc.set_terminated(sweep.parent_run_id, status))
         sweep.ended = True
+    except tracking.TrackingAway:  # the parent stays open on the server; resume=true reopens it
+        pass
     except Exception as err:  # never hide the original exception
         log.error("could not close the sweep's parent run: %s", err)
 
@@ -65,16 +71,20 @@ def check_sweep(config: DictConfig) -> list[list[str]] | None:
         return None
     from hydra.core.global_hydra import GlobalHydra
 
-    from garage_exp.preflight import preflight
+    from garage_exp.diskspace import check_free
+    from garage_exp.preflight import preflight, store_dir
 
     loader = GlobalHydra.instance().config_loader()
+    needs: list[tuple[int, int]] = []
     for k, job in enumerate(jobs):
         job_cfg = loader.load_sweep_config(config, job)  # Hydra's errors (unknown level, wrong type) raise here
         try:
-            preflight(job_cfg)
+            preflight(job_cfg, needs)
         except GarageError as exc:
             shown = " ".join(o for o in job if not o.lstrip("+~").startswith("tracking."))
             raise GarageError(str(exc), f"sweep job {k} ({shown})") from None
+    check_free([(config.hydra.sweep.dir, sum(n[0] for n in needs)), (store_dir(config), sum(n[1] for n in needs))],
+               f"the sweep ({len(jobs)} jobs)")
     return jobs
 
 
@@ -98,6 +108,10 @@ def _fatal(method):
             if line is not None:
                 print(f"garage_exp: {line}", file=sys.stderr)
                 raise SystemExit(EXIT_INPUT) from None
+            if isinstance(exc, tracking.TrackingAway):
+                print(f"garage_exp: {exc}; rerun the same command with resume=true once the server is back",
+                      file=sys.stderr)
+                raise SystemExit(1) from None
             traceback.print_exc()
             print(f"garage_exp: sweep aborted: {method.__name__} failed: {type(exc).__name__}: {exc}",
                   file=sys.stderr)
@@ -116,6 +130,7 @@ class MlflowSweepCallback(Callback):
         self.uri: str | None = None
         self.experiment_id: str | None = None
         self.jobs: int | None = None
+        self.in_process = False
         self.failures = 0
         self.ended = False
 
@@ -127,6 +142,8 @@ class MlflowSweepCallback(Callback):
         _CURRENT = self
         jobs = check_sweep(config)  # before anything is written
         self.jobs = len(jobs) if jobs is not None else None
+        # Jobs in this very process (Hydra's basic launcher): a stopped sweep can count the finished ones.
+        self.in_process = OmegaConf.select(config, "hydra.launcher._target_") == BASIC_LAUNCHER
         self.uri = config.tracking.uri
         mlc = tracking.client(self.uri)
         exp_id = self.experiment_id = tracking.experiment_id(mlc, config.tracking.experiment)

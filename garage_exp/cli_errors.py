@@ -17,8 +17,44 @@ class Terminated(KeyboardInterrupt):
     partial frame table is kept."""
 
 
+class SweepStopped(BaseException):
+    """A fault that every later job would meet too (a full disk, a tracking server that stays away): the job
+    that met it has closed what it could, and the sweep stops here with one line and exit code 1. Not an
+    Exception, so that neither the job's handler nor Hydra's launcher go on to the next job."""
+
+    def __init__(self, what: str, hint: str):
+        super().__init__(what)
+        self.what, self.hint = what, hint
+
+    def line(self, finished: int | None, jobs: int | None) -> str:
+        done = f": {finished} of {jobs} jobs finished" if jobs is not None and finished is not None else ""
+        return f"{self.what}{done}; {self.hint}"
+
+
+_stopping = False
+
+
+def stopping() -> bool:
+    """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry)."""
+    return _stopping
+
+
+def _stop_now() -> None:
+    global _stopping
+    _stopping = True
+    # A request already on its way to a server that hangs must not hold the exit either.
+    os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] = "3"
+    os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] = "0"
+
+
 def on_sigterm(signum, frame):
+    _stop_now()
     raise Terminated(f"signal {signum} (SIGTERM)")
+
+
+def on_sigint(signum, frame):
+    _stop_now()
+    raise KeyboardInterrupt
 
 
 def input_error(exc: BaseException) -> str | None:

@@ -13,6 +13,8 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp import tracking
+from garage_exp.cli_errors import SweepStopped
+from garage_exp.diskspace import NotEnoughSpace, full_disk
 from garage_exp.errors import GarageError
 from garage_exp.paths import OUTPUTS_DIR
 from garage_exp.preflight import preflight
@@ -54,15 +56,72 @@ def _remove_untouched(out: Path) -> None:
         pass
 
 
+# Jobs of this process that finished (or had finished before): the count a stopped sweep reports.
+finished_jobs = 0
+
+
+def _count_finished() -> None:
+    global finished_jobs
+    finished_jobs += 1
+
+
+def _close_on_full_disk(run, out: Path, where: str) -> None:
+    """The disk is full: the job's run ends FAILED saying so. When the store shares the full disk and cannot
+    record even that, the job's partial outputs and their artifact copies are deleted to make room (a failed
+    job is rerun by resume=true anyway); the finished jobs' files are not touched."""
+    import logging
+
+    reason = f"disk full at {where}"
+    db_log = logging.getLogger("mlflow.store.db.utils")  # logs each failed write with its traceback
+    level = db_log.level
+    db_log.setLevel(logging.CRITICAL)
+    try:
+        run.set_tag("error", reason)
+        run.end("FAILED")
+        return
+    except Exception as exc:  # noqa: BLE001 - only a full disk is handled here
+        if full_disk(exc) is None:
+            raise
+    finally:
+        db_log.setLevel(level)
+    from urllib.parse import urlparse
+
+    for path in out.iterdir():
+        if path.name != ".hydra":
+            shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink(missing_ok=True)
+    try:
+        artifacts = run.mlc.get_run(run.run_id).info.artifact_uri
+        local = Path(urlparse(artifacts).path) if artifacts.startswith(("file:", "/")) else None
+        if local is not None and local.is_dir():
+            shutil.rmtree(local)
+    except Exception:  # noqa: BLE001 - a best effort: the job's own dir was the larger part
+        pass
+    run.set_tag("error", reason + " (the job's partial outputs were deleted to record this)")
+    run.end("FAILED")
+
+
+AWAY_HINT = "rerun the same command with resume=true once the server is back"
+
+
 def run_job(cfg: DictConfig) -> float:
-    """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job."""
+    """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job. A
+    tracking server that stays away stops the sweep (every later job would wait for it too)."""
+    try:
+        return _run_job(cfg)
+    except tracking.TrackingAway as exc:
+        raise SweepStopped(str(exc), AWAY_HINT) from None
+
+
+def _run_job(cfg: DictConfig) -> float:
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)
     multirun = hc.mode == RunMode.MULTIRUN
     try:
         plan_path, classified = preflight(cfg)  # bad input fails here, before anything is logged
-    except GarageError:
+    except GarageError as exc:
         _remove_untouched(out)
+        if multirun and isinstance(exc, NotEnoughSpace):  # the disk filled since the sweep's own check
+            raise SweepStopped(str(exc), "free space and rerun with resume=true") from None
         raise
     name_levels(cfg, classified.plan.name)
     digest = tracking.config_hash(cfg, tracking.file_digest(plan_path))
@@ -72,11 +131,20 @@ def run_job(cfg: DictConfig) -> float:
             print(f"garage_exp: skipped {run_name(cfg)!r}: finished before as run {done}")
             if multirun:
                 tracking.add_resumed(hc.sweep.dir, done)  # the sweep report counts it
+            _count_finished()
+            return math.nan
+        kept = tracking.kept_run(cfg, digest)
+        if kept:  # finished while the tracking server was away: log what it kept, do not render again
+            tracking.replay_pending(cfg, *kept)
+            print(f"garage_exp: logged {run_name(cfg)!r} from the outputs kept in {kept[1].parent} (run {kept[0]}); "
+                  "not rendered again")
+            _count_finished()
             return math.nan
     parent = tracking.read_parent(hc.sweep.dir) if multirun else None
     tags = {"plan": classified.plan.name, "overrides": " ".join(hc.overrides.task), "case": str(cfg.case.name),
             "output_dir": str(out), "config_hash": digest, "host": os.uname().nodename, "pid": str(os.getpid())}
     run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
+    run.pending = out / tracking.PENDING_FILE  # calls the tracking server cannot take wait there
     try:
         from garage_exp.plan.draw import draw_map  # matplotlib: not before the input is known to be good
 
@@ -95,6 +163,11 @@ def run_job(cfg: DictConfig) -> float:
 
             difficulty = run_experiment(cfg, classified, out, run)
     except BaseException as exc:
+        where = full_disk(exc) if isinstance(exc, Exception) else None
+        if where is not None:
+            where = where or str(out)
+            _close_on_full_disk(run, out, where)
+            raise SweepStopped(f"disk full at {where}", "free space and rerun with resume=true") from None
         try:
             run.set_tag("error", f"{type(exc).__name__}: {exc}".strip())
             run.log_text(traceback.format_exc(), "error.txt")
@@ -102,6 +175,10 @@ def run_job(cfg: DictConfig) -> float:
             run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
         raise
     run.end("FINISHED")
+    if run.kept:
+        raise SweepStopped(f"tracking server {tracking.tracking_uri(cfg.tracking.uri)} away: job {run_name(cfg)!r} "
+                           f"finished, its outputs kept in {out}", AWAY_HINT + " (it logs them without rendering again)")
+    _count_finished()
     if not multirun:  # a sweep prints its own link, to all its runs
         print(f"garage_exp: MLflow UI: {tracking.ui_link(cfg.tracking.uri, run.experiment_id, run.run_id)}")
     return difficulty

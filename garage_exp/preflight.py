@@ -87,22 +87,76 @@ def check_config(cfg: DictConfig) -> None:
     check_modifiers(cfg.get("modifiers") or {})
 
 
-def preflight(cfg: DictConfig):
+def preflight(cfg: DictConfig, needs: list | None = None):
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem. A dry run checks the config and the plan; a real job also the detector weights,
     the vehicle assets, and builds its scene description (garage, case, palette, modifiers, cameras) - all
-    but rendering, in ~0.1 s. Returns (plan path, classified plan)."""
+    but rendering, in ~0.1 s. Then the disk space the job will write: checked against the free space, or,
+    given `needs` (a sweep checking all its jobs), added to it as (bytes in the job's dir, bytes in a local
+    store). Returns (plan path, classified plan)."""
     plan_path = resolve_plan_path(cfg.plan)
     classified = _classified(plan_path)
     check_config(cfg)
-    if cfg.dry_run:
-        return plan_path, classified
-    import numpy as np
+    scene = setup = None
+    if not cfg.dry_run:
+        import numpy as np
 
-    from garage_exp.detect.detector import model_format, resolve_model
-    from garage_exp.experiment import build_scene
+        from garage_exp.detect.detector import model_format, resolve_model
+        from garage_exp.experiment import build_scene
 
-    for entry in cfg.detector.models:
-        model_format(resolve_model(entry))  # missing weights fail here (nothing is downloaded)
-    build_scene(cfg, classified, _library(), np.random.default_rng(int(cfg.seed)))
+        for entry in cfg.detector.models:
+            model_format(resolve_model(entry))  # missing weights fail here (nothing is downloaded)
+        scene, setup = build_scene(cfg, classified, _library(), np.random.default_rng(int(cfg.seed)))
+    written = job_bytes(cfg, scene, setup)
+    if needs is not None:
+        needs.append(written)
+    else:
+        from hydra.core.hydra_config import HydraConfig
+
+        from garage_exp.diskspace import check_free
+
+        out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
+        check_free([(out, written[0]), (store_dir(cfg), written[1])], "this job")
     return plan_path, classified
+
+
+def store_dir(cfg: DictConfig) -> Path:
+    """Where a local (sqlite) store keeps its database and artifacts; a server's disk is not ours (the
+    current dir then, with nothing to write)."""
+    import os
+
+    from garage_exp.paths import OUTPUTS_DIR
+    from garage_exp.store import sqlite_path
+
+    uri = OmegaConf.select(cfg, "tracking.uri") or os.environ.get("MLFLOW_TRACKING_URI") or \
+        f"sqlite:///{OUTPUTS_DIR / 'mlflow.db'}"
+    path = sqlite_path(uri)
+    return path.parent if path is not None else Path.cwd()
+
+
+def job_bytes(cfg: DictConfig, scene, setup) -> tuple[int, int]:
+    """What a job writes, estimated: (bytes under its output dir, bytes into a local sqlite store and its
+    artifacts). A run's artifacts are copies of the job's files; a tracking server keeps them on its own disk."""
+    import os
+
+    from garage_exp.diskspace import FIXED, PNG_PER_PIXEL, ROW, STORE_FIXED
+    from garage_exp.scene.description import Box, Mesh
+    from garage_exp.store import sqlite_path
+
+    out = FIXED
+    if scene is not None:
+        frames = len(setup.shots) * len(scene.cameras)
+        png = PNG_PER_PIXEL * sum(c.width * c.height for c in scene.cameras) / len(scene.cameras)
+        glb, meshes = 0, set()
+        for entity in scene.entities:
+            for shape in entity.shapes:
+                if isinstance(shape, Mesh) and shape.path not in meshes:  # the GLB holds a model once
+                    meshes.add(shape.path)
+                    glb += os.path.getsize(shape.path) if os.path.isfile(shape.path) else 0
+                elif isinstance(shape, Box):
+                    glb += 1000
+        saved = {"all": frames, "key": 3 * len(scene.cameras)}.get(cfg.renderer.save_frames, 0)
+        out += glb + ROW * frames + saved * png + (frames * (png + 200) if cfg.get("dataset") else 0)
+    uri = OmegaConf.select(cfg, "tracking.uri") or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///"
+    local = sqlite_path(uri) is not None
+    return int(out), int(out + STORE_FIXED) if local else 0

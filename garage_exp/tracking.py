@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import os
 import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -29,8 +30,17 @@ def tracking_uri(uri: str | None = None) -> str:
 def client(uri: str | None = None):
     import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
 
-    mlflow.set_tracking_uri(tracking_uri(uri))
-    return retry(mlflow.MlflowClient)  # the client opens (and may create) the store: a write
+    from garage_exp.store import open_store
+
+    uri = tracking_uri(uri)
+    if uri.startswith(("http://", "https://")):
+        # MLflow's own HTTP retries (7, with back-off up to two minutes each, and a 120 s timeout) sat more than
+        # 15 minutes on a stopped server; retry() below waits instead, for a bounded time, and says so.
+        os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
+        os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "30")
+    mlflow.set_tracking_uri(uri)
+    # The client opens (and may create) the store: a write, made once under the store's lock.
+    return open_store(uri, lambda: retry(mlflow.MlflowClient))
 
 
 # sqlite answers "database is locked" (or "database table is locked") when another process holds the write
@@ -38,20 +48,82 @@ def client(uri: str | None = None):
 TRANSIENT = ("database is locked", "database table is locked")
 
 
+# A tracking server that does not answer: refused or reset connections, timeouts, a proxy's 502-504.
+UNREACHABLE = ("max retries exceeded", "connection refused", "connection aborted", "connection reset",
+               "read timed out", "connecttimeout", "remotedisconnected", "failed to establish a new connection",
+               "error code 429", "error code 502", "error code 503", "error code 504")
+
+
+class TrackingAway(Exception):
+    """The tracking server stayed away longer than the wait allowed (or a signal came while it was away)."""
+
+
+_down_since: float | None = None  # when the server stopped answering (None: it answers)
+_given_up = False  # the wait ran out: later calls fail at once instead of waiting again
+
+
+def tracking_wait() -> float:
+    """How long a call waits for a tracking server that went away ($GARAGE_EXP_TRACKING_WAIT, seconds)."""
+    try:
+        return max(0.0, float(os.environ.get("GARAGE_EXP_TRACKING_WAIT", "180")))
+    except ValueError:
+        return 180.0
+
+
+def _unreachable(exc: BaseException) -> bool:
+    text = f"{type(exc).__name__}: {exc}".lower()
+    return any(t in text for t in UNREACHABLE)
+
+
 def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.0):
     """Call fn(), retrying on sqlite's 'database is locked' (several workers share one sqlite store) with
-    jittered exponential back-off (~30 s in all before the error is raised)."""
+    jittered exponential back-off (~30 s in all before the error is raised), and on a tracking server that
+    does not answer for up to tracking_wait() seconds (one line when the wait starts, one when the server is
+    back), then TrackingAway. After Ctrl-C or SIGTERM nothing waits: one attempt, and none at all when the
+    server was already away."""
     import random
 
-    for k in range(attempts):
+    from garage_exp.cli_errors import stopping
+
+    global _down_since, _given_up
+    k = 0
+    while True:
+        if _given_up or (stopping() and _down_since is not None):
+            raise TrackingAway(f"tracking server {_uri()} away")
         try:
-            return fn()
-        except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError
+            result = fn()
+        except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError and requests' errors
+            if _unreachable(exc):
+                now = time.monotonic()
+                if _down_since is None:
+                    _down_since = now
+                    if not stopping():
+                        print(f"garage_exp: tracking server {_uri()} not answering; retrying for up to "
+                              f"{tracking_wait():.0f} s (GARAGE_EXP_TRACKING_WAIT)", file=sys.stderr, flush=True)
+                waited = now - _down_since
+                if stopping() or waited >= tracking_wait():
+                    _given_up = not stopping()
+                    raise TrackingAway(f"tracking server {_uri()} away for {waited:.0f} s") from None
+                time.sleep(min(30.0, 2.0 ** min(k, 5), tracking_wait() - waited + 0.01))
+                k += 1
+                continue
             text = str(exc).lower()
-            if not any(t in text for t in TRANSIENT) or k == attempts - 1:
+            if not any(t in text for t in TRANSIENT) or k >= attempts - 1:
                 raise
             time.sleep(min(max_delay, base_delay * (2**k)) * (0.5 + random.random()))
-    raise AssertionError("unreachable")
+            k += 1
+            continue
+        if _down_since is not None:
+            print(f"garage_exp: tracking server {_uri()} answers again after {time.monotonic() - _down_since:.0f} s",
+                  file=sys.stderr, flush=True)
+            _down_since = None
+        return result
+
+
+def _uri() -> str:
+    import mlflow
+
+    return mlflow.get_tracking_uri()
 
 
 def artifact_location(uri: str | None, name: str) -> str | None:
@@ -250,17 +322,43 @@ def find_parent(mlc, experiment_id: str, key: str):
     return runs[0] if runs else None
 
 
+PENDING_FILE = "tracking_pending.jsonl"
+
+
 class JobRun:
     """The MLflow run of one job. Logging goes through the client (no global active run), so a sweep's
-    parent run and the jobs of one process never interfere."""
+    parent run and the jobs of one process never interfere.
 
-    def __init__(self, mlc, run_id: str, experiment_id: str | None = None):
-        self.mlc, self.run_id, self.experiment_id = mlc, run_id, experiment_id
+    With `pending` set (a file in the job's dir), a call the tracking server could not take (TrackingAway)
+    is kept there instead of failing the job: the job finishes its frames and files, and resume=true logs
+    the kept calls later (replay_pending) without rendering again."""
+
+    def __init__(self, mlc, run_id: str, experiment_id: str | None = None, pending: Path | None = None):
+        self.mlc, self.run_id, self.experiment_id, self.pending = mlc, run_id, experiment_id, pending
+        self.kept = 0  # calls kept in the pending file
+
+    def _call(self, op: str, *args) -> None:
+        try:
+            getattr(self, "_" + op)(*args)
+        except TrackingAway:
+            if self.pending is None:
+                raise
+            import json
+
+            with open(self.pending, "a") as fh:
+                fh.write(json.dumps([op, *args]) + "\n")
+            self.kept += 1
 
     def log_metric(self, key: str, value: float, step: int = 0) -> None:
-        retry(lambda: self.mlc.log_metric(self.run_id, key, float(value), step=step))
+        self._call("log_metric", key, float(value), int(step))
+
+    def _log_metric(self, key, value, step) -> None:
+        retry(lambda: self.mlc.log_metric(self.run_id, key, value, step=step))
 
     def log_metrics(self, metrics: dict[str, float], step: int = 0) -> None:
+        self._call("log_metrics", {k: float(v) for k, v in metrics.items()}, int(step))
+
+    def _log_metrics(self, metrics, step) -> None:
         from mlflow.entities import Metric
 
         now = int(time.time() * 1000)
@@ -270,25 +368,71 @@ class JobRun:
 
     def log_series(self, key: str, values, steps=None) -> None:
         """A whole trajectory metric in few requests."""
+        steps = range(len(values)) if steps is None else steps
+        self._call("log_series", key, [float(v) for v in values], [int(s) for s in steps])
+
+    def _log_series(self, key, values, steps) -> None:
         from mlflow.entities import Metric
 
         now = int(time.time() * 1000)
-        steps = range(len(values)) if steps is None else steps
-        batch = [Metric(key, float(v), now, int(s)) for s, v in zip(steps, values)]
+        batch = [Metric(key, v, now, s) for s, v in zip(steps, values)]
         for k in range(0, len(batch), 900):
             retry(lambda part=batch[k:k + 900]: self.mlc.log_batch(self.run_id, metrics=part))
 
     def set_tag(self, key: str, value: Any) -> None:
-        retry(lambda: self.mlc.set_tag(self.run_id, key, str(value)[:5000]))
+        self._call("set_tag", key, str(value)[:5000])
+
+    def _set_tag(self, key, value) -> None:
+        retry(lambda: self.mlc.set_tag(self.run_id, key, value))
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
-        retry(lambda: self.mlc.log_artifact(self.run_id, str(path), artifact_path))
+        self._call("log_artifact", str(path), artifact_path)
+
+    def _log_artifact(self, path, artifact_path) -> None:
+        retry(lambda: self.mlc.log_artifact(self.run_id, path, artifact_path))
 
     def log_text(self, text: str, artifact_file: str) -> None:
+        self._call("log_text", text, artifact_file)
+
+    def _log_text(self, text, artifact_file) -> None:
         retry(lambda: self.mlc.log_text(self.run_id, text, artifact_file))
 
     def end(self, status: str = "FINISHED") -> None:
+        self._call("end", status)
+
+    def _end(self, status) -> None:
         retry(lambda: self.mlc.set_terminated(self.run_id, status))
+
+
+def kept_run(cfg: DictConfig, digest: str) -> tuple[str, Path] | None:
+    """An unfinished run of this config whose job finished its outputs while the tracking server was away
+    (its pending file ends with the run's end): (run id, pending file), or None."""
+    import json
+
+    mlc = client(cfg.tracking.uri)
+    exp = retry(lambda: mlc.get_experiment_by_name(cfg.tracking.experiment))
+    if exp is None:
+        return None
+    runs = retry(lambda: mlc.search_runs([exp.experiment_id], max_results=100,
+                                         filter_string=f"tags.config_hash = '{digest}' and attributes.status = 'RUNNING'"))
+    for r in runs:
+        pending = Path(r.data.tags.get("output_dir", "")) / PENDING_FILE
+        if r.data.tags.get("output_dir") and pending.is_file():
+            lines = pending.read_text().splitlines()
+            if lines and json.loads(lines[-1]) == ["end", "FINISHED"]:
+                return r.info.run_id, pending
+    return None
+
+
+def replay_pending(cfg: DictConfig, run_id: str, pending: Path) -> None:
+    """Log the calls a job kept while the server was away, in order, into its run (which ends FINISHED)."""
+    import json
+
+    run = JobRun(client(cfg.tracking.uri), run_id)
+    for line in pending.read_text().splitlines():
+        op, *args = json.loads(line)
+        getattr(run, "_" + op)(*args)
+    pending.rename(pending.with_name(PENDING_FILE + ".logged"))
 
 
 def start_job_run(cfg: DictConfig, run_name: str, tags: dict[str, str], parent_run_id: str | None) -> JobRun:

@@ -2,11 +2,14 @@
 
 One sweep of two tiny real jobs (the light case: 8 frames at 320x240, one detector) runs against an `mlflow
 server` on 127.0.0.1 (sqlite backend, proxied local artifact store) through $MLFLOW_TRACKING_URI. A fault is
-injected into job 0 (tests/faults/sitecustomize.py: its 4th frame raises), so the same sweep shows
+injected into job 0 (tests/faults/sitecustomize.py: its 4th frame raises) and job 1's detector process is
+killed with SIGKILL twice (after its 3rd and 6th frames are sent), so the same sweep shows
 - a job that raises mid-sweep: its run ends FAILED with the error and a traceback, its partial frame table is
   an artifact, the other job finishes, the sweep summary and report list the failure, the exit code is 1;
 - the tracking server: runs, params, metrics, metric histories and artifacts read back through the client;
-and a second, single run of job 1's config in a new process shows determinism: the same frame table.
+- a dying detector process: replaced, the frames in flight sent again, the job finishes;
+and a second, single run of job 1's config in a new process, without the kills, shows determinism and that the
+kills changed nothing: the same frame table.
 """
 
 from __future__ import annotations
@@ -102,7 +105,7 @@ def repeat_run(tmp_path_factory):
 def faulty_sweep(repeat_run, mlflow_server, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("faulty_sweep")
     env = {"MLFLOW_TRACKING_URI": mlflow_server["uri"], "PYTHONPATH": FAULTS,
-           "GARAGE_EXP_FAULT": "frame:raise:0:3"}
+           "GARAGE_EXP_FAULT": "frame:raise:0:3;detector:kill:1:2,5"}
     proc = run_app(["-m", *JOB, "light=bright,dim"], tmp, env=env, timeout=900)
     from garage_exp import tracking
 
@@ -177,8 +180,13 @@ def test_tracking_server_holds_runs_metrics_and_artifacts(faulty_sweep, mlflow_s
 
 
 def test_same_config_and_seed_give_the_same_frame_table(faulty_sweep, repeat_run):
-    """Job 1 of the sweep again, in another process, logging elsewhere: the same config hash and frame table
-    (geometry and ground truth exact, detector confidences within 1e-6)."""
+    """Job 1 of the sweep again, in another process, logging elsewhere, and without the two kills of its
+    detector process: the same config hash and frame table (geometry and ground truth exact, detector
+    confidences within 1e-6)."""
+    said = faulty_sweep["proc"].stdout + faulty_sweep["proc"].stderr
+    assert said.count("FAULT: killed the detector process") == 2
+    assert "the detector process died (exit code -9): started a new one" in said
+    assert "(restart 2 of 2 in this job)" in said
     r = repeat_run["future"].result()
     assert r.returncode == 0, r.stderr[-3000:]
     from garage_exp import tracking

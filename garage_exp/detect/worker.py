@@ -70,62 +70,82 @@ class InlineDetector:
 
 class DetectorProcess:
     """A child process holding a `Detector`: `submit(rgb)` sends a frame, `result()` returns the oldest one's
-    detections. Reconfigure with `load(spec)`; the child keeps every model it loaded."""
+    detections. Reconfigure with `load(spec)`; the child keeps every model it loaded.
+
+    A child that dies (the OOM killer, `kill -9`, a crash in a native library) is replaced: a new child loads
+    the same detectors and gets the frames the dead one had not answered, in order, so the job's results are
+    the same as without the fault. At most RESTARTS times per job (per `load`); the next death fails the job."""
+
+    RESTARTS = 2
 
     def __init__(self, threads: int = DEFAULT_THREADS):
+        self.threads = threads
+        self._spec: dict[str, Any] | None = None
+        self._names: list[str] | None = None
+        self._loading = False
+        self._reloading = False  # a replacement child's answer to the re-sent load is due before any frame's
+        self._flight: deque[np.ndarray] = deque()  # frames sent and not yet answered, oldest first
+        self.restarts = 0
+        self._start()
+
+    def _start(self) -> None:
         # A plain `python -m garage_exp.detect.worker` rather than multiprocessing: a spawn child re-imports the
         # parent's __main__ and inherits its start method, and inside a joblib (loky) worker that method is
         # "loky", which a spawn child cannot set up. Requests travel over a socket pair as pickles.
         ours, theirs = socket.socketpair()
         self._proc = subprocess.Popen([sys.executable, "-m", "garage_exp.detect.worker", str(theirs.fileno()),
-                                       str(threads)], pass_fds=(theirs.fileno(),))
+                                       str(self.threads)], pass_fds=(theirs.fileno(),))
         theirs.close()
         self._conn = Connection(ours.detach())
-        self.threads = threads
-        self._spec: dict[str, Any] | None = None
-        self._names: list[str] | None = None
-        self._loading = False
-        self._pending = 0  # frames sent and not yet answered
 
     def load(self, spec: dict[str, Any]) -> None:
         """Ask the child for these detectors; returns at once (loading overlaps the caller's start-up)."""
         self.drain()
+        self.restarts = 0
         if spec == self._spec and not self._loading and self._names is not None:
             return
-        self._send(("load", spec))
         self._spec, self._names, self._loading = spec, None, True
+        self._send(("load", spec))
 
     @property
     def names(self) -> list[str]:
         """The models' names; waits for loading to finish (raises its GarageError)."""
         if self._loading:
-            self._loading = False
-            self._names = self._receive()
+            try:
+                self._names = self._receive()
+            finally:
+                self._loading = False
         if self._names is None:
             raise RuntimeError("no detectors loaded: the last load failed")
         return self._names
 
     def submit(self, rgb: np.ndarray) -> None:
         self.names  # noqa: B018 - a loading error surfaces here, not as a frame's result
+        self._flight.append(rgb)
         self._send(("detect", rgb))
-        self._pending += 1
 
     def result(self) -> list:
-        if self._pending <= 0:
+        if not self._flight:
             raise RuntimeError("no detection pending")
-        self._pending -= 1
-        return self._receive()
+        try:
+            return self._receive()
+        finally:
+            if self._flight:  # answered (a GarageError is an answer too); empty if the child was discarded
+                self._flight.popleft()
 
     def drain(self) -> None:
         """Read and drop unanswered answers (after a failed job), so the next job starts in step. Called while
         the job's own error propagates, so it raises nothing but a new Ctrl-C."""
+        if not self.alive():  # no child to restart just to drop its answers: the next job starts a new one
+            self._discard()
+            return
         try:
             if self._loading:
                 try:
                     self.names  # noqa: B018
                 except GarageError:
                     pass
-            while self._pending > 0:
+            while self._flight:
                 try:
                     self.result()
                 except GarageError:
@@ -150,7 +170,8 @@ class DetectorProcess:
         global _WORKER
         if _WORKER is self:
             _WORKER = None
-        self._pending, self._loading, self._names = 0, False, None
+        self._loading, self._reloading, self._names, self._spec = False, False, None, None
+        self._flight.clear()
         if self._proc.poll() is None:
             self._proc.kill()
             self._proc.wait()
@@ -174,32 +195,72 @@ class DetectorProcess:
         try:
             self._conn.send(message)
         except (OSError, ValueError) as exc:
-            raise self._died() from exc
+            self._revive(exc)  # the new child gets the load and every frame in flight, this one included
         except BaseException:  # Ctrl-C half-way through a frame
             self._discard()
             raise
 
     def _receive(self):
-        try:
-            status, payload, records = self._conn.recv()
-        except (EOFError, OSError) as exc:
-            raise self._died() from exc
-        except BaseException:  # Ctrl-C half-way through an answer
-            self._discard()
-            raise
-        for level, message in records:  # the child's log lines go to the job's log, as they did in-process
-            log.log(level, message)
-        if status == "ok":
-            return payload
-        kind, message, where = payload
-        if kind == "GarageError":
-            raise GarageError(message, where)
-        raise RuntimeError(f"detector process: {kind}: {message}")
+        while True:
+            try:
+                status, payload, records = self._conn.recv()
+            except (EOFError, OSError) as exc:
+                self._revive(exc)
+                continue
+            except BaseException:  # Ctrl-C half-way through an answer
+                self._discard()
+                raise
+            for level, message in records:  # the child's log lines go to the job's log, as they did in-process
+                log.log(level, message)
+            if self._reloading:  # the replacement loaded the job's detectors; the frames' answers follow
+                self._reloading = False
+                if status != "ok":
+                    raise self._died(self._proc.poll())
+                continue
+            if status == "ok":
+                return payload
+            kind, message, where = payload
+            if kind == "GarageError":
+                raise GarageError(message, where)
+            raise RuntimeError(f"detector process: {kind}: {message}")
 
-    def _died(self) -> RuntimeError:
-        code = self._proc.poll()
+    def _exit_code(self) -> int | None:
+        try:
+            return self._proc.wait(timeout=5)  # the pipe breaks a moment before the process is reaped
+        except subprocess.TimeoutExpired:  # alive with a broken pipe: out of step, of no further use
+            self._proc.kill()
+            return self._proc.wait()
+
+    def _revive(self, cause: BaseException) -> None:
+        """The child died: start another, load the job's detectors and re-send the frames in flight; raise
+        (and fail the job) once RESTARTS replacements have died too."""
+        while True:
+            code = self._exit_code()
+            if self.restarts >= self.RESTARTS or self._spec is None:
+                raise self._died(code) from cause
+            self.restarts += 1
+            log.warning("the detector process died (exit code %s): started a new one and re-sent the %d frame(s) "
+                        "in flight (restart %d of %d in this job)", code, len(self._flight), self.restarts,
+                        self.RESTARTS)
+            self._conn.close()
+            self._start()
+            self._reloading = not self._loading  # during a load, its answer is the one the caller waits for
+            try:
+                self._conn.send(("load", self._spec))
+                for rgb in self._flight:
+                    self._conn.send(("detect", rgb))
+                return
+            except (OSError, ValueError) as exc:
+                cause = exc
+            except BaseException:
+                self._discard()
+                raise
+
+    def _died(self, code: int | None) -> RuntimeError:
+        deaths = self.restarts + 1
         self._discard()  # the next job starts a new child
-        return RuntimeError(f"the detector process died (exit code {code})")
+        times = f", {deaths} times in this job" if deaths > 1 else ""
+        return RuntimeError(f"the detector process died (exit code {code}{times})")
 
 
 def _serve(conn, threads: int) -> None:
