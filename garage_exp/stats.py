@@ -68,7 +68,8 @@ def group_cis(obs: pd.DataFrame, by: list[str], responses: list[str]) -> pd.Data
         for r in responses:
             row[r], row[f"{r}_low"], row[f"{r}_high"] = mean_ci(g[r])
         rows.append(row)
-    return pd.DataFrame(rows)
+    cols = [*by, "n", *(f"{r}{s}" for r in responses for s in ("", "_low", "_high"))]
+    return pd.DataFrame(rows, columns=cols)
 
 
 def anova(obs: pd.DataFrame, factors: list[str], response: str, block: str | None = None) -> pd.DataFrame:

@@ -244,3 +244,14 @@ def test_summary_without_runs_or_expectation_and_long_errors(runs):
     failed.loc[0, ["status", "error"]] = ["FAILED", "x" * 1000]
     line = summary(failed)[0].splitlines()[1]
     assert len(line) == 600 and line.endswith("x")
+
+
+def test_a_sweep_without_confidences_still_reports(runs):
+    """A dry-run sweep: finished runs, no metrics, no frames. Every table is empty, and the text says so."""
+    dry = runs.assign(confidence_mean=None, recall=None, difficulty=None)
+    factors = factors_of(dry)
+    obs = units(dry, pd.DataFrame(), factors)
+    effects, pairs = main_effects(obs, factors), pair_effects(obs, factors)
+    assert obs.empty and effects.empty and pairs.empty
+    text = markdown(dry, obs, effects, pairs, significance(obs, factors))
+    assert "0 units" in text and "(none)" in text

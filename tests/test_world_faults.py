@@ -436,8 +436,7 @@ def test_a_tracking_server_gone_mid_sweep_keeps_the_outputs_and_resume_logs_them
     err = (tmp_path / "err.txt").read_text()
     line = one_line_error(err)
     job1 = tmp_path / "sweep" / "1"
-    assert line.startswith(f"garage_exp: tracking server {server.uri} away: job 'dry_run=True plan=tiny light=dim "
-                           "tracking.experiment=away' "
+    assert line.startswith(f"garage_exp: tracking server {server.uri} away: job 'dry_run=True plan=tiny light=dim' "
                            f"finished, its outputs kept in {job1}: 1 of 3 jobs finished; rerun the same command")
     waiting = [ln for ln in err.splitlines() if "not answering" in ln]
     assert waiting == [f"garage_exp: tracking server {server.uri} not answering; retrying for up to 3 s "
