@@ -284,13 +284,18 @@ def sweep_key(task_overrides: list[str]) -> str:
 
 def finished_run(cfg: DictConfig, digest: str) -> str | None:
     """The id of a FINISHED run of the same config in this experiment, if any."""
+    runs = runs_of_config(cfg, digest, "FINISHED", 1)
+    return runs[0].info.run_id if runs else None
+
+
+def runs_of_config(cfg: DictConfig, digest: str, status: str, limit: int) -> list:
+    """Runs of this config (by its hash) in the config's experiment with the given status."""
     mlc = client(cfg.tracking.uri)
     exp = retry(lambda: mlc.get_experiment_by_name(cfg.tracking.experiment))
     if exp is None:
-        return None
-    runs = retry(lambda: mlc.search_runs([exp.experiment_id], max_results=1,
-                                         filter_string=f"tags.config_hash = '{digest}' and attributes.status = 'FINISHED'"))
-    return runs[0].info.run_id if runs else None
+        return []
+    return retry(lambda: mlc.search_runs([exp.experiment_id], max_results=limit,
+                                         filter_string=f"tags.config_hash = '{digest}' and attributes.status = '{status}'"))
 
 
 def supersede(mlc, experiment_id: str, digest: str, new_run_id: str) -> list[str]:
@@ -409,13 +414,7 @@ def kept_run(cfg: DictConfig, digest: str) -> tuple[str, Path] | None:
     (its pending file ends with the run's end): (run id, pending file), or None."""
     import json
 
-    mlc = client(cfg.tracking.uri)
-    exp = retry(lambda: mlc.get_experiment_by_name(cfg.tracking.experiment))
-    if exp is None:
-        return None
-    runs = retry(lambda: mlc.search_runs([exp.experiment_id], max_results=100,
-                                         filter_string=f"tags.config_hash = '{digest}' and attributes.status = 'RUNNING'"))
-    for r in runs:
+    for r in runs_of_config(cfg, digest, "RUNNING", 100):
         pending = Path(r.data.tags.get("output_dir", "")) / PENDING_FILE
         if r.data.tags.get("output_dir") and pending.is_file():
             lines = pending.read_text().splitlines()

@@ -32,6 +32,30 @@ def _job_num() -> int:
         return 0
 
 
+def _before_frames(job, hook):
+    """Call hook(frames done so far) before each frame job `job`'s sensor model sees."""
+    import garage_exp.sensor as sensor
+
+    real_make = sensor.make_sensor
+
+    def make_sensor(conf):
+        model = real_make(conf)
+        if _job_num() != job:
+            return model
+        real_apply = model.apply
+        done = [0]
+
+        def apply(rgb, rng):
+            hook(done[0])
+            done[0] += 1
+            return real_apply(rgb, rng)
+
+        object.__setattr__(model, "apply", apply)
+        return model
+
+    sensor.make_sensor = make_sensor
+
+
 def _install(spec: str) -> None:
     where, action, job, *rest = spec.split(":")
     job = int(job)
@@ -59,53 +83,23 @@ def _install(spec: str) -> None:
 
         draw.draw_map = draw_map
     elif where == "frame":
-        import garage_exp.sensor as sensor
-
         after = int(rest[0])
-        real_make = sensor.make_sensor
 
-        def make_sensor(conf):
-            model = real_make(conf)
-            if _job_num() != job:
-                return model
-            real_apply = model.apply
-            done = [0]
+        def at_frame(done):
+            if done >= after:
+                raise RuntimeError(f"injected fault at frame {after} of job {job}")
 
-            def apply(rgb, rng):
-                if done[0] >= after:
-                    raise RuntimeError(f"injected fault at frame {after} of job {job}")
-                done[0] += 1
-                return real_apply(rgb, rng)
-
-            object.__setattr__(model, "apply", apply)
-            return model
-
-        sensor.make_sensor = make_sensor
+        _before_frames(job, at_frame)
     elif where == "disk" and rest:
-        import garage_exp.sensor as sensor
-
         after = int(rest[0])
-        real_make = sensor.make_sensor
 
-        def make_sensor(conf):
-            model = real_make(conf)
-            if _job_num() != job:
-                return model
-            real_apply = model.apply
-            done = [0]
+        def at_frame(done):
+            if done == after:
+                from hydra.core.hydra_config import HydraConfig
 
-            def apply(rgb, rng):
-                if done[0] == after:
-                    from hydra.core.hydra_config import HydraConfig
+                _fill(os.path.join(HydraConfig.get().runtime.output_dir, "filler"))
 
-                    _fill(os.path.join(HydraConfig.get().runtime.output_dir, "filler"))
-                done[0] += 1
-                return real_apply(rgb, rng)
-
-            object.__setattr__(model, "apply", apply)
-            return model
-
-        sensor.make_sensor = make_sensor
+        _before_frames(job, at_frame)
     elif where == "disk":
         import errno
 
@@ -187,3 +181,4 @@ def after_import(name: str, patch) -> None:
 
 for _spec in filter(None, SPEC.split(";")):
     _install(_spec)
+
