@@ -5,7 +5,7 @@ garage26x30 and 3 x 3 version garage39x45, all in plans/), each with the default
 case 1. Each (plan, palette) runs in its own process (so its peak memory is its own), in rounds that alternate
 the order, so a load spike from the other agents on the machine hits every plan alike. Inside a process the
 render stage (render, silhouettes, ground truth, sensor: what grows with the garage; detection costs the same
-per frame on every plan) runs the first `--frames` shots with frustum culling on and off, alternating.
+per frame on every plan) runs `--frames` shots spread over the case with frustum culling on and off, alternating.
 
 Columns: bodies (SAPIEN render bodies after merging static structure per material and tile), hidden (the
 mean share the culled render hid as outside the frustum), s/frame culled and unculled (median over
@@ -25,6 +25,7 @@ import statistics
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 import jobkit
 
@@ -37,7 +38,9 @@ def measure(plan: str, palette: str, frames: int, repeat: int) -> dict:
     job = jobkit.build_job([f"plan.name={plan}", f"palette={palette}", "case=1"])
     build = time.perf_counter() - t0  # includes the first frame (shader compile): reported apart below
     renderer = job.renderer
-    n = min(frames, len(job.setup.shots))
+    shots = job.setup.shots
+    job.setup = replace(job.setup, shots=shots[:: max(1, len(shots) // frames)][:frames])  # the whole approach
+    n = len(job.setup.shots)
     times: dict[bool, list[float]] = {True: [], False: []}
     hidden = []
     for _ in range(repeat):
@@ -82,7 +85,7 @@ def main() -> None:
     if args.child:
         print("RESULT " + json.dumps(measure(*args.child, args.frames, args.repeat)), flush=True)
         return
-    print(f"# scale, case 1, first {args.frames} shots, {args.repeat} repeats x {args.rounds} rounds; "
+    print(f"# scale, case 1, {args.frames} shots spread over the case, {args.repeat} repeats x {args.rounds} rounds; "
           f"{jobkit.machine()}")
     print(f"# before: {jobkit.load()}")
     configs = [(p, pal) for pal in args.palettes for p in args.plans]
