@@ -4,10 +4,11 @@ A block is 13 x 15 cells (about 73 x 76 m): the research layout's pattern repeat
 row with a row of bays on either side (back-to-back islands between lanes), north-south lanes every seventh
 column, bays along the four walls, a stair-and-lift core (-1) in every second island, an entrance ramp
 through the north wall at column 1 and an exit ramp through the south wall at the last lane column. An
-`a x b` garage is that pattern over `13a x 15b` cells, so `garage26x30` (2 x 2 blocks, 146 x 152 m) is the
+`a x b` garage is that pattern over `13a x 15b` cells, so `garage26x30` (2 x 2 blocks, 159 x 145 m) is the
 issue's "26 x 30-cell garage" and `garage39x45` its 3 x 3 version.
 
-Bays are 5.3 m deep (rows next to a lane) and cells along a lane 5.0 m wide (2 bays of 2.5 m); lanes 6.2 m.
+Bays are 5.3 m deep (rows and columns next to a lane); other cells along a lane are 5.0 m wide (2 bays of
+2.5 m); lanes 6.2 m.
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ def garage_lists(m: int, n: int) -> tuple[list[list[int]], list[float], list[flo
     S[0][1] = 2
     S[m - 1][max(j for j in range(n) if lane_col(j, n))] = 3
     R = [LANE if lane_row(i, m) and 0 < i < m - 1 else BAY for i in range(m)]
-    C = [LANE if lane_col(j, n) else CELL for j in range(n)]
+    # Cells beside a north-south lane hold bays facing it: as deep as the rows' bays.
+    C = [LANE if lane_col(j, n) else BAY if lane_col(j - 1, n) or lane_col(j + 1, n) else CELL for j in range(n)]
     return S, R, C
 
 
