@@ -1,7 +1,7 @@
 """Generated big garages for the scale benchmark: `python benchmarks/garages.py` writes plans/garage*.yaml.
 
-A block is 13 x 15 cells (about 73 x 76 m): the research layout's pattern repeated. East-west lanes every third
-row with a row of bays on either side (back-to-back islands between lanes), north-south lanes every seventh
+A block is 13 x 15 cells (about 73 x 81 m): the research layout's pattern repeated. East-west lanes every third
+row (and before the south wall's bays) with a row of bays on either side (back-to-back islands between lanes), north-south lanes every seventh
 column, bays along the four walls, a stair-and-lift core (-1) in every second island, an entrance ramp
 through the north wall at column 1 and an exit ramp through the south wall at the last lane column. An
 `a x b` garage is that pattern over `13a x 15b` cells, so `garage26x30` (2 x 2 blocks, 159 x 145 m) is the
@@ -21,7 +21,8 @@ LANE, BAY, CELL = 6.2, 5.3, 5.0
 
 
 def lane_row(i: int, m: int) -> bool:
-    return i % 3 == 1 and i < m - 1
+    """Every third row, and the row before the south wall's bays when the pattern leaves it two rows short."""
+    return 0 < i < m - 1 and (i % 3 == 1 or (i == m - 2 and (m - 3) % 3 != 1))
 
 
 def lane_col(j: int, n: int) -> bool:
@@ -41,7 +42,7 @@ def garage_lists(m: int, n: int) -> tuple[list[list[int]], list[float], list[flo
                     S[i][j] = S[i + 1][j] = -1
     S[0][1] = 2
     S[m - 1][max(j for j in range(n) if lane_col(j, n))] = 3
-    R = [LANE if lane_row(i, m) and 0 < i < m - 1 else BAY for i in range(m)]
+    R = [LANE if lane_row(i, m) else BAY for i in range(m)]
     # Cells beside a north-south lane hold bays facing it: as deep as the rows' bays.
     C = [LANE if lane_col(j, n) else BAY if lane_col(j - 1, n) or lane_col(j + 1, n) else CELL for j in range(n)]
     return S, R, C
