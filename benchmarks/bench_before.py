@@ -43,7 +43,7 @@ def measure(plan_file: str, frames: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--before", type=Path, required=True, help="the other checkout (its garage_exp is used)")
+    parser.add_argument("--before", type=Path, help="the other checkout (its garage_exp is used)")
     parser.add_argument("--frames", type=int, default=22)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--plans", nargs="+", default=PLANS)
@@ -51,6 +51,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.child:
         print("RESULT " + json.dumps(measure(args.child[0], args.frames)), flush=True)
+        return
+    if args.before is None:
+        print("# bench_before: nothing to compare; give --before /path/to/another/checkout")
         return
     codes = {"before": str(args.before.resolve()), "now": str(HERE.parent)}
     print(f"# before/after, case 1, palette=busy, {args.frames} shots, {args.rounds} rounds; {jobkit.machine()}")
