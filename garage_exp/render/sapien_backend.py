@@ -6,10 +6,16 @@ measured on lavapipe here) and every later scene reuses them, provided SAPIEN's 
 
 Entities and ids: every vehicle (and every non-static entity) is its own SAPIEN entity, so the segmentation
 picture's channel 1 (`per_scene_id`) says which vehicle a pixel shows (`renderer.ids`). Static structure,
-markings and lamp fixtures are merged into one SAPIEN entity per material (each box a shape of it): with
-2,004 boxes at 640x480 this measured the same frame time as one entity per box (0.054-0.061 s vs
-0.061-0.068 s, within noise), but the silhouette renders then hide ~10 bodies instead of ~2,000.
+markings and lamp fixtures are merged into one SAPIEN entity per material and 12 m tile (each box a shape of
+it): with 2,004 boxes at 640x480 one entity per material measured the same frame time as one entity per box
+(0.054-0.061 s vs 0.061-0.068 s, within noise); the tiles let a frame hide what it cannot see.
 `batch_static=False` keeps an id per structure entity.
+
+Culling (`cull=True`): each frame hides the bodies whose world AABB lies wholly outside the camera's frustum
+(render/cull.py), which cover no pixel, and ground truth's silhouette candidates are filtered by the same
+test. Only bodies whose visibility changes are touched. With shadows on nothing is culled (a body out of view
+can cast a shadow into it). benchmarks/RESULTS.md (issue 13) has the measured gain: frames and ground truth
+are byte-identical.
 
 Lights: SAPIEN's default shader is compiled for a fixed number of point lights (at most 10), and changing the
 count recompiles it. The renderer keeps a fixed pool of `max_lights` point lights in every scene and, before
