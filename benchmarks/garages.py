@@ -41,7 +41,14 @@ def garage_lists(m: int, n: int) -> tuple[list[list[int]], list[float], list[flo
                 if not lane_col(j, n):
                     S[i][j] = S[i + 1][j] = -1
     S[0][1] = 2
-    S[m - 1][max(j for j in range(n) if lane_col(j, n))] = 3
+    exit_col = max(j for j in range(n) if lane_col(j, n))
+    S[m - 1][exit_col] = 3
+    # A bay beside a ramp with no lane of its own would face the ramp: make it the ramp's side wall.
+    for i, j in ((0, 1), (m - 1, exit_col)):
+        for b in (j - 1, j + 1):
+            near = [S[a][c] for a, c in ((i - 1, b), (i + 1, b), (i, b - 1), (i, b + 1)) if 0 <= a < m and 0 <= c < n]
+            if S[i][b] == 0 and 1 not in near:
+                S[i][b] = -1
     R = [LANE if lane_row(i, m) else BAY for i in range(m)]
     # Cells beside a north-south lane hold bays facing it: as deep as the rows' bays.
     C = [LANE if lane_col(j, n) else BAY if lane_col(j - 1, n) or lane_col(j + 1, n) else CELL for j in range(n)]
