@@ -44,11 +44,12 @@ def build_job(overrides: list[str]) -> Job:
     from garage_exp.assets.vehicles import VehicleLibrary
     from garage_exp.experiment import build_scene
     from garage_exp.plan import classify, load_plan
+    from garage_exp.preflight import resolve_plan_path
     from garage_exp.render.sapien_backend import get_renderer
     from garage_exp.sensor import make_sensor
 
     cfg = compose(overrides)
-    classified = classify(load_plan(app.resolve_plan_path(cfg.plan)))
+    classified = classify(load_plan(resolve_plan_path(cfg.plan)))
     scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     renderer = get_renderer(max_lights=cfg.renderer.max_lights, shadows=cfg.renderer.shadows)
     renderer.load(scene)

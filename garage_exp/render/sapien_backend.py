@@ -6,10 +6,16 @@ measured on lavapipe here) and every later scene reuses them, provided SAPIEN's 
 
 Entities and ids: every vehicle (and every non-static entity) is its own SAPIEN entity, so the segmentation
 picture's channel 1 (`per_scene_id`) says which vehicle a pixel shows (`renderer.ids`). Static structure,
-markings and lamp fixtures are merged into one SAPIEN entity per material (each box a shape of it): with
-2,004 boxes at 640x480 this measured the same frame time as one entity per box (0.054-0.061 s vs
-0.061-0.068 s, within noise), but the silhouette renders then hide ~10 bodies instead of ~2,000.
+markings and lamp fixtures are merged into one SAPIEN entity per material and 12 m tile (each box a shape of
+it): with 2,004 boxes at 640x480 one entity per material measured the same frame time as one entity per box
+(0.054-0.061 s vs 0.061-0.068 s, within noise); the tiles let a frame hide what it cannot see.
 `batch_static=False` keeps an id per structure entity.
+
+Culling (`cull=True`): each frame hides the bodies whose world AABB lies wholly outside the camera's frustum
+(render/cull.py), which cover no pixel, and ground truth's silhouette candidates are filtered by the same
+test. Only bodies whose visibility changes are touched. With shadows on nothing is culled (a body out of view
+can cast a shadow into it). benchmarks/RESULTS.md (issue 13) has the measured gain: frames and ground truth
+are byte-identical.
 
 Lights: SAPIEN's default shader is compiled for a fixed number of point lights (at most 10), and changing the
 count recompiles it. The renderer keeps a fixed pool of `max_lights` point lights in every scene and, before
@@ -40,6 +46,7 @@ import numpy as np
 
 from garage_exp.errors import GarageError
 from garage_exp.render.base import BLANK_GREY, Frame
+from garage_exp.render.cull import box_corners, frustum_planes, outside_frustum
 from garage_exp.render.device import ensure_device
 from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
 from garage_exp.scene.description import VEHICLE_ROLES, Box, CameraSpec, Entity, Material, Mesh, Pose, Scene
@@ -52,6 +59,7 @@ SHADOW_MAP_SIZE = 512  # per cube face; lavapipe renders all six faces of every 
 SHADOW_NEAR, SHADOW_FAR = 0.05, 30.0
 MAX_SHADOWED = 3  # SAPIEN's default shader: "too many point lights that cast shadows" beyond this
 STATIC_ROLES = ("structure", "marking", "lamp")
+STATIC_TILE = 12.0  # metres: static shapes merge per material and tile, so that frames can hide far tiles
 
 
 @dataclass
@@ -76,10 +84,11 @@ def _sapien_pose(pose: Pose):
 class SapienRenderer:
     """Renders `Scene` descriptions with SAPIEN. Reuse one instance (see `get_renderer`)."""
 
-    def __init__(self, max_lights: int = 8, shadows: bool = False, batch_static: bool = True):
+    def __init__(self, max_lights: int = 8, shadows: bool = False, batch_static: bool = True, cull: bool = True):
         self.max_lights = max_lights
         self.shadows = shadows
         self.batch_static = batch_static
+        self.cull = cull
         self.description: Scene | None = None
         self._scene = None  # sapien.Scene
         self._entities: dict[str, object] = {}  # name -> sapien.Entity, for entities with their own id
@@ -95,7 +104,18 @@ class SapienRenderer:
         self._lamp_rgb = np.zeros((0, 3))
         self._lamp_weight = np.zeros(0)
         self._materials: dict[Material, object] = {}  # one RenderMaterial per description material and load
-        self._base_visibility: dict[int, float] = {}
+        self._reset_bodies()
+
+    def _reset_bodies(self) -> None:
+        # Every body, in one order: what it shows without culling (`_base`), what it shows now (`_shown`) and
+        # its world AABB (`_lo`, `_hi`; a moved entity's is refreshed before the next render).
+        self._all: list[object] = []
+        self._index: dict[str, int] = {}  # entity name -> position in _all
+        self._base = np.zeros(0, dtype=bool)
+        self._shown = np.zeros(0, dtype=bool)
+        self._lo, self._hi = np.zeros((0, 3)), np.zeros((0, 3))
+        self._moved: set[str] = set()
+        self.culled = 0  # bodies the last render() hid as outside the frustum
 
     # ---- building -------------------------------------------------------------------------------------------
 
@@ -118,22 +138,21 @@ class SapienRenderer:
 
     def _build(self, scene: Scene) -> None:
         self._scene.set_ambient_light([float(c) for c in scene.ambient])
-        merged: dict[Material, list[tuple[Pose, Box | Mesh]]] = {}
-        meshes_merged: list[tuple[Pose, Mesh]] = []
+        # Static shapes merge per material and per STATIC_TILE square (by the shape's centre), so that a frame
+        # can hide the tiles outside its view; materials keep their order.
+        merged: dict[Material | None, dict[tuple[int, int], list[tuple[Pose, Box | Mesh]]]] = {}
         for entity in scene.entities:
             if self.batch_static and entity.static and entity.role in STATIC_ROLES:
                 for shape in entity.shapes:
                     world = entity.pose.compose(shape.offset)
-                    if isinstance(shape, Box):
-                        merged.setdefault(shape.material, []).append((world, shape))
-                    else:
-                        meshes_merged.append((world, shape))
+                    key = shape.material if isinstance(shape, Box) else None
+                    tile = (math.floor(world.x / STATIC_TILE), math.floor(world.y / STATIC_TILE))
+                    merged.setdefault(key, {}).setdefault(tile, []).append((world, shape))
             else:
                 self._add_entity(entity)
-        for material, shapes in merged.items():
-            self._add_merged(f"static:{material.name}", shapes)
-        if meshes_merged:
-            self._add_merged("static:meshes", meshes_merged)
+        for material in [m for m in merged if m is not None] + ([None] if None in merged else []):
+            for (a, b), shapes in merged[material].items():
+                self._add_merged(f"static:{material.name if material else 'meshes'}:{a}:{b}", shapes)
         egos = [e.name for e in scene.entities if e.role == "ego"]
         self._ego = egos[0] if egos else None
         if scene.cameras and self._ego is None:
@@ -142,16 +161,20 @@ class SapienRenderer:
             self._add_camera(spec)
         self._add_lights(scene)
         # The blank control: everything but the vehicles is hidden (also from the silhouette renders).
-        vehicle_bodies = {id(self._bodies[name]) for name in self._vehicles}
-        for body in [*self._bodies.values(), *self._merged]:
-            body.visibility = 1.0 if scene.background or id(body) in vehicle_bodies else 0.0
-            self._base_visibility[id(body)] = body.visibility
+        self._all = [*self._bodies.values(), *self._merged]
+        self._index = {name: k for k, name in enumerate(self._bodies)}
+        self._base = np.array([scene.background or name in self._vehicles for name in self._bodies]
+                              + [scene.background] * len(self._merged), dtype=bool)
+        self._shown = np.ones(len(self._all), dtype=bool)
+        self._show_only(self._base)
+        boxes = np.array([body.get_global_aabb_fast() for body in self._all], dtype=float).reshape(-1, 2, 3)
+        self._lo, self._hi = boxes[:, 0].copy(), boxes[:, 1].copy()
 
     def _reset(self) -> None:
         self._scene, self.description = None, None
         self._entities, self._bodies, self._merged, self._materials = {}, {}, [], {}
         self._ids, self._poses, self._vehicles, self._cameras, self._pool = {}, {}, set(), {}, []
-        self._base_visibility = {}
+        self._reset_bodies()
 
     def _add_entity(self, entity: Entity) -> None:
         import sapien
@@ -269,6 +292,7 @@ class SapienRenderer:
             raise GarageError(f"no movable entity named {name!r} in the loaded scene", "renderer.set_pose")
         node.set_pose(_sapien_pose(pose))
         self._poses[name] = pose
+        self._moved.add(name)
 
     def camera_pose(self, camera_name: str) -> np.ndarray:
         return camera_to_world(self._poses[self._ego], self._camera(camera_name).spec)
@@ -288,6 +312,7 @@ class SapienRenderer:
         cam = self._camera(camera_name)
         pose = self.camera_pose(camera_name)
         self._place(cam, pose)
+        self._show_only(self._in_view(cam.spec, pose))
         rgb, ids = self._take(cam)
         if not self.description.background:
             rgb[ids == 0] = BLANK_GREY
@@ -300,37 +325,36 @@ class SapienRenderer:
 
         Vehicles whose world bounding boxes project to disjoint image rectangles cannot hide one another, so
         they share one render with everything else hidden; only overlapping ones cost an extra render each.
-        Vehicles that project outside the image are left out of the result.
+        Vehicles that project outside the image (first by the frustum test, for all at once) are left out.
         """
         cam = self._camera(camera_name)
         pose = self.camera_pose(camera_name)
         spec = cam.spec
-        rects = {}
-        for name in dict.fromkeys(names):
+        wanted = list(dict.fromkeys(names))
+        for name in wanted:
             if name not in self._bodies:
                 raise GarageError(f"no entity named {name!r} with its own id", "renderer.unoccluded_ids")
-            rect = _image_rect(self._bodies[name].get_global_aabb_fast(), pose, spec)
+        self._refresh_moved()
+        rows = np.array([self._index[name] for name in wanted], dtype=int)
+        ahead = ~outside_frustum(frustum_planes(pose, spec), self._lo[rows], self._hi[rows])
+        rects = {}
+        for name, k, seen in zip(wanted, rows, ahead):
+            rect = _image_rect(np.stack([self._lo[k], self._hi[k]]), pose, spec) if seen else None
             if rect is not None:
                 rects[name] = rect
         out: dict[str, np.ndarray] = {}
         if not rects:
             return out
         self._place(cam, pose)
-        everything = [*self._bodies.values(), *self._merged]
-        try:
-            for group in _disjoint_groups(rects):
-                for body in everything:
-                    body.visibility = 0.0
-                for name in group:
-                    self._bodies[name].visibility = 1.0
-                ids = self._take_ids(cam)
-                for name in group:
-                    mask = ids == self._ids[name]
-                    if mask.any():
-                        out[name] = mask
-        finally:
-            for body in everything:
-                body.visibility = self._base_visibility[id(body)]
+        for group in _disjoint_groups(rects):
+            alone = np.zeros(len(self._all), dtype=bool)
+            alone[[self._index[name] for name in group]] = True
+            self._show_only(alone)
+            ids = self._take_ids(cam)
+            for name in group:
+                mask = ids == self._ids[name]
+                if mask.any():
+                    out[name] = mask
         return out
 
     def blank_composite(self, rgb: np.ndarray, frame: Frame, names: Iterable[str]) -> np.ndarray:
@@ -354,6 +378,29 @@ class SapienRenderer:
         if cam is None:
             raise GarageError(f"no camera named {name!r} (have: {', '.join(self._cameras) or 'none'})", "renderer")
         return cam
+
+    def _in_view(self, spec: CameraSpec, pose: np.ndarray) -> np.ndarray:
+        """Which bodies this camera's frame draws: the base visibility, less what lies wholly outside the view
+        frustum (cull.py) when culling is on. Shadows turn culling off: a body out of view can cast one into it."""
+        if not self.cull or self.shadows:
+            self.culled = 0
+            return self._base
+        self._refresh_moved()
+        out = outside_frustum(frustum_planes(pose, spec), self._lo, self._hi)
+        self.culled = int(np.count_nonzero(out & self._base))
+        return self._base & ~out
+
+    def _refresh_moved(self) -> None:
+        for name in self._moved:
+            k = self._index[name]
+            self._lo[k], self._hi[k] = np.asarray(self._all[k].get_global_aabb_fast(), dtype=float)
+        self._moved.clear()
+
+    def _show_only(self, mask: np.ndarray) -> None:
+        """Set each body's visibility to mask, touching only the bodies that change."""
+        for k in np.flatnonzero(mask != self._shown):
+            self._all[k].visibility = 1.0 if mask[k] else 0.0
+        self._shown = mask.copy()
 
     def _place(self, cam: _Camera, pose: np.ndarray) -> None:
         import sapien
@@ -392,8 +439,7 @@ def _minimal_shader_dir() -> str:
 def _image_rect(aabb: np.ndarray, cam_to_world: np.ndarray, spec: CameraSpec) -> tuple[float, ...] | None:
     """The image rectangle (x1, y1, x2, y2) that a world AABB can cover, or None when it misses the image."""
     lo, hi = np.asarray(aabb, dtype=float)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    local = to_camera(cam_to_world, corners)
+    local = to_camera(cam_to_world, box_corners(lo, hi))
     if np.all(local[:, 0] <= spec.near):
         return None
     if np.any(local[:, 0] <= spec.near):
