@@ -10,6 +10,9 @@ PYTHON = sys.executable
 # Tests never reach for the network and never write into the user's MLflow store.
 os.environ.setdefault("YOLO_OFFLINE", "1")
 os.environ.pop("MLFLOW_TRACKING_URI", None)
+# MLflow 3's `mlflow ui`/`mlflow server` start about seven job consumers (huey) for GenAI jobs no test uses; on
+# 2 cores they take CPU from the test that started the server.
+os.environ.setdefault("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")
 # `make test` sets GARAGE_EXP_PROVISIONED=1 after provisioning Vulkan, vehicles and weights (make setup).
 STRICT_CI = os.environ.get("CI", "").lower() == "true" or os.environ.get("GARAGE_EXP_PROVISIONED") == "1"
 

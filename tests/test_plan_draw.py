@@ -52,8 +52,11 @@ def test_map_of_every_shipped_plan_shows_every_cell_type(plan_path, tmp_path):
         if not STYLE[key][2]:  # hatching hides part of the fill colour
             density[key] = count / metres2
     # Drawn to scale: every unhatched type covers the same number of pixels per square metre (arrows, grid
-    # lines and the legend swatch disturb this a little).
-    assert max(density.values()) / min(density.values()) < 1.15, density
+    # lines and the legend swatch disturb this a little, and a lot for a type of a few cells on a big plan's
+    # map: the entrance of a 26 x 30-cell garage; so types under 1 % of the plan's area are left out).
+    total = sum(area.values())
+    even = [d for key, d in density.items() if area[key] >= 0.01 * total]
+    assert len(even) >= 2 and max(even) / min(even) < 1.15, density
     assert len(pixels_of(image, PILLAR_COLOUR)) > 4 * len(classified.pillars)
 
 
