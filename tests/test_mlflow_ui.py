@@ -8,7 +8,6 @@ from __future__ import annotations
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from conftest import ROOT, chromium, require, run_app
+from mlflow_server import free_port
 
 from garage_exp import tracking
 
@@ -27,12 +27,6 @@ SWEEP = ["-m", "plan=tiny", "light=bright,dim", "sensor=ideal,noisy", "case.moti
          "renderer.save_frames=none"]
 SHOTS = ROOT / "outputs" / "browser"
 TIMEOUT_MS = 60_000  # a page of the UI on the busy 2-core machine (first load compiles the UI's JavaScript)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_healthy(base: str, proc: subprocess.Popen, log: Path, timeout: float = 120) -> None:

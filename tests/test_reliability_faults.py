@@ -16,16 +16,12 @@ from __future__ import annotations
 
 import io
 import os
-import signal
-import socket
-import subprocess
-import time
-import urllib.request
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import PYTHON, run_app
+from conftest import run_app
+from mlflow_server import Server
 
 # The fault-injection hooks, ahead of the caller's own PYTHONPATH (a work tree testing its own garage_exp).
 FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
@@ -42,45 +38,15 @@ GEOMETRY = ["shot", "label", "position", "camera", "ego_x", "ego_y", "ego_yaw", 
 pytestmark = [pytest.mark.slow, pytest.mark.render, pytest.mark.detect]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def mlflow_server(tmp_path_factory):
     """`mlflow server` on 127.0.0.1: sqlite backend, artifacts served (proxied) from a local folder."""
-    root = tmp_path_factory.mktemp("mlflow_server")
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MLFLOW_TRACKING_URI")}
-    log = open(root / "server.log", "w")
-    proc = subprocess.Popen([str(Path(PYTHON).with_name("mlflow")), "server", "--host", "127.0.0.1", "--port",
-                             str(port), "--workers", "1", "--backend-store-uri", f"sqlite:///{root}/backend.db",
-                             "--artifacts-destination", str(root / "artifacts")],
-                            stdout=log, stderr=subprocess.STDOUT, env=env, cwd=root, start_new_session=True)
-    uri = f"http://127.0.0.1:{port}"
+    srv = Server(tmp_path_factory.mktemp("mlflow_server"))
+    srv.start()
     try:
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                with urllib.request.urlopen(f"{uri}/health", timeout=2) as r:
-                    if r.status == 200:
-                        break
-            except OSError:
-                pass
-            assert proc.poll() is None, (root / "server.log").read_text()[-3000:]
-            assert time.monotonic() < deadline, "mlflow server did not come up"
-            time.sleep(0.5)
-        yield {"uri": uri, "root": root}
+        yield {"uri": srv.uri, "root": srv.root}
     finally:
-        os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=3)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=10)
-        log.close()
+        srv.stop()
 
 
 @pytest.fixture(scope="module")

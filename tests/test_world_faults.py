@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import PYTHON, child_env, run_app
+from mlflow_server import Server, free_port
 
 from garage_exp import tracking
 from garage_exp.detect import worker
@@ -330,47 +331,6 @@ def test_a_full_disk_is_recognised_whoever_raised_it():
 
 # --- the tracking server goes away ------------------------------------------------------------------------------
 
-class Server:
-    """`mlflow server` on 127.0.0.1 (sqlite backend, proxied artifacts), stopped and started again on the
-    same port and store."""
-
-    def __init__(self, root: Path):
-        from test_reliability_faults import free_port
-
-        self.root, self.port = root, free_port()
-        self.uri = f"http://127.0.0.1:{self.port}"
-        self.proc = None
-
-    def start(self) -> None:
-        import urllib.request
-
-        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MLFLOW_TRACKING_URI")}
-        log = open(self.root / "server.log", "a")
-        self.proc = subprocess.Popen(
-            [str(Path(PYTHON).with_name("mlflow")), "server", "--host", "127.0.0.1", "--port", str(self.port),
-             "--workers", "1", "--backend-store-uri", f"sqlite:///{self.root}/backend.db",
-             "--artifacts-destination", str(self.root / "artifacts")],
-            stdout=log, stderr=subprocess.STDOUT, env=env, cwd=self.root, start_new_session=True)
-        deadline = time.monotonic() + 180
-        while True:
-            try:
-                with urllib.request.urlopen(f"{self.uri}/health", timeout=2) as r:
-                    if r.status == 200:
-                        return
-            except OSError:
-                pass
-            assert self.proc.poll() is None, (self.root / "server.log").read_text()[-3000:]
-            assert time.monotonic() < deadline, "mlflow server did not come up"
-            time.sleep(0.3)
-
-    def stop(self) -> None:
-        if self.proc is None or self.proc.poll() is not None:
-            return
-        os.killpg(self.proc.pid, signal.SIGCONT)
-        os.killpg(self.proc.pid, signal.SIGKILL)
-        self.proc.wait(timeout=30)
-
-
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """One server for the module (starting one takes 10-30 s here); each test logs to its own experiment and
@@ -571,8 +531,6 @@ def test_a_job_run_keeps_what_the_server_missed_and_resume_replays_it(tmp_path, 
 def test_a_server_that_is_away_when_the_sweep_starts_is_one_line(tmp_path):
     """Nothing listens on the port: the sweep waits the allowed time (1 s here), then says so in one line,
     exit 1, nothing logged anywhere."""
-    from test_reliability_faults import free_port
-
     uri = f"http://127.0.0.1:{free_port()}"
     proc = run_app(["-m", *DRY, "light=bright,dim"], tmp_path,
                    env={"MLFLOW_TRACKING_URI": uri, "GARAGE_EXP_TRACKING_WAIT": "1"})
