@@ -68,7 +68,7 @@ class Rendered:
     rgb: np.ndarray
     truth: list[VehicleTruth]
     target: VehicleTruth | None
-    geometry: exports.FrameGeometry  # the camera and the actors' poses, for the dataset's 3D labels
+    geometry: exports.FrameGeometry | None  # the camera and the actors' poses, for the dataset's 3D labels
 
 
 def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sensor,
@@ -92,7 +92,9 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
             if not scene.background:
                 rgb = renderer.blank_composite(rgb, frame, [shot.target])
             target = next((t for t in truth if t.name == shot.target), None)
-            yield Rendered(shot, cam.name, rgb, truth, target, exports.FrameGeometry.of(frame))
+            # copied only when a dataset will label the frame in 3D
+            geometry = exports.FrameGeometry.of(frame) if cfg.dataset else None
+            yield Rendered(shot, cam.name, rgb, truth, target, geometry)
 
 
 def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered, list]]:
