@@ -224,6 +224,37 @@ class ReplicateConf:
 
 
 @dataclass
+class SuiteConf:
+    """Graded suites (`search.mode=suite`): K fairly visible scenarios per difficulty band."""
+
+    per_band: int = 3  # K scenarios kept per band
+    # band name -> [low, high) of the composite confidence (1 - difficulty) over the fair frames
+    bands: dict[str, list[float]] = field(default_factory=lambda: {
+        "easy": [0.7, 1.01], "moderate": [0.4, 0.7], "hard": [0.0, 0.4]})
+    dir: Optional[str] = None  # None: outputs/suites/<study>
+
+
+@dataclass
+class SearchConf:
+    """The search for hard scenarios (`hydra/sweeper=search`, garage_exp/search); read by the sweeper."""
+
+    mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
+    trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
+    sampler: str = "tpe"  # tpe | cmaes | random | qmc | nsga2 | saltelli
+    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction; NSGA-II)
+    seed: Optional[int] = None  # the sampler's seed; None: the config's seed
+    study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)
+    storage: Optional[str] = None  # an Optuna RDB URL; None: sqlite under outputs/search/optuna.db
+    # A frame is a fair test when the target is at least this visible and its box at least this tall.
+    min_visible: float = 0.5
+    min_box: int = 25
+    top: int = 5  # the hardest N scenarios the report lists and shows
+    saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (2D + 2) trials)
+    suite: SuiteConf = field(default_factory=SuiteConf)
+    trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary
+
+
+@dataclass
 class Config:
     plan: PlanConf = field(default_factory=PlanConf)
     garage: GarageConf = field(default_factory=GarageConf)
@@ -241,6 +272,7 @@ class Config:
     seed: int = 0
     replicates: int = 1  # each cell run this many times with seeded nuisance variation (`replicate` node)
     replicate: ReplicateConf = field(default_factory=ReplicateConf)
+    search: SearchConf = field(default_factory=SearchConf)
     blank: bool = False  # the blank control: only the vehicles, background removed
     dataset: bool = False  # also write frames with YOLO, COCO and KITTI labels (garage_exp/exports)
     resume: bool = False
