@@ -48,7 +48,7 @@ def quote_numeric_choices(argv: list[str]) -> list[str]:
 
 
 @hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="config")
-def main(cfg: DictConfig) -> float:
+def main(cfg: DictConfig) -> float | dict:
     multirun = HydraConfig.get().mode == RunMode.MULTIRUN
     try:
         return run_job(cfg)
@@ -56,12 +56,15 @@ def main(cfg: DictConfig) -> float:
         print(f"garage_exp: {exc}", file=sys.stderr)
         if not multirun:
             sys.exit(EXIT_INPUT)
-    except Exception:
+        error = str(exc)
+    except Exception as exc:
         if not multirun:
             raise
         # The run is already marked FAILED with its error; the sweep goes on.
         log.error("job failed:\n%s", traceback.format_exc())
-    return math.nan
+        error = f"{type(exc).__name__}: {exc}".strip()
+    # A search trial's sweeper marks the trial failed with the error; other sweeps count failed runs.
+    return {"error": error} if cfg.search.trial is not None else math.nan
 
 
 def cli(argv: list[str] | None = None) -> None:

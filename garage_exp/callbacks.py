@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from typing import Any
@@ -133,13 +134,21 @@ class MlflowSweepCallback(Callback):
         self.in_process = False
         self.failures = 0
         self.ended = False
+        self.search = False
 
     @_fatal
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        from mlflow.utils.mlflow_tags import MLFLOW_RUN_NAME
-
         global _CURRENT
         _CURRENT = self
+        from garage_exp.search import sweep as search_sweep
+
+        self.search = search_sweep.is_search(config)
+        study = None
+        if self.search:  # the search's settings and space, before anything is written
+            from hydra.core.global_hydra import GlobalHydra
+
+            search_sweep.check(config, GlobalHydra.instance().config_loader())
+            study = search_sweep.study_name_of(config)
         jobs = check_sweep(config)  # before anything is written
         self.jobs = len(jobs) if jobs is not None else None
         # Jobs in this very process (Hydra's basic launcher): a stopped sweep can count the finished ones.
@@ -149,21 +158,28 @@ class MlflowSweepCallback(Callback):
         exp_id = self.experiment_id = tracking.experiment_id(mlc, config.tracking.experiment)
         task = list(config.hydra.overrides.task)
         overrides = " ".join(task)
-        key = tracking.sweep_key(task)
+        # A study has one parent run, whichever worker or resume comes to it: its key is the study's name.
+        key = f"study:{study}" if study else tracking.sweep_key(task)
         tags = {"sweep": "parent", "overrides": overrides, "sweep_key": key, "git_commit": tracking.git_commit(),
                 "sweep_dir": str(config.hydra.sweep.dir), "host": os.uname().nodename, "pid": str(os.getpid())}
         if self.jobs is not None:
             tags["jobs"] = str(self.jobs)
-        previous = tracking.find_parent(mlc, exp_id, key) if config.get("resume") else None
+        with search_sweep.study_lock(config) if study else contextlib.nullcontext():
+            self._open_parent(config, mlc, exp_id, key, tags, overrides, task, reuse=bool(study or config.get("resume")))
+
+    def _open_parent(self, config, mlc, exp_id, key, tags, overrides, task, reuse: bool) -> None:
+        from mlflow.utils.mlflow_tags import MLFLOW_RUN_NAME
+
+        previous = tracking.find_parent(mlc, exp_id, key) if reuse else None
         if previous is not None:
             self.parent_run_id = previous.info.run_id
             tracking.retry(lambda: mlc.update_run(self.parent_run_id, status="RUNNING"))
             resumes = int(previous.data.tags.get("resumes", "0")) + 1
             for k, v in {**tags, "resumes": str(resumes)}.items():
                 tracking.retry(lambda k=k, v=v: mlc.set_tag(self.parent_run_id, k, v))
-            print(f"garage_exp: resuming sweep {self.parent_run_id} ({overrides})")
+            print(f"garage_exp: continuing sweep {self.parent_run_id} ({overrides})")
         else:
-            tags[MLFLOW_RUN_NAME] = f"sweep {tracking.run_name(task)}".strip()
+            tags[MLFLOW_RUN_NAME] = f"{'search' if self.search else 'sweep'} {tracking.run_name(task)}".strip()
             run = tracking.retry(lambda: mlc.create_run(exp_id, tags=tags))
             self.parent_run_id = run.info.run_id
         tracking.write_parent(config.hydra.sweep.dir, self.parent_run_id)
@@ -180,7 +196,9 @@ class MlflowSweepCallback(Callback):
         close_dead_children(mlc, self.parent_run_id)
         report_path, report_error = None, None
         try:
-            report_path = sweep_report(mlc, self.parent_run_id, config.hydra.sweep.dir, resumed=resumed)
+            # A search's report is its study's analysis, which the sweeper logged on the parent itself.
+            if not self.search:
+                report_path = sweep_report(mlc, self.parent_run_id, config.hydra.sweep.dir, resumed=resumed)
         except Exception as exc:  # the sweep's runs are safe; a failed summary must not hide them
             log.error("sweep report failed: %s", exc)
             tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "report_error", str(exc)[:5000]))

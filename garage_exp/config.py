@@ -228,9 +228,10 @@ class SuiteConf:
     """Graded suites (`search.mode=suite`): K fairly visible scenarios per difficulty band."""
 
     per_band: int = 3  # K scenarios kept per band
-    # band name -> [low, high) of the composite confidence (1 - difficulty) over the fair frames
-    bands: dict[str, list[float]] = field(default_factory=lambda: {
-        "easy": [0.7, 1.01], "moderate": [0.4, 0.7], "hard": [0.0, 0.4]})
+    # band name -> [low, high) of the composite confidence (1 - difficulty) over the fair frames; empty: easy
+    # >= 0.7, moderate 0.4-0.7, hard < 0.4 (garage_exp/search/suite.py). Empty by default so that
+    # `+search.suite.bands.low=[0,0.5] +search.suite.bands.high=[0.5,1.01]` give exactly those (Hydra merges dicts).
+    bands: dict[str, list[float]] = field(default_factory=dict)
     dir: Optional[str] = None  # None: outputs/suites/<study>
 
 
@@ -240,7 +241,7 @@ class SearchConf:
 
     mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
     trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
-    sampler: str = "tpe"  # tpe | cmaes | random | qmc | nsga2 | saltelli
+    sampler: str = "tpe"  # tpe | cmaes | random | qmc | nsga2 | saltelli | grid
     objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction; NSGA-II)
     seed: Optional[int] = None  # the sampler's seed; None: the config's seed
     study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)
@@ -250,6 +251,7 @@ class SearchConf:
     min_box: int = 25
     top: int = 5  # the hardest N scenarios the report lists and shows
     saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (2D + 2) trials)
+    grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)
     suite: SuiteConf = field(default_factory=SuiteConf)
     trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary
 

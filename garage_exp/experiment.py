@@ -120,8 +120,9 @@ def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered,
         yield waiting.popleft(), detector.result()
 
 
-def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> float:
-    from garage_exp.assets.vehicles import VehicleLibrary
+def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> dict:
+    """Run the job's frames and return its summary metrics (`difficulty`, and `fair_*`: the search's objective)."""
+    from garage_exp.assets.vehicles import shared_library
     from garage_exp.detect import score_target
     from garage_exp.detect.detector import spec_from_config
     from garage_exp.detect.worker import open_detector
@@ -133,13 +134,14 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     # compiles its shaders (the first frame).
     detector = open_detector(spec_from_config(cfg.detector))
     rng = np.random.default_rng(cfg.seed)
-    library = VehicleLibrary()
+    library = shared_library()
     scene, setup = build_scene(cfg, classified, library, rng)
     sensor = make_sensor(cfg.sensor)
     renderer = open_renderer(cfg.renderer)
     renderer.load(scene)
-    glb = export_glb(scene, out / "scene.glb")
-    run.log_artifact(glb)
+    trial = cfg.search.trial is not None  # a search trial: lean (the study's parent holds map, plots, frames)
+    if not trial:
+        run.log_artifact(export_glb(scene, out / "scene.glb"))
 
     frames_dir = out / "frames"
     frames_dir.mkdir(exist_ok=True)
@@ -166,7 +168,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
             if cfg.renderer.save_frames == "all":
                 results.save_frame(frames_dir / f"{shot.index:04d}_{item.camera}.png", item.rgb, target, dets,
                                    score)
-            if len(keep) > 3 * len(scene.cameras):
+            if len(keep) > 3 * len(scene.cameras) and not trial:  # a trial keeps all: its hardest fair one is saved
                 keep = results.prune_key_frames(keep, rows)
     except KeyboardInterrupt:
         detector.abandon()  # do not make Ctrl-C wait for a frame's detection or the models' loading
@@ -180,13 +182,20 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     summary = results.summarise(table, cfg.detector.threshold, primary=scene.cameras[0].name)
     run.log_series("confidence", table[table.camera == scene.cameras[0].name].composite.tolist())
     run.log_series("visible_fraction", table[table.camera == scene.cameras[0].name].visible_fraction.tolist())
+    search = cfg.search
+    summary.update(results.fair_summary(table, scene.cameras[0].name, search.min_visible, search.min_box,
+                                        cfg.detector.threshold))
     run.log_metrics(summary)
-    plot = results.plot_confidence(table, out / "confidence.png", setup.position_label, cfg)
-    run.log_artifact(plot)
-    if cfg.renderer.save_frames != "none":
-        for path in results.save_key_frames(keep, table, frames_dir):
-            run.log_artifact(path, "frames")
+    if trial:
+        summary["frame"] = results.save_hardest_fair(keep, table, frames_dir, search.min_visible, search.min_box)
+        if summary["frame"] is not None:
+            run.log_artifact(summary["frame"], "frames")
+    else:
+        run.log_artifact(results.plot_confidence(table, out / "confidence.png", setup.position_label, cfg))
+        if cfg.renderer.save_frames != "none":
+            for path in results.save_key_frames(keep, table, frames_dir):
+                run.log_artifact(path, "frames")
     if dataset is not None:
         run.log_artifact(dataset.finish())
     print(results.one_line(cfg, summary, len(table)))
-    return float(summary["difficulty"])
+    return summary

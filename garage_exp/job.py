@@ -103,16 +103,17 @@ def _close_on_full_disk(run, out: Path, where: str) -> None:
 AWAY_HINT = "rerun the same command with resume=true once the server is back"
 
 
-def run_job(cfg: DictConfig) -> float:
-    """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job. A
-    tracking server that stays away stops the sweep (every later job would wait for it too)."""
+def run_job(cfg: DictConfig) -> float | dict:
+    """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job; a
+    search trial (`search.trial` set) returns its summary metrics with its run id and dir instead. A tracking
+    server that stays away stops the sweep (every later job would wait for it too)."""
     try:
         return _run_job(cfg)
     except tracking.TrackingAway as exc:
         raise SweepStopped(str(exc), AWAY_HINT) from None
 
 
-def _run_job(cfg: DictConfig) -> float:
+def _run_job(cfg: DictConfig) -> float | dict:
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)
     multirun = hc.mode == RunMode.MULTIRUN
@@ -141,8 +142,11 @@ def _run_job(cfg: DictConfig) -> float:
             _count_finished()
             return math.nan
     parent = tracking.read_parent(hc.sweep.dir) if multirun else None
+    trial = cfg.search.trial
     tags = {"plan": classified.plan.name, "overrides": " ".join(hc.overrides.task), "case": str(cfg.case.name),
             "output_dir": str(out), "config_hash": digest, "host": os.uname().nodename, "pid": str(os.getpid())}
+    if trial is not None:
+        tags["search_trial"] = str(trial)
     run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
     run.pending = out / tracking.PENDING_FILE  # calls the tracking server cannot take wait there
     try:
@@ -155,13 +159,14 @@ def _run_job(cfg: DictConfig) -> float:
                 print(f"garage_exp: rerunning {run_name(cfg)!r}: replaces unfinished run(s) {', '.join(gone)}")
         (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
         run.log_artifact(out / "config.yaml")
-        run.log_artifact(draw_map(classified, out / "plan_map.png"))
+        if trial is None:  # a search trial's map is its study's: the parent holds it
+            run.log_artifact(draw_map(classified, out / "plan_map.png"))
         if cfg.dry_run:
-            difficulty = math.nan
+            summary = {"difficulty": math.nan}
         else:
             from garage_exp.experiment import run_experiment
 
-            difficulty = run_experiment(cfg, classified, out, run)
+            summary = run_experiment(cfg, classified, out, run)
     except BaseException as exc:
         where = full_disk(exc) if isinstance(exc, Exception) else None
         if where is not None:
@@ -181,4 +186,6 @@ def _run_job(cfg: DictConfig) -> float:
     _count_finished()
     if not multirun:  # a sweep prints its own link, to all its runs
         print(f"garage_exp: MLflow UI: {tracking.ui_link(cfg.tracking.uri, run.experiment_id, run.run_id)}")
-    return difficulty
+    if trial is not None:  # the search's sweeper tells Optuna from this
+        return {**summary, "run_id": run.run_id, "output_dir": str(out)}
+    return float(summary["difficulty"])

@@ -14,7 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 from garage_exp.errors import GarageError
 from garage_exp.paths import PLANS_DIR
 
-_CACHE: dict = {}  # plan path -> (stat key, classified); vehicles dir -> VehicleLibrary (sweeps check many jobs)
+_CACHE: dict = {}  # plan path -> (stat key, classified) (sweeps check many jobs)
 
 
 def resolve_plan_path(plan_cfg) -> Path:
@@ -51,12 +51,9 @@ def _classified(path: Path):
 
 def _library():
     from garage_exp.assets.locate import vehicles_dir
-    from garage_exp.assets.vehicles import VehicleLibrary
+    from garage_exp.assets.vehicles import shared_library
 
-    root = vehicles_dir()  # missing assets fail here, saying what to set or run
-    if ("library", root) not in _CACHE:
-        _CACHE[("library", root)] = VehicleLibrary(root)
-    return _CACHE[("library", root)]
+    return shared_library(vehicles_dir())  # missing assets fail in vehicles_dir, saying what to set or run
 
 
 def check_config(cfg: DictConfig) -> None:

@@ -74,6 +74,19 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
     return out
 
 
+def fair_summary(table: pd.DataFrame, primary: str, min_visible: float, min_box: int,
+                 threshold: float) -> dict[str, float]:
+    """The search's objective (garage_exp/search): a frame is a fair test when the target is at least
+    `min_visible` visible and its box at least `min_box` pixels tall; a fully hidden target is not hard, it is
+    untestable. fair_difficulty = 1 - the mean composite confidence over the fair frames (NaN when none is)."""
+    t = table[table.camera == primary]
+    fair = t[(t.visible_fraction >= min_visible) & (t.box_height >= min_box)]
+    conf = fair.composite.to_numpy(dtype=float)
+    mean = float(conf.mean()) if len(conf) else math.nan
+    return {"fair_frames": float(len(fair)), "fair_confidence": mean, "fair_difficulty": 1.0 - mean,
+            "fair_recall": float((conf >= threshold).mean()) if len(conf) else math.nan}
+
+
 def _metric_key(label: str) -> str:
     """An MLflow-safe name that still reads like the label: "close=large,far=small" -> "close-large/far-small"."""
     text = str(label).replace("=", "-").replace(",", "/")
@@ -184,6 +197,20 @@ def save_key_frames(keep: dict, table: pd.DataFrame, frames_dir: Path) -> list[P
             if shot == wanted:
                 paths.append(save_frame(frames_dir / f"{role}_{shot:04d}_{cam}.png", rgb, target, dets))
     return paths
+
+
+def save_hardest_fair(keep: dict, table: pd.DataFrame, frames_dir: Path, min_visible: float,
+                      min_box: int) -> Path | None:
+    """A search trial's picture: its hardest fairly visible frame (lowest composite), boxes drawn."""
+    fair = table[(table.visible_fraction >= min_visible) & (table.box_height >= min_box)]
+    if fair.empty:
+        return None
+    row = fair.loc[fair.composite.idxmin()]
+    item = keep.get((int(row["shot"]), row["camera"]))
+    if item is None:
+        return None
+    rgb, target, dets = item
+    return save_frame(frames_dir / f"hardest_fair_{int(row['shot']):04d}_{row['camera']}.png", rgb, target, dets)
 
 
 class DatasetWriter:

@@ -267,6 +267,32 @@ def test_renderer_is_reused_across_loads(renderer):
 
 
 @render
+def test_a_scene_with_the_same_statics_replaces_only_its_actors_and_renders_as_a_fresh_load(renderer):
+    """The search's trials change only the actors: the merged statics and lights stay loaded, and the frame is
+    the frame a full load gives (pixels and each entity's mask), culling state included."""
+    from garage_exp.render.sapien_backend import SapienRenderer
+
+    renderer.load(garage(pillar_at=6.0))
+    sapien_scene = renderer._scene
+    renderer.render("front")  # leaves some static tiles culled
+    scene = garage(pillar_at=6.0, target_at=8.0)
+    scene.entities.append(vehicle("extra", "parked", Pose(20.0, 2.0, 0.0)))
+    renderer.load(scene)
+    assert renderer._scene is sapien_scene and set(renderer.ids) >= {"ego", "target", "extra"}
+    reused = renderer.render("front")
+    fresh_renderer = SapienRenderer(max_lights=8)
+    fresh_renderer.load(scene)
+    assert fresh_renderer._scene is not sapien_scene
+    fresh = fresh_renderer.render("front")
+    assert np.array_equal(reused.rgb, fresh.rgb)
+    for name in ("target", "extra", "case_pillar"):
+        if name in renderer.ids:
+            assert np.array_equal(reused.ids == renderer.ids[name], fresh.ids == fresh_renderer.ids[name])
+    renderer.load(garage(pillar_at=9.0))  # other statics: a full load
+    assert renderer._scene is not sapien_scene
+
+
+@render
 def test_user_errors_are_garage_errors(renderer):
     from garage_exp.errors import GarageError
 

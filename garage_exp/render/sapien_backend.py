@@ -104,6 +104,7 @@ class SapienRenderer:
         self._lamp_rgb = np.zeros((0, 3))
         self._lamp_weight = np.zeros(0)
         self._materials: dict[Material, object] = {}  # one RenderMaterial per description material and load
+        self._static: tuple | None = None  # what the loaded static bodies were built from (see load)
         self._reset_bodies()
 
     def _reset_bodies(self) -> None:
@@ -120,10 +121,21 @@ class SapienRenderer:
     # ---- building -------------------------------------------------------------------------------------------
 
     def load(self, scene: Scene) -> None:
-        """(Re)build the SAPIEN scene from a description; cameras, lights and ids are replaced."""
+        """(Re)build the SAPIEN scene from a description; cameras, lights and ids are replaced. When the static
+        structure, lamps and settings are those already loaded (the trials of a search, which change only the
+        actors), only the actors and cameras are replaced: the merged static bodies stay."""
         ensure_device()
         import sapien
 
+        static = self._static_key(scene)
+        if self._scene is not None and static == self._static:
+            try:
+                self._replace_actors(scene)
+            except BaseException:
+                self._reset()
+                raise
+            self.description = scene
+            return
         self._reset()
         try:
             self._scene = sapien.Scene()
@@ -135,6 +147,33 @@ class SapienRenderer:
             self._reset()  # never leave a half-built scene to render
             raise
         self.description = scene
+        self._static = static
+
+    def _static_key(self, scene: Scene) -> tuple:
+        """What the merged static bodies and the light pool are made of: equal keys, equal SAPIEN statics."""
+        merged = [e for e in scene.entities if self._merges(e)]
+        return (merged, list(scene.lights), tuple(scene.ambient), scene.background, self.max_lights, self.shadows,
+                self.batch_static)
+
+    def _merges(self, entity: Entity) -> bool:
+        return self.batch_static and entity.static and entity.role in STATIC_ROLES
+
+    def _replace_actors(self, scene: Scene) -> None:
+        """Remove every entity with its own id and every camera, add the new scene's; the merged statics and
+        the light pool stay (shown again in full: the last frame may have culled some)."""
+        for node in self._entities.values():
+            self._scene.remove_entity(node)
+        for cam in self._cameras.values():
+            self._scene.remove_entity(cam.component.entity)
+            self._scene.remove_entity(cam.silhouette.entity)
+        self._entities, self._bodies, self._ids, self._poses, self._vehicles, self._cameras = {}, {}, {}, {}, set(), {}
+        for body in self._merged:
+            body.visibility = 1.0
+        for entity in scene.entities:
+            if not self._merges(entity):
+                self._add_entity(entity)
+        self._mount_cameras(scene)
+        self._index_bodies(scene)
 
     def _build(self, scene: Scene) -> None:
         self._scene.set_ambient_light([float(c) for c in scene.ambient])
@@ -142,7 +181,7 @@ class SapienRenderer:
         # can hide the tiles outside its view; materials keep their order.
         merged: dict[Material | None, dict[tuple[int, int], list[tuple[Pose, Box | Mesh]]]] = {}
         for entity in scene.entities:
-            if self.batch_static and entity.static and entity.role in STATIC_ROLES:
+            if self._merges(entity):
                 for shape in entity.shapes:
                     world = entity.pose.compose(shape.offset)
                     key = shape.material if isinstance(shape, Box) else None
@@ -153,13 +192,19 @@ class SapienRenderer:
         for material in [m for m in merged if m is not None] + ([None] if None in merged else []):
             for (a, b), shapes in merged[material].items():
                 self._add_merged(f"static:{material.name if material else 'meshes'}:{a}:{b}", shapes)
+        self._mount_cameras(scene)
+        self._add_lights(scene)
+        self._index_bodies(scene)
+
+    def _mount_cameras(self, scene: Scene) -> None:
         egos = [e.name for e in scene.entities if e.role == "ego"]
         self._ego = egos[0] if egos else None
         if scene.cameras and self._ego is None:
             raise GarageError("the scene has cameras but no entity with role 'ego' to mount them on", scene.name)
         for spec in scene.cameras:
             self._add_camera(spec)
-        self._add_lights(scene)
+
+    def _index_bodies(self, scene: Scene) -> None:
         # The blank control: everything but the vehicles is hidden (also from the silhouette renders).
         self._all = [*self._bodies.values(), *self._merged]
         self._index = {name: k for k, name in enumerate(self._bodies)}
@@ -171,7 +216,7 @@ class SapienRenderer:
         self._lo, self._hi = boxes[:, 0].copy(), boxes[:, 1].copy()
 
     def _reset(self) -> None:
-        self._scene, self.description = None, None
+        self._scene, self.description, self._static = None, None, None
         self._entities, self._bodies, self._merged, self._materials = {}, {}, [], {}
         self._ids, self._poses, self._vehicles, self._cameras, self._pool = {}, {}, set(), {}, []
         self._reset_bodies()

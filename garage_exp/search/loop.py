@@ -1,0 +1,162 @@
+"""The trial loop: ask Optuna for a trial, launch it as a job through Hydra's launcher, tell Optuna its result.
+
+Trials run one after another in the sweeper's process with Hydra's basic launcher, so the renderer (compiled
+shaders, cached meshes) and the detector worker (loaded models) are set up once, not per trial. A trial is a
+lean job (`search.trial` set): no plan map, glTF or plot (the study's parent run holds those), one picture, its
+hardest fairly visible frame.
+
+Several workers (processes, machines) share a study through its storage: each asks for trials until the study
+holds `search.trials` of them. On a local sqlite store a file lock makes that count exact; on a shared
+database (PostgreSQL) two workers finishing together may add one trial more.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import optuna
+from optuna.trial import TrialState
+
+from garage_exp.cli_errors import SweepStopped
+from garage_exp.search import space as space_mod
+from garage_exp.search import study as study_mod
+
+log = logging.getLogger("garage_exp")
+COUNTED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL, TrialState.RUNNING)
+
+
+@dataclass
+class Outcome:
+    """What a trial's job returned, as the study records it."""
+
+    state: TrialState
+    values: list[float] | None
+    attrs: dict
+
+
+def outcome(result, objective: str) -> Outcome:
+    """A trial's state and values from its job's return: the summary (run_experiment), or {"error": ...}.
+    No fairly visible frame -> PRUNED (infeasible): a target nobody could see is untestable, not hard."""
+    if not isinstance(result, dict) or "error" in result:
+        error = result.get("error") if isinstance(result, dict) else f"the job returned {result!r}"
+        return Outcome(TrialState.FAIL, None, {"error": str(error)[:2000]})
+    attrs = {"run_id": result.get("run_id"), "output_dir": result.get("output_dir"),
+             "visible_fraction": float(result.get("visible_fraction_mean", 0.0)),
+             "fair_frames": int(result.get("fair_frames", 0)), "frames": int(result.get("frames", 0)),
+             "recall": _num(result.get("fair_recall")), "confidence": _num(result.get("fair_confidence"))}
+    if result.get("frame"):
+        attrs["frame"] = str(result["frame"])
+    difficulty = result.get("fair_difficulty", math.nan)
+    if attrs["fair_frames"] == 0 or difficulty is None or math.isnan(difficulty):
+        attrs["infeasible"] = True
+        return Outcome(TrialState.PRUNED, None, attrs)
+    values = [float(difficulty)]
+    if objective == "pareto":
+        values.append(attrs["visible_fraction"])
+    return Outcome(TrialState.COMPLETE, values, attrs)
+
+
+def _num(value) -> float | None:
+    return None if value is None or (isinstance(value, float) and math.isnan(value)) else float(value)
+
+
+@contextlib.contextmanager
+def heartbeat(study: optuna.Study, trial: optuna.Trial):
+    """Record the trial's heartbeat while it runs, so that a worker that dies leaves a trial that the next
+    worker (or a resume) fails instead of waiting for it forever (Optuna's heartbeat, which `optimize` runs
+    itself and ask/tell leaves to us)."""
+    storage = study._storage
+    stop = threading.Event()
+
+    def beat():
+        while not stop.wait(study_mod.HEARTBEAT_S):
+            with contextlib.suppress(Exception):
+                storage.record_heartbeat(trial._trial_id)
+
+    with contextlib.suppress(Exception):
+        storage.record_heartbeat(trial._trial_id)
+    thread = threading.Thread(target=beat, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+def ask_lock(url: str):
+    """A file lock beside a sqlite store: counting the study's trials and asking for one are one step."""
+    if not url.startswith("sqlite:///"):
+        return contextlib.nullcontext()
+    from urllib.parse import urlparse
+
+    from filelock import FileLock
+
+    return FileLock(str(Path(urlparse(url).path)) + ".ask.lock")
+
+
+class SearchLoop:
+    """Runs a study's trials as jobs. `launch(overrides, job_idx)` runs one job and returns its JobReturn."""
+
+    def __init__(self, search, space: space_mod.Space, study: optuna.Study, launch, budget: int,
+                 stop=lambda study: False):
+        self.search, self.space, self.study, self.launch, self.budget = search, space, study, launch, budget
+        self.stop = stop  # asked before each trial (a suite stops once its bands are full)
+        self.url = study_mod.storage_url(search)
+        self.ran: list[int] = []  # trial numbers this worker ran
+
+    def next_trial(self) -> optuna.Trial | None:
+        with ask_lock(self.url):
+            optuna.storages.fail_stale_trials(self.study)  # a dead worker's trials
+            held = len(self.study.get_trials(deepcopy=False, states=COUNTED))
+            if held >= self.budget:
+                return None
+            return self.study.ask(fixed_distributions=self.space.params)
+
+    def run(self) -> list[int]:
+        while not self.stop(self.study):
+            trial = self.next_trial()
+            if trial is None:
+                break
+            overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
+            trial.set_user_attr("overrides", overrides)
+            with heartbeat(self.study, trial):
+                try:
+                    # the trial's number is its job's: workers sharing a sweep dir never share a job dir
+                    returns = self.launch([overrides], trial.number)
+                    result = returns[0].return_value
+                except SweepStopped:  # a full disk, a tracking server away: no later trial could run either
+                    self.study.tell(trial, state=TrialState.FAIL)
+                    raise
+                except Exception as exc:  # the launcher's own failure: this trial fails, the study goes on
+                    trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:2000])
+                    self.study.tell(trial, state=TrialState.FAIL)
+                    log.error("trial %d failed: %s", trial.number, exc)
+                    continue
+                except BaseException:  # Ctrl-C, SIGTERM: the trial is failed, a resume asks for another
+                    self.study.tell(trial, state=TrialState.FAIL)
+                    raise
+            out = outcome(result, self.search.objective)
+            for key, value in out.attrs.items():
+                trial.set_user_attr(key, value)
+            if out.state == TrialState.FAIL:
+                log.error("trial %d failed: %s", trial.number, out.attrs["error"])
+            self.study.tell(trial, out.values, state=out.state)
+            self.ran.append(trial.number)
+            print(line(trial.number, out, self.budget))
+        return self.ran
+
+
+def line(number: int, out: Outcome, budget: int) -> str:
+    if out.state == TrialState.FAIL:
+        return f"garage_exp: trial {number + 1}/{budget} failed: {out.attrs['error'].splitlines()[0]}"
+    if out.state == TrialState.PRUNED:
+        return (f"garage_exp: trial {number + 1}/{budget}: no fairly visible frame (visible fraction "
+                f"{out.attrs['visible_fraction']:.2f}): infeasible")
+    return (f"garage_exp: trial {number + 1}/{budget}: difficulty {out.values[0]:.3f} over "
+            f"{out.attrs['fair_frames']} fair frame(s), visible fraction {out.attrs['visible_fraction']:.2f}")

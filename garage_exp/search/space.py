@@ -1,0 +1,142 @@
+"""The search space, written in Hydra's override grammar as with the official Optuna sweeper.
+
+`key=interval(a,b)` is a float range (`tag(log, interval(a,b))` on a log scale, `int(interval(a,b))` an integer
+range), `key=choice(a,b,c)` or `key=a,b,c` a categorical choice (a config group's levels, or values),
+`key=range(a,b[,step])` integers (or floats with a float step). Every other override is fixed for all trials.
+
+Bad spaces fail before the first trial, with one line naming the override: a key the composed config does not
+have, an empty interval, a level its group lacks, or a value a job would refuse (each interval's two ends and
+each choice are composed and checked like a job, without rendering).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import optuna.distributions as od
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import (ChoiceSweep, IntervalSweep, Override, RangeSweep, Transformer)
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp.errors import GarageError
+
+# Keys the sweeper owns: a search over them would make no sense (or would search the search).
+RESERVED = ("search.", "hydra.", "resume", "dry_run", "tracking.")
+
+
+@dataclass
+class Space:
+    """What the study samples (name -> Optuna distribution, in the order given) and what every trial fixes."""
+
+    params: dict[str, od.BaseDistribution]
+    fixed: list[str]  # overrides as written (key=value), passed to every trial
+
+    def overrides(self, values: dict) -> list[str]:
+        """A trial's override list: the fixed ones, then each sampled value."""
+        return [*self.fixed, *(f"{name}={format_value(values[name])}" for name in self.params)]
+
+
+def format_value(value) -> str:
+    """A sampled value as an override's right-hand side: floats rounded to what a scenario file would say
+    (1e-6), strings quoted when Hydra would parse them as something else (a level named `1` stays a string)."""
+    if isinstance(value, bool) or value is None:
+        return {True: "true", False: "false", None: "null"}[value]
+    if isinstance(value, float):
+        return repr(round(value, 6))
+    if isinstance(value, int):
+        return str(value)
+    text = str(value)
+    if text.lstrip("-").replace(".", "", 1).isdigit() or text.lower() in ("true", "false", "null"):
+        return f"'{text}'"
+    return text
+
+
+def parse(arguments: list[str]) -> list[Override]:
+    try:
+        return OverridesParser.create().parse_overrides(list(arguments))
+    except Exception as exc:  # Hydra's OverrideParseException: one line, naming the override
+        raise GarageError(str(exc).split("\n")[0], "search space") from None
+
+
+def distribution(override: Override) -> od.BaseDistribution:
+    """The Optuna distribution of one sweep override."""
+    where = f"search space {override.input_line}"
+    value = override.value()
+    if override.is_interval_sweep():
+        assert isinstance(value, IntervalSweep)
+        lo, hi = value.start, value.end
+        if lo is None or hi is None or not lo < hi:
+            raise GarageError(f"the interval is empty ({lo} to {hi}): the low end must be below the high end", where)
+        log = "log" in value.tags
+        if log and lo <= 0:
+            raise GarageError(f"a log interval needs a positive low end, not {lo}", where)
+        if isinstance(lo, int) and isinstance(hi, int):
+            return od.IntDistribution(lo, hi, log=log)
+        return od.FloatDistribution(float(lo), float(hi), log=log)
+    if override.is_range_sweep():
+        assert isinstance(value, RangeSweep)
+        choices = list(override.sweep_iterator(transformer=Transformer.encode))
+        if not choices:
+            raise GarageError(f"the range is empty ({value.start} to {value.stop})", where)
+        if value.shuffle or any(isinstance(v, float) for v in (value.start, value.stop, value.step)):
+            return od.CategoricalDistribution(choices)
+        return od.IntDistribution(int(value.start), int(choices[-1]), step=int(value.step))
+    if override.is_choice_sweep():
+        assert isinstance(value, ChoiceSweep)
+        choices = list(dict.fromkeys(override.sweep_iterator(transformer=Transformer.encode)))
+        if not choices:
+            raise GarageError("the choice is empty", where)
+        return od.CategoricalDistribution(choices)
+    raise GarageError("this kind of sweep cannot be searched (use interval, choice or range)", where)
+
+
+def build(arguments: list[str], config: DictConfig, groups: dict[str, list[str]]) -> Space:
+    """The space of a command's overrides. `groups`: each config group's levels (the loader's view, so a
+    user's --config-dir counts). Checks keys and levels; values are checked by `check_values`."""
+    params: dict[str, od.BaseDistribution] = {}
+    fixed: list[str] = []
+    for override in parse(arguments):
+        if not override.is_sweep_override():
+            fixed.append(override.input_line)
+            continue
+        key = override.key_or_group
+        where = f"search space {override.input_line}"
+        if override.is_hydra_override() or key.startswith(RESERVED) or key in RESERVED:
+            raise GarageError(f"{key} cannot be searched", where)
+        if override.is_add() or override.is_delete():
+            raise GarageError("a searched key must be in the config already (no + or ~)", where)
+        dist = distribution(override)
+        if key in groups:
+            if not isinstance(dist, od.CategoricalDistribution):
+                raise GarageError(f"{key} is a config group: choose its levels with choice(...)", where)
+            unknown = [str(c) for c in dist.choices if str(c) not in groups[key]]
+            if unknown:
+                raise GarageError(f"{key} has no level {unknown[0]!r} (levels: {', '.join(groups[key])})", where)
+            dist = od.CategoricalDistribution([str(c) for c in dist.choices])
+        elif OmegaConf.select(config, key, default=_ABSENT) is _ABSENT:
+            raise GarageError(f"the config has no key {key}", where)
+        params[key] = dist
+    if not params:
+        raise GarageError("nothing to search: give at least one key=interval(a,b) or key=choice(a,b)",
+                          "search space")
+    return Space(params, fixed)
+
+
+_ABSENT = object()
+
+
+def probe_points(space: Space) -> list[tuple[str, object]]:
+    """The values each parameter's check composes: an interval's two ends, every choice."""
+    points = []
+    for name, dist in space.params.items():
+        if isinstance(dist, od.CategoricalDistribution):
+            points.extend((name, c) for c in dist.choices)
+        else:
+            points.extend([(name, dist.low), (name, dist.high)])
+    return points
+
+
+def default_point(space: Space) -> dict:
+    """A valid point of the space (each interval's low end, each choice's first), to fill in the others."""
+    return {name: (d.choices[0] if isinstance(d, od.CategoricalDistribution) else d.low)
+            for name, d in space.params.items()}

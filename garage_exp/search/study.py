@@ -1,0 +1,148 @@
+"""The Optuna study of a search: its storage, name, directions and sampler.
+
+The study lives in Optuna's RDB storage (sqlite under outputs/search/ unless `search.storage` names another, a
+PostgreSQL URL on a cluster), so that it outlives the process: the same command (or `search.study=NAME`)
+continues it, and several workers on one storage share it (Optuna's own pattern).
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import optuna
+
+from garage_exp.errors import GarageError
+from garage_exp.paths import OUTPUTS_DIR
+
+SAMPLERS = ("tpe", "cmaes", "random", "qmc", "nsga2", "saltelli", "grid")
+OBJECTIVES = {"difficulty": ["difficulty"], "pareto": ["difficulty", "visible_fraction"]}
+MODES = ("search", "suite")
+# Trials a lost worker left RUNNING are failed once their heartbeat is this old (Optuna's heartbeat).
+HEARTBEAT_S, GRACE_S = 30, 120
+
+
+def quiet_optuna() -> None:
+    """Ask/tell with Optuna's heartbeat is what its docs describe for `optimize`'s workers; its warnings about
+    that (and the heartbeat, QMC and fail_stale_trials being experimental since 2.9-3.0) would print on every
+    trial."""
+    import warnings
+
+    warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used", category=UserWarning)
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+
+
+def default_storage() -> str:
+    return f"sqlite:///{OUTPUTS_DIR / 'search' / 'optuna.db'}"
+
+
+def storage_url(search) -> str:
+    return str(search.storage) if search.storage else default_storage()
+
+
+def study_name(search, fixed_and_space: list[str]) -> str:
+    """`search.study`, else a name from the command (its overrides, sorted): the same command continues the
+    same study, a different space starts another."""
+    if search.study:
+        return str(search.study)
+    # what a worker or a resume may change without changing the study: its length, where it is logged
+    ignored = ("search.trials=", "resume=", "tracking.", "hydra.", "search.storage=")
+    text = " ".join(sorted(a for a in fixed_and_space if not a.startswith(ignored)))
+    return "search-" + hashlib.sha1(text.encode()).hexdigest()[:10]
+
+
+def check_search(search) -> None:
+    """The `search` node's own values (the space is checked by space.build)."""
+    if search.mode not in MODES:
+        raise GarageError(f"unknown mode {search.mode!r} ({' | '.join(MODES)})", "search.mode")
+    if search.sampler not in SAMPLERS:
+        raise GarageError(f"unknown sampler {search.sampler!r} ({' | '.join(SAMPLERS)})", "search.sampler")
+    if search.objective not in OBJECTIVES:
+        raise GarageError(f"unknown objective {search.objective!r} ({' | '.join(OBJECTIVES)})", "search.objective")
+    if search.objective == "pareto" and search.sampler not in ("nsga2", "tpe", "random", "qmc"):
+        raise GarageError(f"the pareto objective needs a multi-objective sampler (nsga2, tpe, random, qmc), "
+                          f"not {search.sampler}", "search.sampler")
+    if int(search.grid_levels) < 2:
+        raise GarageError(f"{search.grid_levels} levels: a grid needs at least 2 (its ends)", "search.grid_levels")
+    if int(search.trials) < 1:
+        raise GarageError(f"{search.trials} trials: at least 1", "search.trials")
+    if not 0.0 <= float(search.min_visible) <= 1.0:
+        raise GarageError(f"{search.min_visible} is outside 0-1", "search.min_visible")
+    if int(search.min_box) < 0:
+        raise GarageError(f"{search.min_box} is negative", "search.min_box")
+    for band, edges in search.suite.bands.items():
+        if len(edges) != 2 or not float(edges[0]) < float(edges[1]):
+            raise GarageError(f"a band is [low, high) with low < high, not {list(edges)}", f"search.suite.bands.{band}")
+
+
+def grid(params: dict, levels: int) -> dict[str, list]:
+    """The grid a person would write over the same space: each interval at `levels` evenly spaced values
+    (ends included), each choice at all its values."""
+    import numpy as np
+
+    out = {}
+    for name, dist in params.items():
+        if isinstance(dist, optuna.distributions.CategoricalDistribution):
+            out[name] = list(dist.choices)
+        elif isinstance(dist, optuna.distributions.IntDistribution):
+            out[name] = sorted({int(round(v)) for v in np.linspace(dist.low, dist.high, levels)})
+        else:
+            out[name] = [round(float(v), 6) for v in np.linspace(dist.low, dist.high, levels)]
+    return out
+
+
+def grid_size(params: dict, levels: int) -> int:
+    import math
+
+    return math.prod(len(v) for v in grid(params, levels).values())
+
+
+class _Grid(optuna.samplers.GridSampler):
+    """Optuna's grid sampler stops `optimize` when the grid is done (Study.stop, refused outside optimize);
+    the search's loop stops at the grid's size itself."""
+
+    def after_trial(self, study, trial, state, values) -> None:
+        pass
+
+
+def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.BaseSampler:
+    name = search.sampler
+    if name == "grid":
+        return _Grid(grid(params or {}, int(search.grid_levels)), seed=seed)
+    if name == "tpe":
+        # multivariate: factors of a scenario interact (a dark garage and a far target), as TPE's docs advise
+        return optuna.samplers.TPESampler(seed=seed, multivariate=True)
+    if name == "cmaes":
+        # CMA-ES samples the continuous factors; categorical ones fall back to TPE (warn_independent off: said here)
+        return optuna.samplers.CmaEsSampler(seed=seed, warn_independent_sampling=False,
+                                            independent_sampler=optuna.samplers.TPESampler(seed=seed))
+    if name == "nsga2":
+        return optuna.samplers.NSGAIISampler(seed=seed)
+    if name == "qmc":
+        return optuna.samplers.QMCSampler(qmc_type="sobol", scramble=True, seed=seed, warn_independent_sampling=False)
+    return optuna.samplers.RandomSampler(seed=seed)  # random; saltelli enqueues its design, random fills the rest
+
+
+def open_study(search, name: str, seed: int, params: dict | None = None) -> optuna.Study:
+    """Create the study, or load it when it exists (resume, a second worker). A study made with other
+    directions (another objective under the same name) is refused."""
+    from pathlib import Path
+    from urllib.parse import urlparse
+
+    quiet_optuna()
+    url = storage_url(search)
+    if url.startswith("sqlite:///"):
+        Path(urlparse(url).path).parent.mkdir(parents=True, exist_ok=True)
+    directions = ["maximize"] * len(OBJECTIVES[search.objective])
+    storage = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S,
+                                         engine_kwargs={"connect_args": {"timeout": 60}}
+                                         if url.startswith("sqlite") else {})
+    try:
+        study = optuna.create_study(storage=storage, study_name=name, directions=directions,
+                                    sampler=sampler(search, seed, params), load_if_exists=True)
+    except ValueError as exc:
+        raise GarageError(f"study {name!r} in {url}: {exc}", "search.study") from None
+    if len(study.directions) != len(directions):
+        raise GarageError(f"study {name!r} was made for another objective ({len(study.directions)} values); "
+                          "give another search.study", "search.objective")
+    study.set_user_attr("direction_names", OBJECTIVES[search.objective])
+    return study

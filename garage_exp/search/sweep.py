@@ -1,0 +1,181 @@
+"""A search from start to end: check the space, open the study, run the trials, analyse, write the suite.
+
+The Hydra sweeper (hydra_plugins/garage_search) is a thin shell around `run`; the sweep callback calls
+`check` before it opens the parent run, so that a bad space costs nothing and writes nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp.errors import GarageError
+from garage_exp.search import space as space_mod
+from garage_exp.search import study as study_mod
+
+log = logging.getLogger("garage_exp")
+SWEEPER = "hydra_plugins.garage_search.sweeper.SearchSweeper"
+_CHECKED: dict[tuple[str, ...], space_mod.Space] = {}
+
+
+def is_search(config: DictConfig) -> bool:
+    return OmegaConf.select(config, "hydra.sweeper._target_") == SWEEPER
+
+
+def arguments_of(config: DictConfig) -> list[str]:
+    return list(config.hydra.overrides.task)
+
+
+def group_levels(loader) -> dict[str, list[str]]:
+    """Each config group's levels as the loader sees them (the package's conf/ and a user's --config-dir)."""
+    groups = {}
+    for group in loader.list_groups(""):
+        if group == "hydra":
+            continue
+        groups[group] = [name for name in loader.get_group_options(group) if not name.endswith("_schema")]
+    return groups
+
+
+def check(config: DictConfig, loader) -> space_mod.Space:
+    """The search's settings and space, each value composed and checked as a job would check it (no
+    rendering): GarageError (one line naming the override) on the first problem."""
+    from garage_exp.cli_errors import input_error
+    from garage_exp.preflight import preflight
+
+    arguments = tuple(arguments_of(config))
+    if arguments in _CHECKED:
+        return _CHECKED[arguments]
+    study_mod.check_search(config.search)
+    # resume continues the study (not a trial's job); a suite's dataset comes from its scenarios' reruns
+    kept = [a for a in arguments if not a.startswith("resume=")
+            and not (config.search.mode == "suite" and a.startswith("dataset="))]
+    space = space_mod.build(kept, config, group_levels(loader))
+    base = space_mod.default_point(space)
+    try:  # the fixed part first: a case the plan cannot hold is the command's problem, not a searched value's
+        preflight(loader.load_sweep_config(config, space.fixed), needs=[])
+    except GarageError as exc:
+        raise GarageError(str(exc), "search") from None
+    for name, value in space_mod.probe_points(space):
+        point = space.overrides({**base, name: value})
+        where = f"search space {name}={space_mod.format_value(value)}"
+        try:
+            job = loader.load_sweep_config(config, point)
+            preflight(job, needs=[])
+        except GarageError as exc:
+            raise GarageError(str(exc), where) from None
+        except Exception as exc:
+            text = input_error(exc)
+            if text is None:
+                raise
+            raise GarageError(text, where) from None
+    _CHECKED[arguments] = space
+    return space
+
+
+def study_name_of(config: DictConfig) -> str:
+    return study_mod.study_name(config.search, arguments_of(config))
+
+
+def study_lock(config: DictConfig):
+    """The lock beside a sqlite study (see loop.ask_lock): workers starting together open one parent run."""
+    from garage_exp.search.loop import ask_lock
+
+    return ask_lock(study_mod.storage_url(config.search))
+
+
+def budget(search, space: space_mod.Space, study) -> int:
+    """How many trials the study holds at the end: `search.trials`; a grid (sampler=grid) all its cells; a
+    Saltelli design (sampler=saltelli) enqueues N x (2D + 2) trials and takes as many as it needs."""
+    if search.sampler == "grid":  # the whole grid, whatever search.trials says
+        return study_mod.grid_size(space.params, int(search.grid_levels))
+    if search.sampler != "saltelli":
+        return int(search.trials)
+    from garage_exp.search.sensitivity import saltelli_design
+
+    if not study.get_trials(deepcopy=False):
+        design = saltelli_design(space.params, int(search.saltelli_n), seed_of(search, None))
+        for k, params in enumerate(design):
+            study.enqueue_trial(params, user_attrs={"saltelli": k})
+        log.info("saltelli: %d trials enqueued (N=%d)", len(design), search.saltelli_n)
+    return max(int(search.trials), sum(1 for t in study.get_trials(deepcopy=False) if "saltelli" in t.user_attrs))
+
+
+def seed_of(search, config: DictConfig | None) -> int:
+    if search.seed is not None:
+        return int(search.seed)
+    return int(config.seed) if config is not None else 0
+
+
+def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
+    """Run (or continue) the command's study; returns what the sweep leaves: study name, storage, trials run."""
+    search = config.search
+    space = check(config, loader)
+    name = study_name_of(config)
+    seed = seed_of(search, config)
+    study = study_mod.open_study(search, name, seed, space.params)
+    study.set_user_attr("command", " ".join(arguments_of(config)))
+    total = budget(search, space, study)
+    held = len(study.get_trials(deepcopy=False))
+    print(f"garage_exp: study {name!r} in {study_mod.storage_url(search)}: {held} trial(s) held, up to {total}")
+    from garage_exp.search.loop import SearchLoop
+
+    until = _suite_full(search, stop) if search.mode == "suite" else (lambda _study: stop())
+    loop = SearchLoop(search, space, study, launch, total, stop=until)
+    ran = loop.run()
+    return {"study": study, "name": name, "ran": ran, "space": space}
+
+
+def _suite_full(search, stop):
+    """A suite's search stops early once every band holds its K scenarios."""
+    from garage_exp.search.suite import bands_full
+
+    return lambda study: stop() or bands_full(study, search)
+
+
+def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> list[Path]:
+    """The study's analysis (and suite) into out_dir; returns the files to log on the parent run."""
+    from garage_exp.search.analysis import analyse
+
+    search = config.search
+    paths = list(analyse(result["study"], out_dir, top=int(search.top)))
+    if search.mode == "suite":
+        from garage_exp.search.suite import write_suite
+
+        paths.extend(write_suite(config, result["study"], result["space"], out_dir, loader, launch, result["name"]))
+    return paths
+
+
+def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: list[Path], out_dir: Path) -> None:
+    """The parent run of the study: the analysis, the plan's map, the study's name and storage, and the best
+    trials' runs tagged with their rank."""
+    from garage_exp import tracking
+    from garage_exp.plan.draw import draw_map
+    from garage_exp.preflight import _classified, resolve_plan_path
+
+    mlc = tracking.client(config.tracking.uri)
+    study = result["study"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [*paths, draw_map(_classified(resolve_plan_path(config.plan)), out_dir / "plan_map.png")]
+    for path in paths:
+        tracking.retry(lambda p=path: mlc.log_artifact(parent_run_id, str(p), "search"))
+    tags = {"study": result["name"], "storage": study_mod.storage_url(config.search),
+            "search_sampler": config.search.sampler, "search_mode": config.search.mode}
+    for key, value in tags.items():
+        tracking.retry(lambda k=key, v=value: mlc.set_tag(parent_run_id, k, v))
+    for rank, trial in enumerate(ranked(study)[: int(config.search.top)], start=1):
+        run_id = trial.user_attrs.get("run_id")
+        if run_id:
+            tracking.retry(lambda r=run_id, k=rank: mlc.set_tag(r, "search_rank", str(k)))
+    best = ranked(study)
+    if best:
+        tracking.retry(lambda: mlc.log_metric(parent_run_id, "best_difficulty", float(best[0].values[0])))
+
+
+def ranked(study) -> list:
+    """The complete trials, hardest first (the first objective, difficulty; ties by trial number)."""
+    from optuna.trial import TrialState
+
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    return sorted(done, key=lambda t: (-t.values[0], t.number))

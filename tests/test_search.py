@@ -1,0 +1,238 @@
+"""The search (garage_exp/search): its space, the trial loop and the study, with a stand-in for the job (no
+rendering); the end-to-end runs are in tests/test_search_runs.py."""
+
+import math
+import multiprocessing
+from dataclasses import dataclass
+
+import optuna
+import pandas as pd
+import pytest
+from conftest import ROOT, compose_cfg
+from optuna.trial import TrialState
+
+from garage_exp import results
+from garage_exp.errors import GarageError
+from garage_exp.search import space as space_mod
+from garage_exp.search import study as study_mod
+from garage_exp.search.loop import SearchLoop, outcome
+
+
+def levels() -> dict[str, list[str]]:
+    return {p.name: sorted(f.stem for f in p.glob("*.yaml")) for p in (ROOT / "conf").iterdir() if p.is_dir()}
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return compose_cfg("plan=tiny")
+
+
+def test_the_override_grammar_becomes_optunas_distributions(cfg):
+    space = space_mod.build(["plan=tiny", "light.intensity=interval(0.1,1.0)", "light.coverage=tag(log, interval(0.1,1))",
+                             "case.actors.target.distance=range(4,10,2)", "light=choice(bright,dim)", "sensor=ideal,noisy",
+                             "seed=int(interval(0,9))"], cfg, levels())
+    assert space.fixed == ["plan=tiny"]
+    p = space.params
+    assert p["light.intensity"] == optuna.distributions.FloatDistribution(0.1, 1.0)
+    assert p["light.coverage"] == optuna.distributions.FloatDistribution(0.1, 1.0, log=True)
+    assert p["case.actors.target.distance"] == optuna.distributions.IntDistribution(4, 8, step=2)
+    assert p["light"] == optuna.distributions.CategoricalDistribution(["bright", "dim"])
+    assert p["sensor"] == optuna.distributions.CategoricalDistribution(["ideal", "noisy"])
+    assert p["seed"] == optuna.distributions.IntDistribution(0, 9)
+    over = space.overrides({"light.intensity": 0.123456789, "light.coverage": 0.5, "case.actors.target.distance": 6,
+                            "light": "dim", "sensor": "ideal", "seed": 3})
+    assert over == ["plan=tiny", "light.intensity=0.123457", "light.coverage=0.5", "case.actors.target.distance=6",
+                    "light=dim", "sensor=ideal", "seed=3"]
+    assert space_mod.format_value("1") == "'1'"  # a case level named 1 stays a string
+
+
+@pytest.mark.parametrize("args, message", [
+    (["light.intensty=interval(0.1,1)"], "the config has no key light.intensty"),
+    (["light.intensity=interval(1.0,0.5)"], "the interval is empty"),
+    (["light=choice(bright,dusk)"], "light has no level 'dusk'"),
+    (["light=interval(0,1)"], "light is a config group"),
+    (["search.trials=interval(1,5)"], "search.trials cannot be searched"),
+    (["plan=tiny"], "nothing to search"),
+])
+def test_a_bad_space_is_one_line_naming_the_override(cfg, args, message):
+    with pytest.raises(GarageError) as err:
+        space_mod.build(args, cfg, levels())
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def table(**cols) -> pd.DataFrame:
+    n = len(cols["composite"])
+    return pd.DataFrame({"camera": ["front"] * n, **cols})
+
+
+def test_only_fairly_visible_frames_count():
+    t = table(composite=[0.9, 0.1, 0.0, 0.5], visible_fraction=[1.0, 0.6, 0.2, 0.9], box_height=[80, 30, 80, 20])
+    fair = results.fair_summary(t, "front", min_visible=0.5, min_box=25, threshold=0.5)
+    # frame 3 is too hidden, frame 4 too small: the two fair frames average 0.5
+    assert fair["fair_frames"] == 2 and fair["fair_confidence"] == pytest.approx(0.5)
+    assert fair["fair_difficulty"] == pytest.approx(0.5) and fair["fair_recall"] == pytest.approx(0.5)
+    none = results.fair_summary(t, "front", min_visible=0.95, min_box=25, threshold=0.5)
+    assert none["fair_frames"] == 1
+    hidden = results.fair_summary(t.assign(visible_fraction=0.1), "front", 0.5, 25, 0.5)
+    assert hidden["fair_frames"] == 0 and math.isnan(hidden["fair_difficulty"])
+
+
+def test_a_target_never_fairly_visible_is_infeasible_not_hard():
+    summary = {"fair_frames": 0.0, "fair_difficulty": math.nan, "visible_fraction_mean": 0.05, "frames": 4.0,
+               "difficulty": 1.0, "run_id": "r", "output_dir": "/x"}
+    out = outcome(summary, "difficulty")
+    assert out.state == TrialState.PRUNED and out.attrs["infeasible"] is True and out.values is None
+    fine = outcome({**summary, "fair_frames": 2.0, "fair_difficulty": 0.7, "visible_fraction_mean": 0.8}, "pareto")
+    assert fine.state == TrialState.COMPLETE and fine.values == [0.7, 0.8]
+    failed = outcome({"error": "RuntimeError: boom"}, "difficulty")
+    assert failed.state == TrialState.FAIL and "boom" in failed.attrs["error"]
+
+
+# ---- the loop, with a stand-in for the job ---------------------------------------------------------------------
+
+@dataclass
+class Ret:
+    return_value: object
+
+
+def fake_job(overrides: list[str]) -> dict:
+    """A job's summary from its overrides: dim light and far targets are hard; below 0.2 the target is hidden."""
+    values = dict(o.split("=", 1) for o in overrides)
+    x, y = float(values["light.intensity"]), float(values["case.actors.target.distance"])
+    if values.get("fail") == "yes" or x > 0.97:
+        return {"error": "RuntimeError: a stand-in crash"}
+    visible = 0.0 if x < 0.2 else 0.9
+    conf = max(0.0, min(1.0, x - 0.03 * y))
+    return {"fair_frames": 0.0 if visible == 0 else 2.0, "fair_difficulty": 1 - conf if visible else math.nan,
+            "fair_confidence": conf, "fair_recall": float(conf > 0.5), "visible_fraction_mean": visible,
+            "frames": 2.0, "run_id": "run-" + values["search.trial"], "output_dir": "/nowhere"}
+
+
+def fake_launch(batch, idx):
+    return [Ret(fake_job(list(job))) for job in batch]
+
+
+SPACE = ["plan=tiny", "light.intensity=interval(0.0,1.0)", "case.actors.target.distance=interval(3.0,12.0)"]
+
+
+def search_node(tmp_path, **kw):
+    cfg = compose_cfg("plan=tiny", f"search.storage=sqlite:///{tmp_path / 'optuna.db'}",
+                      *(f"search.{k}={v}" for k, v in kw.items()))
+    return cfg
+
+
+def run_loop(tmp_path, trials: int, name: str = "s", seed: int = 0, launch=fake_launch, **kw):
+    cfg = search_node(tmp_path, **kw)
+    space = space_mod.build(SPACE, cfg, levels())
+    study = study_mod.open_study(cfg.search, name, seed, space.params)
+    SearchLoop(cfg.search, space, study, launch, trials).run()
+    return study
+
+
+def params_of(study):
+    return [(t.number, t.params, t.state) for t in study.get_trials()]
+
+
+def test_the_same_seed_gives_the_same_trials(tmp_path):
+    a = run_loop(tmp_path / "a", 6)
+    b = run_loop(tmp_path / "b", 6)
+    assert params_of(a) == params_of(b) and len(a.trials) == 6
+    c = run_loop(tmp_path / "c", 6, seed=1)
+    assert params_of(c) != params_of(a)
+
+
+@pytest.mark.parametrize("sampler", ["tpe", "cmaes", "random", "qmc"])
+def test_every_sampler_runs_a_study(tmp_path, sampler):
+    study = run_loop(tmp_path, 4, sampler=sampler)
+    assert len(study.trials) == 4 and all(t.state != TrialState.RUNNING for t in study.trials)
+
+
+def test_a_grid_study_visits_each_cell_once(tmp_path):
+    study = run_loop(tmp_path, 9, sampler="grid", grid_levels=3)
+    cells = {(t.params["light.intensity"], t.params["case.actors.target.distance"]) for t in study.trials}
+    assert cells == {(x, y) for x in (0.0, 0.5, 1.0) for y in (3.0, 7.5, 12.0)}
+    assert study_mod.grid_size(space_mod.build(SPACE, search_node(tmp_path), levels()).params, 3) == 9
+
+
+def test_pareto_returns_difficulty_against_visible_fraction(tmp_path):
+    study = run_loop(tmp_path, 6, sampler="nsga2", objective="pareto")
+    assert len(study.directions) == 2 and study.best_trials
+    assert all(len(t.values) == 2 for t in study.best_trials)
+
+
+def test_a_resumed_study_keeps_its_trials_and_adds_the_rest(tmp_path):
+    first = params_of(run_loop(tmp_path, 3))
+    again = run_loop(tmp_path, 5)  # the same name and storage: the study continues
+    assert params_of(again)[:3] == first and len(again.trials) == 5
+    assert params_of(run_loop(tmp_path, 5)) == params_of(again)  # nothing left to do
+
+
+def test_a_failed_trial_is_recorded_and_the_study_goes_on(tmp_path):
+    def launch(batch, idx):
+        if idx == 1:
+            raise RuntimeError("the launcher lost the job")
+        if idx == 2:
+            return [Ret({"error": "RuntimeError: boom in frame 3"})]
+        return fake_launch(batch, idx)
+
+    study = run_loop(tmp_path, 5, launch=launch)
+    states = [t.state for t in study.trials]
+    assert states[1] == states[2] == TrialState.FAIL and states.count(TrialState.FAIL) >= 2
+    assert "lost the job" in study.trials[1].user_attrs["error"]
+    assert "boom" in study.trials[2].user_attrs["error"]
+    assert len(study.trials) == 5 and study.trials[4].state in (TrialState.COMPLETE, TrialState.PRUNED)
+
+
+def test_infeasible_trials_are_pruned_not_hard(tmp_path):
+    study = run_loop(tmp_path, 12, sampler="random")
+    pruned = [t for t in study.trials if t.state == TrialState.PRUNED]
+    assert pruned and all(t.params["light.intensity"] < 0.2 and t.user_attrs["infeasible"] for t in pruned)
+    assert study.best_trial.params["light.intensity"] >= 0.2  # the hardest fair one, not a hidden target
+
+
+def _worker(path: str, trials: int) -> None:
+    from pathlib import Path
+
+    run_loop(Path(path), trials, name="shared")
+
+
+def test_two_worker_processes_share_one_study(tmp_path):
+    ctx = multiprocessing.get_context("spawn")
+    workers = [ctx.Process(target=_worker, args=(str(tmp_path), 10)) for _ in range(2)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join(120)
+    assert [w.exitcode for w in workers] == [0, 0]
+    study = optuna.load_study(study_name="shared", storage=f"sqlite:///{tmp_path / 'optuna.db'}")
+    numbers = [t.number for t in study.trials]
+    assert sorted(numbers) == list(range(10))  # exactly the asked number, no number twice
+    assert all(t.user_attrs.get("run_id") or t.state == TrialState.FAIL for t in study.trials)
+
+
+def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
+    """The search's launcher composes once per combination of group levels and sets the values on a copy;
+    the config a job sees is Hydra's, key for key (the same values, choices, overrides and dirname)."""
+    from types import SimpleNamespace
+
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+
+    from garage_exp import config as schema
+    from garage_exp.search.launch import CachedLaunch
+
+    schema.register()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        loader = GlobalHydra.instance().config_loader()
+        master = loader.load_configuration("config", ["hydra/sweeper=search", "plan=tiny"], RunMode.MULTIRUN)
+        launch = CachedLaunch(SimpleNamespace(config_loader=loader), None, master, set(levels()))
+        for trial in (["plan=tiny", "light=dim", "light.intensity=0.3", "palette.target_colours=[black]",
+                       "case.actors.target.distance=5.5", "search.trial=0"],
+                      ["plan=tiny", "light=bright", "light.intensity=0.7", "case='3'", "search.trial=1"],
+                      ["plan=tiny", "light=dim", "light.intensity=0.9", "search.trial=2"]):
+            ours = OmegaConf.to_container(launch.compose(trial))
+            hydras = OmegaConf.to_container(loader.load_sweep_config(master, trial))
+            assert ours == hydras
+        assert len(launch.cache) == 2  # light=dim twice: one composition

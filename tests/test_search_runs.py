@@ -1,0 +1,94 @@
+"""The search end to end through `python -m garage_exp -m hydra/sweeper=search`: bad spaces, two workers on one
+study, and a graded suite (real frames on the tiny plan, 2 a trial) whose scenario file reruns to the same
+frame table."""
+
+import json
+import subprocess
+
+import optuna
+import pandas as pd
+import pytest
+from conftest import PYTHON, ROOT, child_env, require, run_app
+from optuna.trial import TrialState
+
+from garage_exp import tracking
+
+SEARCH = ["-m", "hydra/sweeper=search", "plan=tiny"]
+
+
+def stores(tmp_path) -> list[str]:
+    return [f"search.storage=sqlite:///{tmp_path / 'optuna.db'}", f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}"]
+
+
+@pytest.mark.parametrize("space, message", [
+    ("light.intensty=interval(0.1,1.0)", "search space light.intensty=interval(0.1,1.0): the config has no key"),
+    ("light.intensity=interval(0.9,0.2)", "the interval is empty"),
+    ("light=choice(bright,dusk)", "light has no level 'dusk'"),
+    ("light.intensity=interval(-1.0,1.0)", "search space light.intensity=-1.0"),  # a value the job would refuse
+])
+def test_a_bad_search_space_is_one_line_exit_2_and_nothing_written(tmp_path, space, message):
+    r = run_app([*SEARCH, "dry_run=true", space, *stores(tmp_path)], tmp_path)
+    assert r.returncode == 2, r.stderr
+    lines = [line for line in r.stderr.splitlines() if line.startswith("garage_exp:")]
+    assert len(lines) == 1 and message in lines[0], r.stderr
+    assert not (tmp_path / "sweep").exists() and not (tmp_path / "optuna.db").exists()
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_two_workers_share_one_study_and_its_parent_run(tmp_path):
+    """Two processes on one sqlite study (dry-run trials: no rendering) finish exactly the asked trials, each
+    number once, each trial a child run of the study's one parent."""
+    args = [*SEARCH, "dry_run=true", "search.trials=6", "light.intensity=interval(0.2,1.0)", *stores(tmp_path)]
+    procs = [subprocess.Popen([PYTHON, "-m", "garage_exp", *args, f"hydra.sweep.dir={tmp_path}/sweep{k}"],
+                              cwd=tmp_path, env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for k in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    study = optuna.load_study(study_name=optuna.get_all_study_names(f"sqlite:///{tmp_path / 'optuna.db'}")[0],
+                              storage=f"sqlite:///{tmp_path / 'optuna.db'}")
+    assert sorted(t.number for t in study.trials) == list(range(6))
+    assert all(t.state == TrialState.PRUNED and t.user_attrs["infeasible"] for t in study.trials)  # dry run: no frame
+    mlc = tracking.client(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    exp = mlc.get_experiment_by_name("garage_exp")
+    runs = mlc.search_runs([exp.experiment_id], max_results=100)
+    parents = [r for r in runs if r.data.tags.get("sweep") == "parent"]
+    children = [r for r in runs if "search_trial" in r.data.tags]
+    assert len(parents) == 1 and parents[0].data.tags["sweep_key"] == f"study:{study.study_name}"
+    assert sorted(int(r.data.tags["search_trial"]) for r in children) == list(range(6))
+    assert {r.data.tags["mlflow.parentRunId"] for r in children} == {parents[0].info.run_id}
+    assert {t.user_attrs["run_id"] for t in study.trials} == {r.info.run_id for r in children}
+
+
+@pytest.mark.render
+@pytest.mark.detect
+@pytest.mark.slow
+def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp_path):
+    require("vulkan", "vehicles", "models")
+    suite = tmp_path / "suite"
+    args = [*SEARCH, "search.mode=suite", "search.trials=3", "search.suite.per_band=2", f"search.suite.dir={suite}",
+            "+search.suite.bands.any=[0.0,1.01]", "search.min_visible=0.0", "search.min_box=0", "dataset=true",
+            "palette.target_colours=[black]", "case.motion.start=5", "case.motion.end=4", "case.motion.step=1",
+            "light.intensity=interval(0.3,1.0)", "case.actors.target.distance=interval(4.0,6.0)", *stores(tmp_path)]
+    r = run_app(args, tmp_path, env={"PYTHONPATH": str(ROOT / "tests" / "faults"),
+                                     "GARAGE_EXP_FAULT": "frame:raise:1:0"})  # trial 1 crashes in its first frame
+    assert r.returncode == 0, r.stderr[-3000:]
+    storage = f"sqlite:///{tmp_path / 'optuna.db'}"
+    study = optuna.load_study(study_name=optuna.get_all_study_names(storage)[0], storage=storage)
+    states = [t.state for t in study.trials]
+    assert states == [TrialState.COMPLETE, TrialState.FAIL, TrialState.COMPLETE], states
+    assert "RuntimeError" in study.trials[1].user_attrs["error"]
+
+    manifest = pd.read_csv(suite / "manifest.csv")
+    assert list(manifest.scenario) == ["any_1", "any_2"] and set(manifest.trial) == {0, 2}
+    assert manifest.difficulty.between(0, 1).all() and manifest.overrides.str.contains("light.intensity=").all()
+    coco = json.loads((suite / "dataset" / "coco.json").read_text())
+    assert len(coco["images"]) == 4 and coco["annotations"]  # 2 scenarios x 2 frames, the cars labelled
+    assert (suite / "dataset" / "data.yaml").exists()
+
+    trial = study.trials[int(manifest.trial[0])]
+    rerun = run_app(["--config-dir", str(suite), "+scenario=any_1", f"tracking.uri=sqlite:///{tmp_path / 'rerun.db'}"],
+                    tmp_path)
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    ours = pd.read_csv(tmp_path / "run" / "frames.csv")
+    theirs = pd.read_csv(f"{trial.user_attrs['output_dir']}/frames.csv")
+    pd.testing.assert_frame_equal(ours, theirs)
