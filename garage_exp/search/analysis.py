@@ -1,0 +1,347 @@
+"""What the user sees of a study (issue 10, §3): figures, tables and a report of the hardest scenarios.
+
+`analyse(study, out_dir)` works on any Optuna study whose trials follow the sweeper's contract (values:
+difficulty, or [difficulty, visible fraction]; user_attrs: overrides, visible_fraction, fair_frames, frames,
+recall, confidence, frame, and "infeasible" on a pruned trial or "error" on a failed one). It writes, into
+out_dir: history.png, importances.png/.csv (fANOVA), slices.png, pareto.png (multi-objective), sensitivity.png/
+.csv (Sobol', see sensitivity), trials.csv, hardest.csv, frames/ (the hardest trials' frames) and
+search_report.md/.html. Only complete trials are ranked; pruned (infeasible) and failed ones are counted and
+listed apart.
+"""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pandas as pd
+from optuna.distributions import BaseDistribution, CategoricalDistribution
+from optuna.trial import FrozenTrial, TrialState
+
+from garage_exp.errors import GarageError
+from garage_exp.page import html_page
+from garage_exp.search import sensitivity
+
+FANOVA_SEED = 0  # the importances of one study are the same every time they are computed
+ATTRS = ("visible_fraction", "fair_frames", "frames", "recall", "confidence")
+THIRDS = ("low third", "middle third", "high third")
+
+
+def difficulty(trial: FrozenTrial) -> float:
+    """The first objective is the difficulty, in single- and multi-objective studies alike."""
+    return trial.values[0]
+
+
+def objective_names(study: optuna.Study) -> list[str]:
+    names = study.user_attrs.get("direction_names")
+    if names and len(names) == len(study.directions):
+        return list(names)
+    return ["difficulty", "visible_fraction"][:len(study.directions)] + [
+        f"objective_{k}" for k in range(2, len(study.directions))]
+
+
+def overrides(trial: FrozenTrial) -> list[str]:
+    """The trial's override list as the sweeper stored it; its parameters as overrides when it stored none."""
+    return list(trial.user_attrs.get("overrides") or [f"{k}={v}" for k, v in trial.params.items()])
+
+
+def trial_table(study: optuna.Study) -> pd.DataFrame:
+    """One row per trial: number, state, difficulty (complete trials), the contract's user_attrs, each parameter
+    in its own column, the overrides, and why a trial was pruned or failed."""
+    multi = len(study.directions) > 1
+    rows = []
+    for t in study.get_trials(deepcopy=False):
+        done = t.state == TrialState.COMPLETE
+        row = {"trial": t.number, "state": t.state.name, "difficulty": difficulty(t) if done else np.nan}
+        for key in ATTRS:
+            row[key] = t.user_attrs.get(key, np.nan)
+        if multi and done and pd.isna(row["visible_fraction"]):
+            row["visible_fraction"] = t.values[1]
+        row.update(t.params)
+        row["overrides"] = " ".join(overrides(t))
+        row["why"] = ("infeasible: no fairly visible frame" if t.user_attrs.get("infeasible")
+                      else str(t.user_attrs.get("error", "")))
+        row["run_id"] = t.user_attrs.get("run_id", "")
+        row["frame"] = t.user_attrs.get("frame", "")
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def hardest(study: optuna.Study, top: int) -> list[FrozenTrial]:
+    """The top complete trials by difficulty (the study's first direction says which end is hard)."""
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    harder_is_higher = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
+    return sorted(done, key=lambda t: (-difficulty(t) if harder_is_higher else difficulty(t), t.number))[:top]
+
+
+def distributions(study: optuna.Study) -> dict[str, BaseDistribution]:
+    """Each parameter's distribution, as the latest trial that used it declared it."""
+    dists: dict[str, BaseDistribution] = {}
+    for t in study.get_trials(deepcopy=False):
+        dists.update(t.distributions)
+    return dists
+
+
+def position(value, dist: BaseDistribution) -> float:
+    """Where a numeric value lies in its range, 0 (low end) to 1 (high end); on a log scale for log ranges."""
+    lo, hi, v = float(dist.low), float(dist.high), float(value)
+    if getattr(dist, "log", False):
+        lo, hi, v = np.log(lo), np.log(hi), np.log(v)
+    return 0.5 if hi == lo else float(np.clip((v - lo) / (hi - lo), 0, 1))
+
+
+def side(value, dist: BaseDistribution) -> str:
+    """The part of the range a value is in: a categorical level, or a third of a numeric range."""
+    if isinstance(dist, CategoricalDistribution):
+        return str(value)
+    return THIRDS[min(int(position(value, dist) * 3), 2)]
+
+
+def sides(table: pd.DataFrame, param: str, dist: BaseDistribution) -> pd.DataFrame:
+    """Mean difficulty and trial count per side (third or level) of a parameter, over the complete trials."""
+    done = table[(table.state == "COMPLETE") & table[param].notna()]
+    groups = done.assign(side=[side(v, dist) for v in done[param]]).groupby("side").difficulty
+    return groups.agg(["mean", "count"])
+
+
+def range_text(dist: BaseDistribution) -> str:
+    if isinstance(dist, CategoricalDistribution):
+        return "levels " + ", ".join(map(str, dist.choices))
+    return f"{dist.low:g} to {dist.high:g}" + (" (log scale)" if getattr(dist, "log", False) else "")
+
+
+def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: dict[str, float],
+             higher_is_harder: bool = True) -> list[str]:
+    """One plain sentence per parameter of the trial (most important first): where its value lies and whether
+    the study's complete trials are harder on that side than on the others."""
+    lines = []
+    for param in sorted(trial.params, key=lambda p: (-importance.get(p, -1), p)):
+        dist, value = dists[param], trial.params[param]
+        where = side(value, dist)
+        stats = sides(table, param, dist)
+        shown = f"{value:.3g}" if isinstance(value, float) else str(value)
+        head = f"`{param}` = {shown}"
+        if not isinstance(dist, CategoricalDistribution):
+            head += f", {position(value, dist):.0%} of the way from {range_text(dist)}, in the {where}"
+        if param in importance:
+            head += f" (importance {importance[param]:.2f})"
+        others = stats.drop(index=where, errors="ignore")
+        if where not in stats.index or stats.loc[where, "count"] < 2 or others.empty or others["count"].max() < 2:
+            lines.append(f"{head}: too few trials on each side to tell whether this side is harder.")
+            continue
+        mine = stats.loc[where]
+        best = others["mean"].idxmax() if higher_is_harder else others["mean"].idxmin()
+        rest = others.loc[best]
+        harder = mine["mean"] >= rest["mean"] if higher_is_harder else mine["mean"] <= rest["mean"]
+        verdict = "the harder side" if harder else "not the harder side"
+        lines.append(f"{head}: {verdict}: trials there average difficulty {mine['mean']:.2f} "
+                     f"({int(mine['count'])} trials), the {best} {rest['mean']:.2f} ({int(rest['count'])}).")
+    return lines
+
+
+def importances(study: optuna.Study) -> tuple[dict[str, float], str]:
+    """fANOVA importances of the parameters for the difficulty (seeded), or {} and the reason they are missing."""
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if len(done) < 2:
+        return {}, f"Importances skipped: {len(done)} complete trial(s), fANOVA needs at least 2."
+    evaluator = optuna.importance.FanovaImportanceEvaluator(seed=FANOVA_SEED)
+    try:
+        found = optuna.importance.get_param_importances(study, evaluator=evaluator, target=difficulty)
+    except RuntimeError as exc:  # fANOVA's "zero total variance": every trial equally hard
+        return {}, f"Importances skipped: {exc}"
+    if not found:
+        return {}, "Importances skipped: no parameter was sampled in every complete trial."
+    return {k: float(v) for k, v in found.items()}, ""
+
+
+def _plots():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from optuna.visualization import matplotlib as vis
+
+    return plt, vis
+
+
+def save_plot(draw, path: Path, size: tuple[float, float]) -> Path:
+    """Save the figure an optuna.visualization.matplotlib function drew (it returns one axes or an array)."""
+    plt, _ = _plots()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        axes = draw()
+    fig = np.ravel(axes)[0].figure
+    fig.set_size_inches(*size)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def figures(study: optuna.Study, out_dir: Path, importance: dict[str, float]) -> dict[str, Path]:
+    """The history, the importances, the slices and (two objectives) the Pareto front, as PNGs."""
+    _, vis = _plots()
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    names = objective_names(study)
+    if not done:
+        return {}
+    out = {"history": save_plot(lambda: vis.plot_optimization_history(
+        study, target=difficulty, target_name=names[0]), out_dir / "history.png", (7, 4))}
+    params = sorted({p for t in done for p in t.params})
+    if params:
+        out["slices"] = save_plot(lambda: vis.plot_slice(study, target=difficulty, target_name=names[0]),
+                                  out_dir / "slices.png", (3.6 * len(params) + 1, 3.8))
+    if importance:
+        plt, _ = _plots()
+        fig, ax = plt.subplots(figsize=(6, 0.5 * len(importance) + 1.2), dpi=110)
+        order = sorted(importance, key=importance.get)
+        ax.barh(order, [importance[p] for p in order], color="tab:blue")
+        ax.set_xlabel(f"fANOVA importance for {names[0]} (sums to 1)")
+        fig.tight_layout()
+        fig.savefig(out_dir / "importances.png")
+        plt.close(fig)
+        out["importances"] = out_dir / "importances.png"
+    if len(study.directions) == 2:
+        out["pareto"] = save_plot(lambda: vis.plot_pareto_front(study, target_names=names),
+                                  out_dir / "pareto.png", (6, 4.5))
+    return out
+
+
+def copy_frame(trial: FrozenTrial, out_dir: Path) -> Path | None:
+    """The trial's hardest fair frame, copied beside the report so the report (and its HTML) can show it."""
+    src = trial.user_attrs.get("frame")
+    if not src or not Path(src).is_file():
+        return None
+    dst = out_dir / "frames" / f"trial_{trial.number}{Path(src).suffix}"
+    dst.parent.mkdir(exist_ok=True)
+    shutil.copyfile(src, dst)
+    return dst
+
+
+def fmt(value, digits: int = 2) -> str:
+    return "-" if value is None or pd.isna(value) else f"{value:.{digits}f}"
+
+
+def md_table(df: pd.DataFrame) -> list[str]:
+    """A small frame as a markdown table (floats to 2 decimals, pipes escaped)."""
+    cells = df.map(lambda v: fmt(v) if isinstance(v, float) else str(v).replace("|", "\\|"))
+    return ["| " + " | ".join(map(str, df.columns)) + " |", "|" + "---|" * len(df.columns),
+            *("| " + " | ".join(row) + " |" for row in cells.itertuples(index=False))]
+
+
+def sensitivity_section(study: optuna.Study, out_dir: Path, seed: int) -> tuple[list[str], list[Path]]:
+    lines = ["## Global sensitivity (Sobol' indices)", ""]
+    try:
+        indices = sensitivity.sobol_indices(study, seed)
+    except GarageError as exc:
+        return [*lines, f"Sensitivity skipped: {exc}", ""], []
+    csv = out_dir / "sensitivity.csv"
+    indices.to_csv(csv, index=False)
+    png = sensitivity.bar_plot(indices, out_dir / "sensitivity.png")
+    lines += [sensitivity.method_text(indices), "",
+              *md_table(indices[["factor", "S1", "S1_conf", "ST", "ST_conf"]].rename(
+                  columns={"S1_conf": "S1 ± (95 %)", "ST_conf": "ST ± (95 %)"})), "",
+              "![Sobol' indices](sensitivity.png)", ""]
+    return lines, [csv, png]
+
+
+def analyse(study: optuna.Study, out_dir: Path, top: int = 5, seed: int = 0) -> list[Path]:
+    """Write the study's figures, tables and search_report.md/.html into out_dir; returns the files written."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = trial_table(study)
+    names = objective_names(study)
+    multi = len(study.directions) > 1
+    higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
+    importance, skipped = importances(study)
+    written = list(figures(study, out_dir, importance).values())
+    dists = distributions(study)
+
+    by_state = table.state.value_counts() if len(table) else pd.Series(dtype=int)
+    count = {s: int(by_state.get(s, 0)) for s in ("COMPLETE", "PRUNED", "FAIL", "RUNNING", "WAITING")}
+    lines = [f"# Search report: {study.study_name}", "",
+             f"{len(table)} trials: {count['COMPLETE']} complete, {count['PRUNED']} pruned as infeasible "
+             f"(no fairly visible frame), {count['FAIL']} failed"
+             + (f", {count['RUNNING']} running" if count["RUNNING"] else "")
+             + (f", {count['WAITING']} waiting" if count["WAITING"] else "") + ". "
+             + ("Objectives: " + ", ".join(f"{n} ({d.name.lower()})" for n, d in zip(names, study.directions))
+                + ". ") + "Only complete trials are ranked.", ""]
+    if "history" in {p.stem for p in written}:
+        lines += ["## Optimisation history", "", f"![history of {names[0]}](history.png)", ""]
+
+    lines += ["## Parameter importances (fANOVA)", ""]
+    if importance:
+        imp = pd.DataFrame({"parameter": list(importance), "importance": list(importance.values())})
+        imp.to_csv(out_dir / "importances.csv", index=False)
+        written.append(out_dir / "importances.csv")
+        lines += [f"How much of the variance of {names[0]} over the complete trials each parameter explains "
+                  f"(Optuna's fANOVA, seed {FANOVA_SEED}; they sum to 1).", "", *md_table(imp), "",
+                  "![importances](importances.png)", ""]
+    else:
+        lines += [skipped, ""]
+    if (out_dir / "slices.png") in written:
+        lines += ["## Slices", "", f"{names[0]} of each complete trial against each parameter.", "",
+                  "![slices](slices.png)", ""]
+
+    if multi:
+        front = [t for t in study.best_trials]
+        front_table = pd.DataFrame([{"trial": t.number, **dict(zip(names, t.values)),
+                                     "overrides": " ".join(overrides(t))} for t in front])
+        lines += ["## Pareto front", "",
+                  f"{len(front)} trials that no other trial beats on both {names[0]} and {names[1]}.", ""]
+        if len(front_table):
+            lines += [*md_table(front_table.sort_values(names[0], ascending=not higher_is_harder)), ""]
+        if (out_dir / "pareto.png") in written:
+            lines += ["![Pareto front](pareto.png)", ""]
+        table["on_front"] = table.trial.isin([t.number for t in front])
+
+    section, files = sensitivity_section(study, out_dir, seed)
+    lines += section
+    written += files
+
+    top_trials = hardest(study, top)
+    columns = ["trial", "difficulty", *ATTRS, "overrides", "run_id", "frame"]
+    hard = table.set_index("trial").loc[[t.number for t in top_trials]].reset_index()[columns]
+    hard.insert(0, "rank", range(1, len(hard) + 1))
+    hard.to_csv(out_dir / "hardest.csv", index=False)
+    table.to_csv(out_dir / "trials.csv", index=False)
+    written += [out_dir / "hardest.csv", out_dir / "trials.csv"]
+    lines += [f"## The {len(top_trials)} hardest scenarios", ""]
+    if not top_trials:
+        lines += ["No complete trial: nothing to rank.", ""]
+    else:
+        lines += [*md_table(hard[["rank", "trial", "difficulty", "visible_fraction", "fair_frames", "frames"]]
+                            .rename(columns={"visible_fraction": "visible fraction", "fair_frames": "fair frames"})),
+                  ""]
+    for rank, t in enumerate(top_trials, 1):
+        lines += [f"### {rank}. trial {t.number}: difficulty {difficulty(t):.2f}, visible fraction "
+                  f"{fmt(table.set_index('trial').loc[t.number, 'visible_fraction'])}", "",
+                  "Rerun it with these overrides:", "", "```", " ".join(overrides(t)), "```", "",
+                  "What makes it hard:", "",
+                  *(f"- {s}" for s in why_hard(t, table, dists, importance, higher_is_harder)), ""]
+        frame = copy_frame(t, out_dir)
+        if frame:
+            written.append(frame)
+            rel = frame.relative_to(out_dir).as_posix()
+            lines += [f"![trial {t.number}: its hardest fair frame]({rel})", ""]
+        else:
+            lines += ["(no frame saved for this trial)", ""]
+
+    lines += not_ranked(table)
+    report = out_dir / "search_report.md"
+    report.write_text("\n".join(lines))
+    written += [report, html_page(report)]
+    return written
+
+
+def not_ranked(table: pd.DataFrame) -> list[str]:
+    """The pruned (infeasible) and failed trials, each with its overrides and reason."""
+    lines = []
+    for state, title in (("PRUNED", "Pruned trials (infeasible: never fairly visible)"), ("FAIL", "Failed trials")):
+        rows = table[table.state == state] if len(table) else table
+        if len(rows):
+            lines += [f"## {title}", "", *md_table(rows[["trial", "why", "overrides"]]), ""]
+    return lines
