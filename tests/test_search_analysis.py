@@ -98,7 +98,8 @@ def test_single_objective_report_ranks_only_complete_trials_and_explains(tmp_pat
     assert top.params["light.intensity"] < 0.4
     section = report.split(f"### 1. trial {top.number}:")[1].split("###")[0]
     line = next(ln for ln in section.splitlines() if ln.startswith("- `light.intensity`"))
-    assert "in the low third" in line and ": the harder side:" in line
+    assert "in the low third" in line and ": the harder side (p = " in line
+    assert "What makes it hard: hard through `light.intensity` (low third)" in section
     assert " ".join(top.user_attrs["overrides"]) in section
     assert f"](frames/trial_{top.number}.png)" in section and (out / "frames" / f"trial_{top.number}.png").is_file()
     html = (out / "search_report.html").read_text()
@@ -109,7 +110,7 @@ def test_a_bright_trial_is_told_it_is_not_on_the_harder_side(tmp_path):
     study = study_of(30)
     table = analysis.trial_table(study)
     bright = next(t for t in study.trials if t.state == TrialState.COMPLETE and t.params["light.intensity"] > 0.75)
-    lines = analysis.why_hard(bright, table, analysis.distributions(study), {})
+    lines = [text for _, _, text in analysis.why_hard(bright, table, analysis.distributions(study), {})]
     light = next(ln for ln in lines if ln.startswith("`light.intensity`"))
     assert "high third" in light and "not the harder side" in light and "the low third" in light
 

@@ -20,6 +20,7 @@ import optuna
 import pandas as pd
 from optuna.distributions import BaseDistribution, CategoricalDistribution
 from optuna.trial import FrozenTrial, TrialState
+from scipy.stats import ttest_ind
 
 from garage_exp.errors import GarageError
 from garage_exp.page import html_page
@@ -28,6 +29,7 @@ from garage_exp.search import sensitivity
 FANOVA_SEED = 0  # the importances of one study are the same every time they are computed
 ATTRS = ("visible_fraction", "fair_frames", "frames", "recall", "confidence")
 THIRDS = ("low third", "middle third", "high third")
+ALPHA = 0.05  # a side is called harder only when Welch's t-test tells it from the hardest other side
 
 
 def difficulty(trial: FrozenTrial) -> float:
@@ -100,11 +102,11 @@ def side(value, dist: BaseDistribution) -> str:
     return THIRDS[min(int(position(value, dist) * 3), 2)]
 
 
-def sides(table: pd.DataFrame, param: str, dist: BaseDistribution) -> pd.DataFrame:
-    """Mean difficulty and trial count per side (third or level) of a parameter, over the complete trials."""
+def sides(table: pd.DataFrame, param: str, dist: BaseDistribution) -> dict[str, pd.Series]:
+    """The complete trials' difficulties on each side (third or level) of a parameter."""
     done = table[(table.state == "COMPLETE") & table[param].notna()]
-    groups = done.assign(side=[side(v, dist) for v in done[param]]).groupby("side").difficulty
-    return groups.agg(["mean", "count"])
+    labels = [side(v, dist) for v in done[param]]
+    return {k: g for k, g in done.difficulty.groupby(labels)}
 
 
 def range_text(dist: BaseDistribution) -> str:
@@ -114,31 +116,35 @@ def range_text(dist: BaseDistribution) -> str:
 
 
 def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: dict[str, float],
-             higher_is_harder: bool = True) -> list[str]:
-    """One plain sentence per parameter of the trial (most important first): where its value lies and whether
-    the study's complete trials are harder on that side than on the others."""
+             higher_is_harder: bool = True) -> list[tuple[str, str, str]]:
+    """(parameter, side, sentence) per parameter of the trial, most important first: where its value lies and
+    whether the study's complete trials are harder on that side than on the hardest other side (Welch's
+    t-test); the sentence says "the harder side" only when they are."""
     lines = []
     for param in sorted(trial.params, key=lambda p: (-importance.get(p, -1), p)):
         dist, value = dists[param], trial.params[param]
         where = side(value, dist)
-        stats = sides(table, param, dist)
+        groups = sides(table, param, dist)
         shown = f"{value:.3g}" if isinstance(value, float) else str(value)
         head = f"`{param}` = {shown}"
         if not isinstance(dist, CategoricalDistribution):
             head += f", {position(value, dist):.0%} of the way from {range_text(dist)}, in the {where}"
         if param in importance:
             head += f" (importance {importance[param]:.2f})"
-        others = stats.drop(index=where, errors="ignore")
-        if where not in stats.index or stats.loc[where, "count"] < 2 or others.empty or others["count"].max() < 2:
-            lines.append(f"{head}: too few trials on each side to tell whether this side is harder.")
+        mine = groups.get(where, pd.Series(dtype=float))
+        others = {k: g for k, g in groups.items() if k != where and len(g) >= 2}
+        if len(mine) < 2 or not others:
+            lines.append((param, where, f"{head}: too few trials on each side to tell whether this side is harder."))
             continue
-        mine = stats.loc[where]
-        best = others["mean"].idxmax() if higher_is_harder else others["mean"].idxmin()
-        rest = others.loc[best]
-        harder = mine["mean"] >= rest["mean"] if higher_is_harder else mine["mean"] <= rest["mean"]
-        verdict = "the harder side" if harder else "not the harder side"
-        lines.append(f"{head}: {verdict}: trials there average difficulty {mine['mean']:.2f} "
-                     f"({int(mine['count'])} trials), the {best} {rest['mean']:.2f} ({int(rest['count'])}).")
+        pick = max if higher_is_harder else min
+        best = pick(others, key=lambda k: others[k].mean())  # the hardest of the other sides
+        rest = others[best]
+        p = ttest_ind(mine, rest, equal_var=False).pvalue
+        harder = mine.mean() >= rest.mean() if higher_is_harder else mine.mean() <= rest.mean()
+        verdict = ("no clear harder side" if not p < ALPHA
+                   else "the harder side" if harder else "not the harder side")
+        lines.append((param, where, f"{head}: {verdict} (p = {p:.2g}): trials there average difficulty "
+                                    f"{mine.mean():.2f} ({len(mine)} trials), the {best} {rest.mean():.2f} ({len(rest)})."))
     return lines
 
 
@@ -167,16 +173,17 @@ def _plots():
     return plt, vis
 
 
-def save_plot(draw, path: Path, size: tuple[float, float]) -> Path:
+def save_plot(draw, path: Path, size: tuple[float, float] | None = None) -> Path:
     """Save the figure an optuna.visualization.matplotlib function drew (it returns one axes or an array)."""
     plt, _ = _plots()
-    with warnings.catch_warnings():
+    # optuna's plots switch the global style to ggplot: rc_context gives the caller's style back afterwards
+    with warnings.catch_warnings(), plt.rc_context():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         axes = draw()
     fig = np.ravel(axes)[0].figure
-    fig.set_size_inches(*size)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    if size:
+        fig.set_size_inches(*size)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # optuna's colour bar axes defeat tight_layout
     plt.close(fig)
     return path
 
@@ -193,7 +200,7 @@ def figures(study: optuna.Study, out_dir: Path, importance: dict[str, float]) ->
     params = sorted({p for t in done for p in t.params})
     if params:
         out["slices"] = save_plot(lambda: vis.plot_slice(study, target=difficulty, target_name=names[0]),
-                                  out_dir / "slices.png", (3.6 * len(params) + 1, 3.8))
+                                  out_dir / "slices.png")  # optuna sizes it to the parameters
     if importance:
         plt, _ = _plots()
         fig, ax = plt.subplots(figsize=(6, 0.5 * len(importance) + 1.2), dpi=110)
@@ -320,8 +327,7 @@ def analyse(study: optuna.Study, out_dir: Path, top: int = 5, seed: int = 0) -> 
         lines += [f"### {rank}. trial {t.number}: difficulty {difficulty(t):.2f}, visible fraction "
                   f"{fmt(table.set_index('trial').loc[t.number, 'visible_fraction'])}", "",
                   "Rerun it with these overrides:", "", "```", " ".join(overrides(t)), "```", "",
-                  "What makes it hard:", "",
-                  *(f"- {s}" for s in why_hard(t, table, dists, importance, higher_is_harder)), ""]
+                  *what_makes_it_hard(why_hard(t, table, dists, importance, higher_is_harder))]
         frame = copy_frame(t, out_dir)
         if frame:
             written.append(frame)
@@ -335,6 +341,15 @@ def analyse(study: optuna.Study, out_dir: Path, top: int = 5, seed: int = 0) -> 
     report.write_text("\n".join(lines))
     written += [report, html_page(report)]
     return written
+
+
+def what_makes_it_hard(reasons: list[tuple[str, str, str]]) -> list[str]:
+    """The report's lines for one scenario: a one-line summary, then one bullet per parameter."""
+    harder = [f"`{param}` ({where})" for param, where, text in reasons if ": the harder side (" in text]
+    summary = ("In short: hard through " + ", ".join(harder) + "." if harder else
+               "In short: none of its parameters sits on a side that is clearly harder in this study's data.")
+    return ["What makes it hard: " + summary.removeprefix("In short: "), "",
+            *(f"- {text}" for _, _, text in reasons), ""]
 
 
 def not_ranked(table: pd.DataFrame) -> list[str]:
