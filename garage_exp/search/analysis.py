@@ -38,7 +38,7 @@ def difficulty(trial: FrozenTrial) -> float:
 
 
 def objective_names(study: optuna.Study) -> list[str]:
-    names = study.user_attrs.get("direction_names")
+    names = study.user_attrs.get("direction_names") or study.metric_names
     if names and len(names) == len(study.directions):
         return list(names)
     return ["difficulty", "visible_fraction"][:len(study.directions)] + [
