@@ -143,8 +143,9 @@ def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: d
         harder = mine.mean() >= rest.mean() if higher_is_harder else mine.mean() <= rest.mean()
         verdict = ("no clear harder side" if not p < ALPHA
                    else "the harder side" if harder else "not the harder side")
-        lines.append((param, where, f"{head}: {verdict} (p = {p:.2g}): trials there average difficulty "
-                                    f"{mine.mean():.2f} ({len(mine)} trials), the {best} {rest.mean():.2f} ({len(rest)})."))
+        there = f"with {param}={best}" if isinstance(dist, CategoricalDistribution) else f"in the {best}"
+        lines.append((param, where, f"{head}: {verdict} (p = {p:.2g}): difficulty {mine.mean():.2f} on average "
+                                    f"there ({len(mine)} trials) against {rest.mean():.2f} {there} ({len(rest)})."))
     return lines
 
 
@@ -195,8 +196,10 @@ def figures(study: optuna.Study, out_dir: Path, importance: dict[str, float]) ->
     names = objective_names(study)
     if not done:
         return {}
+    # one objective: no target, so optuna also draws the best-so-far line; two: the difficulty alone
+    target = difficulty if len(study.directions) > 1 else None
     out = {"history": save_plot(lambda: vis.plot_optimization_history(
-        study, target=difficulty, target_name=names[0]), out_dir / "history.png", (7, 4))}
+        study, target=target, target_name=names[0]), out_dir / "history.png", (7, 4))}
     params = sorted({p for t in done for p in t.params})
     if params:
         out["slices"] = save_plot(lambda: vis.plot_slice(study, target=difficulty, target_name=names[0]),
@@ -248,7 +251,10 @@ def sensitivity_section(study: optuna.Study, out_dir: Path, seed: int) -> tuple[
     csv = out_dir / "sensitivity.csv"
     indices.to_csv(csv, index=False)
     png = sensitivity.bar_plot(indices, out_dir / "sensitivity.png")
-    lines += [sensitivity.method_text(indices), "",
+    categorical = sorted(k for k, d in distributions(study).items() if isinstance(d, CategoricalDistribution))
+    lines += [sensitivity.method_text(indices)
+              + (f" Categorical factors ({', '.join(categorical)}) are not in it: see the importances and slices."
+                 if categorical else ""), "",
               *md_table(indices[["factor", "S1", "S1_conf", "ST", "ST_conf"]].rename(
                   columns={"S1_conf": "S1 ± (95 %)", "ST_conf": "ST ± (95 %)"})), "",
               "![Sobol' indices](sensitivity.png)", ""]

@@ -132,6 +132,24 @@ def fit_gp(x: np.ndarray, y: np.ndarray, seed: int):
         return gp.fit(x, y)
 
 
+def posterior_draws(gp, x: np.ndarray, k: int, seed: int) -> np.ndarray:
+    """k joint draws of the fitted GP at the rows of x (columns), through a Cholesky factor: sklearn's
+    sample_y takes an SVD, several times slower on a busy machine. The jitter keeps the factor defined."""
+    from scipy.linalg import cholesky
+
+    mean, cov = gp.predict(x, return_cov=True)
+    jitter = 1e-10 * max(float(np.trace(cov)) / len(x), 1e-12)
+    for _ in range(6):
+        try:
+            low = cholesky(cov + jitter * np.eye(len(x)), lower=True)
+            break
+        except np.linalg.LinAlgError:
+            jitter *= 100
+    else:
+        raise GarageError("the surrogate's posterior is degenerate (no Cholesky factor)")
+    return mean[:, None] + low @ np.random.default_rng(seed).standard_normal((len(x), k))
+
+
 def surrogate_indices(study: optuna.Study, seed: int) -> pd.DataFrame:
     names, x, y = complete_data(study)
     if np.ptp(y) == 0:
@@ -143,7 +161,7 @@ def surrogate_indices(study: optuna.Study, seed: int) -> pd.DataFrame:
     table = analyse_design(names, gp.predict(unit_design(names, SURROGATE_N, seed)), seed)
     # the surrogate's uncertainty: the indices over posterior draws of the fitted GP (a smaller design, since a
     # joint draw costs n^3), added to SALib's Monte Carlo interval
-    draws = gp.sample_y(unit_design(names, DRAW_N, seed + 1), DRAWS, random_state=seed)
+    draws = posterior_draws(gp, unit_design(names, DRAW_N, seed + 1), DRAWS, seed)
     per_draw = [analyse_design(names, draws[:, j], seed) for j in range(DRAWS)]
     for col in ("S1", "ST"):
         spread = 1.96 * np.std([d[col].to_numpy() for d in per_draw], axis=0)
