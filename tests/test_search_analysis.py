@@ -150,6 +150,20 @@ def test_a_study_with_no_complete_trial_still_reports(tmp_path):
     assert "infeasible: no fairly visible frame" in report
 
 
+def test_the_command_reports_a_study_in_a_storage_and_refuses_a_wrong_name(tmp_path, capsys):
+    storage = f"sqlite:///{tmp_path / 'optuna.db'}"
+    study = optuna.create_study(storage=storage, study_name="stored", direction="maximize")
+    for t in study_of(4).trials:
+        study.add_trial(t)
+    assert analysis.main(["--storage", storage, "-o", str(tmp_path / "out"), "--top", "2"]) == 0
+    assert len(pd.read_csv(tmp_path / "out" / "hardest.csv")) == 2
+    assert "# Search report: stored" in (tmp_path / "out" / "search_report.md").read_text()
+    assert analysis.main(["--storage", storage, "--study", "nope"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == f"{storage}: no study named 'nope' (there are: stored)"
+    missing = f"sqlite:///{tmp_path / 'absent.db'}"
+    assert analysis.main(["--storage", missing]) == 2 and not (tmp_path / "absent.db").exists()
+
+
 # --- sensitivity ---------------------------------------------------------------------------------------------------
 LINEAR = {"x1": FloatDistribution(0, 1), "x2": FloatDistribution(0, 1), "x3": FloatDistribution(0, 1)}
 

@@ -6,12 +6,15 @@ recall, confidence, frame, and "infeasible" on a pruned trial or "error" on a fa
 out_dir: history.png, importances.png/.csv (fANOVA), slices.png, pareto.png (multi-objective), sensitivity.png/
 .csv (Sobol', see sensitivity), trials.csv, hardest.csv, frames/ (the hardest trials' frames) and
 search_report.md/.html. Only complete trials are ranked; pruned (infeasible) and failed ones are counted and
-listed apart.
+listed apart. `python -m garage_exp.search.analysis` writes the same for a study in a storage, finished or
+still running.
 """
 
 from __future__ import annotations
 
+import argparse
 import shutil
+import sys
 import warnings
 from pathlib import Path
 
@@ -24,6 +27,7 @@ from scipy.stats import ttest_ind
 
 from garage_exp.errors import GarageError
 from garage_exp.page import html_page
+from garage_exp.paths import OUTPUTS_DIR
 from garage_exp.search import sensitivity
 
 FANOVA_SEED = 0  # the importances of one study are the same every time they are computed
@@ -366,3 +370,42 @@ def not_ranked(table: pd.DataFrame) -> list[str]:
         if len(rows):
             lines += [f"## {title}", "", *md_table(rows[["trial", "why", "overrides"]]), ""]
     return lines
+
+
+STORAGE = f"sqlite:///{OUTPUTS_DIR / 'search' / 'optuna.db'}"  # `make dashboard`'s default too
+
+
+def load(storage: str, name: str | None) -> optuna.Study:
+    """The named study in the storage, or its latest one; GarageError when there is none by that name."""
+    names = [s.study_name for s in optuna.get_all_study_summaries(storage, include_best_trial=False)]
+    if not names:
+        raise GarageError("no study in this storage", storage)
+    if name is not None and name not in names:
+        raise GarageError(f"no study named {name!r} (there are: {', '.join(names)})", storage)
+    return optuna.load_study(study_name=name or names[-1], storage=storage)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.search.analysis",
+                                 description="A search study's figures, importances, sensitivity and report.")
+    ap.add_argument("--storage", default=STORAGE, help=f"Optuna storage URL (default: {STORAGE})")
+    ap.add_argument("--study", default=None, help="the study's name (default: the storage's latest study)")
+    ap.add_argument("-o", "--out", default=None, help="where to write (default: outputs/search/<study>)")
+    ap.add_argument("--top", type=int, default=5, help="how many hardest scenarios the report lists")
+    args = ap.parse_args(argv)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:
+        if args.storage.startswith("sqlite:///") and not Path(args.storage.removeprefix("sqlite:///")).is_file():
+            raise GarageError("no such file", args.storage)  # sqlite would create an empty store
+        study = load(args.storage, args.study)
+    except GarageError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else OUTPUTS_DIR / "search" / study.study_name
+    analyse(study, out, top=args.top)
+    print(f"written: {out / 'search_report.md'} (and .html)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
