@@ -69,6 +69,7 @@ def test_single_objective_report_ranks_only_complete_trials_and_explains(tmp_pat
     frames = tmp_path / "frames_src"
     frames.mkdir()
     study = study_of(30, frames_dir=frames)
+    study.enqueue_trial({"light.intensity": 0.3})  # a study still running: a trial not started yet
     out = tmp_path / "analysis"
     written = analysis.analyse(study, out, top=3)
     names = {p.name for p in written}
@@ -84,7 +85,7 @@ def test_single_objective_report_ranks_only_complete_trials_and_explains(tmp_pat
     assert set(hard.trial).isdisjoint({30, 31})  # the pruned and failed trials are never ranked
 
     trials = pd.read_csv(out / "trials.csv")
-    assert trials.state.value_counts().to_dict() == {"COMPLETE": 30, "PRUNED": 1, "FAIL": 1}
+    assert trials.state.value_counts().to_dict() == {"COMPLETE": 30, "PRUNED": 1, "FAIL": 1, "WAITING": 1}
     assert "render crashed" in trials.set_index("trial").loc[31, "why"]
 
     imp = pd.read_csv(out / "importances.csv")
@@ -92,7 +93,7 @@ def test_single_objective_report_ranks_only_complete_trials_and_explains(tmp_pat
     assert imp.importance.sum() == pytest.approx(1.0)
 
     report = (out / "search_report.md").read_text()
-    assert "30 complete, 1 pruned as infeasible (no fairly visible frame), 1 failed" in report
+    assert "33 trials: 30 complete, 1 pruned as infeasible (no fairly visible frame), 1 failed, 1 waiting" in report
     assert "## Pruned trials" in report and "## Failed trials" in report
     # the hardest scenario is dark: its light sits in the low third, the harder side by the study's own data
     top = expected[0]
@@ -217,6 +218,17 @@ def test_surrogate_orders_the_factors_of_a_random_study_and_finds_the_inert_one(
     assert t.ST["x1"] == pytest.approx(16 / 17, abs=0.05) and t.ST["x2"] == pytest.approx(1 / 17, abs=0.03)
     assert abs(t.ST["x3"]) < 0.02 and t.ST["x3"] - t.ST_conf["x3"] < 0.01  # inert: zero inside its interval
     assert t.ST["x2"] - t.ST_conf["x2"] > t.ST["x3"] + t.ST_conf["x3"]  # x2's small effect is told apart
+    assert "crowd" not in sensitivity.method_text(table)  # random trials cover the ranges
+
+
+def test_trials_crowded_in_a_corner_are_said_to_be():
+    study = optuna.create_study(direction="maximize")
+    rng = np.random.default_rng(4)
+    for _ in range(20):  # an optimiser's habit: most trials where it is hardest (x1 high)
+        p = {"x1": float(rng.uniform(0.7, 1.0)), "x2": float(rng.random()), "x3": float(rng.random())}
+        study.add_trial(create_trial(params=p, distributions=LINEAR, values=[linear(p)]))
+    text = sensitivity.method_text(sensitivity.sobol_indices(study, seed=0))
+    assert "The trials crowd part of the ranges" in text and "search.sampler=saltelli" in text
 
 
 @pytest.mark.parametrize("n", [0, 100])

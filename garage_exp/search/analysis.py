@@ -93,10 +93,7 @@ def distributions(study: optuna.Study) -> dict[str, BaseDistribution]:
 
 def position(value, dist: BaseDistribution) -> float:
     """Where a numeric value lies in its range, 0 (low end) to 1 (high end); on a log scale for log ranges."""
-    lo, hi, v = float(dist.low), float(dist.high), float(value)
-    if getattr(dist, "log", False):
-        lo, hi, v = np.log(lo), np.log(hi), np.log(v)
-    return 0.5 if hi == lo else float(np.clip((v - lo) / (hi - lo), 0, 1))
+    return float(np.clip(sensitivity.to_unit(value, dist), 0, 1))
 
 
 def side(value, dist: BaseDistribution) -> str:

@@ -22,10 +22,12 @@ import optuna
 import pandas as pd
 from optuna.distributions import BaseDistribution, FloatDistribution, IntDistribution
 from optuna.trial import TrialState
+from scipy.stats import kstest
 
 from garage_exp.errors import GarageError
 
 COLUMNS = ["factor", "S1", "S1_conf", "ST", "ST_conf", "method"]
+CROWDED = 0.2  # a KS distance above this: the trials do not cover a factor's range evenly
 MIN_TRIALS = 10  # below this a surrogate over even one factor is a guess
 MAX_FIT = 400  # a GP fit grows as n^3: a larger study is subsampled (seeded) for the surrogate
 SURROGATE_N = 1024  # Saltelli base sample on the surrogate: cheap, so large enough for small MC error
@@ -41,7 +43,7 @@ def to_unit(value: float, dist: BaseDistribution) -> float:
     lo, hi, v = float(dist.low), float(dist.high), float(value)
     if dist.log:
         lo, hi, v = np.log(lo), np.log(hi), np.log(v)
-    return 0.0 if hi == lo else (v - lo) / (hi - lo)
+    return 0.5 if hi == lo else (v - lo) / (hi - lo)
 
 
 def from_unit(u: float, dist: BaseDistribution) -> float | int:
@@ -168,6 +170,9 @@ def surrogate_indices(study: optuna.Study, seed: int) -> pd.DataFrame:
         table[f"{col}_conf"] = np.hypot(table[f"{col}_conf"].to_numpy(), spread)
     table["method"] = "surrogate"
     table["trials"] = len(y)
+    # how far the trials are from covering each range evenly (Kolmogorov-Smirnov distance to uniform, the worst
+    # factor): a TPE study crowds its trials where it is hard, and the surrogate is then a guess elsewhere
+    table["crowding"] = max(kstest(x[:, j], "uniform").statistic for j in range(x.shape[1]))
     table["noise_share"] = float(gp.kernel_.k2.noise_level)  # of the normalised difficulty's variance
     return table
 
@@ -180,7 +185,7 @@ def sobol_indices(study: optuna.Study, seed: int = 0) -> pd.DataFrame:
     if direct:
         names, y = direct
         table = analyse_design(names, y, seed)
-        table["method"], table["trials"], table["noise_share"] = "saltelli", len(y), np.nan
+        table["method"], table["trials"], table["noise_share"], table["crowding"] = "saltelli", len(y), np.nan, 0.0
     else:
         table = surrogate_indices(study, seed)
     return table.sort_values("ST", ascending=False, ignore_index=True)
@@ -192,11 +197,14 @@ def method_text(table: pd.DataFrame) -> str:
     if table.method.iloc[0] == "saltelli":
         return (f"Sobol' indices from the {n} renders of the Saltelli design (SALib, first and total order, "
                 "95 % bootstrap intervals).")
-    noise = float(table.noise_share.iloc[0])
+    noise, crowding = float(table.noise_share.iloc[0]), float(table.crowding.iloc[0])
     return (f"Sobol' indices of a Gaussian-process surrogate fitted on {n} complete trials (not a Saltelli "
             f"design: method \"surrogate\"); the fit leaves {noise:.0%} of the difficulty's variance to noise. "
             "Intervals: SALib's bootstrap plus the surrogate's posterior spread. S1: the share of the "
-            "difficulty's variance a factor explains alone; ST: with its interactions.")
+            "difficulty's variance a factor explains alone; ST: with its interactions."
+            + (f" The trials crowd part of the ranges (Kolmogorov-Smirnov distance to even coverage "
+               f"{crowding:.2f}), as an optimiser's do: the indices hold for the region searched; for the whole "
+               "ranges use search.sampler=saltelli (or a random or quasi-random study)." if crowding > CROWDED else ""))
 
 
 def bar_plot(table: pd.DataFrame, path: Path) -> Path:
