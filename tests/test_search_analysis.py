@@ -30,7 +30,7 @@ def hardness(p: dict) -> float:
 def trial(p: dict, state=TrialState.COMPLETE, multi=False, frame=None, **attrs):
     d = hardness(p) if state == TrialState.COMPLETE else 0.5
     user = {"overrides": [f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()]
-            + ["plan=tiny"], "run_id": "r", "output_dir": "/tmp/x", "fair_frames": 3, "frames": 4,
+            + ["plan=tiny", "palette.target_colours=[black]"], "run_id": "r", "output_dir": "/tmp/x", "fair_frames": 3, "frames": 4,
             "recall": 1 - d, "confidence": 1 - d,
             "visible_fraction": 0.95 - 0.3 * d - 0.1 * abs(p.get("case.actors.target.offset", 0)), **attrs}
     if frame:
@@ -102,7 +102,8 @@ def test_single_objective_report_ranks_only_complete_trials_and_explains(tmp_pat
     line = next(ln for ln in section.splitlines() if ln.startswith("- `light.intensity`"))
     assert "in the low third" in line and ": the harder side (p = " in line
     assert "What makes it hard: hard through `light.intensity` (low third)" in section
-    assert " ".join(top.user_attrs["overrides"]) in section
+    command = "python -m garage_exp " + " ".join(top.user_attrs["overrides"][:-1])
+    assert command + " 'palette.target_colours=[black]'" in section  # quoted for the shell
     assert f"](frames/trial_{top.number}.png)" in section and (out / "frames" / f"trial_{top.number}.png").is_file()
     html = (out / "search_report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4 + 3  # figures and the three frames, inside the page

@@ -13,6 +13,7 @@ still running.
 from __future__ import annotations
 
 import argparse
+import shlex
 import shutil
 import sys
 import warnings
@@ -262,92 +263,109 @@ def sensitivity_section(study: optuna.Study, out_dir: Path, seed: int) -> tuple[
     return lines, [csv, png]
 
 
-def analyse(study: optuna.Study, out_dir: Path, top: int = 5, seed: int = 0) -> list[Path]:
-    """Write the study's figures, tables and search_report.md/.html into out_dir; returns the files written."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    table = trial_table(study)
-    names = objective_names(study)
-    multi = len(study.directions) > 1
-    higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
-    importance, skipped = importances(study)
-    written = list(figures(study, out_dir, importance).values())
-    dists = distributions(study)
-
+def summary(study: optuna.Study, table: pd.DataFrame, names: list[str]) -> list[str]:
     by_state = table.state.value_counts() if len(table) else pd.Series(dtype=int)
     count = {s: int(by_state.get(s, 0)) for s in ("COMPLETE", "PRUNED", "FAIL", "RUNNING", "WAITING")}
-    lines = [f"# Search report: {study.study_name}", "",
-             f"{len(table)} trials: {count['COMPLETE']} complete, {count['PRUNED']} pruned as infeasible "
-             f"(no fairly visible frame), {count['FAIL']} failed"
-             + (f", {count['RUNNING']} running" if count["RUNNING"] else "")
-             + (f", {count['WAITING']} waiting" if count["WAITING"] else "") + ". "
-             + ("Objectives: " + ", ".join(f"{n} ({d.name.lower()})" for n, d in zip(names, study.directions))
-                + ". ") + "Only complete trials are ranked.", ""]
-    if "history" in {p.stem for p in written}:
-        lines += ["## Optimisation history", "", f"![history of {names[0]}](history.png)", ""]
+    objectives = ", ".join(f"{n} ({d.name.lower()})" for n, d in zip(names, study.directions))
+    return [f"# Search report: {study.study_name}", "",
+            f"{len(table)} trials: {count['COMPLETE']} complete, {count['PRUNED']} pruned as infeasible "
+            f"(no fairly visible frame), {count['FAIL']} failed"
+            + (f", {count['RUNNING']} running" if count["RUNNING"] else "")
+            + (f", {count['WAITING']} waiting" if count["WAITING"] else "")
+            + f". Objectives: {objectives}. Only complete trials are ranked.", ""]
 
-    lines += ["## Parameter importances (fANOVA)", ""]
-    if importance:
-        imp = pd.DataFrame({"parameter": list(importance), "importance": list(importance.values())})
-        imp.to_csv(out_dir / "importances.csv", index=False)
-        written.append(out_dir / "importances.csv")
-        lines += [f"How much of the variance of {names[0]} over the complete trials each parameter explains "
-                  f"(Optuna's fANOVA, seed {FANOVA_SEED}; they sum to 1).", "", *md_table(imp), "",
-                  "![importances](importances.png)", ""]
-    else:
-        lines += [skipped, ""]
-    if (out_dir / "slices.png") in written:
-        lines += ["## Slices", "", f"{names[0]} of each complete trial against each parameter.", "",
-                  "![slices](slices.png)", ""]
 
-    if multi:
-        front = [t for t in study.best_trials]
-        front_table = pd.DataFrame([{"trial": t.number, **dict(zip(names, t.values)),
-                                     "overrides": " ".join(overrides(t))} for t in front])
-        lines += ["## Pareto front", "",
-                  f"{len(front)} trials that no other trial beats on both {names[0]} and {names[1]}.", ""]
-        if len(front_table):
-            lines += [*md_table(front_table.sort_values(names[0], ascending=not higher_is_harder)), ""]
-        if (out_dir / "pareto.png") in written:
-            lines += ["![Pareto front](pareto.png)", ""]
-        table["on_front"] = table.trial.isin([t.number for t in front])
-
-    section, files = sensitivity_section(study, out_dir, seed)
-    lines += section
-    written += files
-
+def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top: int,
+                    importance: dict[str, float]) -> tuple[list[str], list[Path]]:
+    """The hardest scenarios: a table, then each one's command, reasons and frame; hardest.csv."""
     top_trials = hardest(study, top)
-    columns = ["trial", "difficulty", *ATTRS, "overrides", "run_id", "frame"]
-    hard = table.set_index("trial").loc[[t.number for t in top_trials]].reset_index()[columns]
+    by_number = table.set_index("trial")
+    hard = by_number.loc[[t.number for t in top_trials]].reset_index()[
+        ["trial", "difficulty", *ATTRS, "overrides", "run_id", "frame"]]
     hard.insert(0, "rank", range(1, len(hard) + 1))
     hard.to_csv(out_dir / "hardest.csv", index=False)
-    table.to_csv(out_dir / "trials.csv", index=False)
-    written += [out_dir / "hardest.csv", out_dir / "trials.csv"]
-    lines += [f"## The {len(top_trials)} hardest scenarios", ""]
+    written = [out_dir / "hardest.csv"]
+    lines = [f"## The {len(top_trials)} hardest scenarios", ""]
     if not top_trials:
-        lines += ["No complete trial: nothing to rank.", ""]
-    else:
-        lines += [*md_table(hard[["rank", "trial", "difficulty", "visible_fraction", "fair_frames", "frames"]]
-                            .rename(columns={"visible_fraction": "visible fraction", "fair_frames": "fair frames"})),
-                  ""]
+        return [*lines, "No complete trial: nothing to rank.", ""], written
+    lines += [*md_table(hard[["rank", "trial", "difficulty", "visible_fraction", "fair_frames", "frames"]].rename(
+        columns={"visible_fraction": "visible fraction", "fair_frames": "fair frames"})), ""]
+    dists = distributions(study)
+    higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
     for rank, t in enumerate(top_trials, 1):
+        command = " ".join(["python -m garage_exp", *map(shlex.quote, overrides(t))])
         lines += [f"### {rank}. trial {t.number}: difficulty {difficulty(t):.2f}, visible fraction "
-                  f"{fmt(table.set_index('trial').loc[t.number, 'visible_fraction'])}", "",
-                  "Rerun it with these overrides:", "", "```", " ".join(overrides(t)), "```", "",
+                  f"{fmt(by_number.loc[t.number, 'visible_fraction'])}", "",
+                  "Rerun it:", "", "```bash", command, "```", "",
                   *what_makes_it_hard(why_hard(t, table, dists, importance, higher_is_harder))]
         frame = copy_frame(t, out_dir)
         if frame:
             written.append(frame)
-            rel = frame.relative_to(out_dir).as_posix()
-            lines += [f"![trial {t.number}: its hardest fair frame]({rel})", ""]
+            lines += [f"![trial {t.number}: its hardest fair frame]({frame.relative_to(out_dir).as_posix()})", ""]
         else:
             lines += ["(no frame saved for this trial)", ""]
+    return lines, written
 
-    lines += not_ranked(table)
+
+def importance_section(importance: dict[str, float], skipped: str, name: str, out_dir: Path
+                       ) -> tuple[list[str], list[Path]]:
+    lines = ["## Parameter importances (fANOVA)", ""]
+    if not importance:
+        return [*lines, skipped, ""], []
+    imp = pd.DataFrame({"parameter": list(importance), "importance": list(importance.values())})
+    imp.to_csv(out_dir / "importances.csv", index=False)
+    return [*lines, f"How much of the variance of {name} over the complete trials each parameter explains "
+            f"(Optuna's fANOVA, seed {FANOVA_SEED}; they sum to 1).", "", *md_table(imp), "",
+            "![importances](importances.png)", ""], [out_dir / "importances.csv"]
+
+
+def pareto_section(study: optuna.Study, table: pd.DataFrame, names: list[str], drawn: bool) -> list[str]:
+    """The trials on the Pareto front (two objectives), marked in the trial table too."""
+    front = list(study.best_trials)
+    table["on_front"] = table.trial.isin([t.number for t in front])
+    lines = ["## Pareto front", "", f"{len(front)} trials that no other trial beats on both {names[0]} and "
+             f"{names[1]}.", ""]
+    if front:
+        rows = pd.DataFrame([{"trial": t.number, **dict(zip(names, t.values)), "overrides": " ".join(overrides(t))}
+                             for t in front])
+        harder_first = study.directions[0] != optuna.study.StudyDirection.MAXIMIZE
+        lines += [*md_table(rows.sort_values(names[0], ascending=harder_first)), ""]
+    return lines + (["![Pareto front](pareto.png)", ""] if drawn else [])
+
+
+def analyse(study: optuna.Study, out_dir: Path, top: int = 5, seed: int = 0) -> list[Path]:
+    """Write the study's figures, tables and search_report.md/.html into out_dir; returns the files written.
+    The report puts the hardest scenarios first, then how the search went and what the factors do."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = trial_table(study)
+    names = objective_names(study)
+    importance, skipped = importances(study)
+    drawn = figures(study, out_dir, importance)
+    written = list(drawn.values())
+
+    lines = summary(study, table, names)
+    section, files = hardest_section(study, table, out_dir, top, importance)
+    lines += section
+    written += files
+    if "history" in drawn:
+        lines += ["## Optimisation history", "", f"![history of {names[0]}](history.png)", ""]
+    section, files = importance_section(importance, skipped, names[0], out_dir)
+    lines += section
+    written += files
+    if "slices" in drawn:
+        lines += ["## Slices", "", f"{names[0]} of each complete trial against each parameter.", "",
+                  "![slices](slices.png)", ""]
+    if len(study.directions) > 1:
+        lines += pareto_section(study, table, names, "pareto" in drawn)
+    section, files = sensitivity_section(study, out_dir, seed)
+    lines += section + not_ranked(table)
+    written += files
+
+    table.to_csv(out_dir / "trials.csv", index=False)
     report = out_dir / "search_report.md"
     report.write_text("\n".join(lines))
-    written += [report, html_page(report)]
-    return written
+    return [*written, out_dir / "trials.csv", report, html_page(report)]
 
 
 def what_makes_it_hard(reasons: list[tuple[str, str, str]]) -> list[str]:
