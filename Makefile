@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 RUN_ARGS ?= -m light=bright,dim case=1,2,3 replicates=2
 export YOLO_OFFLINE := 1
 
-.PHONY: setup system python data run test ui map bench clean mutation
+.PHONY: setup system python data run test ui dashboard map bench clean mutation
 
 setup: system python data
 
@@ -53,6 +53,13 @@ ui: python
 	@$(BIN)/python -m garage_exp.store $(CURDIR)/outputs/mlflow.db
 	@$(BIN)/python -m garage_exp.tracking --uri sqlite:///$(CURDIR)/outputs/mlflow.db
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
+
+# optuna-dashboard over a search's study (issue 10): the same storage the sweeper writes, local only.
+DASHBOARD_STORAGE ?= sqlite:///$(CURDIR)/outputs/search/optuna.db
+DASHBOARD_PORT ?= 8080
+dashboard: python
+	@mkdir -p outputs/search
+	$(BIN)/optuna-dashboard $(DASHBOARD_STORAGE) --host 127.0.0.1 --port $(DASHBOARD_PORT)
 
 map: python
 	@for p in plans/*.yaml plans/*.csv; do $(BIN)/python -m garage_exp.plan map $$p -o outputs/maps/$$(basename $${p%.*}).png; done
