@@ -1,8 +1,10 @@
 """Golden frame tables: today's outputs of small versions of the default sweep and the three `+experiment=`
 tables, pinned before a restructuring and compared after it.
 
-tests/golden/*.csv were written by the commands below on the code before the scenario language (issue 9).
-Geometry and ground truth must match exactly, confidences within 1e-6 (the table's own rounding).
+tests/golden/avx512/*.csv were written by the commands below on the code before the scenario language (issue 9),
+on a Zen 4 machine (AVX-512 VNNI); tests/golden/avx2/*.csv by the same commands on the code of fcade62 on a Zen 3
+machine (AVX2), whose INT8 detector kernels round differently. Geometry and ground truth must match exactly,
+confidences within 1e-6 (the table's own rounding) on a machine with a pinned set.
 """
 
 from __future__ import annotations
@@ -16,7 +18,27 @@ from conftest import run_app
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
-GOLDEN = Path(__file__).parent / "golden"
+
+
+def instruction_set() -> str:
+    """The CPU feature that decides the INT8 detectors' kernels (OpenVINO picks AVX-512 VNNI, AVX-VNNI or AVX2
+    kernels, which round differently): the same frames give confidences that differ by up to a few hundredths
+    between these machines, while geometry and ground truth are identical."""
+    try:
+        flags = set(Path("/proc/cpuinfo").read_text().split())
+    except OSError:
+        return "unknown"
+    return "avx512" if "avx512_vnni" in flags else "avxvnni" if "avx_vnni" in flags else "avx2"
+
+
+# The tables were pinned on both kinds of 2-core machine this project runs on (tests/golden/<set>/); between
+# them the composite moves by up to 0.4 on a noisy frame near a detector's threshold, so on another
+# instruction set only what does not depend on the detectors (geometry, ground truth) is compared.
+GOLDEN_SETS = Path(__file__).parent / "golden"
+ISA = instruction_set()
+PINNED = (GOLDEN_SETS / ISA).is_dir()
+GOLDEN = GOLDEN_SETS / ISA if PINNED else GOLDEN_SETS / "avx512"
+DETECTOR_COLUMNS = ("conf_", "composite", "detected", "false_positives")
 CONFIDENCE = ("conf_", "composite")
 COMMON = ["renderer.save_frames=none"]
 # The default sweep (cases 1-3 x bright, dim), shortened: 4 m steps, four of case 3's placements (its own
@@ -45,9 +67,11 @@ def compare(table: pd.DataFrame, golden: pd.DataFrame, name: str) -> None:
     assert list(table.columns) == list(golden.columns), name
     assert len(table) == len(golden), name
     for col in golden.columns:
+        if not PINNED and col.startswith(DETECTOR_COLUMNS):
+            continue
         if col.startswith(CONFIDENCE):
             diff = (table[col].astype(float) - golden[col].astype(float)).abs().max()
-            assert diff <= 1e-6, f"{name}: {col} moved by {diff}"
+            assert diff <= 1e-6, f"{name}: {col} moved by {diff} (golden set {GOLDEN.name})"
         else:
             a, b = table[col], golden[col]
             moved = (a.astype(str) != b.astype(str)) & ~(a.isna() & b.isna())

@@ -145,4 +145,5 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
         raise GarageError(f"study {name!r} was made for another objective ({len(study.directions)} values); "
                           "give another search.study", "search.objective")
     study.set_user_attr("direction_names", OBJECTIVES[search.objective])
+    study.set_metric_names(OBJECTIVES[search.objective])  # optuna-dashboard's axis labels
     return study
