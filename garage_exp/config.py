@@ -246,9 +246,11 @@ class SearchConf:
     seed: Optional[int] = None  # the sampler's seed; None: the config's seed
     study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)
     storage: Optional[str] = None  # an Optuna RDB URL; None: sqlite under outputs/search/optuna.db
-    # A frame is a fair test when the target is at least this visible and its box at least this tall.
+    # A frame is a fair test when the target is at least this visible, its box at least this tall and at most
+    # this much of it outside the image (KITTI's "hard" level: 25 px, truncation 0.5).
     min_visible: float = 0.5
     min_box: int = 25
+    max_truncation: float = 0.5
     top: int = 5  # the hardest N scenarios the report lists and shows
     saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (2D + 2) trials)
     grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)

@@ -183,11 +183,10 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> d
     run.log_series("confidence", table[table.camera == scene.cameras[0].name].composite.tolist())
     run.log_series("visible_fraction", table[table.camera == scene.cameras[0].name].visible_fraction.tolist())
     search = cfg.search
-    summary.update(results.fair_summary(table, scene.cameras[0].name, search.min_visible, search.min_box,
-                                        cfg.detector.threshold))
+    summary.update(results.fair_summary(table, scene.cameras[0].name, search, cfg.detector.threshold))
     run.log_metrics(summary)
     if trial:
-        summary["frame"] = results.save_hardest_fair(keep, table, frames_dir, search.min_visible, search.min_box)
+        summary["frame"] = results.save_hardest_fair(keep, table, frames_dir, search)
         if summary["frame"] is not None:
             run.log_artifact(summary["frame"], "frames")
     else:

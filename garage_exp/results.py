@@ -74,13 +74,20 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
     return out
 
 
-def fair_summary(table: pd.DataFrame, primary: str, min_visible: float, min_box: int,
-                 threshold: float) -> dict[str, float]:
-    """The search's objective (garage_exp/search): a frame is a fair test when the target is at least
-    `min_visible` visible and its box at least `min_box` pixels tall; a fully hidden target is not hard, it is
-    untestable. fair_difficulty = 1 - the mean composite confidence over the fair frames (NaN when none is)."""
+def fair_mask(table: pd.DataFrame, search) -> pd.Series:
+    """Frames that are a fair test of the detector (the search's rule, `search.*`): the target at least
+    `min_visible` visible, its full box at least `min_box` pixels tall and at most `max_truncation` of it outside
+    the image (KITTI's "hard" level allows 25 px and 0.5). A hidden, tiny or cut-off target is not hard, it is
+    untestable."""
+    return ((table.visible_fraction >= search.min_visible) & (table.box_height >= search.min_box)
+            & (table.truncation.fillna(1.0) <= search.max_truncation))
+
+
+def fair_summary(table: pd.DataFrame, primary: str, search, threshold: float) -> dict[str, float]:
+    """The search's objective (garage_exp/search): fair_difficulty = 1 - the mean composite confidence over the
+    primary camera's fair frames (fair_mask; NaN when none is)."""
     t = table[table.camera == primary]
-    fair = t[(t.visible_fraction >= min_visible) & (t.box_height >= min_box)]
+    fair = t[fair_mask(t, search)]
     conf = fair.composite.to_numpy(dtype=float)
     mean = float(conf.mean()) if len(conf) else math.nan
     return {"fair_frames": float(len(fair)), "fair_confidence": mean, "fair_difficulty": 1.0 - mean,
@@ -199,10 +206,9 @@ def save_key_frames(keep: dict, table: pd.DataFrame, frames_dir: Path) -> list[P
     return paths
 
 
-def save_hardest_fair(keep: dict, table: pd.DataFrame, frames_dir: Path, min_visible: float,
-                      min_box: int) -> Path | None:
-    """A search trial's picture: its hardest fairly visible frame (lowest composite), boxes drawn."""
-    fair = table[(table.visible_fraction >= min_visible) & (table.box_height >= min_box)]
+def save_hardest_fair(keep: dict, table: pd.DataFrame, frames_dir: Path, search) -> Path | None:
+    """A search trial's picture: its hardest fair frame (lowest composite; fair_mask), boxes drawn."""
+    fair = table[fair_mask(table, search)]
     if fair.empty:
         return None
     row = fair.loc[fair.composite.idxmin()]

@@ -4,6 +4,7 @@ rendering); the end-to-end runs are in tests/test_search_runs.py."""
 import math
 import multiprocessing
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import optuna
 import pandas as pd
@@ -65,15 +66,20 @@ def table(**cols) -> pd.DataFrame:
     return pd.DataFrame({"camera": ["front"] * n, **cols})
 
 
+def rule(min_visible=0.5, min_box=25, max_truncation=0.5):
+    return SimpleNamespace(min_visible=min_visible, min_box=min_box, max_truncation=max_truncation)
+
+
 def test_only_fairly_visible_frames_count():
-    t = table(composite=[0.9, 0.1, 0.0, 0.5], visible_fraction=[1.0, 0.6, 0.2, 0.9], box_height=[80, 30, 80, 20])
-    fair = results.fair_summary(t, "front", min_visible=0.5, min_box=25, threshold=0.5)
-    # frame 3 is too hidden, frame 4 too small: the two fair frames average 0.5
+    t = table(composite=[0.9, 0.1, 0.0, 0.5, 0.05], visible_fraction=[1.0, 0.6, 0.2, 0.9, 0.9],
+              box_height=[80, 30, 80, 20, 40], truncation=[0.0, 0.5, 0.0, 0.0, 0.7])
+    fair = results.fair_summary(t, "front", rule(), threshold=0.5)
+    # frame 3 is too hidden, frame 4 too small, frame 5 mostly outside the image: the two fair frames average 0.5
     assert fair["fair_frames"] == 2 and fair["fair_confidence"] == pytest.approx(0.5)
     assert fair["fair_difficulty"] == pytest.approx(0.5) and fair["fair_recall"] == pytest.approx(0.5)
-    none = results.fair_summary(t, "front", min_visible=0.95, min_box=25, threshold=0.5)
-    assert none["fair_frames"] == 1
-    hidden = results.fair_summary(t.assign(visible_fraction=0.1), "front", 0.5, 25, 0.5)
+    assert results.fair_summary(t, "front", rule(min_visible=0.95), 0.5)["fair_frames"] == 1
+    assert results.fair_summary(t, "front", rule(max_truncation=1.0), 0.5)["fair_frames"] == 3
+    hidden = results.fair_summary(t.assign(visible_fraction=0.1), "front", rule(), 0.5)
     assert hidden["fair_frames"] == 0 and math.isnan(hidden["fair_difficulty"])
 
 

@@ -55,6 +55,15 @@ def overrides(trial: FrozenTrial) -> list[str]:
     return list(trial.user_attrs.get("overrides") or [f"{k}={v}" for k, v in trial.params.items()])
 
 
+def rerun_overrides(trial: FrozenTrial) -> list[str]:
+    """The overrides that rerun the scenario as a plain job: without the search's own settings and where it
+    logged (`search.*`, `tracking.*`), a quoted numeric level unquoted (the command line quotes it again)."""
+    import re
+
+    kept = [o for o in overrides(trial) if not o.startswith(("search.", "tracking.", "hydra."))]
+    return [re.sub(r"^([\w.]+)='(\d+)'$", r"\1=\2", o) for o in kept]
+
+
 def trial_table(study: optuna.Study) -> pd.DataFrame:
     """One row per trial: number, state, difficulty (complete trials), the contract's user_attrs, each parameter
     in its own column, the overrides, and why a trial was pruned or failed."""
@@ -293,7 +302,7 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
     dists = distributions(study)
     higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
     for rank, t in enumerate(top_trials, 1):
-        command = " ".join(["python -m garage_exp", *map(shlex.quote, overrides(t))])
+        command = " ".join(["python -m garage_exp", *map(shlex.quote, rerun_overrides(t))])
         lines += [f"### {rank}. trial {t.number}: difficulty {difficulty(t):.2f}, visible fraction "
                   f"{fmt(by_number.loc[t.number, 'visible_fraction'])}", "",
                   "Rerun it:", "", "```bash", command, "```", "",

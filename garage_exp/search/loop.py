@@ -17,7 +17,6 @@ import logging
 import math
 import threading
 from dataclasses import dataclass
-from pathlib import Path
 
 import optuna
 from optuna.trial import TrialState
@@ -89,17 +88,6 @@ def heartbeat(study: optuna.Study, trial: optuna.Trial):
         thread.join(timeout=5)
 
 
-def ask_lock(url: str):
-    """A file lock beside a sqlite store: counting the study's trials and asking for one are one step."""
-    if not url.startswith("sqlite:///"):
-        return contextlib.nullcontext()
-    from urllib.parse import urlparse
-
-    from filelock import FileLock
-
-    return FileLock(str(Path(urlparse(url).path)) + ".ask.lock")
-
-
 class SearchLoop:
     """Runs a study's trials as jobs. `launch(overrides, job_idx)` runs one job and returns its JobReturn."""
 
@@ -111,7 +99,7 @@ class SearchLoop:
         self.ran: list[int] = []  # trial numbers this worker ran
 
     def next_trial(self) -> optuna.Trial | None:
-        with ask_lock(self.url):
+        with study_mod.storage_lock(self.url):
             optuna.storages.fail_stale_trials(self.study)  # a dead worker's trials
             held = len(self.study.get_trials(deepcopy=False, states=COUNTED))
             if held >= self.budget:

@@ -35,6 +35,20 @@ def default_storage() -> str:
     return f"sqlite:///{OUTPUTS_DIR / 'search' / 'optuna.db'}"
 
 
+def storage_lock(url: str):
+    """A file lock beside a sqlite store: creating its tables, and counting a study's trials then asking for
+    one, are each one step for the workers of one machine (two first workers would both create the tables)."""
+    import contextlib
+    from pathlib import Path
+    from urllib.parse import urlparse
+
+    if not url.startswith("sqlite:///"):
+        return contextlib.nullcontext()
+    from filelock import FileLock
+
+    return FileLock(str(Path(urlparse(url).path)) + ".lock")
+
+
 def storage_url(search) -> str:
     return str(search.storage) if search.storage else default_storage()
 
@@ -67,6 +81,8 @@ def check_search(search) -> None:
         raise GarageError(f"{search.trials} trials: at least 1", "search.trials")
     if not 0.0 <= float(search.min_visible) <= 1.0:
         raise GarageError(f"{search.min_visible} is outside 0-1", "search.min_visible")
+    if not 0.0 <= float(search.max_truncation) <= 1.0:
+        raise GarageError(f"{search.max_truncation} is outside 0-1", "search.max_truncation")
     if int(search.min_box) < 0:
         raise GarageError(f"{search.min_box} is negative", "search.min_box")
     for band, edges in search.suite.bands.items():
@@ -133,14 +149,15 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
     if url.startswith("sqlite:///"):
         Path(urlparse(url).path).parent.mkdir(parents=True, exist_ok=True)
     directions = ["maximize"] * len(OBJECTIVES[search.objective])
-    storage = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S,
-                                         engine_kwargs={"connect_args": {"timeout": 60}}
-                                         if url.startswith("sqlite") else {})
-    try:
-        study = optuna.create_study(storage=storage, study_name=name, directions=directions,
-                                    sampler=sampler(search, seed, params), load_if_exists=True)
-    except ValueError as exc:
-        raise GarageError(f"study {name!r} in {url}: {exc}", "search.study") from None
+    with storage_lock(url):
+        storage = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S,
+                                             engine_kwargs={"connect_args": {"timeout": 60}}
+                                             if url.startswith("sqlite") else {})
+        try:
+            study = optuna.create_study(storage=storage, study_name=name, directions=directions,
+                                        sampler=sampler(search, seed, params), load_if_exists=True)
+        except ValueError as exc:
+            raise GarageError(f"study {name!r} in {url}: {exc}", "search.study") from None
     if len(study.directions) != len(directions):
         raise GarageError(f"study {name!r} was made for another objective ({len(study.directions)} values); "
                           "give another search.study", "search.objective")

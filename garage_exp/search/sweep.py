@@ -80,9 +80,7 @@ def study_name_of(config: DictConfig) -> str:
 
 def study_lock(config: DictConfig):
     """The lock beside a sqlite study (see loop.ask_lock): workers starting together open one parent run."""
-    from garage_exp.search.loop import ask_lock
-
-    return ask_lock(study_mod.storage_url(config.search))
+    return study_mod.storage_lock(study_mod.storage_url(config.search))
 
 
 def budget(search, space: space_mod.Space, study) -> int:
@@ -171,6 +169,24 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
     best = ranked(study)
     if best:
         tracking.retry(lambda: mlc.log_metric(parent_run_id, "best_difficulty", float(best[0].values[0])))
+
+
+def summary(result: dict, out_dir: Path) -> str:
+    """What the study holds at the end, for stdout: its trials by state and its hardest fair scenario."""
+    from collections import Counter
+
+    study = result["study"]
+    states = Counter(t.state.name for t in study.get_trials(deepcopy=False))
+    counts = ", ".join(f"{n} {s.lower().replace('pruned', 'infeasible')}" for s, n in sorted(states.items()))
+    lines = [f"garage_exp: study {result['name']!r}: {sum(states.values())} trials ({counts}); "
+             f"this worker ran {len(result['ran'])}"]
+    best = ranked(study)
+    if best:
+        top = best[0]
+        searched = " ".join(o for o in top.user_attrs.get("overrides", []) if o.split("=")[0] in top.params)
+        lines.append(f"  hardest fair scenario: trial {top.number}, difficulty {top.values[0]:.3f}: {searched}")
+    lines.append(f"  report: {out_dir / 'search_report.md'}")
+    return "\n".join(lines)
 
 
 def ranked(study) -> list:

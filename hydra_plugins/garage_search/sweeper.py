@@ -58,4 +58,5 @@ class SearchSweeper(Sweeper):
         parent = tracking.read_parent(sweep_dir)
         if parent:
             sweep.log_on_parent(self.config, parent, result, paths, sweep_dir / "search")
+        print(sweep.summary(result, sweep_dir / "search"))
         return result["ran"]
