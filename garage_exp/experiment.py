@@ -120,8 +120,9 @@ def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered,
         yield waiting.popleft(), detector.result()
 
 
-def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> dict:
-    """Run the job's frames and return its summary metrics (`difficulty`, and `fair_*`: the search's objective)."""
+def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, built=None) -> dict:
+    """Run the job's frames and return its summary metrics (`difficulty`, and `fair_*`: the search's objective).
+    built: the (scene, setup) the job's preflight made from this config, if any (else built here)."""
     from garage_exp.assets.vehicles import shared_library
     from garage_exp.detect import score_target
     from garage_exp.detect.detector import spec_from_config
@@ -133,9 +134,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> d
     # First, so that the models load in the detector's process while this one builds and loads the scene and
     # compiles its shaders (the first frame).
     detector = open_detector(spec_from_config(cfg.detector))
-    rng = np.random.default_rng(cfg.seed)
-    library = shared_library()
-    scene, setup = build_scene(cfg, classified, library, rng)
+    scene, setup = built or build_scene(cfg, classified, shared_library(), np.random.default_rng(cfg.seed))
     sensor = make_sensor(cfg.sensor)
     renderer = open_renderer(cfg.renderer)
     renderer.load(scene)

@@ -166,7 +166,9 @@ def _run_job(cfg: DictConfig) -> float | dict:
         else:
             from garage_exp.experiment import run_experiment
 
-            summary = run_experiment(cfg, classified, out, run)
+            from garage_exp.preflight import built_scene
+
+            summary = run_experiment(cfg, classified, out, run, built_scene(cfg))
     except BaseException as exc:
         where = full_disk(exc) if isinstance(exc, Exception) else None
         if where is not None:

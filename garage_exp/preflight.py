@@ -84,6 +84,13 @@ def check_config(cfg: DictConfig) -> None:
     check_modifiers(cfg.get("modifiers") or {})
 
 
+def built_scene(cfg: DictConfig):
+    """The (scene, setup) the last preflight of this very config built, for the job to use instead of building
+    them again (the same config and seed give the same scene); None when it built none."""
+    hit = _CACHE.get("built")
+    return hit[1] if hit is not None and hit[0] is cfg else None
+
+
 def preflight(cfg: DictConfig, needs: list | None = None):
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem. A dry run checks the config and the plan; a real job also the detector weights,
@@ -104,6 +111,7 @@ def preflight(cfg: DictConfig, needs: list | None = None):
         for entry in cfg.detector.models:
             model_format(resolve_model(entry))  # missing weights fail here (nothing is downloaded)
         scene, setup = build_scene(cfg, classified, _library(), np.random.default_rng(int(cfg.seed)))
+        _CACHE["built"] = (cfg, (scene, setup))
     written = job_bytes(cfg, scene, setup)
     if needs is not None:
         needs.append(written)

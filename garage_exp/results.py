@@ -171,10 +171,10 @@ def draw_boxes(rgb: np.ndarray, target, dets, score=None, min_conf: float = 0.25
     return img
 
 
-def save_frame(path: Path, rgb, target, dets, score=None) -> Path:
+def save_frame(path: Path, rgb, target, dets, score=None, compress_level: int = 6) -> Path:
     from PIL import Image
 
-    Image.fromarray(draw_boxes(rgb, target, dets, score)).save(path)
+    Image.fromarray(draw_boxes(rgb, target, dets, score)).save(path, compress_level=compress_level)
     return path
 
 
@@ -216,7 +216,9 @@ def save_hardest_fair(keep: dict, table: pd.DataFrame, frames_dir: Path, search)
     if item is None:
         return None
     rgb, target, dets = item
-    return save_frame(frames_dir / f"hardest_fair_{int(row['shot']):04d}_{row['camera']}.png", rgb, target, dets)
+    # PNG level 1: 0.036 s against 0.062 s (level 6) for a rendered frame here, 1.6x the bytes
+    return save_frame(frames_dir / f"hardest_fair_{int(row['shot']):04d}_{row['camera']}.png", rgb, target, dets,
+                      compress_level=1)
 
 
 class DatasetWriter:

@@ -293,6 +293,38 @@ def test_a_scene_with_the_same_statics_replaces_only_its_actors_and_renders_as_a
 
 
 @render
+def test_another_light_on_the_same_garage_recolours_the_loaded_statics_as_a_fresh_load_draws_them(renderer):
+    """A search over light intensity and ambient keeps the merged statics: the lamps' panels change material
+    (their glow follows the intensity), the lamps and ambient light are set again, and the frame is a fresh
+    load's. Switching lamps off (one material becoming two) is a full load."""
+    from garage_exp.render.sapien_backend import SapienRenderer
+
+    def lit(intensity: float, ambient: float, off: tuple[int, ...] = ()) -> Scene:
+        scene = garage(pillar_at=6.0, intensity=intensity, ambient=ambient)
+        glow = Material(f"lamp_{intensity}", (1.0, 1.0, 1.0, 1.0), emission=(3.0 * intensity,) * 3)
+        dark = Material("lamp_off", (0.3, 0.3, 0.3, 1.0))
+        for k, e in enumerate(scene.entities):
+            if e.role == "lamp":
+                scene.entities[k] = replace(e, shapes=[replace(e.shapes[0], material=dark if int(e.name[5:]) in off
+                                                                else glow)])
+        return scene
+
+    renderer.load(lit(1.0, 0.05))
+    sapien_scene = renderer._scene
+    bright = renderer.render("front")
+    dim = lit(0.3, 0.01)
+    renderer.load(dim)
+    assert renderer._scene is sapien_scene  # recoloured, not rebuilt
+    reused = renderer.render("front")
+    fresh_renderer = SapienRenderer(max_lights=8)
+    fresh_renderer.load(dim)
+    fresh = fresh_renderer.render("front")
+    assert np.array_equal(reused.rgb, fresh.rgb) and reused.rgb.mean() < bright.rgb.mean() - 5
+    renderer.load(lit(0.3, 0.01, off=(2, 3)))
+    assert renderer._scene is not sapien_scene
+
+
+@render
 def test_user_errors_are_garage_errors(renderer):
     from garage_exp.errors import GarageError
 

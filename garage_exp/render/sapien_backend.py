@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -128,13 +128,15 @@ class SapienRenderer:
         import sapien
 
         static = self._static_key(scene)
-        if self._scene is not None and static == self._static:
+        recolour = self._recolouring(static) if self._scene is not None else None
+        if recolour is not None:
             try:
+                self._recolour(recolour)
                 self._replace_actors(scene)
             except BaseException:
                 self._reset()
                 raise
-            self.description = scene
+            self.description, self._static = scene, static
             return
         self._reset()
         try:
@@ -150,10 +152,40 @@ class SapienRenderer:
         self._static = static
 
     def _static_key(self, scene: Scene) -> tuple:
-        """What the merged static bodies and the light pool are made of: equal keys, equal SAPIEN statics."""
+        """What the merged static bodies are made of: their geometry (with each shape's material left out), the
+        materials of their shapes in order, and the settings. Lamps and ambient light are set on every load."""
         merged = [e for e in scene.entities if self._merges(e)]
-        return (merged, list(scene.lights), tuple(scene.ambient), scene.background, self.max_lights, self.shadows,
-                self.batch_static)
+        geometry = [(e.name, e.pose, [replace(sh, material=None) if isinstance(sh, Box) else sh for sh in e.shapes])
+                    for e in merged]
+        materials = [sh.material for e in merged for sh in e.shapes if isinstance(sh, Box)]
+        return (geometry, materials, scene.background, self.max_lights, self.shadows, self.batch_static)
+
+    def _recolouring(self, static: tuple) -> dict[Material, Material] | None:
+        """When the new statics are the loaded ones with other materials (a search's light intensity changes
+        the lamp panels' glow), the old -> new material map that turns one into the other; None when they
+        differ otherwise (a full load), or when one old material would need two new ones (lamps switched on
+        or off: the merge groups shapes by material)."""
+        if self._static is None or static[0] != self._static[0] or static[2:] != self._static[2:]:
+            return None
+        change: dict[Material, Material] = {}
+        for old, new in zip(self._static[1], static[1]):
+            if change.setdefault(old, new) != new:
+                return None
+        return change
+
+    def _recolour(self, change: dict[Material, Material]) -> None:
+        """Give each loaded RenderMaterial its new values; shapes keep their material objects."""
+        moved = {}
+        for old, new in change.items():
+            rm = self._materials[old]
+            if old != new:
+                rm.set_base_color(list(new.color))
+                rm.set_emission([*new.emission, 1.0])
+                rm.set_roughness(new.roughness)
+                rm.set_metallic(new.metallic)
+            moved[new] = rm
+        # rebuilt at once: a swap (A -> B, B -> A) must not read a value written in this loop
+        self._materials = {**{m: rm for m, rm in self._materials.items() if m not in change}, **moved}
 
     def _merges(self, entity: Entity) -> bool:
         return self.batch_static and entity.static and entity.role in STATIC_ROLES
@@ -169,6 +201,8 @@ class SapienRenderer:
         self._entities, self._bodies, self._ids, self._poses, self._vehicles, self._cameras = {}, {}, {}, {}, set(), {}
         for body in self._merged:
             body.visibility = 1.0
+        self._scene.set_ambient_light([float(c) for c in scene.ambient])
+        self._set_lamps(scene)
         for entity in scene.entities:
             if not self._merges(entity):
                 self._add_entity(entity)
@@ -307,12 +341,16 @@ class SapienRenderer:
         self._scene.add_entity(mount)
         self._cameras[spec.name] = _Camera(spec, component, silhouette)
 
-    def _add_lights(self, scene: Scene) -> None:
+    def _set_lamps(self, scene: Scene) -> None:
+        """The lamps the pool's lights go to, frame by frame (see choose_lights)."""
         lights = [light for light in scene.lights if light.intensity > 0]
         self._lamp_pos = np.array([light.position for light in lights], dtype=float).reshape(-1, 3)
         self._lamp_rgb = np.array([np.asarray(light.color) * light.intensity * LAMP_POWER for light in lights],
                                   dtype=float).reshape(-1, 3)
         self._lamp_weight = np.array([light.intensity for light in lights], dtype=float)
+
+    def _add_lights(self, scene: Scene) -> None:
+        self._set_lamps(scene)
         for k in range(self.max_lights):
             # The pool is filled strongest first, so with shadows on the lamps nearest the camera cast them.
             self._pool.append(self._scene.add_point_light(

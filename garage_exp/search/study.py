@@ -138,6 +138,23 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
     return optuna.samplers.RandomSampler(seed=seed)  # random; saltelli enqueues its design, random fills the rest
 
 
+def _write_ahead(storage) -> None:
+    """sqlite in write-ahead-log mode with NORMAL sync: a trial makes a dozen commits (ask, its attributes, tell),
+    and a bare commit measured 2 ms with sqlite's default journal against 0.02 ms so; readers (optuna-dashboard,
+    another worker) do not block the writer.
+    A commit survives a crash of the process; only a power cut may lose the last ones."""
+    from sqlalchemy import event
+
+    def pragmas(connection, _record):
+        cursor = connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")
+        cursor.execute("PRAGMA synchronous=NORMAL")
+        cursor.close()
+
+    event.listen(storage.engine, "connect", pragmas)
+    storage.engine.dispose()  # connections opened before the listener get the pragmas too
+
+
 def open_study(search, name: str, seed: int, params: dict | None = None) -> optuna.Study:
     """Create the study, or load it when it exists (resume, a second worker). A study made with other
     directions (another objective under the same name) is refused."""
@@ -153,6 +170,8 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
         storage = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S,
                                              engine_kwargs={"connect_args": {"timeout": 60}}
                                              if url.startswith("sqlite") else {})
+        if url.startswith("sqlite"):
+            _write_ahead(storage)
         try:
             study = optuna.create_study(storage=storage, study_name=name, directions=directions,
                                         sampler=sampler(search, seed, params), load_if_exists=True)
