@@ -56,7 +56,7 @@ def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[
 
 def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:
     ego = next(v for v in setup.vehicles if v.role == "ego")
-    return rig_specs(cfg.camera, ego.extent[2])
+    return rig_specs(cfg.camera, ego.extent)
 
 
 @dataclass
