@@ -149,6 +149,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     # Tables of scenes with people say each target's kind; vehicle-only tables stay as they were.
     kinds = {e.name: e.kind or "vehicle" for e in scene.actors()} if scene.people() else {}
     table_path = out / "frames.csv"
+    fisheye = any(cam.fisheye for cam in scene.cameras)
     frames = render_frames(cfg, scene, setup, renderer, sensor, sensor_rng)
     try:
         for item, dets in overlapped(frames, detector):
@@ -157,7 +158,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
                                  threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes),
                                  person_classes=tuple(cfg.detector.person_classes))
             row = results.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target),
-                                    replicated=cfg.replicates > 1)
+                                    replicated=cfg.replicates > 1, off_axis=fisheye)
             rows.append(row)
             if dataset is not None:
                 dataset.add(f"{shot.index:04d}_{item.camera}", item.camera, item.rgb, item.truth, scene,
@@ -181,6 +182,11 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run) -> f
     run.log_series("confidence", table[table.camera == scene.cameras[0].name].composite.tolist())
     run.log_series("visible_fraction", table[table.camera == scene.cameras[0].name].visible_fraction.tolist())
     run.log_metrics(summary)
+    if len(scene.cameras) > 1:  # which camera saw the target first and best (results.per_camera)
+        cams = results.per_camera(table, cfg.detector.threshold)
+        cams.to_csv(out / "cameras.csv", index=False)
+        run.log_artifact(out / "cameras.csv")
+        print(f"cameras: {results.camera_line(cams)}")
     plot = results.plot_confidence(table, out / "confidence.png", setup.position_label, cfg)
     run.log_artifact(plot)
     if cfg.renderer.save_frames != "none":

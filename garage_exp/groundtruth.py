@@ -63,6 +63,7 @@ class VehicleTruth:
     occlusion: int  # KITTI occlusion state 0..3 (OCCLUSION_NAMES)
     kitti: Kitti
     kind: str = "vehicle"  # "vehicle" | "person" (the record is the same for both)
+    off_axis: float = float("nan")  # degrees between the optical axis and the ray to the 3D box's centre
 
     @property
     def box_height(self) -> int:
@@ -195,8 +196,14 @@ def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Sce
             visible_fraction=fraction, visible_box=mask_box(visible), full_box=full_box,
             distance=float(np.linalg.norm(centre - camera)), truncation=truncation, occlusion=occ,
             kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation),
-            kind="person" if entity.is_person else "vehicle"))
+            kind="person" if entity.is_person else "vehicle", off_axis=_off_axis(frame, centre)))
     return out
+
+
+def _off_axis(frame: Frame, point: np.ndarray) -> float:
+    ray = np.asarray(point, dtype=float) - frame.position
+    cos = ray @ frame.cam_to_world[:3, 0] / max(float(np.linalg.norm(ray)), 1e-12)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def _corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
