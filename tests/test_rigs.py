@@ -54,3 +54,20 @@ def test_the_fisheye4_rig_runs_a_job(tmp_path, mlflow_uri):
     assert table.iloc[1].kitti == "out_of_view"  # the rear camera does not see it
     cams = pd.read_csv(tmp_path / "run" / "cameras.csv")
     assert set(cams.camera) == set(table.camera) and "cameras: " in r.stdout
+
+
+def test_the_sweep_report_says_which_camera_saw_the_target_first_and_best():
+    from garage_exp.report.tables import by_camera, markdown_table, pivot
+
+    one = frames([(0, "black", "front", 0.5, 0.2), (0, "black", "left", 0.5, 0.7),
+                  (1, "black", "front", 0.8, 0.9), (1, "black", "left", 0.0, 0.0)])
+    table = pd.concat([one.assign(run_id="a"), one.assign(run_id="b", composite=one.composite / 2)])
+    runs = pd.DataFrame({"run_id": ["a", "b"], "threshold": [0.5, 0.5], "factor.light": ["bright", "dim"]})
+    conf, first = by_camera(table, runs, ["factor.light"])
+    cell = pivot(conf)
+    assert cell.loc["left", "light=bright"].startswith("0.700") and cell.loc["front", "light=dim"].startswith("0.275")
+    assert first.set_index(["what", "levels"])["first"].to_dict() == {
+        ("front", "light=bright"): 0, ("left", "light=bright"): 1, ("front", "light=dim"): 0,
+        ("left", "light=dim"): 0}
+    assert "left" in markdown_table(cell.reset_index())
+    assert by_camera(table[table.camera == "front"], runs, ["factor.light"])[0].empty  # one camera: no section
