@@ -50,10 +50,16 @@ MOUNTS = {
 }
 
 
-def check_camera(rig) -> None:
-    """The `camera` group: at least one camera, known mounts and lens models, sane fields of view and sizes."""
+def check_camera(rig, dataset: bool = False) -> None:
+    """The `camera` group: at least one camera, known mounts and lens models, sane fields of view and sizes.
+    `dataset`: the job writes KITTI labels, whose calibration is a pinhole matrix; a fisheye camera's frames
+    then have to be its perspective view."""
     if not rig.cameras:
         raise GarageError("the rig has no camera", "camera.cameras")
+    if dataset and rig.get("view", "raw") != "perspective" and any(
+            cam.get("model", "pinhole") == "fisheye" for cam in rig.cameras):
+        raise GarageError(f"dataset=true writes KITTI's pinhole calibration, which {rig.view} fisheye frames do"
+                          " not have: use camera.view=perspective", "camera.view")
     for key in ("mount", "fovy", "pitch", "z"):
         if rig.get(key) is not None and len(rig.cameras) != 1:
             raise GarageError(f"camera.{key} applies to a one-camera rig; rig {rig.name} has {len(rig.cameras)}"
