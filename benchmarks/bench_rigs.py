@@ -36,7 +36,7 @@ def rendered_pixels(job) -> tuple[int, int]:
     rendered = delivered = 0
     for spec in job.scene.cameras:
         delivered += spec.width * spec.height
-        rendered += sum(n * n for n in cube_map(lens_of(spec)).sizes) if spec.fisheye else spec.width * spec.height
+        rendered += cube_map(lens_of(spec)).rendered_pixels if spec.fisheye else spec.width * spec.height
     return rendered, delivered
 
 

@@ -58,6 +58,11 @@ def test_the_cube_map_renders_only_the_faces_the_lens_sees_at_the_size_it_needs(
     front = wide.sizes[0] - 2
     assert (front / 2) / lens.f < 1.6  # face focal / fisheye focal (the rim needs denser faces than the centre)
     assert (front / 2) / lens.f > 0.9
+    # of each face only the rectangle the lens samples: the 4:3 image cuts the circle, so up and down are bands
+    up = wide.crops[wide.faces.index("up")]
+    assert up[3] < 0.6 * wide.sizes[wide.faces.index("up")]
+    assert wide.rendered_pixels < 0.7 * sum(n * n for n in wide.sizes)
+    assert narrow.rendered_pixels < narrow.sizes[0] ** 2  # an 80-degree lens needs the front face's middle
 
 
 def test_views_undistorted_from_a_fisheye_keep_straight_lines_straight():

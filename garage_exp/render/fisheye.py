@@ -17,8 +17,11 @@ coordinates (u, v) with the project's convention (pixel (col, row) spans [col, c
 A cube map: the faces are 90-degree pinhole views at the camera's centre (front, left, right, up, down, back);
 only the faces some fisheye pixel looks into are rendered, each at the size that gives every fisheye pixel's
 footprint at least one face pixel (the 99th percentile over the face's fisheye pixels), plus a pixel of margin on
-every side so that bilinear sampling at a face's edge stays within the face. The faces are stacked in one atlas
-image, so colour is one `cv2.remap` (bilinear) and ids and silhouettes one nearest-neighbour lookup.
+every side so that bilinear sampling at a face's edge stays within the face. Of each face only the rectangle
+the lens samples is rendered (`crops`: an off-centre pinhole; a 4:3 image cuts the image circle at the top and
+bottom, so the up and down faces need a band of rows): two thirds of the full faces' pixels for a 190-degree
+640x480 lens. The crops are stacked in one atlas image, so colour is one `cv2.remap` (bilinear) and ids and
+silhouettes one nearest-neighbour lookup.
 """
 
 from __future__ import annotations
@@ -195,15 +198,20 @@ class CubeMap:
     """The faces a fisheye camera needs, their sizes, and where each fisheye pixel samples the face atlas."""
 
     faces: list[str]
-    sizes: list[int]  # pixels per side, margin included
-    offsets: list[int]  # row of each face's top in the atlas
+    sizes: list[int]  # pixels per side of the whole face, margin included (its focal length is (size - 2) / 2)
+    crops: list[tuple[int, int, int, int]]  # the rectangle of each face that is rendered: x0, y0, width, height
+    offsets: list[int]  # row of each crop's top in the atlas
     map_x: np.ndarray  # HxW float32, atlas column of each fisheye pixel (cv2.remap's convention), -1 outside
     map_y: np.ndarray
     flat: np.ndarray  # HxW int64, the nearest atlas pixel's flat index, -1 outside the lens's field
 
     @property
     def atlas_shape(self) -> tuple[int, int]:
-        return sum(self.sizes), max(self.sizes)
+        return sum(c[3] for c in self.crops), max(c[2] for c in self.crops)
+
+    @property
+    def rendered_pixels(self) -> int:
+        return sum(c[2] * c[3] for c in self.crops)
 
     def face_fovy(self, k: int) -> float:
         """The face camera's field of view in degrees: 90 plus its margin."""
@@ -211,7 +219,7 @@ class CubeMap:
         return math.degrees(2.0 * math.atan((n / 2.0 + PAD) / (n / 2.0)))
 
     def atlas(self, pictures: list[np.ndarray], fill=0) -> np.ndarray:
-        """The faces' pictures (in `faces` order) stacked into one atlas image."""
+        """The faces' pictures (their crops, in `faces` order) stacked into one atlas image."""
         h, w = self.atlas_shape
         first = pictures[0]
         out = np.full((h, w, *first.shape[2:]), fill, dtype=first.dtype)
@@ -254,7 +262,7 @@ def cube_map(lens: Fisheye) -> CubeMap:
     same = np.zeros(face_of.shape, dtype=bool)  # neighbours on the same face (gradients across a seam lie)
     same[1:-1, 1:-1] = ((face_of[1:-1, 1:-1] == face_of[:-2, 1:-1]) & (face_of[1:-1, 1:-1] == face_of[2:, 1:-1])
                         & (face_of[1:-1, 1:-1] == face_of[1:-1, :-2]) & (face_of[1:-1, 1:-1] == face_of[1:-1, 2:]))
-    faces, sizes, offsets = [], [], []
+    faces, sizes, crops, offsets = [], [], [], []
     map_x = np.full(face_of.shape, -1.0, dtype=np.float32)
     map_y = np.full(face_of.shape, -1.0, dtype=np.float32)
     flat = np.full(face_of.shape, -1, dtype=np.int64)
@@ -270,23 +278,28 @@ def cube_map(lens: Fisheye) -> CubeMap:
         n = int(max(MIN_FACE, math.ceil(need)))
         n += n % 2
         size = n + 2 * PAD
+        # face pixel coordinates (continuous) of the fisheye pixels it serves, and the rectangle they need
+        # (bilinear sampling reads the pixel beyond: a pixel of margin, within the face)
+        u = size_centre(n) + n / 2.0 * coords[sel][:, 0]
+        v = size_centre(n) + n / 2.0 * coords[sel][:, 1]
+        x0, y0 = max(int(np.floor(u.min() - 0.5)) - PAD, 0), max(int(np.floor(v.min() - 0.5)) - PAD, 0)
+        x1 = min(int(np.floor(u.max() - 0.5)) + 1 + PAD, size - 1)
+        y1 = min(int(np.floor(v.max() - 0.5)) + 1 + PAD, size - 1)
+        crop = (x0, y0, x1 - x0 + 1, y1 - y0 + 1)
         faces.append(name)
         sizes.append(size)
+        crops.append(crop)
         offsets.append(top)
-        placed.append((sel, n, top))
-        top += size
-    width = max(sizes)
-    for sel, n, top in placed:
-        c = coords[sel]
-        # face pixel coordinates (continuous), then cv2.remap's (pixel centres at integers)
-        u = size_centre(n) + n / 2.0 * c[:, 0]
-        v = size_centre(n) + n / 2.0 * c[:, 1]
-        map_x[sel] = (u - 0.5).astype(np.float32)
+        placed.append((sel, u - x0, v - y0, crop, top))
+        top += crop[3]
+    width = max(c[2] for c in crops)
+    for sel, u, v, crop, top in placed:
+        map_x[sel] = (u - 0.5).astype(np.float32)  # cv2.remap's convention: pixel centres at integers
         map_y[sel] = (top + v - 0.5).astype(np.float32)
-        col = np.clip(np.floor(u), 0, n + 2 * PAD - 1).astype(np.int64)
-        row = np.clip(np.floor(v), 0, n + 2 * PAD - 1).astype(np.int64)
+        col = np.clip(np.floor(u), 0, crop[2] - 1).astype(np.int64)
+        row = np.clip(np.floor(v), 0, crop[3] - 1).astype(np.int64)
         flat[sel] = (top + row) * width + col
-    return CubeMap(faces, sizes, offsets, map_x, map_y, flat)
+    return CubeMap(faces, sizes, crops, offsets, map_x, map_y, flat)
 
 
 def size_centre(n: int) -> float:

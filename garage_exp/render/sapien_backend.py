@@ -71,6 +71,7 @@ class _Camera:
     # A fisheye camera has no picture of its own: its cube faces (rotation in the camera's frame, a pinhole
     # _Camera) are rendered and remapped (render/fisheye.py); `view` undistorts the result for the detector.
     faces: list[tuple[np.ndarray, "_Camera"]] | None = None
+    crop: tuple[int, int, int, int] | None = None  # a cube face's rendered rectangle (x0, y0, w, h); spec: whole face
     cube: CubeMap | None = None
     lens: Fisheye | None = None
     view: tuple | None = None  # (view lens, cv2 map_x, map_y, nearest flat index) or None for the raw image
@@ -260,20 +261,26 @@ class SapienRenderer:
         else:
             self._cameras[spec.name] = self._pinhole_camera(spec)
 
-    def _pinhole_camera(self, spec: CameraSpec) -> _Camera:
+    def _pinhole_camera(self, spec: CameraSpec, crop: tuple[int, int, int, int] | None = None) -> _Camera:
+        """A camera and its silhouette twin; `crop` renders only that rectangle of the spec's image (an
+        off-centre pinhole with the spec's focal length), for cube faces."""
         import sapien
         import sapien.render as sr
 
-        component = self._scene.add_camera(spec.name, spec.width, spec.height, math.radians(spec.fovy),
-                                           spec.near, spec.far)
-        silhouette = sr.RenderCameraComponent(spec.width, spec.height, _minimal_shader_dir())
+        width, height = (crop[2], crop[3]) if crop else (spec.width, spec.height)
+        component = self._scene.add_camera(spec.name, width, height, math.radians(spec.fovy), spec.near, spec.far)
+        silhouette = sr.RenderCameraComponent(width, height, _minimal_shader_dir())
         silhouette.set_fovy(math.radians(spec.fovy), compute_x=True)
         silhouette.near, silhouette.far = spec.near, spec.far
+        if crop:
+            fx, fy, cx, cy = intrinsics_of(spec)
+            for cam in (component, silhouette):
+                cam.set_perspective_parameters(spec.near, spec.far, fx, fy, cx - crop[0], cy - crop[1], 0.0)
         mount = sapien.Entity()
         mount.name = f"{spec.name}:silhouette"
         mount.add_component(silhouette)
         self._scene.add_entity(mount)
-        return _Camera(spec, component, silhouette)
+        return _Camera(spec, component, silhouette, crop=crop)
 
     def _fisheye_camera(self, spec: CameraSpec) -> _Camera:
         """The cube faces the lens sees, each a pinhole camera at the size the fisheye needs (render/fisheye.py)."""
@@ -286,11 +293,11 @@ class SapienRenderer:
                                    width=size, height=size, near=spec.near, far=spec.far)
             rot = np.eye(4)
             rot[:3, :3] = face_rotation(face)
-            faces.append((rot, self._pinhole_camera(face_spec)))
+            faces.append((rot, self._pinhole_camera(face_spec, cube.crops[k])))
         target = view_lens(spec)
         view = (target, *view_remap(lens, target)) if target is not None else None
         first = faces[0][1]
-        return _Camera(spec, first.component, first.silhouette, faces, cube, lens, view)
+        return _Camera(spec, first.component, first.silhouette, faces=faces, cube=cube, lens=lens, view=view)
 
     def _add_lights(self, scene: Scene) -> None:
         lights = [light for light in scene.lights if light.intensity > 0]
@@ -399,7 +406,7 @@ class SapienRenderer:
         for name in wanted:
             if not any(name in masks for masks in per_face):
                 continue
-            pictures = [masks.get(name, np.zeros((face.spec.height, face.spec.width), dtype=bool))
+            pictures = [masks.get(name, np.zeros((face.crop[3], face.crop[2]), dtype=bool))
                         for masks, (_, face) in zip(per_face, cam.faces)]
             mask = cam.cube.remap_nearest(cam.cube.atlas(pictures, fill=False), fill=False)
             if cam.view is not None:
