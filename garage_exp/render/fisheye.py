@@ -228,15 +228,24 @@ class CubeMap:
         return out
 
     def remap_colour(self, atlas: np.ndarray) -> np.ndarray:
-        import cv2
-
-        return cv2.remap(atlas, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                         borderValue=0)
+        return remap_bilinear(atlas, self.map_x, self.map_y)
 
     def remap_nearest(self, atlas: np.ndarray, fill=0) -> np.ndarray:
-        out = atlas.reshape(-1, *atlas.shape[2:])[np.maximum(self.flat, 0)]
-        out[self.flat < 0] = fill
-        return out
+        return lookup(atlas, self.flat, fill)
+
+
+def remap_bilinear(picture: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """cv2.remap with bilinear sampling; pixels mapped outside the picture (-1) come out black."""
+    import cv2
+
+    return cv2.remap(picture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def lookup(picture: np.ndarray, flat: np.ndarray, fill=0) -> np.ndarray:
+    """Nearest-neighbour remap: picture read at flat pixel indices; -1 gives `fill`."""
+    out = picture.reshape(-1, *picture.shape[2:])[np.maximum(flat, 0)]
+    out[flat < 0] = fill
+    return out
 
 
 def cube_map(lens: Fisheye) -> CubeMap:

@@ -48,7 +48,8 @@ from garage_exp.errors import GarageError
 from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.cull import box_corners, frustum_planes, outside_frustum
 from garage_exp.render.device import ensure_device
-from garage_exp.render.fisheye import CubeMap, Fisheye, Pinhole, cube_map, face_rotation, lens_of, view_lens, view_remap
+from garage_exp.render.fisheye import (CubeMap, Fisheye, Pinhole, cube_map, face_rotation, lens_of, lookup,
+                                      remap_bilinear, view_lens, view_remap)
 from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
 from garage_exp.scene.description import VEHICLE_ROLES, Box, CameraSpec, Entity, Material, Mesh, Pose, Scene
 
@@ -375,8 +376,8 @@ class SapienRenderer:
         lens = cam.lens
         if cam.view is not None:
             lens, map_x, map_y, flat = cam.view
-            rgb = cv2_remap(rgb, map_x, map_y)
-            ids = _nearest(ids, flat)
+            rgb = remap_bilinear(rgb, map_x, map_y)
+            ids = lookup(ids, flat)
         if not self.description.background:
             rgb[ids == 0] = BLANK_GREY
         poses = {name: self._poses[name] for name in self._poses if name in self._vehicles}
@@ -410,7 +411,7 @@ class SapienRenderer:
                         for masks, (_, face) in zip(per_face, cam.faces)]
             mask = cam.cube.remap_nearest(cam.cube.atlas(pictures, fill=False), fill=False)
             if cam.view is not None:
-                mask = _nearest(mask, cam.view[3], fill=False)
+                mask = lookup(mask, cam.view[3], fill=False)
             if mask.any():
                 out[name] = mask
         return out
@@ -511,19 +512,6 @@ class SapienRenderer:
         cam.silhouette.take_picture()
         # The minimal shader packs position (mm) and the entity id into one int32 picture.
         return cam.silhouette.get_picture("PositionSegmentation")[..., 3].copy()
-
-
-def cv2_remap(rgb: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.remap(rgb, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-
-
-def _nearest(picture: np.ndarray, flat: np.ndarray, fill=0) -> np.ndarray:
-    """picture looked up at flat indices (-1: fill), as render/fisheye.py's maps give them."""
-    out = picture.reshape(-1, *picture.shape[2:])[np.maximum(flat, 0)]
-    out[flat < 0] = fill
-    return out
 
 
 def _minimal_shader_dir() -> str:
