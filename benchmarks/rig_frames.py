@@ -4,6 +4,7 @@
   plus the legacy `camera=front` and the rear and side-mirror mounts.
 - rigs_fisheye4.png: the four fisheye cameras of `camera=fisheye4` at one shot of case 2, ground truth boxes.
 - rigs_views.png: case 2's passing car through the front fisheye, raw and undistorted (`camera.view`).
+- rigs_surround.png: the four pinhole cameras of `camera=surround` at the same shot of case 2.
 Each tile is labelled; green boxes are ground truth (full box of the target).
 """
 
@@ -50,8 +51,13 @@ def main() -> None:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/img")
+    parser.add_argument("--surround-only", action="store_true", help="write rigs_surround.png only")
     args = parser.parse_args()
     out = Path(args.out)
+    frames = shot_frames(["case=2", "camera=surround"], 24)
+    cv2.imwrite(str(out / "rigs_surround.png"), grid([tile(f, f"surround: {f.camera}") for f in frames], 2))
+    if args.surround_only:
+        return
     tiles = []
     for mount in ("roof", "mirror", "bumper"):
         for fovy in (30, 60, 90, 120):
