@@ -46,8 +46,9 @@ def views(sweep: Path, out: Path) -> None:
     t = jobs(sweep)
     t["angle"] = pd.cut(t.off_axis, BINS)
     # frames the view does not hold count as misses (0): the car is there, the view cannot show it
-    raw = t[t.view == "raw"][["label", "position", "off_axis"]]
-    t = t.drop(columns="off_axis").merge(raw, on=["label", "position"])
+    keys = ["label", "position", *(["replicate"] if "replicate" in t else [])]
+    raw = t[t.view == "raw"][[*keys, "off_axis"]]
+    t = t.drop(columns="off_axis").merge(raw, on=keys)
     t["angle"] = pd.cut(t.off_axis, BINS)
     table = t.pivot_table(index="angle", columns="view", values="composite", aggfunc="mean", observed=False)
     counts = t[t.view == "raw"].groupby("angle", observed=False).size()
