@@ -142,7 +142,7 @@ def test_a_straight_lane_line_is_curved_as_the_model_predicts(renderer):  # noqa
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("view", ["raw", "cylindrical"])
+@pytest.mark.parametrize("view", ["raw", "perspective", "cylindrical"])
 def test_ground_truth_holds_on_fisheye_frames(renderer, view):  # noqa: F811
     cam = fisheye_camera(view=view)
     scene = garage(camera=cam, target_at=9.0)
