@@ -50,7 +50,10 @@ class LightConf:
 class CameraConf:
     """One camera on the ego: mount relative to the ego's origin (centre of its footprint, on the floor),
     x forward, y left, z up; yaw left-positive; pitch positive looks down. fovy is the VERTICAL field of
-    view in degrees (Unity's and SAPIEN's convention)."""
+    view in degrees (Unity's and SAPIEN's convention). `mount` names a pose on the ego's body
+    (garage_exp/scene/camera.py MOUNTS, scaled by the ego's extent) that replaces x, y, z and yaw.
+    `model: fisheye` is OpenCV's fisheye (Kannala-Brandt) lens: `fov` is its full field of view across the
+    image width, `k` its four coefficients; fovy is then unused."""
 
     name: str = "front"
     x: float = 0.5
@@ -61,13 +64,28 @@ class CameraConf:
     fovy: float = 60.0
     width: int = 640
     height: int = 480
+    mount: Optional[str] = None
+    model: str = "pinhole"  # pinhole | fisheye
+    fov: float = 190.0  # fisheye only: degrees across the image width (the image circle spans the width)
+    k: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])  # fisheye only: k1..k4
 
 
 @dataclass
 class CameraRigConf:
+    """A rig of cameras. The top-level keys are factors a sweep or a search varies with plain overrides
+    (`camera.mount=mirror camera.fovy=90`); None leaves the camera's own value. mount, fovy, pitch and z apply
+    to a one-camera rig only; width and height to every camera; `view` to fisheye cameras."""
+
     name: str = "front"
     cameras: list[CameraConf] = field(default_factory=lambda: [CameraConf()])
-    roof: bool = True  # z is added to the ego vehicle's height (camera on the roof)
+    roof: bool = True  # z is added to the ego vehicle's height (camera on the roof); unused by named mounts
+    mount: Optional[str] = None
+    fovy: Optional[float] = None
+    pitch: Optional[float] = None
+    z: Optional[float] = None  # metres added to the camera's height (a named mount's or the list's)
+    width: Optional[int] = None
+    height: Optional[int] = None
+    view: str = "raw"  # fisheye frames go to the detector raw, or undistorted: perspective | cylindrical
 
 
 @dataclass

@@ -56,7 +56,7 @@ def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[
 
 def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:
     ego = next(v for v in setup.vehicles if v.role == "ego")
-    return rig_specs(cfg.camera, ego.extent[2])
+    return rig_specs(cfg.camera, ego.extent)
 
 
 @dataclass
@@ -150,6 +150,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
     # Tables of scenes with people say each target's kind; vehicle-only tables stay as they were.
     kinds = {e.name: e.kind or "vehicle" for e in scene.actors()} if scene.people() else {}
     table_path = out / "frames.csv"
+    fisheye = any(cam.fisheye for cam in scene.cameras)
     frames = render_frames(cfg, scene, setup, renderer, sensor, sensor_rng)
     try:
         for item, dets in overlapped(frames, detector):
@@ -158,7 +159,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
                                  threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes),
                                  person_classes=tuple(cfg.detector.person_classes))
             row = results.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target),
-                                    replicated=cfg.replicates > 1)
+                                    replicated=cfg.replicates > 1, off_axis=fisheye)
             rows.append(row)
             if dataset is not None:
                 dataset.add(f"{shot.index:04d}_{item.camera}", item.camera, item.rgb, item.truth, scene,
@@ -184,6 +185,11 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
     search = cfg.search
     summary.update(results.fair_summary(table, scene.cameras[0].name, search, cfg.detector.threshold))
     run.log_metrics(summary)
+    if len(scene.cameras) > 1:  # which camera saw the target first and best (results.per_camera)
+        cams = results.per_camera(table, cfg.detector.threshold)
+        cams.to_csv(out / "cameras.csv", index=False)
+        run.log_artifact(out / "cameras.csv")
+        print(f"cameras: {results.camera_line(cams)}")
     if trial:
         summary["frame"] = results.save_hardest_fair(keep, table, frames_dir, search)
         if summary["frame"] is not None:

@@ -63,6 +63,7 @@ class VehicleTruth:
     occlusion: int  # KITTI occlusion state 0..3 (OCCLUSION_NAMES)
     kitti: Kitti
     kind: str = "vehicle"  # "vehicle" | "person" (the record is the same for both)
+    off_axis: float = float("nan")  # degrees between the optical axis and the ray to the 3D box's centre
 
     @property
     def box_height(self) -> int:
@@ -125,17 +126,37 @@ def world_corners(entity: Entity, pose: Pose) -> np.ndarray | None:
 
 
 def projected_truncation(frame: Frame, corners: np.ndarray, near: float = 0.05) -> float:
-    """Share of the projected 3D box's rectangle outside the image (1.0 when it is behind the camera)."""
+    """Share of the projected 3D box's rectangle outside the image (1.0 when it is behind the camera). A fisheye
+    (or cylindrical) frame bends the box's edges: points along them are projected through its lens, with no
+    near plane (a 190-degree lens sees behind its own plane)."""
+    if frame.lens is not None:
+        points = _edge_points(to_camera(frame.cam_to_world, corners))
+        u, v = frame.lens.project(points)
+        ok = np.isfinite(u) & np.isfinite(v)
+        if not ok.any():
+            return 1.0
+        return _outside(u[ok], v[ok], frame.width, frame.height)
     points = _clip_near(to_camera(frame.cam_to_world, corners), near)
     if len(points) == 0:
         return 1.0
     u, v = to_pixels(points, frame.intrinsics)
+    return _outside(u, v, frame.width, frame.height)
+
+
+def _outside(u: np.ndarray, v: np.ndarray, width: int, height: int) -> float:
+    """Share of the rectangle around the points (u, v) that lies outside a width x height image."""
     area = (u.max() - u.min()) * (v.max() - v.min())
     if area <= 0:
         return 1.0
-    iw = max(0.0, min(u.max(), frame.width) - max(u.min(), 0.0))
-    ih = max(0.0, min(v.max(), frame.height) - max(v.min(), 0.0))
+    iw = max(0.0, min(u.max(), width) - max(u.min(), 0.0))
+    ih = max(0.0, min(v.max(), height) - max(v.min(), 0.0))
     return float(np.clip(1.0 - iw * ih / area, 0.0, 1.0))
+
+
+def _edge_points(local: np.ndarray, per_edge: int = 9) -> np.ndarray:
+    """Points along the 12 edges of a box given by its 8 corners (camera frame), ends included."""
+    t = np.linspace(0.0, 1.0, per_edge)[:, None]
+    return np.concatenate([local[a] + t * (local[b] - local[a]) for a, b in _EDGES], axis=0)
 
 
 def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Scene,
@@ -175,8 +196,14 @@ def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Sce
             visible_fraction=fraction, visible_box=mask_box(visible), full_box=full_box,
             distance=float(np.linalg.norm(centre - camera)), truncation=truncation, occlusion=occ,
             kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation),
-            kind="person" if entity.is_person else "vehicle"))
+            kind="person" if entity.is_person else "vehicle", off_axis=_off_axis(frame, centre)))
     return out
+
+
+def _off_axis(frame: Frame, point: np.ndarray) -> float:
+    ray = np.asarray(point, dtype=float) - frame.position
+    cos = ray @ frame.cam_to_world[:3, 0] / max(float(np.linalg.norm(ray)), 1e-12)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def _corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -76,7 +76,7 @@ def check_config(cfg: DictConfig) -> None:
     check_garage(cfg.garage)
     check_light(cfg.light)
     check_palette(cfg.palette)
-    check_camera(cfg.camera)
+    check_camera(cfg.camera, dataset=bool(cfg.dataset))
     check_case(cfg)
     check_detector(cfg.detector)
     check_renderer(cfg.renderer)

@@ -17,9 +17,10 @@ KIND_TO_COCO = {"car": "car", "suv": "car", "pickup": "truck", "van": "truck", "
 
 
 def frame_row(shot, camera: str, target, score, model_names: list[str], target_kind: str | None = None,
-              replicated: bool = False) -> dict:
+              replicated: bool = False, off_axis: bool = False) -> dict:
     """One frame's row. target_kind ("vehicle" | "person") is a column only when given: scenes with people give
-    it on every row, vehicle-only scenes keep their tables as they were; so is `replicate`, when replicates > 1."""
+    it on every row, vehicle-only scenes keep their tables as they were; so is `replicate`, when replicates > 1,
+    and `off_axis` (the target's angle from the optical axis, degrees) for rigs with a fisheye camera."""
     row = {
         "shot": shot.index, **({"replicate": shot.replicate} if replicated else {}),
         "label": shot.label, "position": shot.position, "camera": camera,
@@ -34,6 +35,8 @@ def frame_row(shot, camera: str, target, score, model_names: list[str], target_k
     }
     if target_kind is not None:
         row["target_kind"] = target_kind
+    if off_axis:
+        row["off_axis"] = round(target.off_axis, 3) if target else math.nan
     for name, conf in zip(model_names, score.per_model):
         row[f"conf_{name}"] = round(float(conf), 6)
     row["composite"] = round(float(score.composite), 6)
@@ -68,6 +71,11 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
     for cam, group in table.groupby("camera", sort=False):
         if cam != primary:
             out[f"camera.{_metric_key(cam)}"] = float(group.composite.mean())
+    if table.camera.nunique() > 1:  # every camera that sees the target, scored (per_camera)
+        for _, row in per_camera(table, threshold).iterrows():
+            key = _metric_key(row.camera)
+            for col in ("confidence_in_view", "recall_in_view", "first", "in_view"):
+                out[f"camera.{key}.{col}"] = float(row[col])
     if "target_kind" in t:  # scenes with people: the mean per kind of target
         for kind, group in t.groupby("target_kind", sort=False):
             out[f"kind.{_metric_key(kind)}"] = float(group.composite.mean())
@@ -92,6 +100,41 @@ def fair_summary(table: pd.DataFrame, primary: str, search, threshold: float) ->
     mean = float(conf.mean()) if len(conf) else math.nan
     return {"fair_frames": float(len(fair)), "fair_confidence": mean, "fair_difficulty": 1.0 - mean,
             "fair_recall": float((conf >= threshold).mean()) if len(conf) else math.nan}
+
+
+def per_camera(table: pd.DataFrame, threshold: float) -> pd.DataFrame:
+    """Each camera of a rig scored on the frames where it sees the target (visible_fraction > 0): mean composite
+    confidence and recall there, the best frame's confidence, and `first`: in how many trajectories (a label and
+    replicate) it detected the target first (at the earliest shot; cameras detecting at the same shot share
+    it). The camera with the highest confidence_in_view saw it best."""
+    t = table.assign(seen=table.visible_fraction > 0, hit=table.composite >= threshold)
+    keys = ["label", *(["replicate"] if "replicate" in t else [])]
+    firsts: dict[str, int] = {}
+    for _, traj in t[t.hit].groupby(keys, sort=False):
+        for cam in traj[traj.shot == traj.shot.min()].camera.unique():
+            firsts[cam] = firsts.get(cam, 0) + 1
+    rows = []
+    for cam, g in t.groupby("camera", sort=False):
+        seen = g[g.seen]
+        first = g[g.hit].shot.min() if g.hit.any() else math.nan
+        rows.append({"camera": cam, "frames": len(g), "in_view": int(len(seen)),
+                     "confidence_in_view": float(seen.composite.mean()) if len(seen) else 0.0,
+                     "recall_in_view": float(seen.hit.mean()) if len(seen) else 0.0,
+                     "best_confidence": float(g.composite.max()) if len(g) else 0.0,
+                     "first_shot": first, "first": firsts.get(cam, 0)})
+    return pd.DataFrame(rows)
+
+
+def camera_line(cams: pd.DataFrame) -> str:
+    """Which camera saw the target first and which best, in one line."""
+    if cams.empty or cams.in_view.sum() == 0:
+        return "no camera saw the target"
+    best = cams.loc[cams.confidence_in_view.idxmax()]
+    text = f"best: {best.camera} (mean confidence {best.confidence_in_view:.3f} over {best.in_view} frames in view)"
+    if cams["first"].sum() == 0:
+        return "never detected; " + text
+    first = cams.loc[cams["first"].idxmax()]
+    return f"first: {first.camera} (first in {first['first']} trajectories, at shot {first.first_shot:.0f}); " + text
 
 
 def _metric_key(label: str) -> str:

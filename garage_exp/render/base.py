@@ -24,8 +24,8 @@ class Frame:
 
     rgb: HxWx3 uint8 (sRGB). ids: HxW int32, the id of the entity seen in each pixel (0: nothing; `Renderer.ids`
     maps names to ids). cam_to_world: 4x4 pose of the camera with SAPIEN's camera axes (x forward, y left,
-    z up). fx, fy, cx, cy: pinhole intrinsics in pixels (garage_exp.scene.camera). poses: where each vehicle
-    (and the ego) stood when this was rendered.
+    z up). fx, fy, cx, cy: pinhole intrinsics in pixels (garage_exp.scene.camera), unless `lens` is set.
+    poses: where each vehicle (and the ego) stood when this was rendered.
     """
 
     camera: str
@@ -37,6 +37,9 @@ class Frame:
     cx: float
     cy: float
     poses: dict[str, Pose] = field(default_factory=dict)
+    # A fisheye or cylindrical frame's lens (render/fisheye.py); None: the pinhole fx, fy, cx, cy above. For a
+    # fisheye, fx = fy is the lens's f and (cx, cy) its centre.
+    lens: object | None = None
 
     @property
     def width(self) -> int:
@@ -58,6 +61,9 @@ class Frame:
         """World points (N x 3) -> pixel coordinates (N x 2, continuous) and depth along the view axis (N)."""
         local = to_camera(self.cam_to_world, points)
         depth = local[:, 0]
+        if self.lens is not None:
+            u, v = self.lens.project(local)
+            return np.stack([u, v], axis=1), depth
         safe = np.where(np.abs(depth) < 1e-9, 1e-9, depth)
         u, v = to_pixels(local, self.intrinsics, safe)
         return np.stack([u, v], axis=1), depth

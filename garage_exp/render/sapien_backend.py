@@ -48,6 +48,8 @@ from garage_exp.errors import GarageError
 from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.cull import box_corners, frustum_planes, outside_frustum
 from garage_exp.render.device import ensure_device
+from garage_exp.render.fisheye import (CubeMap, Fisheye, Pinhole, cube_map, face_rotation, lens_of, lookup,
+                                      remap_bilinear, view_lens, view_remap)
 from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
 from garage_exp.scene.description import VEHICLE_ROLES, Box, CameraSpec, Entity, Material, Mesh, Pose, Scene
 
@@ -67,6 +69,13 @@ class _Camera:
     spec: CameraSpec
     component: object  # sapien.render.RenderCameraComponent with the default (lit) shader
     silhouette: object  # the same camera with the unlit "minimal" shader: ids only, about half the cost
+    # A fisheye camera has no picture of its own: its cube faces (rotation in the camera's frame, a pinhole
+    # _Camera) are rendered and remapped (render/fisheye.py); `view` undistorts the result for the detector.
+    faces: list[tuple[np.ndarray, "_Camera"]] | None = None
+    crop: tuple[int, int, int, int] | None = None  # a cube face's rendered rectangle (x0, y0, w, h); spec: whole face
+    cube: CubeMap | None = None
+    lens: Fisheye | None = None
+    view: tuple | None = None  # (view lens, cv2 map_x, map_y, nearest flat index) or None for the raw image
 
 
 def quat_yaw(yaw_deg: float) -> list[float]:
@@ -196,8 +205,9 @@ class SapienRenderer:
         for node in self._entities.values():
             self._scene.remove_entity(node)
         for cam in self._cameras.values():
-            self._scene.remove_entity(cam.component.entity)
-            self._scene.remove_entity(cam.silhouette.entity)
+            for _, pinhole in cam.faces or [(None, cam)]:  # a fisheye's cube faces are cameras of their own
+                self._scene.remove_entity(pinhole.component.entity)
+                self._scene.remove_entity(pinhole.silhouette.entity)
         self._entities, self._bodies, self._ids, self._poses, self._vehicles, self._cameras = {}, {}, {}, {}, set(), {}
         for body in self._merged:
             body.visibility = 1.0
@@ -327,19 +337,48 @@ class SapienRenderer:
     def _add_camera(self, spec: CameraSpec) -> None:
         if spec.name in self._cameras:
             raise GarageError(f"two cameras are named {spec.name!r}", "scene.cameras")
+        if spec.fisheye:
+            self._cameras[spec.name] = self._fisheye_camera(spec)
+        else:
+            self._cameras[spec.name] = self._pinhole_camera(spec)
+
+    def _pinhole_camera(self, spec: CameraSpec, crop: tuple[int, int, int, int] | None = None) -> _Camera:
+        """A camera and its silhouette twin; `crop` renders only that rectangle of the spec's image (an
+        off-centre pinhole with the spec's focal length), for cube faces."""
         import sapien
         import sapien.render as sr
 
-        component = self._scene.add_camera(spec.name, spec.width, spec.height, math.radians(spec.fovy),
-                                           spec.near, spec.far)
-        silhouette = sr.RenderCameraComponent(spec.width, spec.height, _minimal_shader_dir())
+        width, height = (crop[2], crop[3]) if crop else (spec.width, spec.height)
+        component = self._scene.add_camera(spec.name, width, height, math.radians(spec.fovy), spec.near, spec.far)
+        silhouette = sr.RenderCameraComponent(width, height, _minimal_shader_dir())
         silhouette.set_fovy(math.radians(spec.fovy), compute_x=True)
         silhouette.near, silhouette.far = spec.near, spec.far
+        if crop:
+            fx, fy, cx, cy = intrinsics_of(spec)
+            for cam in (component, silhouette):
+                cam.set_perspective_parameters(spec.near, spec.far, fx, fy, cx - crop[0], cy - crop[1], 0.0)
         mount = sapien.Entity()
         mount.name = f"{spec.name}:silhouette"
         mount.add_component(silhouette)
         self._scene.add_entity(mount)
-        self._cameras[spec.name] = _Camera(spec, component, silhouette)
+        return _Camera(spec, component, silhouette, crop=crop)
+
+    def _fisheye_camera(self, spec: CameraSpec) -> _Camera:
+        """The cube faces the lens sees, each a pinhole camera at the size the fisheye needs (render/fisheye.py)."""
+        lens = lens_of(spec)
+        cube = cube_map(lens)
+        faces = []
+        for k, face in enumerate(cube.faces):
+            size = cube.sizes[k]
+            face_spec = CameraSpec(f"{spec.name}:{face}", spec.mount, pitch=spec.pitch, fovy=cube.face_fovy(k),
+                                   width=size, height=size, near=spec.near, far=spec.far)
+            rot = np.eye(4)
+            rot[:3, :3] = face_rotation(face)
+            faces.append((rot, self._pinhole_camera(face_spec, cube.crops[k])))
+        target = view_lens(spec)
+        view = (target, *view_remap(lens, target)) if target is not None else None
+        first = faces[0][1]
+        return _Camera(spec, first.component, first.silhouette, faces=faces, cube=cube, lens=lens, view=view)
 
     def _set_lamps(self, scene: Scene) -> None:
         """The lamps the pool's lights go to, frame by frame (see choose_lights)."""
@@ -394,6 +433,8 @@ class SapienRenderer:
         """Render one camera: colour and entity ids, with the camera's pose and intrinsics."""
         cam = self._camera(camera_name)
         pose = self.camera_pose(camera_name)
+        if cam.faces:
+            return self._render_fisheye(cam, pose)
         self._place(cam, pose)
         self._show_only(self._in_view(cam.spec, pose))
         rgb, ids = self._take(cam)
@@ -403,20 +444,64 @@ class SapienRenderer:
         poses = {name: self._poses[name] for name in self._poses if name in self._vehicles}
         return Frame(camera_name, rgb, ids, pose, fx, fy, cx, cy, poses)
 
+    def _render_fisheye(self, cam: _Camera, pose: np.ndarray) -> Frame:
+        """Each cube face, stacked in an atlas and remapped: colour bilinear, ids nearest; then the view the
+        detector gets (raw, or undistorted from the fisheye image, so it pays the fisheye's blur)."""
+        rgbs, ids = [], []
+        for rot, face in cam.faces:
+            face_pose = pose @ rot
+            self._place(face, face_pose)
+            self._show_only(self._in_view(face.spec, face_pose))
+            rgb, face_ids = self._take(face)
+            rgbs.append(rgb)
+            ids.append(face_ids)
+        rgb = cam.cube.remap_colour(cam.cube.atlas(rgbs))
+        ids = cam.cube.remap_nearest(cam.cube.atlas(ids))
+        lens = cam.lens
+        if cam.view is not None:
+            lens, map_x, map_y, flat = cam.view
+            rgb = remap_bilinear(rgb, map_x, map_y)
+            ids = lookup(ids, flat)
+        if not self.description.background:
+            rgb[ids == 0] = BLANK_GREY
+        poses = {name: self._poses[name] for name in self._poses if name in self._vehicles}
+        if isinstance(lens, Pinhole):  # a perspective view is a plain pinhole frame
+            return Frame(cam.spec.name, rgb, ids, pose, lens.fx, lens.fy, lens.cx, lens.cy, poses)
+        f = lens.f
+        return Frame(cam.spec.name, rgb, ids, pose, f, f, lens.cx, lens.cy, poses, lens=lens)
+
     def unoccluded_ids(self, camera_name: str, names: Iterable[str]) -> dict[str, np.ndarray]:
         """Each named vehicle's unoccluded silhouette (HxW bool) as this camera would see it alone.
 
         Vehicles whose world bounding boxes project to disjoint image rectangles cannot hide one another, so
         they share one render with everything else hidden; only overlapping ones cost an extra render each.
         Vehicles that project outside the image (first by the frustum test, for all at once) are left out.
+        A fisheye camera does this per cube face and remaps each vehicle's faces (nearest neighbour).
         """
         cam = self._camera(camera_name)
         pose = self.camera_pose(camera_name)
-        spec = cam.spec
         wanted = list(dict.fromkeys(names))
         for name in wanted:
             if name not in self._bodies:
                 raise GarageError(f"no entity named {name!r} with its own id", "renderer.unoccluded_ids")
+        if not cam.faces:
+            return self._silhouettes(cam, pose, wanted)
+        per_face = [self._silhouettes(face, pose @ rot, wanted) for rot, face in cam.faces]
+        out = {}
+        for name in wanted:
+            if not any(name in masks for masks in per_face):
+                continue
+            pictures = [masks.get(name, np.zeros((face.crop[3], face.crop[2]), dtype=bool))
+                        for masks, (_, face) in zip(per_face, cam.faces)]
+            mask = cam.cube.remap_nearest(cam.cube.atlas(pictures, fill=False), fill=False)
+            if cam.view is not None:
+                mask = lookup(mask, cam.view[3], fill=False)
+            if mask.any():
+                out[name] = mask
+        return out
+
+    def _silhouettes(self, cam: _Camera, pose: np.ndarray, wanted: list[str]) -> dict[str, np.ndarray]:
+        spec = cam.spec
         self._refresh_moved()
         rows = np.array([self._index[name] for name in wanted], dtype=int)
         ahead = ~outside_frustum(frustum_planes(pose, spec), self._lo[rows], self._hi[rows])

@@ -18,8 +18,8 @@ import pandas as pd
 
 from garage_exp import stats, tracking
 from garage_exp.report import plots, visibility
-from garage_exp.report.tables import (breakdown, child_runs, factors_of, main_effects, markdown_table, number,
-                                      pair_effects, parse_overrides, pivot, significance, summary, units)
+from garage_exp.report.tables import (breakdown, by_camera, child_runs, factors_of, main_effects, markdown_table,
+                                      number, pair_effects, parse_overrides, pivot, significance, summary, units)
 
 __all__ = ["child_runs", "factors_of", "main_effects", "markdown", "pair_effects", "parse_overrides",
            "summary", "sweep_report", "latest_parent", "main"]
@@ -30,7 +30,8 @@ BREAKDOWN_TITLES = {"label": "Per label: mean composite confidence (colour, plac
 
 def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs: pd.DataFrame,
              anova: pd.DataFrame, tables: dict[str, pd.DataFrame] | None = None,
-             bins: pd.DataFrame | None = None, curves: pd.DataFrame | None = None) -> str:
+             bins: pd.DataFrame | None = None, curves: pd.DataFrame | None = None,
+             cameras: tuple[pd.DataFrame, pd.DataFrame] | None = None) -> str:
     failed = runs[runs.status != "FINISHED"] if "status" in runs else runs.iloc[0:0]
     skipped = runs[runs.skipped] if "skipped" in runs else runs.iloc[0:0]
     per_cell = obs.groupby("run_id").size() if not obs.empty else pd.Series(dtype=int)
@@ -53,6 +54,12 @@ def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs
     for title, df in (tables or {}).items():
         if not df.empty:
             text += [f"## {title}\n", markdown_table(pivot(df).reset_index())]
+    if cameras is not None and not cameras[0].empty:
+        first = cameras[1].pivot(index="what", columns="levels", values="first")
+        text += ["## Per camera: mean composite confidence where it sees the target (best camera: the highest)\n",
+                 markdown_table(pivot(cameras[0]).reset_index()),
+                 "## Per camera: trajectories in which it detected the target first\n",
+                 markdown_table(first[list(dict.fromkeys(cameras[1].levels))].fillna(0).astype(int).reset_index())]
     if bins is not None and not bins.empty:
         ratio = visibility.miss_rate_ratio(bins)
         text += ["## Detection against visibility (target in view; intervals over trajectories)\n",
@@ -98,16 +105,18 @@ def write_report(mlc, parent_run_id: str, runs: pd.DataFrame, out: Path) -> None
     anova = significance(obs, factors)
     tables = {BREAKDOWN_TITLES[w]: breakdown(frames, runs, factors, w) for w in BREAKDOWN_TITLES}
     bins, curves = visibility.by_bins(frames, runs), visibility.curves(frames, runs)
+    cameras = by_camera(frames, runs, factors)
     for name, df in (("runs", runs), ("units", obs), ("main_effects", effects), ("pair_effects", pairs),
                      ("anova", anova), ("labels", tables[BREAKDOWN_TITLES["label"]]),
                      ("models", tables[BREAKDOWN_TITLES["model"]]), ("visibility_bins", bins),
-                     ("visibility_curve", curves.drop(columns="fit") if not curves.empty else curves)):
+                     ("visibility_curve", curves.drop(columns="fit") if not curves.empty else curves),
+                     ("cameras", cameras[0]), ("cameras_first", cameras[1])):
         df.to_csv(out / f"{name}.csv", index=False)
     plots.heatmaps(obs, factors, out / "heatmap.png")
     plots.main_effects(effects, out / "main_effects.png")
     plots.interactions(pairs, out / "interactions.png")
     plots.visibility(visibility.in_view(frames, runs), curves, out / "visibility.png")
-    text = markdown(runs, obs, effects, pairs, anova, tables, bins, curves)
+    text = markdown(runs, obs, effects, pairs, anova, tables, bins, curves, cameras)
     figures = [p for p in ("main_effects.png", "interactions.png", "heatmap.png", "visibility.png")
                if (out / p).exists()]
     text += "\n## Figures\n\n" + "\n".join(f"![{p}]({p})" for p in figures) + "\n"

@@ -150,6 +150,30 @@ def breakdown(frames: pd.DataFrame, runs: pd.DataFrame, factors: list[str], what
     return g
 
 
+def by_camera(frames: pd.DataFrame, runs: pd.DataFrame, factors: list[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Runs with several cameras (issue 11): each camera's mean composite confidence over the frames where it
+    sees the target (intervals over units), and in how many trajectories it detected the target first
+    (results.per_camera). Both long, for `pivot`; empty for single-camera sweeps."""
+    from garage_exp.results import per_camera
+
+    if frames.empty or frames.groupby("run_id").camera.nunique().max() < 2:
+        return pd.DataFrame(), pd.DataFrame()
+    f = frames.merge(runs[["run_id", "threshold", *factors]], on="run_id")
+    if "replicate" not in f:
+        f["replicate"] = 0
+    f["levels"] = levels_text(f, factors)
+    seen = f[f.visible_fraction > 0]
+    per = seen.groupby(["camera", "levels", "run_id", "replicate"], sort=False).composite.mean().reset_index()
+    conf = stats.group_cis(per.rename(columns={"camera": "what", "composite": "confidence"}), ["what", "levels"],
+                           ["confidence"])
+    firsts = []
+    for (run_id, levels), g in f.groupby(["run_id", "levels"], sort=False):
+        cams = per_camera(g.drop(columns="levels"), float(g.threshold.iloc[0]))
+        firsts += [{"what": c, "levels": levels, "first": n} for c, n in zip(cams.camera, cams["first"])]
+    first = pd.DataFrame(firsts).groupby(["what", "levels"], sort=False)["first"].sum().reset_index()
+    return conf, first
+
+
 def levels_text(df: pd.DataFrame, factors: list[str]) -> pd.Series:
     if not factors:
         return pd.Series("all runs", index=df.index)

@@ -8,6 +8,7 @@ has to agree with them. Camera axes are SAPIEN's (x forward, y left, z up); a pi
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -15,24 +16,136 @@ from garage_exp.errors import GarageError, check_range
 from garage_exp.scene.description import CameraSpec, Pose
 
 FOVY_RANGE = (1.0, 170.0)  # degrees, vertical
+FISHEYE_FOV_RANGE = (60.0, 200.0)  # degrees across the image width; the issue's lenses are about 190
 RESOLUTION_RANGE = (16, 4096)  # pixels per side
+FOVY_LEVELS = (30.0, 60.0, 90.0, 120.0)  # the research's range of forward fields of view
+MODELS = ("pinhole", "fisheye")
+VIEWS = ("raw", "perspective", "cylindrical")
 
 
-def check_camera(rig) -> None:
-    """The `camera` group: at least one camera, each with a sane field of view and size."""
+@dataclass(frozen=True)
+class Mount:
+    """A named place on the ego's body: (x, y, z) as fractions of its (length, width, height) from the centre of
+    its footprint on the floor, then `clear` metres outwards so the lens sits just outside the body, and the
+    direction it faces (yaw, degrees). Fractions hold for any ego model; they were read off the default ego
+    (tcamrysilver, 4.77 x 1.96 x 1.50 m) and checked by casting the camera's rays at its mesh
+    (tests/test_camera_mounts.py): its body shows only where a real camera at that place would see it."""
+
+    x: float
+    y: float
+    z: float
+    clear: tuple[float, float, float]
+    yaw: float
+
+
+MOUNTS = {
+    # the roof's front edge (the roof drops into the windscreen ahead of it, so a level camera misses the roof)
+    "roof": Mount(0.09, 0.0, 1.0, (0.0, 0.0, 0.05), 0.0),
+    # behind the rear-view mirror: high on the windscreen (on its outer face; the glass is not modelled)
+    "mirror": Mount(0.14, 0.0, 0.86, (0.0, 0.0, 0.03), 0.0),
+    "bumper": Mount(0.5, 0.0, 0.35, (0.03, 0.0, 0.0), 0.0),  # front bumper, number-plate height
+    "left_mirror": Mount(0.17, 0.5, 0.67, (0.0, 0.03, 0.0), 90.0),  # under the side mirrors, facing out
+    "right_mirror": Mount(0.17, -0.5, 0.67, (0.0, -0.03, 0.0), -90.0),
+    "rear": Mount(-0.5, 0.0, 0.65, (-0.03, 0.0, 0.0), 180.0),  # above the rear number plate, facing back
+}
+
+
+def check_camera(rig, dataset: bool = False) -> None:
+    """The `camera` group: at least one camera, known mounts and lens models, sane fields of view and sizes.
+    `dataset`: the job writes KITTI labels, whose calibration is a pinhole matrix; a fisheye camera's frames
+    then have to be its perspective view."""
     if not rig.cameras:
         raise GarageError("the rig has no camera", "camera.cameras")
-    for k, cam in enumerate(rig.cameras):
-        check_range(cam.fovy, *FOVY_RANGE, f"camera.cameras.{k}.fovy", f"fovy {cam.fovy} degrees")
+    if dataset and rig.get("view", "raw") != "perspective" and any(
+            cam.get("model", "pinhole") == "fisheye" for cam in rig.cameras):
+        raise GarageError(f"dataset=true writes KITTI's pinhole calibration, which {rig.view} fisheye frames do"
+                          " not have: use camera.view=perspective", "camera.view")
+    for key in ("mount", "fovy", "pitch", "z"):
+        if rig.get(key) is not None and len(rig.cameras) != 1:
+            raise GarageError(f"camera.{key} applies to a one-camera rig; rig {rig.name} has {len(rig.cameras)}"
+                              " (set it per camera in camera.cameras)", f"camera.{key}")
+    if rig.get("view", "raw") not in VIEWS:
+        raise GarageError(f"unknown view {rig.view!r} ({' | '.join(VIEWS)})", "camera.view")
+    for k, cam in enumerate(_effective(rig)):
+        where = f"camera.cameras.{k}"
+        mount = cam.get("mount")
+        if mount is not None and mount not in MOUNTS:
+            key = "camera.mount" if rig.get("mount") is not None else f"{where}.mount"
+            raise GarageError(f"unknown mount {mount!r} ({' | '.join(MOUNTS)})", key)
+        model = cam.get("model", "pinhole")
+        if model not in MODELS:
+            raise GarageError(f"unknown camera model {model!r} ({' | '.join(MODELS)})", f"{where}.model")
+        if model == "fisheye":
+            check_range(cam.fov, *FISHEYE_FOV_RANGE, f"{where}.fov", f"fisheye fov {cam.fov} degrees")
+            if len(cam.k) != 4:
+                raise GarageError(f"a fisheye lens has 4 coefficients k1..k4, not {len(cam.k)}", f"{where}.k")
+            if not _monotonic(cam.fov, cam.k):
+                raise GarageError(f"coefficients {list(cam.k)} fold the image back within fov {cam.fov}",
+                                  f"{where}.k")
+        else:
+            key = "camera.fovy" if rig.get("fovy") is not None else f"{where}.fovy"
+            check_range(cam.fovy, *FOVY_RANGE, key, f"fovy {cam.fovy} degrees")
         for side in ("width", "height"):
-            check_range(cam[side], *RESOLUTION_RANGE, f"camera.cameras.{k}.{side}", f"{side} {cam[side]} px")
+            key = f"camera.{side}" if rig.get(side) is not None else f"{where}.{side}"
+            check_range(cam[side], *RESOLUTION_RANGE, key, f"{side} {cam[side]} px")
 
 
-def rig_specs(rig, ego_height: float) -> list[CameraSpec]:
-    """The rig's cameras, mounted on an ego of this height (`rig.roof`: z counts from its roof)."""
-    roof = ego_height if rig.roof else 0.0
-    return [CameraSpec(cam.name, Pose(cam.x, cam.y, roof + cam.z, cam.yaw), pitch=cam.pitch, fovy=cam.fovy,
-                       width=cam.width, height=cam.height) for cam in rig.cameras]
+def _effective(rig) -> list[dict]:
+    """Each camera's values with the rig's top-level overrides applied (see CameraRigConf)."""
+    out = []
+    for cam in rig.cameras:
+        values = dict(cam)
+        for key in ("mount", "fovy", "pitch", "width", "height"):
+            if rig.get(key) is not None:
+                values[key] = rig[key]
+        if rig.get("z") is not None:
+            values["z_offset"] = rig.z
+        out.append(_Values(values))
+    return out
+
+
+class _Values(dict):
+    """A camera's values read like its config node (cam.fovy, cam.get("mount"))."""
+
+    def __getattr__(self, key):
+        try:
+            return self[key]
+        except KeyError as exc:
+            raise AttributeError(key) from exc
+
+
+def _monotonic(fov: float, k) -> bool:
+    """Whether theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8) grows over the lens's field."""
+    theta = np.linspace(0.0, math.radians(fov) / 2.0, 200)
+    t2 = theta * theta
+    theta_d = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    return bool(np.all(np.diff(theta_d) > 0))
+
+
+def mount_pose(name: str, extent) -> Pose:
+    """A named mount's pose on an ego of this extent (length, width, height)."""
+    m = MOUNTS[name]
+    length, width, height = (float(v) for v in extent)
+    return Pose(m.x * length + m.clear[0], m.y * width + m.clear[1], m.z * height + m.clear[2], m.yaw)
+
+
+def rig_specs(rig, ego_extent) -> list[CameraSpec]:
+    """The rig's cameras, mounted on an ego of this extent (length, width, height): a named mount's pose, or
+    the list's x, y, z (`rig.roof`: z counts from the ego's roof); the rig's top-level keys override."""
+    roof = float(ego_extent[2]) if rig.roof else 0.0
+    view = rig.get("view", "raw")
+    out = []
+    for cam in _effective(rig):
+        mount = cam.get("mount")
+        pose = mount_pose(mount, ego_extent) if mount else Pose(cam.x, cam.y, roof + cam.z, cam.yaw)
+        if cam.get("z_offset") is not None:
+            pose = Pose(pose.x, pose.y, pose.z + float(cam.z_offset), pose.yaw)
+        fisheye = cam.get("model", "pinhole") == "fisheye"
+        out.append(CameraSpec(cam.name, pose, pitch=cam.pitch, fovy=cam.fovy, width=cam.width, height=cam.height,
+                              model=cam.get("model", "pinhole"), fov=float(cam.fov) if fisheye else 0.0,
+                              k=tuple(float(v) for v in cam.k) if fisheye else (0.0, 0.0, 0.0, 0.0),
+                              view=view if fisheye else "raw"))
+    return out
 
 
 def intrinsics_of(spec: CameraSpec) -> tuple[float, float, float, float]:

@@ -111,6 +111,17 @@ class CameraSpec:
     height: int = 480
     near: float = 0.05
     far: float = 100.0
+    # A fisheye camera (model "fisheye"): OpenCV's Kannala-Brandt lens with coefficients k and `fov` degrees
+    # across the image width, rendered from a cube map (render/fisheye.py); fovy is unused. `view` is what the
+    # detector gets: the raw fisheye image, or a perspective / cylindrical view undistorted from it.
+    model: str = "pinhole"
+    fov: float = 0.0
+    k: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    view: str = "raw"
+
+    @property
+    def fisheye(self) -> bool:
+        return self.model == "fisheye"
 
 
 @dataclass
