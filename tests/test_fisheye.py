@@ -166,3 +166,22 @@ def test_ground_truth_holds_on_fisheye_frames(renderer, view):  # noqa: F811
     save(frame, f"test_fisheye_pillar_{view}")
     assert hidden is not None and 0.0 < hidden.visible_fraction < 0.9
     assert hidden.full_box == clear.full_box and hidden.unoccluded_pixels == clear.unoccluded_pixels
+
+
+@pytest.mark.render
+def test_a_fisheye_scene_reloaded_with_other_actors_renders_as_a_fresh_load(renderer):  # noqa: F811
+    """A search's trials replace only the actors: every cube face camera goes and comes back, and the frame
+    is a fresh load's."""
+    from garage_exp.render.sapien_backend import SapienRenderer
+
+    renderer.load(garage(camera=fisheye_camera(), target_at=12.0))
+    renderer.render("front")
+    sapien_scene, entities = renderer._scene, len(renderer._scene.get_entities())
+    scene = garage(camera=fisheye_camera(), target_at=7.0)
+    renderer.load(scene)
+    assert renderer._scene is sapien_scene  # the statics stayed
+    assert len(renderer._scene.get_entities()) == entities  # and no face camera was left behind
+    reused = renderer.render("front")
+    fresh_renderer = SapienRenderer(max_lights=8)
+    fresh_renderer.load(scene)
+    assert np.array_equal(reused.rgb, fresh_renderer.render("front").rgb)
