@@ -10,7 +10,8 @@
    seeds (one search is one draw).
 
 Run: .venv/bin/python benchmarks/bench_search.py [--trials 40] [--levels 3] [--seeds 3] [--skip-grid]
-Everything goes to a temporary store; the table is printed and written to benchmarks/search_run.txt.
+[--skip-throughput]
+Everything goes to a temporary store; the table is printed and written to benchmarks/search_run.txt (--out).
 """
 
 from __future__ import annotations
@@ -109,12 +110,30 @@ def hardest(store: Path, name: str) -> tuple[float, dict, int]:
     return best.values[0], best.params, len(study.trials)
 
 
+def throughput(opts, store: Path, timers: Timers, lines: list[str]) -> None:
+    search([f"search.trials={opts.trials}", "search.sampler=random", "search.study=throughput"], store)
+    steady = timers.trials[1:]
+
+    wall = steady[-1][1] - steady[0][0]  # ask/tell and the loop between trials included
+    render = sum(t[2] for t in steady)
+    detect = sum(t[3] for t in steady)
+    other = wall - render - detect
+    lines += ["## Throughput (5-frame trials, research plan, first trial left out)", "",
+              "| trials | wall (s) | s / trial | trials / hour | rendering | detector wait | other (overhead) |",
+              "|---|---|---|---|---|---|---|",
+              f"| {len(steady)} | {wall:.1f} | {wall / len(steady):.2f} | {3600 * len(steady) / wall:.0f} | "
+              f"{render / wall:.0%} | {detect / wall:.0%} | {other / wall:.0%} |", ""]
+    print("\n".join(lines), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--trials", type=int, default=40)
     parser.add_argument("--levels", type=int, default=3)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--skip-grid", action="store_true")
+    parser.add_argument("--skip-throughput", action="store_true")
+    parser.add_argument("--out", default="search_run.txt", help="file in benchmarks/ for the table")
     opts = parser.parse_args()
     os.environ.setdefault("YOLO_OFFLINE", "1")
     load = os.getloadavg()
@@ -124,18 +143,8 @@ def main() -> None:
              f"scenario: {' '.join(SCENARIO)}", f"space: {' '.join(SPACE)}", ""]
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp)
-        search([f"search.trials={opts.trials}", "search.sampler=random", "search.study=throughput"], store)
-        steady = timers.trials[1:]
-        wall = steady[-1][1] - steady[0][0]  # ask/tell and the loop between trials included
-        render = sum(t[2] for t in steady)
-        detect = sum(t[3] for t in steady)
-        other = wall - render - detect
-        lines += ["## Throughput (5-frame trials, research plan, first trial left out)", "",
-                  "| trials | wall (s) | s / trial | trials / hour | rendering | detector wait | other (overhead) |",
-                  "|---|---|---|---|---|---|---|",
-                  f"| {len(steady)} | {wall:.1f} | {wall / len(steady):.2f} | {3600 * len(steady) / wall:.0f} | "
-                  f"{render / wall:.0%} | {detect / wall:.0%} | {other / wall:.0%} |", ""]
-        print("\n".join(lines), flush=True)
+        if not opts.skip_throughput:
+            throughput(opts, store, timers, lines)
         if not opts.skip_grid:
             grid_args = ["search.sampler=grid", f"search.grid_levels={opts.levels}", "search.study=grid"]
             search(grid_args, store)
@@ -157,7 +166,7 @@ def main() -> None:
     lines.append(f"load average after {load[0]:.1f}")
     text = "\n".join(lines)
     print(text)
-    (ROOT / "benchmarks" / "search_run.txt").write_text(text + "\n")
+    (ROOT / "benchmarks" / opts.out).write_text(text + "\n")
 
 
 if __name__ == "__main__":
