@@ -71,7 +71,9 @@ def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp
             "light.intensity=interval(0.3,1.0)", "case.actors.target.distance=interval(4.0,6.0)", *stores(tmp_path)]
     r = run_app(args, tmp_path, env={"PYTHONPATH": str(ROOT / "tests" / "faults"),
                                      "GARAGE_EXP_FAULT": "frame:raise:1:0"})  # trial 1 crashes in its first frame
-    assert r.returncode == 0, r.stderr[-3000:]
+    # the study went on past the crash; like a sweep with a failed job, the command exits 1 and says so
+    assert r.returncode == 1, r.stderr[-3000:]
+    assert "1 failed" in r.stdout and "trial 2/3 failed: RuntimeError" in r.stdout, r.stdout[-3000:]
     storage = f"sqlite:///{tmp_path / 'optuna.db'}"
     study = optuna.load_study(study_name=optuna.get_all_study_names(storage)[0], storage=storage)
     states = [t.state for t in study.trials]
