@@ -179,11 +179,12 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
         table = pd.DataFrame(rows)
         table.to_csv(table_path, index=False)
         run.log_artifact(table_path)  # kept even when the job fails half-way
-    summary = results.summarise(table, cfg.detector.threshold, primary=scene.cameras[0].name)
-    run.log_series("confidence", table[table.camera == scene.cameras[0].name].composite.tolist())
-    run.log_series("visible_fraction", table[table.camera == scene.cameras[0].name].visible_fraction.tolist())
+    primary = scene.cameras[0].name
+    summary = results.summarise(table, cfg.detector.threshold, primary=primary)
+    run.log_series("confidence", table[table.camera == primary].composite.tolist())
+    run.log_series("visible_fraction", table[table.camera == primary].visible_fraction.tolist())
     search = cfg.search
-    summary.update(results.fair_summary(table, scene.cameras[0].name, search, cfg.detector.threshold))
+    summary.update(results.fair_summary(table, primary, search, cfg.detector.threshold))
     run.log_metrics(summary)
     if len(scene.cameras) > 1:  # which camera saw the target first and best (results.per_camera)
         cams = results.per_camera(table, cfg.detector.threshold)
@@ -191,7 +192,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
         run.log_artifact(out / "cameras.csv")
         print(f"cameras: {results.camera_line(cams)}")
     if trial:
-        summary["frame"] = results.save_hardest_fair(keep, table, frames_dir, search)
+        summary["frame"] = results.save_hardest_fair(keep, table, frames_dir, primary, search)
         if summary["frame"] is not None:
             run.log_artifact(summary["frame"], "frames")
     else:

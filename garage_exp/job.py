@@ -165,7 +165,6 @@ def _run_job(cfg: DictConfig) -> float | dict:
             summary = {"difficulty": math.nan}
         else:
             from garage_exp.experiment import run_experiment
-
             from garage_exp.preflight import built_scene
 
             summary = run_experiment(cfg, classified, out, run, built_scene(cfg))

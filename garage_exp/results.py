@@ -249,9 +249,11 @@ def save_key_frames(keep: dict, table: pd.DataFrame, frames_dir: Path) -> list[P
     return paths
 
 
-def save_hardest_fair(keep: dict, table: pd.DataFrame, frames_dir: Path, search) -> Path | None:
-    """A search trial's picture: its hardest fair frame (lowest composite; fair_mask), boxes drawn."""
-    fair = table[fair_mask(table, search)]
+def save_hardest_fair(keep: dict, table: pd.DataFrame, frames_dir: Path, primary: str, search) -> Path | None:
+    """A search trial's picture: the primary camera's hardest fair frame (lowest composite; fair_mask), the frame
+    its difficulty (fair_summary) counts, boxes drawn."""
+    t = table[table.camera == primary]
+    fair = t[fair_mask(t, search)]
     if fair.empty:
         return None
     row = fair.loc[fair.composite.idxmin()]

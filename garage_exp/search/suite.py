@@ -84,13 +84,14 @@ def scenario_yaml(job: DictConfig, name: str, trial) -> str:
     return head + yaml.safe_dump({"defaults": defaults, **values}, sort_keys=False)
 
 
-def write_suite(config: DictConfig, study, space, out_dir: Path, loader=None, launch=None, name: str = "") -> list[Path]:
+def write_suite(config: DictConfig, study, loader, launch=None, name: str = "") -> list[Path]:
     """The suite's files: scenario YAMLs, manifest.csv and, with dataset=true and a launcher, the dataset.
     Returns the manifest and scenario files (to log on the study's parent run)."""
     root = suite_dir(config, name or study.study_name)
     (root / "scenario").mkdir(parents=True, exist_ok=True)
     rows, paths, reruns = [], [], []
-    for band, trials in members(study, config.search).items():
+    chosen = members(study, config.search)
+    for band, trials in chosen.items():
         for k, trial in enumerate(trials, start=1):
             scenario = f"{band}_{k}"
             overrides = [o for o in trial.user_attrs["overrides"] if not o.startswith("search.trial=")]
@@ -107,7 +108,7 @@ def write_suite(config: DictConfig, study, space, out_dir: Path, loader=None, la
     manifest = root / "manifest.csv"
     pd.DataFrame(rows, columns=["scenario", "band", "difficulty", "confidence", "visible_fraction", "fair_frames",
                                 "trial", "run_id", "overrides"]).to_csv(manifest, index=False)
-    short = {band: len(t) for band, t in members(study, config.search).items() if len(t) < int(config.search.suite.per_band)}
+    short = {band: len(t) for band, t in chosen.items() if len(t) < int(config.search.suite.per_band)}
     if short:
         print(f"garage_exp: suite {root}: bands short of {config.search.suite.per_band}: "
               + ", ".join(f"{b} {n}" for b, n in short.items()) + " (more trials would fill them)")

@@ -141,7 +141,7 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
     if search.mode == "suite":
         from garage_exp.search.suite import write_suite
 
-        paths.extend(write_suite(config, result["study"], result["space"], out_dir, loader, launch, result["name"]))
+        paths.extend(write_suite(config, result["study"], loader, launch, result["name"]))
     return paths
 
 
@@ -162,11 +162,11 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
             "search_sampler": config.search.sampler, "search_mode": config.search.mode}
     for key, value in tags.items():
         tracking.retry(lambda k=key, v=value: mlc.set_tag(parent_run_id, k, v))
-    for rank, trial in enumerate(ranked(study)[: int(config.search.top)], start=1):
+    best = ranked(study)
+    for rank, trial in enumerate(best[: int(config.search.top)], start=1):
         run_id = trial.user_attrs.get("run_id")
         if run_id:
             tracking.retry(lambda r=run_id, k=rank: mlc.set_tag(r, "search_rank", str(k)))
-    best = ranked(study)
     if best:
         tracking.retry(lambda: mlc.log_metric(parent_run_id, "best_difficulty", float(best[0].values[0])))
 
