@@ -41,8 +41,8 @@ test: setup
 
 # Mutation testing of the pure modules ([tool.mutmut] in pyproject.toml; results in docs/testing.md). Not part
 # of `make test`: it runs the fast unit tests once per mutant (CPU-heavy).
-MUTANTS := 'garage_exp.plan.*' 'garage_exp.detect.matching.*' 'garage_exp.groundtruth.*' 'garage_exp.sensor.*' \
-	'garage_exp.report.tables.x_*' 'garage_exp.stats.x_*'
+MUTANTS := 'garage_exp.plan.*' 'garage_exp.perception.detect.matching.*' 'garage_exp.perception.groundtruth.*' 'garage_exp.perception.sensor.*' \
+	'garage_exp.report.tables.x_*' 'garage_exp.results.stats.x_*'
 mutation: python
 	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt -e '.[mutation]'
 	rm -rf mutants
@@ -50,8 +50,8 @@ mutation: python
 	$(BIN)/python scripts/mutation_score.py $(MUTANTS) | tee mutants/score.txt
 
 ui: python
-	@$(BIN)/python -m garage_exp.store $(CURDIR)/outputs/mlflow.db
-	@$(BIN)/python -m garage_exp.tracking --uri sqlite:///$(CURDIR)/outputs/mlflow.db
+	@$(BIN)/python -m garage_exp.tracking.store $(CURDIR)/outputs/mlflow.db
+	@$(BIN)/python -m garage_exp.tracking.runs --uri sqlite:///$(CURDIR)/outputs/mlflow.db
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
 
 # optuna-dashboard over a search's study (issue 10): the same storage the sweeper writes, local only.

@@ -33,8 +33,8 @@ def main() -> None:
     args = parser.parse_args()
     import openvino as ov
 
-    from garage_exp.detect import score_target
-    from garage_exp.detect.detector import Detector, ModelDetections, spec_from_config
+    from garage_exp.perception.detect import score_target
+    from garage_exp.perception.detect.detector import Detector, ModelDetections, spec_from_config
 
     print(f"# detection, case 1, {args.frames} frames, {args.repeat} repeats; {jobkit.machine()}")
     print(f"# before: {jobkit.load()}")

@@ -34,9 +34,9 @@ OVERRIDES = ["case=1", "light=bright"]
 
 
 def measure(frames: int, repeat: int, ov_threads: list[int]) -> list[dict]:
-    from garage_exp.detect.detector import spec_from_config
-    from garage_exp.detect.worker import DetectorProcess, InlineDetector
-    from garage_exp.experiment import overlapped
+    from garage_exp.perception.detect.detector import spec_from_config
+    from garage_exp.perception.detect.worker import DetectorProcess, InlineDetector
+    from garage_exp.run.frames import overlapped
 
     job = jobkit.build_job(OVERRIDES)
     spec = spec_from_config(job.cfg.detector)

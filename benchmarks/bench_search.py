@@ -51,8 +51,8 @@ class Timers:
         setattr(owner, name, timed)
 
     def install(self):
-        from garage_exp import experiment
-        from garage_exp.detect import worker
+        from garage_exp.run import frames as experiment
+        from garage_exp.perception.detect import worker
         from garage_exp.search import launch
 
         # The render stage: each frame's lit picture, silhouettes, ground truth and sensor model, as the job's
@@ -89,7 +89,7 @@ class Timers:
 
 
 def search(args: list[str], store: Path) -> None:
-    from garage_exp import app
+    from garage_exp.cli import app
 
     argv = ["-m", "hydra/sweeper=search", *SCENARIO, *SPACE, *args, f"search.storage=sqlite:///{store}/optuna.db",
             f"tracking.uri=sqlite:///{store}/mlflow.db", f"hydra.sweep.dir={store}/sweep-{time.time_ns()}",

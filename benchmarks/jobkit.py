@@ -11,8 +11,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from garage_exp import app  # noqa: F401 - registers the config schema and the garage_root resolver
-from garage_exp.paths import PROJECT_ROOT
+from garage_exp.cli import app  # noqa: F401 - registers the config schema and the garage_root resolver
+from garage_exp.core.paths import PROJECT_ROOT
 
 
 def compose(overrides: list[str]):
@@ -33,7 +33,7 @@ class Job:
 
     def frames(self, n: int | None = None):
         """The job's rendered frames (first n shots), as the experiment's render stage yields them."""
-        from garage_exp.experiment import render_frames
+        from garage_exp.run.frames import render_frames
 
         setup = self.setup if n is None else replace(self.setup, shots=self.setup.shots[:n])
         return render_frames(self.cfg, self.scene, setup, self.renderer, self.sensor,
@@ -42,11 +42,11 @@ class Job:
 
 def build_job(overrides: list[str]) -> Job:
     from garage_exp.assets.vehicles import VehicleLibrary
-    from garage_exp.experiment import build_scene
+    from garage_exp.scenario.assemble import build_scene
     from garage_exp.plan import classify, load_plan
-    from garage_exp.preflight import resolve_plan_path
+    from garage_exp.run.preflight import resolve_plan_path
     from garage_exp.render.sapien_backend import get_renderer
-    from garage_exp.sensor import make_sensor
+    from garage_exp.perception.sensor import make_sensor
 
     cfg = compose(overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))

@@ -1,6 +1,6 @@
 """A fork server for the command line, so that dozens of bad-input runs do not each pay Python's and the
 project's start-up (~1 s). It imports what `python -m garage_exp` imports, then, per request, forks a child
-that does exactly what `python -m garage_exp ARGS` does - `garage_exp.app.cli()` with that argv, in that
+that does exactly what `python -m garage_exp ARGS` does - `garage_exp.cli.app.cli()` with that argv, in that
 working dir and environment, its stdout and stderr in files - and answers with the child's exit code.
 
 Protocol: one JSON object per line on stdin {"argv", "cwd", "env", "stdout", "stderr"}, all before stdin
@@ -16,13 +16,13 @@ import sys
 
 
 def preload() -> None:
-    import garage_exp.app  # noqa: F401  hydra, omegaconf, the schema
+    import garage_exp.cli.app  # noqa: F401  hydra, omegaconf, the schema
     import garage_exp.assets.vehicles  # noqa: F401
-    import garage_exp.callbacks  # noqa: F401
-    import garage_exp.experiment  # noqa: F401  numpy, pandas, the scene description, the cases
+    import garage_exp.cli.callbacks  # noqa: F401
+    import garage_exp.run.frames  # noqa: F401  numpy, pandas, the scene description, the cases
     import garage_exp.plan  # noqa: F401
     import garage_exp.scene.lamps  # noqa: F401
-    import garage_exp.sensor  # noqa: F401
+    import garage_exp.perception.sensor  # noqa: F401
     from hydra.core.plugins import Plugins
 
     Plugins.instance()  # plugin discovery scans site-packages once
@@ -42,7 +42,7 @@ def child(request: dict) -> int:
     sys.argv = [os.path.join(os.path.dirname(garage_exp.__file__), "__main__.py"), *request["argv"]]
     code = 0
     try:
-        from garage_exp.app import cli
+        from garage_exp.cli.app import cli
 
         cli()
     except SystemExit as exc:

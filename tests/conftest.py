@@ -16,7 +16,7 @@ os.environ.setdefault("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")
 # `make test` sets GARAGE_EXP_PROVISIONED=1 after provisioning Vulkan, vehicles and weights (make setup).
 STRICT_CI = os.environ.get("CI", "").lower() == "true" or os.environ.get("GARAGE_EXP_PROVISIONED") == "1"
 
-from garage_exp.detect import prepare_offline  # noqa: E402
+from garage_exp.perception.detect import prepare_offline  # noqa: E402
 
 prepare_offline()
 
@@ -36,7 +36,7 @@ _have: dict[str, str | None] = {}
 def missing(capability: str) -> str | None:
     """Why the machine lacks the capability, or None when it has it (found through the product's own lookup)."""
     if capability not in _have:
-        from garage_exp.errors import GarageError
+        from garage_exp.core.errors import GarageError
 
         problem = None
         try:
@@ -51,7 +51,7 @@ def missing(capability: str) -> str | None:
 
                 vehicles_dir()
             else:
-                from garage_exp.detect.detector import resolve_model
+                from garage_exp.perception.detect.detector import resolve_model
 
                 absent = [m for m in default_models() if not resolve_model(m).exists()]
                 problem = f"detector models missing: {absent}" if absent else None
@@ -126,8 +126,8 @@ def compose_cfg(*overrides: str, hydra: bool = False):
     does); hydra=True keeps the hydra node (sweeper params, launcher)."""
     from hydra import compose, initialize_config_dir
 
-    from garage_exp import config as schema
-    from garage_exp.app import quote_numeric_choices
+    from garage_exp.core import schema
+    from garage_exp.cli.app import quote_numeric_choices
 
     schema.register()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

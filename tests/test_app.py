@@ -3,8 +3,8 @@
 import mlflow
 from conftest import run_app
 
-from garage_exp import tracking
-from garage_exp.app import quote_numeric_choices
+from garage_exp.tracking import runs as tracking
+from garage_exp.cli.app import quote_numeric_choices
 from garage_exp.report import parse_overrides
 
 

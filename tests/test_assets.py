@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from garage_exp import paths
+from garage_exp.core import paths
 from garage_exp.assets import ac3d, locate, vehicles
 from garage_exp.assets.vehicles import VehicleLibrary
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 
 def _vehicles_dir() -> Path | None:

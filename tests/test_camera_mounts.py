@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import compose_cfg, require
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scene.camera import FOVY_LEVELS, MOUNTS, camera_to_world, check_camera, mount_pose, rig_specs
 from garage_exp.scene.description import CameraSpec, Pose
 

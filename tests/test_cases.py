@@ -1,4 +1,4 @@
-"""The cases as the experiment builds them (garage_exp.experiment.build_scene: scene + shots); geometry only.
+"""The cases as the experiment builds them (garage_exp.run.frames.build_scene: scene + shots); geometry only.
 Case 2 as a user runs it: tests/test_jobs.py::test_case_2_runs_the_same_with_serial_and_overlapped_detection."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import ROOT, compose_cfg, require
 
-from garage_exp.paths import PLANS_DIR
+from garage_exp.core.paths import PLANS_DIR
 from garage_exp.plan import classify, load_plan
 from garage_exp.plan.classify import LANE_TYPES
 
@@ -23,7 +23,7 @@ def library():
 
 
 def build(library, *overrides: str):
-    from garage_exp.experiment import build_scene
+    from garage_exp.scenario.assemble import build_scene
 
     cfg = compose_cfg(*overrides)
     classified = classify(load_plan(PLANS_DIR / f"{cfg.plan.name}.yaml"))

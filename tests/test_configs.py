@@ -12,7 +12,7 @@ from conftest import ROOT
 from omegaconf import OmegaConf
 from test_reliability_inputs import forked_cli
 
-from garage_exp import tracking
+from garage_exp.tracking import runs as tracking
 
 CONF = ROOT / "conf"
 GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir() and p.name not in ("hydra", "experiment"))

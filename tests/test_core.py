@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from garage_exp.errors import GarageError
-from garage_exp.paths import PROJECT_ROOT
+from garage_exp.core.errors import GarageError
+from garage_exp.core.paths import PROJECT_ROOT
 
 CONF = PROJECT_ROOT / "conf"
 
@@ -74,9 +74,9 @@ def _sweep_jobs(overrides: list[str]):
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    import garage_exp.app  # noqa: F401  the schema and resolvers
-    from garage_exp.app import quote_numeric_choices
-    from garage_exp.callbacks import sweep_jobs
+    import garage_exp.cli.app  # noqa: F401  the schema and resolvers
+    from garage_exp.cli.app import quote_numeric_choices
+    from garage_exp.cli.callbacks import sweep_jobs
 
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
@@ -89,7 +89,7 @@ def _sweep_jobs(overrides: list[str]):
 def test_every_shipped_experiment_composes_and_passes_preflight(name):
     """Each job of the sweep: config values, plan, weights, assets and the whole scene description (a dry run
     of everything but rendering and detection)."""
-    from garage_exp.preflight import preflight
+    from garage_exp.run.preflight import preflight
 
     jobs = _sweep_jobs([f"+experiment={name}", "plan=research"])
     assert len(jobs) >= 2
@@ -100,7 +100,7 @@ def test_every_shipped_experiment_composes_and_passes_preflight(name):
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (CONF / "case").glob("*.yaml")))
 def test_every_shipped_case_composes_and_passes_preflight(name):
-    from garage_exp.preflight import preflight
+    from garage_exp.run.preflight import preflight
 
     (cfg,) = _sweep_jobs([f"case={name}", "plan=research"])
     assert str(cfg.case.name) == name

@@ -80,10 +80,11 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
     corner in the image."""
     require("vulkan", "vehicles")
     from garage_exp.assets.vehicles import VehicleLibrary
-    from garage_exp.experiment import build_scene, render_frames
+    from garage_exp.scenario.assemble import build_scene
+    from garage_exp.run.frames import render_frames
     from garage_exp.plan import classify, load_plan
     from garage_exp.render.sapien_backend import get_renderer
-    from garage_exp.sensor import make_sensor
+    from garage_exp.perception.sensor import make_sensor
 
     cfg = compose_cfg("palette=busy", "case=1")
     classified = classify(load_plan(ROOT / "plans" / "research.yaml"))

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from conftest import require
 
-from garage_exp.detect import GTBox, ModelDetections, iou, model_format, score_target
-from garage_exp.detect import detector as detector_module
-from garage_exp import offline
-from garage_exp.errors import GarageError
+from garage_exp.perception.detect import GTBox, ModelDetections, iou, model_format, score_target
+from garage_exp.perception.detect import detector as detector_module
+from garage_exp.perception.detect import offline
+from garage_exp.core.errors import GarageError
 
 DEFAULT_MODELS = ("yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model", "yolo26n_int8_openvino_model")
 BUS_BOX = (10.0, 230.0, 805.0, 760.0)  # the bus in ultralytics' bus.jpg (810x1080), by hand
@@ -171,7 +171,7 @@ def test_model_labels_are_short_and_unique():
 
 def test_iou_of_degenerate_and_integer_boxes():
     """Boxes with no area (or inverted) overlap nothing; integer boxes divide as floats."""
-    from garage_exp.detect.matching import iou_many
+    from garage_exp.perception.detect.matching import iou_many
 
     assert iou((0, 0, 3, 3), (1, 1, 2, 2)) == pytest.approx(1 / 9)  # ints: not floor division
     assert iou((5, 5, 5, 5), (5, 5, 5, 5)) == 0.0  # both empty: no union, 0 not NaN
@@ -318,7 +318,7 @@ def test_pt_weights_load_through_the_same_path(tmp_path):
 def test_from_config(detector):
     from omegaconf import OmegaConf
 
-    from garage_exp.config import DetectorConf
+    from garage_exp.core.schema import DetectorConf
 
     conf = OmegaConf.merge(OmegaConf.structured(DetectorConf), {"models": [str(p) for p in detector.paths]})
     made = detector_module.Detector.from_config(conf)

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from garage_exp.detect import worker
-from garage_exp.detect.detector import Detector
-from garage_exp.errors import GarageError
-from garage_exp.experiment import overlapped
+from garage_exp.perception.detect import worker
+from garage_exp.perception.detect.detector import Detector
+from garage_exp.core.errors import GarageError
+from garage_exp.run.frames import overlapped
 
 
 class Recorder:

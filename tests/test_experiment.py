@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import ROOT, compose_cfg, require, run_app
 
-from garage_exp import tracking
+from garage_exp.tracking import runs as tracking
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
@@ -30,7 +30,7 @@ def _skip_without_backends():
 def pipeline():
     """The process's renderer and the default detectors (paid once for the module)."""
     _skip_without_backends()
-    from garage_exp.detect import Detector
+    from garage_exp.perception.detect import Detector
     from garage_exp.render.sapien_backend import get_renderer
 
     cfg = compose_cfg()
@@ -40,9 +40,9 @@ def pipeline():
 def shoot(pipeline, *overrides: str):
     """Build the case's scene, render its shots and score each target as a job does; (truth, score) per shot."""
     from garage_exp.scenario import EGO
-    from garage_exp.detect import score_target
-    from garage_exp.experiment import HIDDEN, build_scene
-    from garage_exp.groundtruth import ground_truth
+    from garage_exp.perception.detect import score_target
+    from garage_exp.scenario.assemble import HIDDEN, build_scene
+    from garage_exp.perception.groundtruth import ground_truth
     from garage_exp.plan import classify, load_plan
 
     renderer, detector = pipeline

@@ -13,7 +13,7 @@ from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
 from garage_exp.exports import DatasetExports, FrameGeometry, coco, kitti
-from garage_exp.groundtruth import ground_truth, world_corners
+from garage_exp.perception.groundtruth import ground_truth, world_corners
 from garage_exp.render import Frame
 from garage_exp.scene.camera import camera_to_world, intrinsics_of
 from garage_exp.scene.description import CameraSpec, Entity, Pose, Scene
@@ -178,7 +178,7 @@ def test_coco_ground_truth_scores_itself_perfectly_in_cocoeval(exported):
 def test_coco_category_ids_are_cocos_own():
     from ultralytics.data.converter import coco80_to_coco91_class
 
-    from garage_exp.results import COCO_IDS, coco_names
+    from garage_exp.results.labels import COCO_IDS, coco_names
 
     to91 = coco80_to_coco91_class()
     names = coco_names()
@@ -269,7 +269,7 @@ def test_the_three_formats_label_the_same_actors(exported):
 
 
 def test_an_actor_without_a_box_gets_kittis_unknown_3d_fields():
-    from garage_exp.groundtruth import VehicleTruth
+    from garage_exp.perception.groundtruth import VehicleTruth
 
     t = VehicleTruth("blob", "parked", 50, 100, 0.5, (10, 10, 20, 20), (5, 5, 20, 20), 7.0, 0.0, 1, "moderate")
     line = kitti.label_line("car", t, None).split()

@@ -153,7 +153,7 @@ def test_ground_truth_holds_on_fisheye_frames(renderer, view):  # noqa: F811
     silhouette = renderer.unoccluded_ids("front", ["target"])["target"]
     assert np.array_equal(silhouette, frame.ids == renderer.ids["target"])
     # the full box hugs the lens's projection of the target's 3D box
-    from garage_exp.groundtruth import _edge_points, world_corners
+    from garage_exp.perception.groundtruth import _edge_points, world_corners
 
     corners = world_corners(scene.entity("target"), scene.entity("target").pose)
     uv, _ = frame.project(_edge_points(corners))

@@ -9,15 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from garage_exp.groundtruth import (
-    VehicleTruth,
-    ground_truth,
-    kitti_level,
-    mask_box,
-    occlusion_state,
-    projected_truncation,
-    world_corners,
-)
+from garage_exp.perception.groundtruth import (VehicleTruth, ground_truth, kitti_level, mask_box, occlusion_state,
+                                               projected_truncation, world_corners)
 from garage_exp.render import Frame
 from garage_exp.scene.camera import camera_to_world, intrinsics_of
 from garage_exp.scene.description import Box, CameraSpec, Entity, Material, Pose, Scene

@@ -44,7 +44,7 @@ def test_official_pt_detector_runs_or_names_the_missing_weights(tmp_path, mlflow
     """detector=official_pt: where `assets fetch` brought the .pt weights the job runs with them; where it did
     not, the job is refused with one line naming the missing file (exit 2), never downloaded, never skipped."""
     require("vulkan", "vehicles")
-    from garage_exp.detect.detector import resolve_model
+    from garage_exp.perception.detect.detector import resolve_model
 
     models = yaml.safe_load((ROOT / "conf" / "detector" / "official_pt.yaml").read_text())["models"]
     try:

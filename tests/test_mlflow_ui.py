@@ -18,7 +18,7 @@ import pytest
 from conftest import ROOT, chromium, require, run_app
 from mlflow_server import free_port
 
-from garage_exp import tracking
+from garage_exp.tracking import runs as tracking
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 

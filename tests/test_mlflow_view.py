@@ -11,8 +11,8 @@ import re
 import pytest
 from conftest import run_app
 
-from garage_exp import tracking
-from garage_exp.page import html_page
+from garage_exp.tracking import runs as tracking
+from garage_exp.tracking.page import html_page
 
 PNG = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR4nGNgYGD4DwABBAEAHnOcQAAAAABJRU5Er"
                        "kJggg==")  # 1 x 1 pixel

@@ -10,7 +10,7 @@ import subprocess
 
 from conftest import PYTHON, ROOT
 
-from garage_exp import tracking
+from garage_exp.tracking import runs as tracking
 
 
 def snapshot(root):

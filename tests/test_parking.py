@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import require
 
-from garage_exp.config import GarageConf, LightConf, PaletteConf
-from garage_exp.paths import PLANS_DIR
+from garage_exp.core.schema import GarageConf, LightConf, PaletteConf
+from garage_exp.core.paths import PLANS_DIR
 from garage_exp.plan import classify, load_plan
 from garage_exp.scene.bays import bays, overlap
 from garage_exp.scene.parking import car_footprint, park_vehicles, pillar_footprints
@@ -77,7 +77,7 @@ def test_parked_classes_are_respected(library):
 
 
 def test_bad_occupancy_is_one_line():
-    from garage_exp.errors import GarageError
+    from garage_exp.core.errors import GarageError
     from garage_exp.scene.parking import check_palette
 
     with pytest.raises(GarageError, match="parked_occupancy") as info:
@@ -90,8 +90,8 @@ def test_case_3_cars_stand_in_the_bays_beside_the_lane(library):
 
     from hydra import compose, initialize_config_dir
 
-    from garage_exp import config as schema
-    from garage_exp.paths import PROJECT_ROOT
+    from garage_exp.core import schema
+    from garage_exp.core.paths import PROJECT_ROOT
 
     classified = classify(load_plan(PLANS_DIR / "research.yaml"))
     schema.register()

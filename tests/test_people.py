@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 from garage_exp.assets import people
-from garage_exp.detect import GTBox, ModelDetections, score_target
-from garage_exp.errors import GarageError
-from garage_exp.groundtruth import ground_truth, local_box, mask_box, world_corners
+from garage_exp.perception.detect import GTBox, ModelDetections, score_target
+from garage_exp.core.errors import GarageError
+from garage_exp.perception.groundtruth import ground_truth, local_box, mask_box, world_corners
 from garage_exp.render import Frame
 from garage_exp.scene.camera import camera_to_world, intrinsics_of
-from garage_exp.results import COCO_IDS, DatasetWriter, frame_row, summarise
+from garage_exp.results.labels import COCO_IDS, DatasetWriter
+from garage_exp.results.table import frame_row, summarise
 from garage_exp.scene.description import CameraSpec, Entity, Mesh, Pose, Scene
 
 

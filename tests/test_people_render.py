@@ -23,12 +23,12 @@ def street(tmp_path_factory):
     _skip_without_backends()
     from garage_exp.assets.people import PeopleLibrary
     from garage_exp.assets.vehicles import VehicleLibrary
-    from garage_exp.detect import Detector, score_target
-    from garage_exp.experiment import HIDDEN, build_scene
-    from garage_exp.groundtruth import ground_truth
+    from garage_exp.perception.detect import Detector, score_target
+    from garage_exp.scenario.assemble import HIDDEN, build_scene
+    from garage_exp.perception.groundtruth import ground_truth
     from garage_exp.plan import classify, load_plan
     from garage_exp.render.sapien_backend import get_renderer
-    from garage_exp.results import save_frame
+    from garage_exp.results.figures import save_frame
     from garage_exp.scene.description import Entity, Mesh, Pose
 
     cfg = compose_cfg("case=light", "light=bright", "case.motion.values=[6.0]")

@@ -11,7 +11,7 @@ import pytest
 
 from garage_exp.plan import classify, features, load_plan, plan_from_lists
 from garage_exp.plan.model import STEPS
-from garage_exp.paths import PLANS_DIR
+from garage_exp.core.paths import PLANS_DIR
 
 SHIPPED = sorted(p for p in PLANS_DIR.iterdir() if p.suffix in (".yaml", ".yml", ".csv"))
 # Plans written for the experiments; tiny.yaml is a smallest-useful example without a 4-cell straight.
@@ -306,7 +306,7 @@ def test_case1_corner_has_room_for_the_default_run(path):
     start and target distances (conf/case/1.yaml) plus half a long car, so the run is not cut short."""
     import yaml
 
-    from garage_exp.paths import PROJECT_ROOT
+    from garage_exp.core.paths import PROJECT_ROOT
     from garage_exp.plan.features import corner_nearest_entrance
 
     case = yaml.safe_load((PROJECT_ROOT / "conf" / "case" / "1.yaml").read_text())

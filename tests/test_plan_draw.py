@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from garage_exp.errors import GarageError
-from garage_exp.paths import PLANS_DIR, PROJECT_ROOT
+from garage_exp.core.errors import GarageError
+from garage_exp.core.paths import PLANS_DIR, PROJECT_ROOT
 from garage_exp.plan import classify, load_plan, plan_from_lists
 from garage_exp.plan.draw import PILLAR_COLOUR, STYLE, _style_key, draw_map
 

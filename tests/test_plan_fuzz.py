@@ -10,7 +10,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan import classify, load_plan, plan_from_lists
 from garage_exp.plan.classify import LANE_TYPES, PARKING_TYPES
 

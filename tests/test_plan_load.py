@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan import load_plan, plan_from_lists
 from garage_exp.plan.load import MAX_CELLS_PER_SIDE, MAX_FILE_BYTES
 

@@ -11,7 +11,7 @@ import pytest
 import yaml
 from conftest import ROOT, run_app
 
-from garage_exp import tracking
+from garage_exp.tracking import runs as tracking
 
 LAUNCHERS = ROOT / "conf" / "hydra" / "launcher"
 HAS_RAY = importlib.util.find_spec("hydra_plugins.hydra_ray_launcher") is not None
@@ -20,7 +20,7 @@ HAS_RAY = importlib.util.find_spec("hydra_plugins.hydra_ray_launcher") is not No
 def hydra_config(*overrides: str):
     from hydra import compose, initialize_config_dir
 
-    import garage_exp.app  # noqa: F401  registers the config schema
+    import garage_exp.cli.app  # noqa: F401  registers the config schema
 
     with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
         return compose("config", overrides=list(overrides), return_hydra_config=True).hydra

@@ -73,7 +73,7 @@ def faulty_sweep(repeat_run, mlflow_server, tmp_path_factory):
     env = {"MLFLOW_TRACKING_URI": mlflow_server["uri"], "PYTHONPATH": FAULTS,
            "GARAGE_EXP_FAULT": "frame:raise:0:3;detector:kill:1:2,5"}
     proc = run_app(["-m", *JOB, "light=bright,dim"], tmp, env=env, timeout=900)
-    from garage_exp import tracking
+    from garage_exp.tracking import runs as tracking
 
     mlc = tracking.client(mlflow_server["uri"])
     exp = mlc.get_experiment_by_name("garage_exp")
@@ -155,7 +155,7 @@ def test_same_config_and_seed_give_the_same_frame_table(faulty_sweep, repeat_run
     assert "(restart 2 of 2 in this job)" in said
     r = repeat_run["future"].result()
     assert r.returncode == 0, r.stderr[-3000:]
-    from garage_exp import tracking
+    from garage_exp.tracking import runs as tracking
 
     mlc = tracking.client(repeat_run["uri"])
     again = mlc.search_runs([mlc.get_experiment_by_name("garage_exp").experiment_id])[0]

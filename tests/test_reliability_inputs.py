@@ -1,6 +1,6 @@
 """Bad input (issue 5): the corpus in tests/bad_inputs/cases.yaml, and config and plan files as data.
 
-Every corpus entry runs the command line (`garage_exp.app.cli`, in a child forked from a warm interpreter, see
+Every corpus entry runs the command line (`garage_exp.cli.app.cli`, in a child forked from a warm interpreter, see
 tests/cli_forkserver.py; the entries that start a job in a real subprocess) and must give exit code 2, one
 line on stderr naming what is wrong and where, no traceback, and leave nothing behind: no MLflow store, no
 Hydra run or sweep dir, no file in its working dir - except the FAILED run of the one entry whose problem can
@@ -158,7 +158,7 @@ def test_bad_input(case_id, corpus_results):
         assert result["after"] == result["before"], sorted(result["after"] - result["before"])
         return
     # The job had started: its run is the only thing in MLflow, FAILED with the error; nothing else.
-    from garage_exp import tracking
+    from garage_exp.tracking import runs as tracking
 
     mlc = tracking.client(f"sqlite:///{work}/mlflow.db")
     exp = mlc.get_experiment_by_name("garage_exp")
@@ -213,7 +213,7 @@ def test_no_evaluating_resolver():
     """Interpolations in configs can read values (${oc.env:...}), never evaluate code."""
     from omegaconf import OmegaConf
 
-    import garage_exp.app  # noqa: F401  registers the project's resolvers
+    import garage_exp.cli.app  # noqa: F401  registers the project's resolvers
 
     for name in ("eval", "exec", "python", "py", "lambda"):
         assert not OmegaConf.has_resolver(name)
@@ -229,7 +229,7 @@ def test_override_value_is_never_evaluated(tmp_path):
 def test_bad_input_in_a_single_run_leaves_no_run_dir(tmp_path):
     """Hydra makes the run dir before the job starts; a job refused for bad input removes it again (only
     when it holds nothing but Hydra's own files)."""
-    from garage_exp.job import _remove_untouched
+    from garage_exp.run.job import _remove_untouched
 
     hydra_only = tmp_path / "a"
     (hydra_only / ".hydra").mkdir(parents=True)

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from conftest import PYTHON, child_env, run_app
 
-from garage_exp import tracking
+from garage_exp.tracking import runs as tracking
 
 # The fault-injection hooks, ahead of the caller's own PYTHONPATH (a work tree testing its own garage_exp).
 FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
@@ -154,8 +154,8 @@ def test_resume_identity_includes_the_plan_file_content(tmp_path):
     """The same config over an edited plan file is a different job: resume does not skip it."""
     from hydra import compose, initialize_config_dir
 
-    import garage_exp.app  # noqa: F401  registers the config schema
-    from garage_exp.paths import PROJECT_ROOT
+    import garage_exp.cli.app  # noqa: F401  registers the config schema
+    from garage_exp.core.paths import PROJECT_ROOT
 
     plan = tmp_path / "mine.yaml"
     plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
@@ -291,7 +291,7 @@ def test_job_run_logging_goes_through_retry(tmp_path, fresh_store):
     for name in real:
         setattr(mlc, name, flaky(name))
     job = tracking.JobRun(mlc, run.info.run_id)
-    import garage_exp.tracking as t
+    import garage_exp.tracking.runs as t
 
     delay = t.retry.__defaults__
     t.retry.__defaults__ = (10, 0.001, 0.01)
@@ -310,7 +310,7 @@ def test_job_run_logging_goes_through_retry(tmp_path, fresh_store):
 def test_a_job_whose_process_died_does_not_stay_running(tmp_path, fresh_store):
     """At a sweep's end every job has returned: a child run still RUNNING lost its process (OOM killer,
     segfault in a worker) and is closed FAILED with that reason, so the UI never shows a dead job as alive."""
-    from garage_exp.callbacks import close_dead_children
+    from garage_exp.cli.callbacks import close_dead_children
 
     mlc = tracking.client(fresh_store)
     exp = mlc.create_experiment("dead", artifact_location=str(tmp_path / "artifacts"))

@@ -18,7 +18,7 @@ import pytest
 from conftest import require
 
 from garage_exp.assets.locate import vehicles_dir
-from garage_exp.groundtruth import ground_truth
+from garage_exp.perception.groundtruth import ground_truth
 from garage_exp.render import BLANK_GREY
 from garage_exp.render.device import INSTALL_HINT
 from garage_exp.render.sapien_backend import get_renderer
@@ -326,7 +326,7 @@ def test_another_light_on_the_same_garage_recolours_the_loaded_statics_as_a_fres
 
 @render
 def test_user_errors_are_garage_errors(renderer):
-    from garage_exp.errors import GarageError
+    from garage_exp.core.errors import GarageError
 
     renderer.load(garage())
     with pytest.raises(GarageError, match="no camera named 'rear'"):
@@ -370,7 +370,7 @@ def test_supported_devices_are_read_from_the_summary():
 
 def test_missing_vulkan_device_is_one_line_naming_the_fix():
     code = ("from garage_exp.render.device import ensure_device\n"
-            "from garage_exp.errors import GarageError\n"
+            "from garage_exp.core.errors import GarageError\n"
             "try:\n    ensure_device()\nexcept GarageError as e:\n    print('ERR', e)\n")
     env = {**os.environ, "VK_ICD_FILENAMES": "/nonexistent/icd.json"}
     env.pop("VK_DRIVER_FILES", None)

@@ -10,8 +10,8 @@ from conftest import run_app
 from test_golden import GOLDEN, compare
 from test_scenario import build, library  # noqa: F401  (the module's vehicle-library fixture)
 
-from garage_exp.errors import GarageError
-from garage_exp.preflight import check_config
+from garage_exp.core.errors import GarageError
+from garage_exp.run.preflight import check_config
 
 
 def shots_of(setup, k):
@@ -120,7 +120,7 @@ def test_a_replicated_job_renders_replicate_zero_as_before(tmp_path, mlflow_uri)
 
 
 def test_a_replicated_jobs_summary_carries_its_interval_over_replicates():
-    from garage_exp.results import summarise
+    from garage_exp.results.table import summarise
 
     rows = [{"camera": "front", "replicate": k, "label": "black", "composite": c, "visible_fraction": 1.0,
              "false_positives": 0} for k, c in enumerate([0.2, 0.4, 0.6, 0.8]) for _ in range(3)]

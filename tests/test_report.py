@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from garage_exp import stats
+from garage_exp.results import stats
 from garage_exp.report import markdown
 from garage_exp.report import visibility as vis
 from garage_exp.report.tables import (breakdown, factors_of, main_effects, pair_effects, pivot, significance,

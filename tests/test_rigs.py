@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from conftest import run_app
 
-from garage_exp.results import camera_line, per_camera, summarise
+from garage_exp.results.table import camera_line, per_camera, summarise
 
 
 def frames(rows):

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from garage_exp import config as schema
-from garage_exp.app import quote_numeric_choices
-from garage_exp.errors import GarageError
-from garage_exp.experiment import build_scene
-from garage_exp.paths import PROJECT_ROOT
+from garage_exp.core import schema
+from garage_exp.cli.app import quote_numeric_choices
+from garage_exp.core.errors import GarageError
+from garage_exp.scenario.assemble import build_scene
+from garage_exp.core.paths import PROJECT_ROOT
 from garage_exp.plan import classify, load_plan
-from garage_exp.preflight import resolve_plan_path
+from garage_exp.run.preflight import resolve_plan_path
 from garage_exp.scenario.place import footprint, overlap
 from garage_exp.scene.description import Pose
 

@@ -10,8 +10,8 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from garage_exp.config import GarageConf, LightConf
-from garage_exp.errors import GarageError
+from garage_exp.core.schema import GarageConf, LightConf
+from garage_exp.core.errors import GarageError
 from garage_exp.plan import classify, load_plan, plan_from_lists
 from garage_exp.plan.features import UNIT
 from garage_exp.scene import materials as mat

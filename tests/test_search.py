@@ -12,8 +12,8 @@ import pytest
 from conftest import ROOT, compose_cfg
 from optuna.trial import TrialState
 
-from garage_exp import results
-from garage_exp.errors import GarageError
+from garage_exp.results import table as results
+from garage_exp.core.errors import GarageError
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 from garage_exp.search.loop import SearchLoop, outcome
@@ -226,7 +226,7 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
     from hydra.types import RunMode
     from omegaconf import OmegaConf
 
-    from garage_exp import config as schema
+    from garage_exp.core import schema
     from garage_exp.search.launch import CachedLaunch
 
     schema.register()

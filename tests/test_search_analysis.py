@@ -1,4 +1,4 @@
-"""The analysis of a study (garage_exp.search.analysis, .sensitivity) on synthetic studies built in memory with
+"""The analysis of a study (garage_exp.report.search_analysis, .sensitivity) on synthetic studies built in memory with
 the sweeper's trial contract and a known difficulty function: no rendering, seconds each."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import TrialState, create_trial
 
-from garage_exp.errors import GarageError
-from garage_exp.search import analysis, sensitivity
+from garage_exp.core.errors import GarageError
+from garage_exp.report import search_analysis as analysis, sensitivity
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 

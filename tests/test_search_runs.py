@@ -11,7 +11,7 @@ import pytest
 from conftest import PYTHON, ROOT, child_env, require, run_app
 from optuna.trial import TrialState
 
-from garage_exp import tracking
+from garage_exp.tracking import runs as tracking
 
 SEARCH = ["-m", "hydra/sweeper=search", "plan=tiny"]
 

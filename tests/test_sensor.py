@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from garage_exp.errors import GarageError
-from garage_exp.sensor import LEVELS, SensorModel, linear_to_srgb, make_sensor, srgb_to_linear
+from garage_exp.core.errors import GarageError
+from garage_exp.perception.sensor import LEVELS, SensorModel, linear_to_srgb, make_sensor, srgb_to_linear
 
 
 def noisy(**overrides) -> SensorModel:
@@ -128,7 +128,7 @@ def test_unknown_kind_and_config_objects():
         make_sensor({"name": "x", "kind": "thermal"})
     from omegaconf import OmegaConf
 
-    from garage_exp.config import SensorConf
+    from garage_exp.core.schema import SensorConf
 
     conf = OmegaConf.merge(OmegaConf.structured(SensorConf), {"name": "noisy", **LEVELS["noisy"]})
     sensor = make_sensor(conf)

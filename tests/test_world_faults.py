@@ -17,9 +17,9 @@ import pytest
 from conftest import PYTHON, child_env, run_app
 from mlflow_server import Server, free_port
 
-from garage_exp import tracking
-from garage_exp.detect import worker
-from garage_exp.errors import GarageError
+from garage_exp.tracking import runs as tracking
+from garage_exp.perception.detect import worker
+from garage_exp.core.errors import GarageError
 
 DRY = ["dry_run=true", "plan=tiny"]
 
@@ -59,7 +59,7 @@ def same(a, b):
 
 @pytest.mark.detect
 def test_a_killed_detector_process_is_replaced_and_its_frames_sent_again(spec, frames, caplog):
-    from garage_exp.detect.detector import Detector
+    from garage_exp.perception.detect.detector import Detector
 
     expected = [Detector(**spec, threads=1).detect(f) for f in frames]
     child = worker.DetectorProcess(threads=1)
@@ -179,7 +179,7 @@ def test_a_broken_store_is_one_line_naming_it_and_the_way_back(tmp_path, templat
 
 
 def runs_in_new(path: Path) -> int:
-    from garage_exp.store import runs_in
+    from garage_exp.tracking.store import runs_in
 
     return runs_in(path)
 
@@ -187,7 +187,7 @@ def runs_in_new(path: Path) -> int:
 def test_store_diagnosis_of_the_races_errors_and_of_a_store_with_runs(tmp_path, template):
     import shutil
 
-    from garage_exp.store import diagnose, open_store
+    from garage_exp.tracking.store import diagnose, open_store
 
     empty = tmp_path / "empty.db"
     shutil.copy(template, empty)
@@ -211,7 +211,7 @@ def test_store_diagnosis_of_the_races_errors_and_of_a_store_with_runs(tmp_path, 
     assert str(err.value) == (f"{used}: MLflow store cannot be opened (schema found version None, but expected x); "
                               f"it holds 1 runs: back it up (cp {used} {used}.bak), then run "
                               f"`mlflow db upgrade sqlite:///{used}`")
-    from garage_exp.store import main as store_main  # what `make ui` runs before the UI
+    from garage_exp.tracking.store import main as store_main  # what `make ui` runs before the UI
 
     shutil.copy(used, tmp_path / "copy.db")  # not opened by this process yet (MLflow caches opened stores)
     assert store_main([str(tmp_path / "copy.db")]) == 2
@@ -282,7 +282,7 @@ def test_a_full_disk_stops_the_sweep_in_one_line_keeping_the_finished_runs(small
 
 
 def test_preflight_refuses_a_sweep_the_free_space_cannot_hold(small_fs, monkeypatch):
-    from garage_exp import diskspace
+    from garage_exp.run import diskspace
 
     fs, mounted = small_fs
     if mounted:  # a real filesystem with 1 MB free: four plan-only jobs need about 4 MB with their store
@@ -313,7 +313,7 @@ def shutil_usage(free: int):
 def test_a_full_disk_is_recognised_whoever_raised_it():
     import errno
 
-    from garage_exp.diskspace import full_disk
+    from garage_exp.run.diskspace import full_disk
 
     assert full_disk(OSError(errno.ENOSPC, "No space left on device", "/x/frames.csv")) == "/x/frames.csv"
     wrapped = RuntimeError("MlflowException: (sqlite3.OperationalError) database or disk is full")
@@ -433,7 +433,7 @@ REFUSED = Refused("API request to http://127.0.0.1:1/api/2.0/mlflow/runs/create 
 @pytest.fixture
 def fresh_outage(monkeypatch):
     """retry()'s outage state as in a new process, and sleeps that only count."""
-    from garage_exp import cli_errors
+    from garage_exp.core import exits as cli_errors
 
     monkeypatch.setattr(tracking, "_down_since", None)
     monkeypatch.setattr(tracking, "_given_up", False)
@@ -481,7 +481,7 @@ def test_retry_waits_a_bounded_time_for_the_server_and_says_so_once(fresh_outage
 
 
 def test_after_a_signal_retry_never_waits(fresh_outage):
-    from garage_exp import cli_errors
+    from garage_exp.core import exits as cli_errors
 
     cli_errors._stopping = True
     calls = []

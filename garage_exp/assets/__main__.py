@@ -15,7 +15,7 @@ import logging
 import sys
 
 from garage_exp.assets import locate
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 
 def _where() -> int:

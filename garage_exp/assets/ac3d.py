@@ -21,7 +21,7 @@ from typing import Iterator
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 log = logging.getLogger(__name__)
 

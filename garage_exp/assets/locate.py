@@ -17,8 +17,8 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from garage_exp import paths
-from garage_exp.errors import GarageError
+from garage_exp.core import paths
+from garage_exp.core.errors import GarageError
 
 ASSETS_ENV = "GARAGE_EXP_ASSETS"
 MODELS_ENV = "GARAGE_EXP_MODELS"
@@ -151,7 +151,7 @@ def fetch_vehicles(force: bool = False) -> Path:
 
 def fetch_models(names: tuple[str, ...] = MODEL_WEIGHTS) -> Path:
     """Download the official Ultralytics weights into the cache's models folder; that folder."""
-    from garage_exp.offline import prepare_offline
+    from garage_exp.core.offline import prepare_offline
 
     target = fetched_models_dir()
     target.mkdir(parents=True, exist_ok=True)

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from garage_exp import paths
+from garage_exp.core import paths
 from garage_exp.assets.vehicles import write_atomic
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 log = logging.getLogger(__name__)
 

@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from garage_exp import paths
+from garage_exp.core import paths
 from garage_exp.assets.ac3d import AcFile, MeshPart, mesh_parts, nearest_lod, read_ac, to_scene
 from garage_exp.assets.locate import vehicles_dir
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scene.kinds import kind_of
 
 log = logging.getLogger(__name__)

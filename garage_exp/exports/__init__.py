@@ -1,4 +1,4 @@
-"""The dataset a job writes with dataset=true, in the formats users' tools read: YOLO (results.DatasetWriter),
+"""The dataset a job writes with dataset=true, in the formats users' tools read: YOLO (labels.DatasetWriter),
 COCO (dataset/coco.json) and KITTI (dataset/kitti/), the same actors in each, from the same ground truth.
 
 The job hands each frame's camera and actor poses over as plain data (`FrameGeometry`); KITTI's 3D boxes come
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from garage_exp import results
+from garage_exp.results import labels
 from garage_exp.exports import coco, kitti
 from garage_exp.scene.description import Pose, Scene
 
@@ -38,7 +38,7 @@ class DatasetExports:
 
     def __init__(self, root: Path):
         self.root = root
-        self.yolo = results.DatasetWriter(root)
+        self.yolo = labels.DatasetWriter(root)
         self.coco = coco.CocoWriter(root / "coco.json")
         self.kitti = kitti.KittiWriter(root / "kitti")
 
@@ -46,9 +46,9 @@ class DatasetExports:
         self.yolo.add(stem, rgb, truth, scene)
         image = self.root / "images" / f"{stem}.png"
         objects, lines = [], []
-        for t in results.labelled(truth):
-            kind = "person" if t.kind == "person" else results.vehicle_kind(scene, t.name)
-            objects.append((results.coco_class(scene, t), kind, t))
+        for t in labels.labelled(truth):
+            kind = "person" if t.kind == "person" else labels.vehicle_kind(scene, t.name)
+            objects.append((labels.coco_class(scene, t), kind, t))
             entity = scene.entity(t.name)  # ground truth exists only for the scene's actors
             box = kitti.box3d(entity, geometry.poses.get(t.name, entity.pose), geometry.cam_to_world)
             lines.append(kitti.label_line(kind, t, box))

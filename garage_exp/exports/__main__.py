@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ import json
 from datetime import datetime, timezone
 from pathlib import Path
 
-from garage_exp.groundtruth import OCCLUSION_NAMES, VehicleTruth
+from garage_exp.perception.groundtruth import OCCLUSION_NAMES, VehicleTruth
 
 CATEGORIES = [{"id": 1, "name": "person", "supercategory": "person"},
               {"id": 3, "name": "car", "supercategory": "vehicle"},

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from garage_exp.groundtruth import VehicleTruth, local_box
+from garage_exp.perception.groundtruth import VehicleTruth, local_box
 from garage_exp.scene.description import Entity, Pose
 
 # KITTI's classes (Geiger et al.): it has no bus; a pickup goes with trucks, as COCO detectors call it.

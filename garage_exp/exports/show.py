@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.exports import kitti
 from garage_exp.exports.kitti import Box3D
 

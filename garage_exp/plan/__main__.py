@@ -8,7 +8,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan.classify import LANE_TYPES, PARKING_TYPES, Classified, classify
 from garage_exp.plan.load import load_plan
 

@@ -14,7 +14,7 @@ from matplotlib.collections import LineCollection, PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch, Rectangle
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan.classify import Cell, Classified
 
 PILLAR_SIZE = 0.6  # metres per side; the default of GarageConf.pillar_size

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan.classify import Cell, Classified, Pillar
 from garage_exp.plan.model import DRIVEABLE, ENTRANCE, OPPOSITE, STEPS, YAW, Plan
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan.model import DRIVEABLE, ENTRANCE, Plan
 
 MAX_CELLS_PER_SIDE = 500

@@ -7,9 +7,9 @@ backend is one module plus one YAML.
 
 from __future__ import annotations
 
-from garage_exp.errors import GarageError, check_range
+from garage_exp.core.errors import GarageError, check_range
 from garage_exp.render.base import BLANK_GREY, Frame, Renderer
-from garage_exp.targets import check_target, resolve
+from garage_exp.core.plugins import check_target, resolve
 
 SAVE_FRAMES = ("all", "key", "none")
 

@@ -11,7 +11,7 @@ import glob
 import logging
 import os
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d")
 ICD_VARS = ("VK_ICD_FILENAMES", "VK_DRIVER_FILES")

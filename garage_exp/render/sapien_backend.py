@@ -44,7 +44,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.cull import box_corners, frustum_planes, outside_frustum
 from garage_exp.render.device import ensure_device

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from garage_exp import stats, tracking
+from garage_exp.results import stats
+from garage_exp.tracking import runs as tracking
 from garage_exp.report import plots, visibility
 from garage_exp.report.tables import (breakdown, by_camera, child_runs, factors_of, main_effects, markdown_table,
                                       number, pair_effects, parse_overrides, pivot, significance, summary, units)

@@ -8,7 +8,8 @@ import math
 
 import pandas as pd
 
-from garage_exp import stats, tracking
+from garage_exp.results import stats
+from garage_exp.tracking import runs as tracking
 
 METRICS = ("confidence_mean", "recall", "difficulty", "visible_fraction_mean")
 RESPONSES = ["confidence_mean", "recall"]
@@ -154,7 +155,7 @@ def by_camera(frames: pd.DataFrame, runs: pd.DataFrame, factors: list[str]) -> t
     """Runs with several cameras (issue 11): each camera's mean composite confidence over the frames where it
     sees the target (intervals over units), and in how many trajectories it detected the target first
     (results.per_camera). Both long, for `pivot`; empty for single-camera sweeps."""
-    from garage_exp.results import per_camera
+    from garage_exp.results.table import per_camera
 
     if frames.empty or frames.groupby("run_id").camera.nunique().max() < 2:
         return pd.DataFrame(), pd.DataFrame()

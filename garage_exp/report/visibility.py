@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from garage_exp import stats, tracking
+from garage_exp.results import stats
+from garage_exp.tracking import runs as tracking
 from garage_exp.report.tables import primary
 
 COMPOSITE = "composite"

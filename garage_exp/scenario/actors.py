@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from garage_exp.assets.vehicles import COLOURS, SIZE_CLASSES
 from garage_exp.assets.vehicles import KINDS as VEHICLE_KINDS
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scenario.place import site_bay
 from garage_exp.scene.description import Box, Entity, Material, Mesh, Pose
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.place import check_overlaps, pose_in_bay, pose_relative
 from garage_exp.scenario.shots import Shot, actor_confs

@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 from omegaconf import OmegaConf
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
@@ -116,7 +116,7 @@ def level_file(cfg, group: str) -> str:
     """The YAML file of a group's level (named as its `name`), for error messages; else `group=NAME`."""
     from pathlib import Path
 
-    from garage_exp.paths import PROJECT_ROOT
+    from garage_exp.core.paths import PROJECT_ROOT
 
     dirs = []
     try:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scenario.sites import Path, Site, SiteBay
 from garage_exp.scene.description import Pose
 

@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scenario.shots import CaseSetup
 
 EGO = "ego"

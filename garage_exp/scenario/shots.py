@@ -6,8 +6,8 @@ from dataclasses import dataclass, field, fields
 
 from omegaconf import OmegaConf
 
-from garage_exp.config import ActorConf
-from garage_exp.errors import GarageError
+from garage_exp.core.schema import ActorConf
+from garage_exp.core.errors import GarageError
 from garage_exp.scene.description import Entity, Pose
 
 

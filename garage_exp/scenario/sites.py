@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan.classify import Classified
 from garage_exp.plan.features import (UNIT, corner_nearest_entrance, entrance_distance, longest_straight_run,
                                       run_length)

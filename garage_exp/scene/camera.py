@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garage_exp.errors import GarageError, check_range
+from garage_exp.core.errors import GarageError, check_range
 from garage_exp.scene.description import CameraSpec, Pose
 
 FOVY_RANGE = (1.0, 170.0)  # degrees, vertical

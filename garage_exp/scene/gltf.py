@@ -16,7 +16,7 @@ import numpy as np
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scene.description import VEHICLE_ROLES, Box, Entity, Material, Mesh, Pose, Scene
 
 ROOT = "garage_z_up"

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garage_exp.errors import GarageError, check_range
+from garage_exp.core.errors import GarageError, check_range
 from garage_exp.plan.classify import Cell, Classified
 from garage_exp.scene import materials as mat
 from garage_exp.scene.bays import BAY_TYPES, BEAM_DEPTH, Rect, beams, overlap, pillar_rect, pillars_by_vertex

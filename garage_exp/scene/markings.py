@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.plan.classify import Cell, Classified
 from garage_exp.plan.features import UNIT
 from garage_exp.scene import materials as mat

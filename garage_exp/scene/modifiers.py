@@ -10,9 +10,9 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.scene.description import Box, Scene
-from garage_exp.targets import allowed_modules, check_target, resolve, resolve_allowed  # noqa: F401  (scenario sites)
+from garage_exp.core.plugins import allowed_modules, check_target, resolve, resolve_allowed  # noqa: F401  (scenario sites)
 
 
 def remove_entity(scene: Scene, name: str) -> None:
@@ -76,7 +76,7 @@ def replace_conf(conf, **changes):
 
 
 def check_modifiers(modifiers: dict[str, Any]) -> None:
-    """The `modifiers` groups name only allowed functions (configs are data, see garage_exp.targets)."""
+    """The `modifiers` groups name only allowed functions (configs are data, see garage_exp.core.plugins)."""
     for group, spec in (modifiers or {}).items():
         check_target(str((spec or {}).get("_target_") or ""), "a scene modifier", f"modifiers.{group}")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from garage_exp.errors import check_range
+from garage_exp.core.errors import check_range
 from garage_exp.scene.bays import Rect, bays, overlap
 from garage_exp.scene.description import Box, Entity, Mesh, Pose, Scene
 

@@ -6,7 +6,7 @@ The floor's top is z = 0 (vehicles stand on it); the ceiling's underside is z = 
 
 from __future__ import annotations
 
-from garage_exp.errors import GarageError, check_range
+from garage_exp.core.errors import GarageError, check_range
 from garage_exp.plan.classify import Cell, Classified
 from garage_exp.plan.model import OPPOSITE
 from garage_exp.scene import materials as mat

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import optuna
 from optuna.trial import TrialState
 
-from garage_exp.cli_errors import SweepStopped
+from garage_exp.core.exits import SweepStopped
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 

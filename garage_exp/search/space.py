@@ -18,7 +18,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import (ChoiceSweep, IntervalSweep, Override, RangeSweep, Transformer)
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 # Keys the sweeper owns: a search over them would make no sense (or would search the search).
 RESERVED = ("search.", "hydra.", "resume", "dry_run", "tracking.")

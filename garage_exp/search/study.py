@@ -11,8 +11,8 @@ import hashlib
 
 import optuna
 
-from garage_exp.errors import GarageError
-from garage_exp.paths import OUTPUTS_DIR
+from garage_exp.core.errors import GarageError
+from garage_exp.core.paths import OUTPUTS_DIR
 
 SAMPLERS = ("tpe", "cmaes", "random", "qmc", "nsga2", "saltelli", "grid")
 OBJECTIVES = {"difficulty": ["difficulty"], "pareto": ["difficulty", "visible_fraction"]}

@@ -21,7 +21,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 
-from garage_exp.paths import OUTPUTS_DIR
+from garage_exp.core.paths import OUTPUTS_DIR
 
 # Keys a scenario file leaves out: how and where a run is tracked is the rerunning user's, not the scenario's.
 NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset")
@@ -148,7 +148,7 @@ def write_dataset(root: Path, reruns: list[tuple[str, list[str], str | None]], l
         merged["categories"] = merged["categories"] or coco["categories"]
         merged.setdefault("info", coco.get("info", {}))
     (root / "coco.json").write_text(json.dumps(merged))
-    from garage_exp.results import coco_names
+    from garage_exp.results.labels import coco_names
 
     (root / "data.yaml").write_text(yaml.safe_dump({"path": str(root), "train": images, "val": images,
                                                     "names": coco_names()}, sort_keys=False))

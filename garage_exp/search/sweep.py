@@ -11,7 +11,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 
@@ -41,8 +41,8 @@ def group_levels(loader) -> dict[str, list[str]]:
 def check(config: DictConfig, loader) -> space_mod.Space:
     """The search's settings and space, each value composed and checked as a job would check it (no
     rendering): GarageError (one line naming the override) on the first problem."""
-    from garage_exp.cli_errors import input_error
-    from garage_exp.preflight import preflight
+    from garage_exp.core.exits import input_error
+    from garage_exp.run.preflight import preflight
 
     arguments = tuple(arguments_of(config))
     if arguments in _CHECKED:
@@ -90,7 +90,7 @@ def budget(search, space: space_mod.Space, study) -> int:
         return study_mod.grid_size(space.params, int(search.grid_levels))
     if search.sampler != "saltelli":
         return int(search.trials)
-    from garage_exp.search.sensitivity import saltelli_design
+    from garage_exp.report.sensitivity import saltelli_design
 
     if not study.get_trials(deepcopy=False):
         design = saltelli_design(space.params, int(search.saltelli_n), seed_of(search, None))
@@ -134,7 +134,7 @@ def _suite_full(search, stop):
 
 def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> list[Path]:
     """The study's analysis (and suite) into out_dir; returns the files to log on the parent run."""
-    from garage_exp.search.analysis import analyse
+    from garage_exp.report.search_analysis import analyse
 
     search = config.search
     paths = list(analyse(result["study"], out_dir, top=int(search.top)))
@@ -148,9 +148,9 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
 def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: list[Path], out_dir: Path) -> None:
     """The parent run of the study: the analysis, the plan's map, the study's name and storage, and the best
     trials' runs tagged with their rank."""
-    from garage_exp import tracking
+    from garage_exp.tracking import runs as tracking
     from garage_exp.plan.draw import draw_map
-    from garage_exp.preflight import _classified, resolve_plan_path
+    from garage_exp.run.preflight import _classified, resolve_plan_path
 
     mlc = tracking.client(config.tracking.uri)
     study = result["study"]

@@ -44,7 +44,7 @@ class SearchSweeper(Sweeper):
         return lambda batch, idx: self.launcher.launch(batch, initial_job_idx=idx)
 
     def sweep(self, arguments: list[str]) -> Any:
-        from garage_exp import tracking
+        from garage_exp.tracking import runs as tracking
         from garage_exp.search import sweep
 
         assert self.config is not None and self.hydra_context is not None

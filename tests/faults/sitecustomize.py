@@ -34,7 +34,7 @@ def _job_num() -> int:
 
 def _before_frames(job, hook):
     """Call hook(frames done so far) before each frame job `job`'s sensor model sees."""
-    import garage_exp.sensor as sensor
+    import garage_exp.perception.sensor as sensor
 
     real_make = sensor.make_sensor
 
@@ -134,7 +134,7 @@ def _install(spec: str) -> None:
 
             module.DetectorProcess.submit = submit
 
-        after_import("garage_exp.detect.worker", patch)
+        after_import("garage_exp.perception.detect.worker", patch)
     else:
         raise ValueError(f"GARAGE_EXP_FAULT: unknown fault {spec!r}")
 

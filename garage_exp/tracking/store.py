@@ -12,7 +12,7 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 _OPENED: set[str] = set()  # stores this process has opened (MLflow caches the store object per URI)
 
@@ -86,7 +86,7 @@ def diagnose(path: Path, exc: BaseException) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m garage_exp.store PATH`: create the sqlite store at PATH (under its lock) or check that MLflow
+    """`python -m garage_exp.tracking.store PATH`: create the sqlite store at PATH (under its lock) or check that MLflow
     can open it; `make ui` runs it first, so a broken store is one line instead of the UI's traceback."""
     import sys
 
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
 
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
-        print("usage: python -m garage_exp.store PATH_TO_SQLITE_STORE", file=sys.stderr)
+        print("usage: python -m garage_exp.tracking.store PATH_TO_SQLITE_STORE", file=sys.stderr)
         return 2
     uri = f"sqlite:///{Path(args[0]).absolute()}"
     try:

@@ -6,7 +6,7 @@ recall, confidence, frame, and "infeasible" on a pruned trial or "error" on a fa
 out_dir: history.png, importances.png/.csv (fANOVA), slices.png, pareto.png (multi-objective), sensitivity.png/
 .csv (Sobol', see sensitivity), trials.csv, hardest.csv, frames/ (the hardest trials' frames) and
 search_report.md/.html. Only complete trials are ranked; pruned (infeasible) and failed ones are counted and
-listed apart. `python -m garage_exp.search.analysis` writes the same for a study in a storage, finished or
+listed apart. `python -m garage_exp.report.search_analysis` writes the same for a study in a storage, finished or
 still running.
 """
 
@@ -26,10 +26,10 @@ from optuna.distributions import BaseDistribution, CategoricalDistribution
 from optuna.trial import FrozenTrial, TrialState
 from scipy.stats import ttest_ind
 
-from garage_exp.errors import GarageError
-from garage_exp.page import html_page
-from garage_exp.paths import OUTPUTS_DIR
-from garage_exp.search import sensitivity
+from garage_exp.core.errors import GarageError
+from garage_exp.tracking.page import html_page
+from garage_exp.core.paths import OUTPUTS_DIR
+from garage_exp.report import sensitivity
 
 FANOVA_SEED = 0  # the importances of one study are the same every time they are computed
 ATTRS = ("visible_fraction", "fair_frames", "frames", "recall", "confidence")
@@ -410,7 +410,7 @@ def load(storage: str, name: str | None) -> optuna.Study:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m garage_exp.search.analysis",
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.report.search_analysis",
                                  description="A search study's figures, importances, sensitivity and report.")
     ap.add_argument("--storage", default=STORAGE, help=f"Optuna storage URL (default: {STORAGE})")
     ap.add_argument("--study", default=None, help="the study's name (default: the storage's latest study)")

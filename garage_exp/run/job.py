@@ -12,12 +12,12 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp import tracking
-from garage_exp.cli_errors import SweepStopped
-from garage_exp.diskspace import NotEnoughSpace, full_disk
-from garage_exp.errors import GarageError
-from garage_exp.paths import OUTPUTS_DIR
-from garage_exp.preflight import preflight
+from garage_exp.tracking import runs as tracking
+from garage_exp.core.exits import SweepStopped
+from garage_exp.run.diskspace import NotEnoughSpace, full_disk
+from garage_exp.core.errors import GarageError
+from garage_exp.core.paths import OUTPUTS_DIR
+from garage_exp.run.preflight import preflight
 
 
 def name_levels(cfg: DictConfig, plan_name: str) -> None:
@@ -164,8 +164,8 @@ def _run_job(cfg: DictConfig) -> float | dict:
         if cfg.dry_run:
             summary = {"difficulty": math.nan}
         else:
-            from garage_exp.experiment import run_experiment
-            from garage_exp.preflight import built_scene
+            from garage_exp.run.frames import run_experiment
+            from garage_exp.run.preflight import built_scene
 
             summary = run_experiment(cfg, classified, out, run, built_scene(cfg))
     except BaseException as exc:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import sys
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 EXIT_INPUT = 2  # bad input: one line on stderr, nothing logged
 EXIT_FAILED_JOBS = 1  # a sweep ran to its end but some of its jobs failed (the summary lists them)

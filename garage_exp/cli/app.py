@@ -1,8 +1,8 @@
 """The Hydra application: the entry point (`main`) and the command line (`cli`).
 
-Bad input never costs a run: the job (garage_exp.job) checks its inputs first (garage_exp.preflight), a sweep
-checks all its jobs before the first starts (garage_exp.callbacks), and every input error becomes one line on
-stderr and exit code 2 (garage_exp.cli_errors).
+Bad input never costs a run: the job (garage_exp.run.job) checks its inputs first (garage_exp.run.preflight), a sweep
+checks all its jobs before the first starts (garage_exp.cli.callbacks), and every input error becomes one line on
+stderr and exit code 2 (garage_exp.core.exits).
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp import callbacks
-from garage_exp import config as schema
-from garage_exp import job
-from garage_exp.cli_errors import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
+from garage_exp.cli import callbacks
+from garage_exp.core import schema
+from garage_exp.run import job
+from garage_exp.core.exits import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
                                    on_sigint, on_sigterm)
-from garage_exp.errors import GarageError
-from garage_exp.job import run_job
-from garage_exp.paths import PROJECT_ROOT
+from garage_exp.core.errors import GarageError
+from garage_exp.run.job import run_job
+from garage_exp.core.paths import PROJECT_ROOT
 
 log = logging.getLogger("garage_exp")
 

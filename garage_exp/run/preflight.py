@@ -11,8 +11,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp.errors import GarageError
-from garage_exp.paths import PLANS_DIR
+from garage_exp.core.errors import GarageError
+from garage_exp.core.paths import PLANS_DIR
 
 _CACHE: dict = {}  # plan path -> (stat key, classified) (sweeps check many jobs)
 
@@ -59,7 +59,7 @@ def _library():
 def check_config(cfg: DictConfig) -> None:
     """Every group's values, by its owner's check (the schema already checked the types); no plan or assets
     needed."""
-    from garage_exp.detect.detector import check_detector
+    from garage_exp.perception.detect.detector import check_detector
     from garage_exp.render import check_renderer
     from garage_exp.scenario import check_case
     from garage_exp.scene.camera import check_camera
@@ -67,7 +67,7 @@ def check_config(cfg: DictConfig) -> None:
     from garage_exp.scene.modifiers import check_modifiers
     from garage_exp.scene.parking import check_palette
     from garage_exp.scene.structure import check_garage
-    from garage_exp.sensor import make_sensor
+    from garage_exp.perception.sensor import make_sensor
 
     for key in ("seed", "light.seed", "palette.seed"):
         value = OmegaConf.select(cfg, key)
@@ -105,8 +105,8 @@ def preflight(cfg: DictConfig, needs: list | None = None):
     if not cfg.dry_run:
         import numpy as np
 
-        from garage_exp.detect.detector import model_format, resolve_model
-        from garage_exp.experiment import build_scene
+        from garage_exp.perception.detect.detector import model_format, resolve_model
+        from garage_exp.scenario.assemble import build_scene
 
         for entry in cfg.detector.models:
             model_format(resolve_model(entry))  # missing weights fail here (nothing is downloaded)
@@ -118,7 +118,7 @@ def preflight(cfg: DictConfig, needs: list | None = None):
     else:
         from hydra.core.hydra_config import HydraConfig
 
-        from garage_exp.diskspace import check_free
+        from garage_exp.run.diskspace import check_free
 
         out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
         check_free([(out, written[0]), (store_dir(cfg), written[1])], "this job")
@@ -130,8 +130,8 @@ def store_dir(cfg: DictConfig) -> Path:
     current dir then, with nothing to write)."""
     import os
 
-    from garage_exp.paths import OUTPUTS_DIR
-    from garage_exp.store import sqlite_path
+    from garage_exp.core.paths import OUTPUTS_DIR
+    from garage_exp.tracking.store import sqlite_path
 
     uri = OmegaConf.select(cfg, "tracking.uri") or os.environ.get("MLFLOW_TRACKING_URI") or \
         f"sqlite:///{OUTPUTS_DIR / 'mlflow.db'}"
@@ -144,9 +144,9 @@ def job_bytes(cfg: DictConfig, scene, setup) -> tuple[int, int]:
     artifacts). A run's artifacts are copies of the job's files; a tracking server keeps them on its own disk."""
     import os
 
-    from garage_exp.diskspace import FIXED, PNG_PER_PIXEL, ROW, STORE_FIXED
+    from garage_exp.run.diskspace import FIXED, PNG_PER_PIXEL, ROW, STORE_FIXED
     from garage_exp.scene.description import Box, Mesh
-    from garage_exp.store import sqlite_path
+    from garage_exp.tracking.store import sqlite_path
 
     out = FIXED
     if scene is not None:

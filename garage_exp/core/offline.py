@@ -13,7 +13,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from garage_exp.paths import cache_dir
+from garage_exp.core.paths import cache_dir
 
 # ultralytics' plot labels ask for these fonts and download them when missing.
 FONT_NAMES = ("Arial.ttf", "Arial.Unicode.ttf")
@@ -55,9 +55,9 @@ def dejavu_sans() -> Path:
     """matplotlib's bundled DejaVuSans.ttf, found without importing matplotlib (a slow import)."""
     spec = importlib.util.find_spec("matplotlib")
     if spec is None or spec.origin is None:
-        from garage_exp.errors import GarageError
+        from garage_exp.core.errors import GarageError
 
-        raise GarageError("matplotlib is not installed; run `make setup`", "garage_exp.detect")
+        raise GarageError("matplotlib is not installed; run `make setup`", "garage_exp.perception.detect")
     return Path(spec.origin).parent / "mpl-data" / "fonts" / "ttf" / "DejaVuSans.ttf"
 
 

@@ -24,7 +24,7 @@ from optuna.distributions import BaseDistribution, FloatDistribution, IntDistrib
 from optuna.trial import TrialState
 from scipy.stats import kstest
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 COLUMNS = ["factor", "S1", "S1_conf", "ST", "ST_conf", "method"]
 CROWDED = 0.2  # a KS distance above this: the trials do not cover a factor's range evenly

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 KINDS = ("ideal", "noisy")
 

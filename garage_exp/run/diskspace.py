@@ -7,7 +7,7 @@ import errno
 import shutil
 from pathlib import Path
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 MB = 1 << 20
 # Measured at 640x480 (research, realistic and tiny plans): a render saved as PNG is 54-108 kB of its 921 kB

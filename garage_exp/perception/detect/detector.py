@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from garage_exp.errors import GarageError, check_range
-from garage_exp.offline import prepare_offline
+from garage_exp.core.errors import GarageError, check_range
+from garage_exp.core.offline import prepare_offline
 
 log = logging.getLogger("garage_exp")
 OPENVINO_SUFFIX = "_openvino_model"
@@ -226,7 +226,7 @@ class Detector:
 
 def check_detector(conf: Any) -> None:
     """The `detector` group's values (that the weights exist is checked by `model_format(resolve_model(m))`)."""
-    from garage_exp.detect.matching import check_match
+    from garage_exp.perception.detect.matching import check_match
 
     if not conf.models:
         raise GarageError("no detector models given", "detector.models")

@@ -1,8 +1,8 @@
-"""One job: build the garage for the case, render every shot, score the target with the detectors, log.
+"""One job's frames: render every shot, score the target with the detectors, write the frame table, log.
 
 The frame loop is a two-stage pipeline: this process renders (SAPIEN) while a child process detects the
-previous frame (garage_exp/detect/worker.py). Results come back in frame order, so the table is the serial
-loop's; benchmarks/RESULTS.md has the measured gain.
+previous frame (garage_exp/perception/detect/worker.py). Results come back in frame order, so the table is the
+serial loop's; docs/performance.md has the measured gain.
 """
 
 from __future__ import annotations
@@ -17,48 +17,16 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from garage_exp import exports, results
-from garage_exp.errors import GarageError
-from garage_exp.groundtruth import VehicleTruth
+from garage_exp import exports
+from garage_exp.perception.groundtruth import VehicleTruth
 from garage_exp.plan.classify import Classified
-from garage_exp.scenario import CaseSetup, Shot, make_case
-from garage_exp.scene.camera import rig_specs
-from garage_exp.scene.description import CameraSpec, Pose, Scene
+from garage_exp.results import figures
+from garage_exp.results import table as frame_table
+from garage_exp.scenario import CaseSetup, Shot
+from garage_exp.scenario.assemble import HIDDEN, build_scene
+from garage_exp.scene.description import Scene
 
 log = logging.getLogger("garage_exp")
-HIDDEN = Pose(0.0, 0.0, -500.0, 0.0)  # vehicles a shot does not use wait far below the floor
-
-
-def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[Scene, CaseSetup]:
-    """The garage from the plan, the case's vehicles, parked cars by occupancy, cameras and modifiers."""
-    from garage_exp.scene.modifiers import apply_modifiers, remove_entity, resize_pillar
-    from garage_exp.scene.parking import park_vehicles
-    from garage_exp.scene.structure import build_garage
-
-    scene = build_garage(classified, cfg.garage, cfg.light)
-    apply_modifiers(scene, classified, cfg.garage, cfg.get("modifiers") or {})
-    setup = make_case(cfg, classified, library, rng)
-    if setup.occluder:
-        if cfg.occluder.kind == "none":
-            remove_entity(scene, setup.occluder)
-        elif cfg.occluder.kind != "pillar":
-            raise GarageError(f"unknown occluder kind {cfg.occluder.kind!r} (pillar | none)", "occluder.kind")
-        elif cfg.occluder.size is not None:
-            resize_pillar(scene, setup.occluder, cfg.occluder.size, classified)
-    scene.entities.extend(setup.vehicles)
-    if cfg.palette.parked_occupancy > 0:
-        scene.entities.extend(park_vehicles(classified, cfg.garage, cfg.palette, library, rng, scene,
-                                            exclude=setup.used_bays))
-    scene.cameras = cameras(cfg, setup)
-    scene.background = not cfg.blank
-    return scene, setup
-
-
-def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:
-    ego = next(v for v in setup.vehicles if v.role == "ego")
-    return rig_specs(cfg.camera, ego.extent)
-
-
 @dataclass
 class Rendered:
     """One camera's frame as the detectors see it (after the sensor model), with its ground truth."""
@@ -76,7 +44,7 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
     """Every camera of every shot, in order: the sensor's random stream is drawn in this order."""
     from tqdm import tqdm
 
-    from garage_exp.groundtruth import ground_truth
+    from garage_exp.perception.groundtruth import ground_truth
 
     for shot in tqdm(setup.shots, desc=f"case {cfg.case.name}", unit="frame", leave=False):
         renderer.set_pose("ego", shot.ego)
@@ -124,12 +92,12 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
     """Run the job's frames and return its summary metrics (`difficulty`, and `fair_*`: the search's objective).
     built: the (scene, setup) the job's preflight made from this config, if any (else built here)."""
     from garage_exp.assets.vehicles import shared_library
-    from garage_exp.detect import score_target
-    from garage_exp.detect.detector import spec_from_config
-    from garage_exp.detect.worker import open_detector
+    from garage_exp.perception.detect import score_target
+    from garage_exp.perception.detect.detector import spec_from_config
+    from garage_exp.perception.detect.worker import open_detector
     from garage_exp.render import open_renderer
     from garage_exp.scene.gltf import export_glb
-    from garage_exp.sensor import make_sensor
+    from garage_exp.perception.sensor import make_sensor
 
     # First, so that the models load in the detector's process while this one builds and loads the scene and
     # compiles its shaders (the first frame).
@@ -158,7 +126,7 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
             score = score_target(dets, target, item.truth, iou_threshold=cfg.detector.iou, match=cfg.detector.match,
                                  threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes),
                                  person_classes=tuple(cfg.detector.person_classes))
-            row = results.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target),
+            row = frame_table.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target),
                                     replicated=cfg.replicates > 1, off_axis=fisheye)
             rows.append(row)
             if dataset is not None:
@@ -166,10 +134,10 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
                             item.geometry)
             keep[(shot.index, item.camera)] = (item.rgb, target, dets)
             if cfg.renderer.save_frames == "all":
-                results.save_frame(frames_dir / f"{shot.index:04d}_{item.camera}.png", item.rgb, target, dets,
+                figures.save_frame(frames_dir / f"{shot.index:04d}_{item.camera}.png", item.rgb, target, dets,
                                    score)
             if len(keep) > 3 * len(scene.cameras) and not trial:  # a trial keeps all: its hardest fair one is saved
-                keep = results.prune_key_frames(keep, rows)
+                keep = figures.prune_key_frames(keep, rows)
     except KeyboardInterrupt:
         detector.abandon()  # do not make Ctrl-C wait for a frame's detection or the models' loading
         raise
@@ -180,27 +148,27 @@ def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, buil
         table.to_csv(table_path, index=False)
         run.log_artifact(table_path)  # kept even when the job fails half-way
     primary = scene.cameras[0].name
-    summary = results.summarise(table, cfg.detector.threshold, primary=primary)
+    summary = frame_table.summarise(table, cfg.detector.threshold, primary=primary)
     run.log_series("confidence", table[table.camera == primary].composite.tolist())
     run.log_series("visible_fraction", table[table.camera == primary].visible_fraction.tolist())
     search = cfg.search
-    summary.update(results.fair_summary(table, primary, search, cfg.detector.threshold))
+    summary.update(frame_table.fair_summary(table, primary, search, cfg.detector.threshold))
     run.log_metrics(summary)
-    if len(scene.cameras) > 1:  # which camera saw the target first and best (results.per_camera)
-        cams = results.per_camera(table, cfg.detector.threshold)
+    if len(scene.cameras) > 1:  # which camera saw the target first and best (frame_table.per_camera)
+        cams = frame_table.per_camera(table, cfg.detector.threshold)
         cams.to_csv(out / "cameras.csv", index=False)
         run.log_artifact(out / "cameras.csv")
-        print(f"cameras: {results.camera_line(cams)}")
+        print(f"cameras: {frame_table.camera_line(cams)}")
     if trial:
-        summary["frame"] = results.save_hardest_fair(keep, table, frames_dir, primary, search)
+        summary["frame"] = figures.save_hardest_fair(keep, table, frames_dir, primary, search)
         if summary["frame"] is not None:
             run.log_artifact(summary["frame"], "frames")
     else:
-        run.log_artifact(results.plot_confidence(table, out / "confidence.png", setup.position_label, cfg))
+        run.log_artifact(figures.plot_confidence(table, out / "confidence.png", setup.position_label, cfg))
         if cfg.renderer.save_frames != "none":
-            for path in results.save_key_frames(keep, table, frames_dir):
+            for path in figures.save_key_frames(keep, table, frames_dir):
                 run.log_artifact(path, "frames")
     if dataset is not None:
         run.log_artifact(dataset.finish())
-    print(results.one_line(cfg, summary, len(table)))
+    print(frame_table.one_line(cfg, summary, len(table)))
     return summary

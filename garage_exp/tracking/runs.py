@@ -12,7 +12,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp.paths import OUTPUTS_DIR, PROJECT_ROOT
+from garage_exp.core.paths import OUTPUTS_DIR, PROJECT_ROOT
 
 PARENT_FILE = "mlflow_parent_run_id"
 
@@ -30,7 +30,7 @@ def tracking_uri(uri: str | None = None) -> str:
 def client(uri: str | None = None):
     import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
 
-    from garage_exp.store import open_store
+    from garage_exp.tracking.store import open_store
 
     uri = tracking_uri(uri)
     if uri.startswith(("http://", "https://")):
@@ -83,7 +83,7 @@ def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.
     server was already away."""
     import random
 
-    from garage_exp.cli_errors import stopping
+    from garage_exp.core.exits import stopping
 
     global _down_since, _given_up
     k = 0
@@ -455,7 +455,7 @@ def log_report(mlc, run_id: str, folder: str | Path, artifact_path: str = "repor
     """Log a report folder (report.md and its figures) with report.html written beside report.md: the page
     the MLflow UI's artifact preview shows with its figures (it shows neither a markdown file's images nor
     files an HTML page links to)."""
-    from garage_exp.page import html_page
+    from garage_exp.tracking.page import html_page
 
     if (Path(folder) / "report.md").is_file():
         html_page(Path(folder) / "report.md")
@@ -509,6 +509,6 @@ def links(uri: str | None = None) -> str:
 if __name__ == "__main__":
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m garage_exp.tracking", description=links.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.tracking.runs", description=links.__doc__)
     ap.add_argument("--uri", default=None, help="the MLflow store (default: $MLFLOW_TRACKING_URI or outputs/mlflow.db)")
     print(links(ap.parse_args().uri))

@@ -8,7 +8,7 @@ import importlib
 import os
 from collections.abc import Callable
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 PROJECT_MODULES = ("garage_exp.",)
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from garage_exp.errors import GarageError, check_range
+from garage_exp.core.errors import GarageError, check_range
 
 Box = tuple[float, float, float, float]  # x1, y1, x2, y2 in pixels
 VEHICLE_CLASSES = ("car", "truck", "bus")

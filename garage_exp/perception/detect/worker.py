@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from garage_exp.errors import GarageError
+from garage_exp.core.errors import GarageError
 
 log = logging.getLogger("garage_exp")
 
@@ -50,7 +50,7 @@ class InlineDetector:
     """The serial fallback: detection on the calling thread when its result is asked for."""
 
     def __init__(self, spec: dict[str, Any], threads: int = 0):
-        from garage_exp.detect.detector import Detector
+        from garage_exp.perception.detect.detector import Detector
 
         self._detector = Detector(**spec, threads=threads)
         self.names = self._detector.names
@@ -89,11 +89,11 @@ class DetectorProcess:
         self._start()
 
     def _start(self) -> None:
-        # A plain `python -m garage_exp.detect.worker` rather than multiprocessing: a spawn child re-imports the
+        # A plain `python -m garage_exp.perception.detect.worker` rather than multiprocessing: a spawn child re-imports the
         # parent's __main__ and inherits its start method, and inside a joblib (loky) worker that method is
         # "loky", which a spawn child cannot set up. Requests travel over a socket pair as pickles.
         ours, theirs = socket.socketpair()
-        self._proc = subprocess.Popen([sys.executable, "-m", "garage_exp.detect.worker", str(theirs.fileno()),
+        self._proc = subprocess.Popen([sys.executable, "-m", "garage_exp.perception.detect.worker", str(theirs.fileno()),
                                        str(self.threads)], pass_fds=(theirs.fileno(),))
         theirs.close()
         self._conn = Connection(ours.detach())
@@ -269,7 +269,7 @@ def _serve(conn, threads: int) -> None:
     # stops this child itself, and if it dies outright the pipe's end-of-file ends this loop.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    from garage_exp.detect.detector import Detector
+    from garage_exp.perception.detect.detector import Detector
 
     records = _Collect()
     log.addHandler(records)
@@ -331,7 +331,7 @@ def use_process() -> bool:
 def open_detector(spec: dict[str, Any]) -> DetectorProcess | InlineDetector:
     """The process's detector child, loading `spec` (started on first use, reused by later jobs)."""
     global _WORKER
-    from garage_exp.detect.detector import model_format
+    from garage_exp.perception.detect.detector import model_format
 
     for path in spec["models"]:
         model_format(path)  # a bad path fails now, in the parent, as it did before detection had a child

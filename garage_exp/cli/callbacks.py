@@ -10,8 +10,8 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp import tracking
-from garage_exp.errors import GarageError
+from garage_exp.tracking import runs as tracking
+from garage_exp.core.errors import GarageError
 
 log = logging.getLogger(__name__)
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
@@ -35,7 +35,7 @@ def abandon_sweep(exc: BaseException) -> None:
     status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
     try:
         mlc = tracking.client(sweep.uri)
-        from garage_exp.cli_errors import SweepStopped
+        from garage_exp.core.exits import SweepStopped
 
         reason = f"sweep stopped: {exc}" if isinstance(exc, SweepStopped) else \
             f"sweep interrupted: {type(exc).__name__}: {exc}".strip()
@@ -72,8 +72,8 @@ def check_sweep(config: DictConfig) -> list[list[str]] | None:
         return None
     from hydra.core.global_hydra import GlobalHydra
 
-    from garage_exp.diskspace import check_free
-    from garage_exp.preflight import preflight, store_dir
+    from garage_exp.run.diskspace import check_free
+    from garage_exp.run.preflight import preflight, store_dir
 
     loader = GlobalHydra.instance().config_loader()
     needs: list[tuple[int, int]] = []
@@ -103,7 +103,7 @@ def _fatal(method):
             import sys
             import traceback
 
-            from garage_exp.cli_errors import EXIT_INPUT, input_error
+            from garage_exp.core.exits import EXIT_INPUT, input_error
 
             line = input_error(exc)
             if line is not None:
