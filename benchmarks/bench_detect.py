@@ -34,14 +34,15 @@ def main() -> None:
     import openvino as ov
 
     from garage_exp.perception.detect import score_target
-    from garage_exp.perception.detect.detector import Detector, ModelDetections, spec_from_config
+    from garage_exp.core.plugins import build
+    from garage_exp.perception.detect.detector import Detector, ModelDetections
 
     print(f"# detection, case 1, {args.frames} frames, {args.repeat} repeats; {jobkit.machine()}")
     print(f"# before: {jobkit.load()}")
     job = jobkit.build_job(["case=1", "light=bright"])
     cfg = job.cfg
     frames = list(job.frames(args.frames))
-    detector = Detector(**spec_from_config(cfg.detector), threads=1)
+    detector = Detector(**build(cfg.detector, "a detector", "detector._target_"), threads=1)
     models = detector._models
     predictors = [m.predictor for m in models]
     core = ov.Core()

@@ -34,12 +34,12 @@ OVERRIDES = ["case=1", "light=bright"]
 
 
 def measure(frames: int, repeat: int, ov_threads: list[int]) -> list[dict]:
-    from garage_exp.perception.detect.detector import spec_from_config
+    from garage_exp.core.plugins import build
     from garage_exp.perception.detect.worker import DetectorProcess, InlineDetector
     from garage_exp.run.frames import overlapped
 
     job = jobkit.build_job(OVERRIDES)
-    spec = spec_from_config(job.cfg.detector)
+    spec = build(job.cfg.detector, "a detector", "detector._target_")
     children = {t: DetectorProcess(t) for t in ov_threads}
     for child in children.values():
         child.load(spec)

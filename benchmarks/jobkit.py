@@ -1,4 +1,4 @@
-"""Shared by the benchmarks: a job's pieces built as `run_experiment` builds them, without Hydra's run or MLflow,
+"""Shared by the benchmarks: a job's pieces built as `run.frames.run_frames` builds them, without Hydra's run or MLflow,
 plus the machine description and CPU-time helpers the tables print."""
 
 from __future__ import annotations
@@ -46,14 +46,14 @@ def build_job(overrides: list[str]) -> Job:
     from garage_exp.plan import classify, load_plan
     from garage_exp.run.preflight import resolve_plan_path
     from garage_exp.render.sapien_backend import get_renderer
-    from garage_exp.perception.sensor import make_sensor
+    from garage_exp.core.plugins import build
 
     cfg = compose(overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
     scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     renderer = get_renderer(max_lights=cfg.renderer.max_lights, shadows=cfg.renderer.shadows)
     renderer.load(scene)
-    job = Job(cfg, scene, setup, renderer, make_sensor(cfg.sensor))
+    job = Job(cfg, scene, setup, renderer, build(cfg.sensor, "a sensor model", "sensor._target_"))
     for _ in job.frames(1):  # the first frame compiles the shaders: a start-up cost, not a per-frame one
         pass
     return job

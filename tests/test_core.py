@@ -25,7 +25,7 @@ def test_import_layers_hold():
 
 
 def test_app_holds_only_the_entry_point_and_the_command_line():
-    source = (PROJECT_ROOT / "garage_exp" / "app.py").read_text()
+    source = (PROJECT_ROOT / "garage_exp" / "cli" / "app.py").read_text()
     assert len(source.splitlines()) < 150
     assert "def run_job" not in source and "def preflight" not in source and "def input_error" not in source
 
@@ -94,8 +94,9 @@ def test_every_shipped_experiment_composes_and_passes_preflight(name):
     jobs = _sweep_jobs([f"+experiment={name}", "plan=research"])
     assert len(jobs) >= 2
     for cfg in jobs:
-        plan_path, classified = preflight(cfg)
-        assert plan_path.is_file() and classified.plan.name == "research"
+        prepared = preflight(cfg)
+        assert prepared.plan_path.is_file() and prepared.classified.plan.name == "research"
+        assert prepared.scene is not None and prepared.setup.shots, "a real job's preflight builds its scene"
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (CONF / "case").glob("*.yaml")))

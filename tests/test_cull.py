@@ -84,7 +84,7 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
     from garage_exp.run.frames import render_frames
     from garage_exp.plan import classify, load_plan
     from garage_exp.render.sapien_backend import get_renderer
-    from garage_exp.perception.sensor import make_sensor
+    from garage_exp.core.plugins import build
 
     cfg = compose_cfg("palette=busy", "case=1")
     classified = classify(load_plan(ROOT / "plans" / "research.yaml"))
@@ -96,7 +96,7 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
     try:
         for cull in (True, False):
             renderer.cull = cull
-            frames[cull] = list(render_frames(cfg, scene, setup, renderer, make_sensor(cfg.sensor),
+            frames[cull] = list(render_frames(cfg, scene, setup, renderer, build(cfg.sensor, "a sensor model", "sensor._target_"),
                                               np.random.default_rng(1)))
             if cull:
                 for shot in setup.shots:  # re-render each shot culled to see what it hid

@@ -6,7 +6,7 @@ from garage_exp.perception.sensor import LEVELS, SensorModel, linear_to_srgb, ma
 
 
 def noisy(**overrides) -> SensorModel:
-    return make_sensor({"name": "noisy", "kind": "noisy", "params": {**LEVELS["noisy"]["params"], **overrides}})
+    return make_sensor(**{"name": "noisy", "kind": "noisy", "params": {**LEVELS["noisy"]["params"], **overrides}})
 
 
 def uniform(value: int, size: int = 64) -> np.ndarray:
@@ -24,7 +24,7 @@ def linear_mean(rgb: np.ndarray) -> float:
 
 def test_ideal_is_identity():
     rgb = np.random.default_rng(0).integers(0, 256, (32, 48, 3), dtype=np.uint8)
-    out = make_sensor(LEVELS["ideal"]).apply(rgb, np.random.default_rng(1))
+    out = make_sensor(**LEVELS["ideal"]).apply(rgb, np.random.default_rng(1))
     assert np.array_equal(out, rgb)
 
 
@@ -118,22 +118,24 @@ def test_srgb_round_trip():
 ])
 def test_bad_parameters_raise_garage_error(params, where):
     with pytest.raises(GarageError) as err:
-        make_sensor({"name": "bad", "kind": "noisy", "params": params})
+        make_sensor(**{"name": "bad", "kind": "noisy", "params": params})
     assert err.value.where.startswith(where)
     assert "\n" not in str(err.value)
 
 
 def test_unknown_kind_and_config_objects():
     with pytest.raises(GarageError, match="sensor kind"):
-        make_sensor({"name": "x", "kind": "thermal"})
+        make_sensor(**{"name": "x", "kind": "thermal"})
     from omegaconf import OmegaConf
 
     from garage_exp.core.schema import SensorConf
 
     conf = OmegaConf.merge(OmegaConf.structured(SensorConf), {"name": "noisy", **LEVELS["noisy"]})
-    sensor = make_sensor(conf)
+    from garage_exp.core.plugins import build
+
+    sensor = build(conf, "a sensor model", "sensor._target_")  # as the job builds it: `_target_` and the keys
     assert sensor.kind == "noisy" and sensor.full_well == LEVELS["noisy"]["params"]["full_well"]
-    assert make_sensor(OmegaConf.structured(SensorConf)).kind == "ideal"
+    assert build(OmegaConf.structured(SensorConf), "a sensor model", "sensor._target_").kind == "ideal"
 
 
 @pytest.mark.parametrize("key, bad, good, message", [
@@ -149,9 +151,9 @@ def test_each_range_check_at_its_boundary(key, bad, good, message):
     """The value just outside the range is refused with its own message naming the level; the boundary
     itself (or the nearest value inside) is accepted."""
     with pytest.raises(GarageError) as err:
-        make_sensor({"name": "mine", "kind": "noisy", "params": {key: bad}})
+        make_sensor(**{"name": "mine", "kind": "noisy", "params": {key: bad}})
     assert message in str(err.value) and err.value.where == "sensor.params (mine)"
-    assert getattr(make_sensor({"name": "mine", "kind": "noisy", "params": {key: good}}), key) == good
+    assert getattr(make_sensor(**{"name": "mine", "kind": "noisy", "params": {key: good}}), key) == good
 
 
 def test_unknown_kind_message_lists_the_kinds():
@@ -163,25 +165,25 @@ def test_unknown_kind_message_lists_the_kinds():
 @pytest.mark.parametrize("value", [True, float("inf"), float("nan"), None, "1.0"])
 def test_parameters_must_be_finite_numbers(value):
     with pytest.raises(GarageError) as err:
-        make_sensor({"name": "n", "kind": "noisy", "params": {"read_noise": value}})
+        make_sensor(**{"name": "n", "kind": "noisy", "params": {"read_noise": value}})
     assert f"read_noise must be a finite number, got {value!r}" in str(err.value)
     assert err.value.where == "sensor.params.read_noise"
 
 
 def test_make_sensor_messages_and_defaults():
     with pytest.raises(GarageError) as err:
-        make_sensor({"name": "n", "kind": "noisy", "params": {"iso": 800, "zoom": 2}})
+        make_sensor(**{"name": "n", "kind": "noisy", "params": {"iso": 800, "zoom": 2}})
     assert "unknown sensor parameter(s) ['iso', 'zoom']; allowed: ['blur_sigma', " in str(err.value)
     assert err.value.where == "sensor.params"
     with pytest.raises(GarageError) as err:
-        make_sensor({"name": "n", "kind": "noisy", "params": {"quantize": 1}})
+        make_sensor(**{"name": "n", "kind": "noisy", "params": {"quantize": 1}})
     assert "quantize must be true or false, got 1" in str(err.value)
     assert err.value.where == "sensor.params.quantize"
-    plain = make_sensor({})
+    plain = make_sensor()
     assert (plain.name, plain.kind) == ("ideal", "ideal") and plain.params() == SensorModel().params()
-    ints = make_sensor({"name": "n", "kind": "noisy", "params": {"full_well": 5000, "quantize": False}})
+    ints = make_sensor(**{"name": "n", "kind": "noisy", "params": {"full_well": 5000, "quantize": False}})
     assert ints.full_well == 5000 and ints.quantize is False and ints.name == "n"
-    assert make_sensor({"name": "n", "kind": "noisy", "params": None}).kind == "noisy"
+    assert make_sensor(**{"name": "n", "kind": "noisy", "params": None}).kind == "noisy"
 
 
 def test_apply_refuses_frames_that_are_not_rgb_uint8():
@@ -190,7 +192,7 @@ def test_apply_refuses_frames_that_are_not_rgb_uint8():
     for frame in (np.zeros((4, 4), np.uint8), np.zeros((4, 4, 4), np.uint8), np.zeros((4, 4, 3), np.float32)):
         with pytest.raises(ValueError, match="expected an HxWx3 uint8 RGB frame"):
             sensor.apply(frame, rng)
-    ideal = make_sensor({"kind": "ideal"})
+    ideal = make_sensor(**{"kind": "ideal"})
     with pytest.raises(ValueError):
         ideal.apply(np.zeros((4, 4), np.uint8), rng)
 

@@ -20,6 +20,7 @@ from mlflow_server import Server, free_port
 from garage_exp.tracking import runs as tracking
 from garage_exp.perception.detect import worker
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 
 DRY = ["dry_run=true", "plan=tiny"]
 
@@ -433,11 +434,11 @@ REFUSED = Refused("API request to http://127.0.0.1:1/api/2.0/mlflow/runs/create 
 @pytest.fixture
 def fresh_outage(monkeypatch):
     """retry()'s outage state as in a new process, and sleeps that only count."""
-    from garage_exp.core import exits as cli_errors
+    from garage_exp.core.state import STATE
 
-    monkeypatch.setattr(tracking, "_down_since", None)
-    monkeypatch.setattr(tracking, "_given_up", False)
-    monkeypatch.setattr(cli_errors, "_stopping", False)
+    monkeypatch.setattr(STATE, "tracking_down_since", None)
+    monkeypatch.setattr(STATE, "tracking_given_up", False)
+    monkeypatch.setattr(STATE, "stopping", False)
     monkeypatch.setattr(tracking, "_uri", lambda: "http://127.0.0.1:1")
     slept = []
     clock = [1000.0]
@@ -481,9 +482,9 @@ def test_retry_waits_a_bounded_time_for_the_server_and_says_so_once(fresh_outage
 
 
 def test_after_a_signal_retry_never_waits(fresh_outage):
-    from garage_exp.core import exits as cli_errors
+    from garage_exp.core.state import STATE
 
-    cli_errors._stopping = True
+    STATE.stopping = True
     calls = []
 
     def refused():
@@ -508,7 +509,7 @@ def test_a_job_run_keeps_what_the_server_missed_and_resume_replays_it(tmp_path, 
     mlc = tracking.client(uri)
     run_id = mlc.create_run(tracking.experiment_id(mlc, "garage_exp"), tags={"config_hash": "h",
                                                                             "output_dir": str(tmp_path)}).info.run_id
-    monkeypatch.setattr(tracking, "_given_up", True)  # the server is away
+    monkeypatch.setattr(STATE, "tracking_given_up", True)  # the server is away
     run = tracking.JobRun(mlc, run_id, pending=tmp_path / tracking.PENDING_FILE)
     (tmp_path / "table.csv").write_text("a\n1\n")
     run.log_series("confidence", [0.5, 0.25])
@@ -516,7 +517,7 @@ def test_a_job_run_keeps_what_the_server_missed_and_resume_replays_it(tmp_path, 
     run.log_artifact(tmp_path / "table.csv")
     run.end("FINISHED")
     assert run.kept == 4 and mlc.get_run(run_id).info.status == "RUNNING"
-    monkeypatch.setattr(tracking, "_given_up", False)  # it is back
+    monkeypatch.setattr(STATE, "tracking_given_up", False)  # it is back
     cfg = OmegaConf.create({"tracking": {"uri": uri, "experiment": "garage_exp"}})
     kept = tracking.kept_run(cfg, "h")
     assert kept == (run_id, tmp_path / tracking.PENDING_FILE)

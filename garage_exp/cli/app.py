@@ -20,12 +20,12 @@ from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.cli import callbacks
 from garage_exp.core import schema
-from garage_exp.run import job
 from garage_exp.core.exits import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
                                    on_sigint, on_sigterm)
 from garage_exp.core.errors import GarageError
-from garage_exp.run.job import run_job
 from garage_exp.core.paths import PROJECT_ROOT
+from garage_exp.core.state import STATE
+from garage_exp.run.job import run_job
 
 log = logging.getLogger("garage_exp")
 
@@ -72,6 +72,7 @@ def cli(argv: list[str] | None = None) -> None:
     1 a sweep finished with failed jobs (its summary lists them) or a job crashed (traceback); 130 Ctrl-C,
     143 SIGTERM (the running job's run ends KILLED; resume=true finishes the sweep)."""
     sys.argv[1:] = quote_numeric_choices(sys.argv[1:] if argv is None else list(argv))
+    state = STATE.begin()  # this command's sweep, counts and outages; the warm renderer and detector stay
     install_error_report()
     # On a full disk every log record that cannot be written would print a traceback of its own (Python's
     # logging default); the job reports the full disk once instead.
@@ -81,11 +82,11 @@ def cli(argv: list[str] | None = None) -> None:
     try:
         main()
     except BaseException as exc:
-        callbacks.abandon_sweep(exc)  # the parent run of an interrupted sweep must not stay RUNNING
+        callbacks.abandon_sweep(state.sweep, exc)  # the parent run of an interrupted sweep must not stay RUNNING
         if isinstance(exc, SweepStopped):  # a full disk, a tracking server away: the job said what it kept
-            sweep = callbacks.current_sweep()
+            sweep = state.sweep
             jobs = sweep.jobs if sweep is not None and sweep.in_process else None
-            print(f"garage_exp: {exc.line(job.finished_jobs, jobs)}", file=sys.stderr)
+            print(f"garage_exp: {exc.line(state.finished_jobs, jobs)}", file=sys.stderr)
             sys.exit(EXIT_FAILED_JOBS)
         if isinstance(exc, KeyboardInterrupt):  # the job's run already ended KILLED, its partial table kept
             terminated = isinstance(exc, Terminated)
@@ -99,6 +100,5 @@ def cli(argv: list[str] | None = None) -> None:
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
-    sweep = callbacks.current_sweep()
-    if sweep is not None and sweep.failures:
+    if state.sweep is not None and state.sweep.failures:
         sys.exit(EXIT_FAILED_JOBS)

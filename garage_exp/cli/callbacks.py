@@ -11,23 +11,15 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.tracking import runs as tracking
+from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
 
 log = logging.getLogger(__name__)
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
 BASIC_LAUNCHER = "hydra._internal.core_plugins.basic_launcher.BasicLauncher"
-_CURRENT: MlflowSweepCallback | None = None
-
-
-def current_sweep() -> MlflowSweepCallback | None:
-    """The sweep this process ran (for the exit code), if any."""
-    return _CURRENT
-
-
-def abandon_sweep(exc: BaseException) -> None:
+def abandon_sweep(sweep: MlflowSweepCallback | None, exc: BaseException) -> None:
     """The sweep stopped without reaching its end (Ctrl-C, SIGTERM, a launcher crash): its parent run ends
     KILLED or FAILED with the reason, instead of RUNNING forever."""
-    sweep = _CURRENT
     if sweep is None or not sweep.parent_run_id or sweep.ended:
         return
     if isinstance(exc, SystemExit) and not exc.code:
@@ -80,7 +72,8 @@ def check_sweep(config: DictConfig) -> list[list[str]] | None:
     for k, job in enumerate(jobs):
         job_cfg = loader.load_sweep_config(config, job)  # Hydra's errors (unknown level, wrong type) raise here
         try:
-            preflight(job_cfg, needs)
+            prepared = preflight(job_cfg, check_space=False)
+            needs.append((prepared.bytes_out, prepared.bytes_store))
         except GarageError as exc:
             shown = " ".join(o for o in job if not o.lstrip("+~").startswith("tracking."))
             raise GarageError(str(exc), f"sweep job {k} ({shown})") from None
@@ -138,8 +131,7 @@ class MlflowSweepCallback(Callback):
 
     @_fatal
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        global _CURRENT
-        _CURRENT = self
+        STATE.sweep = self  # the entry point reads the sweep's failures for its exit code
         from garage_exp.search import sweep as search_sweep
 
         self.search = search_sweep.is_search(config)

@@ -7,6 +7,7 @@ import os
 import sys
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 
 EXIT_INPUT = 2  # bad input: one line on stderr, nothing logged
 EXIT_FAILED_JOBS = 1  # a sweep ran to its end but some of its jobs failed (the summary lists them)
@@ -31,17 +32,13 @@ class SweepStopped(BaseException):
         return f"{self.what}{done}; {self.hint}"
 
 
-_stopping = False
-
-
 def stopping() -> bool:
     """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry)."""
-    return _stopping
+    return STATE.stopping
 
 
 def _stop_now() -> None:
-    global _stopping
-    _stopping = True
+    STATE.stopping = True
     # A request already on its way to a server that hangs must not hold the exit either.
     os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] = "3"
     os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] = "0"

@@ -193,14 +193,20 @@ class CaseConf:
 
 @dataclass
 class SensorConf:
+    """The camera sensor: `_target_` names the factory called with the other keys (name, kind, params)."""
+
     name: str = "ideal"
+    _target_: str = "garage_exp.perception.sensor.make_sensor"
     kind: str = "ideal"  # ideal | noisy
     params: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
 class DetectorConf:
+    """The detectors: `_target_` names the factory of the detector's arguments, called with the other keys."""
+
     name: str = "coco3"
+    _target_: str = "garage_exp.perception.detect.detector.detector_spec"
     models: list[str] = field(default_factory=lambda: ["yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model",
                                                          "yolo26n_int8_openvino_model"])
     classes: list[str] = field(default_factory=lambda: ["car", "truck", "bus"])  # a vehicle target's classes
@@ -214,7 +220,8 @@ class DetectorConf:
 
 @dataclass
 class RendererConf:
-    """The renderer: `_target_` names the backend's factory `make(conf) -> garage_exp.render.Renderer`."""
+    """The renderer: `_target_` names the backend's factory, called with the other keys, returning a
+    `garage_exp.render.Renderer`."""
 
     name: str = "sapien"
     _target_: str = "garage_exp.render.sapien_backend.make"

@@ -144,10 +144,10 @@ class SensorModel:
         return asdict(self)
 
 
-def make_sensor(conf: Any) -> SensorModel:
-    """From a `SensorConf` (name, kind, params) Hydra node or a dict of the same keys."""
-    get = conf.get if isinstance(conf, dict) else lambda key, default=None: getattr(conf, key, default)
-    params = dict(get("params", None) or {})
+def make_sensor(*, name: str = "ideal", kind: str = "ideal", params: dict[str, Any] | None = None) -> SensorModel:
+    """The default `sensor._target_`, called with the `sensor` group's keys: the model of that kind with its
+    parameters, each checked (one GarageError naming `sensor.params.<key>`)."""
+    params = dict(params or {})
     allowed = set(SensorModel.__dataclass_fields__) - {"name", "kind"}
     unknown = sorted(set(params) - allowed)
     if unknown:
@@ -158,4 +158,4 @@ def make_sensor(conf: Any) -> SensorModel:
                 raise GarageError(f"quantize must be true or false, got {value!r}", "sensor.params.quantize")
         elif isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value)):
             raise GarageError(f"{key} must be a finite number, got {value!r}", f"sensor.params.{key}")
-    return SensorModel(name=str(get("name", "ideal")), kind=str(get("kind", "ideal")), **params)
+    return SensorModel(name=str(name), kind=str(kind), **params)

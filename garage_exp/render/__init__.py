@@ -1,15 +1,15 @@
 """Rendering: a Frame (picture, entity ids, camera), the Renderer interface, and the backend the config names.
 
 Importing this package does not import a backend: `Frame` is plain data that ground truth and tests use without
-a Vulkan device. The backend is the factory named by `renderer._target_` (conf/renderer/*.yaml), so a second
-backend is one module plus one YAML.
+a Vulkan device. The backend is the factory named by `renderer._target_` (conf/renderer/*.yaml), called with
+the group's keys, so a second backend is one module plus one YAML.
 """
 
 from __future__ import annotations
 
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.render.base import BLANK_GREY, Frame, Renderer
-from garage_exp.core.plugins import check_target, resolve
+from garage_exp.core.plugins import build, check_target
 
 SAVE_FRAMES = ("all", "key", "none")
 
@@ -25,7 +25,7 @@ def check_renderer(conf) -> None:
 
 def open_renderer(conf) -> Renderer:
     """The process's renderer of the backend `conf._target_` names, set up from the `renderer` group."""
-    return resolve(str(conf._target_), "renderer", "renderer._target_")(conf)
+    return build(conf, "a renderer", "renderer._target_")
 
 
 __all__ = ["BLANK_GREY", "Frame", "Renderer", "check_renderer", "open_renderer"]

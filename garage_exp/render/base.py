@@ -88,6 +88,3 @@ class Renderer(Protocol):
     def unoccluded_ids(self, camera_name: str, names: Iterable[str]) -> dict[str, np.ndarray]:
         """Each named entity's silhouette (HxW bool) as the camera would see it with nothing in the way; entities
         outside the image are left out."""
-
-    def blank_composite(self, rgb: np.ndarray, frame: Frame, names: Iterable[str]) -> np.ndarray:
-        """The named entities' pixels of `rgb` (a picture of `frame`) on uniform BLANK_GREY."""

@@ -30,8 +30,8 @@ hidden.
 
 Blank control (`Scene.background=False`): everything but the vehicles is hidden and empty pixels become
 grey 128. This is what "the same vehicle with the background removed" means: the whole vehicle, lit by the
-same lights, with the garage (pillars included) gone. `blank_composite` pastes only given vehicles' pixels on
-grey: on a blank render it drops the other vehicles; on a full render it would keep the target cut by its
+same lights, with the garage (pillars included) gone. `render.composite.blank_composite` pastes only given
+vehicles' pixels on grey: on a blank render it drops the other vehicles; on a full render it would keep the target cut by its
 occluders, which is occlusion without background rather than the control.
 """
 
@@ -44,6 +44,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
 from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.cull import box_corners, frustum_planes, outside_frustum
@@ -525,18 +526,6 @@ class SapienRenderer:
                     out[name] = mask
         return out
 
-    def blank_composite(self, rgb: np.ndarray, frame: Frame, names: Iterable[str]) -> np.ndarray:
-        """The named vehicles' pixels of `rgb` (a picture of `frame`) pasted on uniform grey.
-
-        The blank control proper is a scene with `background=False`, which renders every vehicle whole on
-        grey with the same lights. Compositing on top of that drops the other vehicles; on a full render it
-        keeps the target as the occluders cut it (a different control: occlusion without background).
-        """
-        keep = np.isin(frame.ids, [self._ids[n] for n in names if n in self._ids])
-        out = np.full_like(rgb, BLANK_GREY)
-        out[keep] = rgb[keep]
-        return out
-
     # ---- helpers --------------------------------------------------------------------------------------------
 
     def _camera(self, name: str) -> _Camera:
@@ -637,21 +626,20 @@ def _overlap(a: Sequence[float], b: Sequence[float]) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-_RENDERER: SapienRenderer | None = None
-
-
 def get_renderer(max_lights: int = 8, shadows: bool = False) -> SapienRenderer:
     """The process's renderer (created on first call, then reused so shaders compile once per process);
     settings apply from the next `load()`. max_lights: 1-10 (SAPIEN's default shader; render.check_renderer)."""
-    global _RENDERER
-    if _RENDERER is None:
-        _RENDERER = SapienRenderer(max_lights=max_lights, shadows=shadows)
+    renderer = STATE.renderer
+    if not isinstance(renderer, SapienRenderer):
+        renderer = STATE.renderer = SapienRenderer(max_lights=max_lights, shadows=shadows)
     else:
-        _RENDERER.max_lights, _RENDERER.shadows = max_lights, shadows
-    return _RENDERER
+        renderer.max_lights, renderer.shadows = max_lights, shadows
+    return renderer
 
 
-def make(conf) -> SapienRenderer:
-    """The factory `conf/renderer/sapien.yaml` names (`_target_`): the process's renderer set up from the
-    `renderer` group."""
-    return get_renderer(max_lights=int(conf.max_lights), shadows=bool(conf.shadows))
+def make(*, max_lights: int = 8, shadows: bool = False, save_frames: str = "key", name: str = "sapien"
+         ) -> SapienRenderer:
+    """The factory `conf/renderer/sapien.yaml` names (`_target_`), called with the `renderer` group's keys:
+    the process's renderer with its light pool and shadows. save_frames and name are the frame loop's and
+    the level's, not the renderer's."""
+    return get_renderer(max_lights=int(max_lights), shadows=bool(shadows))

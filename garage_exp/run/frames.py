@@ -19,11 +19,11 @@ from omegaconf import DictConfig
 
 from garage_exp import exports
 from garage_exp.perception.groundtruth import VehicleTruth
-from garage_exp.plan.classify import Classified
+from garage_exp.render.composite import blank_composite
 from garage_exp.results import figures
 from garage_exp.results import table as frame_table
 from garage_exp.scenario import CaseSetup, Shot
-from garage_exp.scenario.assemble import HIDDEN, build_scene
+from garage_exp.scenario.assemble import HIDDEN
 from garage_exp.scene.description import Scene
 
 log = logging.getLogger("garage_exp")
@@ -58,7 +58,7 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
             truth = ground_truth(frame, silhouettes, scene, renderer.ids)
             rgb = sensor.apply(frame.rgb, sensor_rng)
             if not scene.background:
-                rgb = renderer.blank_composite(rgb, frame, [shot.target])
+                rgb = blank_composite(rgb, frame, renderer.ids, [shot.target])
             target = next((t for t in truth if t.name == shot.target), None)
             # copied only when a dataset will label the frame in 3D
             geometry = exports.FrameGeometry.of(frame) if cfg.dataset else None
@@ -88,22 +88,21 @@ def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered,
         yield waiting.popleft(), detector.result()
 
 
-def run_experiment(cfg: DictConfig, classified: Classified, out: Path, run, built=None) -> dict:
-    """Run the job's frames and return its summary metrics (`difficulty`, and `fair_*`: the search's objective).
-    built: the (scene, setup) the job's preflight made from this config, if any (else built here)."""
-    from garage_exp.assets.vehicles import shared_library
+def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
+    """Render and score the frames of the scene the job's preflight built (`run.preflight.PreparedJob`), log
+    them on the job's run, and return the summary metrics (`difficulty`, and `fair_*`: the search's
+    objective)."""
+    from garage_exp.core.plugins import build
     from garage_exp.perception.detect import score_target
-    from garage_exp.perception.detect.detector import spec_from_config
     from garage_exp.perception.detect.worker import open_detector
     from garage_exp.render import open_renderer
     from garage_exp.scene.gltf import export_glb
-    from garage_exp.perception.sensor import make_sensor
 
     # First, so that the models load in the detector's process while this one builds and loads the scene and
     # compiles its shaders (the first frame).
-    detector = open_detector(spec_from_config(cfg.detector))
-    scene, setup = built or build_scene(cfg, classified, shared_library(), np.random.default_rng(cfg.seed))
-    sensor = make_sensor(cfg.sensor)
+    detector = open_detector(build(cfg.detector, "a detector", "detector._target_"))
+    scene, setup = prepared.scene, prepared.setup
+    sensor = build(cfg.sensor, "a sensor model", "sensor._target_")
     renderer = open_renderer(cfg.renderer)
     renderer.load(scene)
     trial = cfg.search.trial is not None  # a search trial: lean (the study's parent holds map, plots, frames)

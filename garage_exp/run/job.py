@@ -12,6 +12,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.state import STATE
 from garage_exp.tracking import runs as tracking
 from garage_exp.core.exits import SweepStopped
 from garage_exp.run.diskspace import NotEnoughSpace, full_disk
@@ -56,13 +57,8 @@ def _remove_untouched(out: Path) -> None:
         pass
 
 
-# Jobs of this process that finished (or had finished before): the count a stopped sweep reports.
-finished_jobs = 0
-
-
 def _count_finished() -> None:
-    global finished_jobs
-    finished_jobs += 1
+    STATE.finished_jobs += 1  # the count a stopped sweep reports
 
 
 def _close_on_full_disk(run, out: Path, where: str) -> None:
@@ -118,14 +114,14 @@ def _run_job(cfg: DictConfig) -> float | dict:
     out = Path(hc.runtime.output_dir)
     multirun = hc.mode == RunMode.MULTIRUN
     try:
-        plan_path, classified = preflight(cfg)  # bad input fails here, before anything is logged
+        prepared = preflight(cfg)  # bad input fails here, before anything is logged
     except GarageError as exc:
         _remove_untouched(out)
         if multirun and isinstance(exc, NotEnoughSpace):  # the disk filled since the sweep's own check
             raise SweepStopped(str(exc), "free space and rerun with resume=true") from None
         raise
-    name_levels(cfg, classified.plan.name)
-    digest = tracking.config_hash(cfg, tracking.file_digest(plan_path))
+    name_levels(cfg, prepared.classified.plan.name)
+    digest = tracking.config_hash(cfg, tracking.file_digest(prepared.plan_path))
     if cfg.resume:
         done = tracking.finished_run(cfg, digest)
         if done:
@@ -143,7 +139,7 @@ def _run_job(cfg: DictConfig) -> float | dict:
             return math.nan
     parent = tracking.read_parent(hc.sweep.dir) if multirun else None
     trial = cfg.search.trial
-    tags = {"plan": classified.plan.name, "overrides": " ".join(hc.overrides.task), "case": str(cfg.case.name),
+    tags = {"plan": prepared.classified.plan.name, "overrides": " ".join(hc.overrides.task), "case": str(cfg.case.name),
             "output_dir": str(out), "config_hash": digest, "host": os.uname().nodename, "pid": str(os.getpid())}
     if trial is not None:
         tags["search_trial"] = str(trial)
@@ -160,14 +156,13 @@ def _run_job(cfg: DictConfig) -> float | dict:
         (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
         run.log_artifact(out / "config.yaml")
         if trial is None:  # a search trial's map is its study's: the parent holds it
-            run.log_artifact(draw_map(classified, out / "plan_map.png"))
+            run.log_artifact(draw_map(prepared.classified, out / "plan_map.png"))
         if cfg.dry_run:
             summary = {"difficulty": math.nan}
         else:
-            from garage_exp.run.frames import run_experiment
-            from garage_exp.run.preflight import built_scene
+            from garage_exp.run.frames import run_frames
 
-            summary = run_experiment(cfg, classified, out, run, built_scene(cfg))
+            summary = run_frames(cfg, prepared, out, run)
     except BaseException as exc:
         where = full_disk(exc) if isinstance(exc, Exception) else None
         if where is not None:

@@ -7,14 +7,28 @@ naming the file or key.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import PLANS_DIR
+from garage_exp.core.state import STATE
 
-_CACHE: dict = {}  # plan path -> (stat key, classified) (sweeps check many jobs)
+
+@dataclass
+class PreparedJob:
+    """What a job's preflight checked and built; the job runs exactly this (the same config and seed would
+    build the same scene again)."""
+
+    plan_path: Path
+    classified: Any  # garage_exp.plan.classify.Classified
+    scene: Any = None  # garage_exp.scene.description.Scene; None for a dry run
+    setup: Any = None  # garage_exp.scenario.CaseSetup; None for a dry run
+    bytes_out: int = 0  # estimated bytes the job writes under its output dir
+    bytes_store: int = 0  # estimated bytes into a local sqlite store and its artifacts (0 for a server)
 
 
 def resolve_plan_path(plan_cfg) -> Path:
@@ -32,7 +46,7 @@ def resolve_plan_path(plan_cfg) -> Path:
                       "use plan.file=/path/to/plan.yaml for your own", "plan.name")
 
 
-def _classified(path: Path):
+def classified_plan(path: Path):
     from garage_exp.plan import classify, load_plan
 
     try:
@@ -40,12 +54,12 @@ def _classified(path: Path):
         key = (st.st_mtime_ns, st.st_size)
     except OSError:
         key = None
-    hit = _CACHE.get(("plan", path))
+    hit = STATE.plans.get(path)  # a sweep checks many jobs on one plan
     if key is not None and hit is not None and hit[0] == key:
         return hit[1]
     classified = classify(load_plan(path))  # bad plans fail here with the file and the place
     if key is not None:
-        _CACHE[("plan", path)] = (key, classified)
+        STATE.plans[path] = (key, classified)
     return classified
 
 
@@ -67,7 +81,7 @@ def check_config(cfg: DictConfig) -> None:
     from garage_exp.scene.modifiers import check_modifiers
     from garage_exp.scene.parking import check_palette
     from garage_exp.scene.structure import check_garage
-    from garage_exp.perception.sensor import make_sensor
+    from garage_exp.core.plugins import build
 
     for key in ("seed", "light.seed", "palette.seed"):
         value = OmegaConf.select(cfg, key)
@@ -80,28 +94,19 @@ def check_config(cfg: DictConfig) -> None:
     check_case(cfg)
     check_detector(cfg.detector)
     check_renderer(cfg.renderer)
-    make_sensor(cfg.sensor)  # the sensor model checks its own parameters
+    build(cfg.sensor, "a sensor model", "sensor._target_")  # the sensor model checks its own parameters
     check_modifiers(cfg.get("modifiers") or {})
 
 
-def built_scene(cfg: DictConfig):
-    """The (scene, setup) the last preflight of this very config built, for the job to use instead of building
-    them again (the same config and seed give the same scene); None when it built none."""
-    hit = _CACHE.get("built")
-    return hit[1] if hit is not None and hit[0] is cfg else None
-
-
-def preflight(cfg: DictConfig, needs: list | None = None):
+def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem. A dry run checks the config and the plan; a real job also the detector weights,
     the vehicle assets, and builds its scene description (garage, case, palette, modifiers, cameras) - all
-    but rendering, in ~0.1 s. Then the disk space the job will write: checked against the free space, or,
-    given `needs` (a sweep checking all its jobs), added to it as (bytes in the job's dir, bytes in a local
-    store). Returns (plan path, classified plan)."""
+    but rendering, in ~0.1 s. Then the disk space the job will write, against the free space unless
+    check_space is false (a sweep adds up all its jobs' estimates and checks them once)."""
     plan_path = resolve_plan_path(cfg.plan)
-    classified = _classified(plan_path)
+    prepared = PreparedJob(plan_path, classified_plan(plan_path))
     check_config(cfg)
-    scene = setup = None
     if not cfg.dry_run:
         import numpy as np
 
@@ -110,19 +115,17 @@ def preflight(cfg: DictConfig, needs: list | None = None):
 
         for entry in cfg.detector.models:
             model_format(resolve_model(entry))  # missing weights fail here (nothing is downloaded)
-        scene, setup = build_scene(cfg, classified, _library(), np.random.default_rng(int(cfg.seed)))
-        _CACHE["built"] = (cfg, (scene, setup))
-    written = job_bytes(cfg, scene, setup)
-    if needs is not None:
-        needs.append(written)
-    else:
+        prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
+                                                     np.random.default_rng(int(cfg.seed)))
+    prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
+    if check_space:
         from hydra.core.hydra_config import HydraConfig
 
         from garage_exp.run.diskspace import check_free
 
         out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
-        check_free([(out, written[0]), (store_dir(cfg), written[1])], "this job")
-    return plan_path, classified
+        check_free([(out, prepared.bytes_out), (store_dir(cfg), prepared.bytes_store)], "this job")
+    return prepared
 
 
 def store_dir(cfg: DictConfig) -> Path:

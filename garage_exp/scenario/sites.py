@@ -186,9 +186,9 @@ def find_site(name: str, classified: Classified, garage) -> Site:
     """A shipped site by name, or a user's own: `site: my_sites.ramp` names a function (classified, garage) ->
     Site in a module allowed by $GARAGE_EXP_MODIFIER_MODULES."""
     if "." in name:
-        from garage_exp.scene.modifiers import resolve_allowed
+        from garage_exp.core.plugins import build
 
-        site = resolve_allowed(name, "case.site", "site function")(classified, garage)
+        site = build({"_target_": name}, "a site function", "case.site", classified, garage)
         if not isinstance(site, Site):
             raise GarageError(f"{name} returned {type(site).__name__}, not a Site", "case.site")
         return site

@@ -11,8 +11,8 @@ from dataclasses import replace
 from typing import Any
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.plugins import build, check_target
 from garage_exp.scene.description import Box, Scene
-from garage_exp.core.plugins import allowed_modules, check_target, resolve, resolve_allowed  # noqa: F401  (scenario sites)
 
 
 def remove_entity(scene: Scene, name: str) -> None:
@@ -84,12 +84,4 @@ def check_modifiers(modifiers: dict[str, Any]) -> None:
 def apply_modifiers(scene: Scene, classified, garage, modifiers: dict[str, Any]) -> None:
     """Call each configured modifier in name order (deterministic)."""
     for group in sorted(modifiers):
-        spec = dict(modifiers[group])
-        target = spec.pop("_target_", None)
-        if not target:
-            raise GarageError("a modifier needs _target_ (the function to call)", f"modifiers.{group}")
-        fn = resolve(str(target))
-        try:
-            fn(scene, classified, garage, **spec)
-        except TypeError as exc:
-            raise GarageError(f"{target}: {exc}", f"modifiers.{group}") from None
+        build(modifiers[group], "a scene modifier", f"modifiers.{group}", scene, classified, garage)

@@ -39,7 +39,7 @@ class Outcome:
 
 
 def outcome(result, objective: str) -> Outcome:
-    """A trial's state and values from its job's return: the summary (run_experiment), or {"error": ...}.
+    """A trial's state and values from its job's return: the summary (run.frames.run_frames), or {"error": ...}.
     No fairly visible frame -> PRUNED (infeasible): a target nobody could see is untestable, not hard."""
     if not isinstance(result, dict) or "error" in result:
         error = result.get("error") if isinstance(result, dict) else f"the job returned {result!r}"

@@ -54,7 +54,7 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     space = space_mod.build(kept, config, group_levels(loader))
     base = space_mod.default_point(space)
     try:  # the fixed part first: a case the plan cannot hold is the command's problem, not a searched value's
-        preflight(loader.load_sweep_config(config, space.fixed), needs=[])
+        preflight(loader.load_sweep_config(config, space.fixed), check_space=False)
     except GarageError as exc:
         raise GarageError(str(exc), "search") from None
     for name, value in space_mod.probe_points(space):
@@ -62,7 +62,7 @@ def check(config: DictConfig, loader) -> space_mod.Space:
         where = f"search space {name}={space_mod.format_value(value)}"
         try:
             job = loader.load_sweep_config(config, point)
-            preflight(job, needs=[])
+            preflight(job, check_space=False)
         except GarageError as exc:
             raise GarageError(str(exc), where) from None
         except Exception as exc:
@@ -150,12 +150,12 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
     trials' runs tagged with their rank."""
     from garage_exp.tracking import runs as tracking
     from garage_exp.plan.draw import draw_map
-    from garage_exp.run.preflight import _classified, resolve_plan_path
+    from garage_exp.run.preflight import classified_plan, resolve_plan_path
 
     mlc = tracking.client(config.tracking.uri)
     study = result["study"]
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = [*paths, draw_map(_classified(resolve_plan_path(config.plan)), out_dir / "plan_map.png")]
+    paths = [*paths, draw_map(classified_plan(resolve_plan_path(config.plan)), out_dir / "plan_map.png")]
     for path in paths:
         tracking.retry(lambda p=path: mlc.log_artifact(parent_run_id, str(p), "search"))
     tags = {"study": result["name"], "storage": study_mod.storage_url(config.search),

@@ -12,6 +12,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.state import STATE
 from garage_exp.core.paths import OUTPUTS_DIR, PROJECT_ROOT
 
 PARENT_FILE = "mlflow_parent_run_id"
@@ -58,10 +59,6 @@ class TrackingAway(Exception):
     """The tracking server stayed away longer than the wait allowed (or a signal came while it was away)."""
 
 
-_down_since: float | None = None  # when the server stopped answering (None: it answers)
-_given_up = False  # the wait ran out: later calls fail at once instead of waiting again
-
-
 def tracking_wait() -> float:
     """How long a call waits for a tracking server that went away ($GARAGE_EXP_TRACKING_WAIT, seconds)."""
     try:
@@ -85,24 +82,23 @@ def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.
 
     from garage_exp.core.exits import stopping
 
-    global _down_since, _given_up
     k = 0
     while True:
-        if _given_up or (stopping() and _down_since is not None):
+        if STATE.tracking_given_up or (stopping() and STATE.tracking_down_since is not None):
             raise TrackingAway(f"tracking server {_uri()} away")
         try:
             result = fn()
         except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError and requests' errors
             if _unreachable(exc):
                 now = time.monotonic()
-                if _down_since is None:
-                    _down_since = now
+                if STATE.tracking_down_since is None:
+                    STATE.tracking_down_since = now
                     if not stopping():
                         print(f"garage_exp: tracking server {_uri()} not answering; retrying for up to "
                               f"{tracking_wait():.0f} s (GARAGE_EXP_TRACKING_WAIT)", file=sys.stderr, flush=True)
-                waited = now - _down_since
+                waited = now - STATE.tracking_down_since
                 if stopping() or waited >= tracking_wait():
-                    _given_up = not stopping()
+                    STATE.tracking_given_up = not stopping()
                     raise TrackingAway(f"tracking server {_uri()} away for {waited:.0f} s") from None
                 time.sleep(min(30.0, 2.0 ** min(k, 5), tracking_wait() - waited + 0.01))
                 k += 1
@@ -113,10 +109,10 @@ def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.
             time.sleep(min(max_delay, base_delay * (2**k)) * (0.5 + random.random()))
             k += 1
             continue
-        if _down_since is not None:
-            print(f"garage_exp: tracking server {_uri()} answers again after {time.monotonic() - _down_since:.0f} s",
+        if STATE.tracking_down_since is not None:
+            print(f"garage_exp: tracking server {_uri()} answers again after {time.monotonic() - STATE.tracking_down_since:.0f} s",
                   file=sys.stderr, flush=True)
-            _down_since = None
+            STATE.tracking_down_since = None
         return result
 
 

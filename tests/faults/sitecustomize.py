@@ -38,8 +38,8 @@ def _before_frames(job, hook):
 
     real_make = sensor.make_sensor
 
-    def make_sensor(conf):
-        model = real_make(conf)
+    def make_sensor(**settings):
+        model = real_make(**settings)
         if _job_num() != job:
             return model
         real_apply = model.apply

@@ -199,7 +199,9 @@ class Detector:
     @classmethod
     def from_config(cls, conf: Any, threads: int = 0) -> Detector:
         """From a `DetectorConf` (Hydra node): model entries resolved against the models dir."""
-        return cls(**spec_from_config(conf), threads=threads)
+        from garage_exp.core.plugins import build
+
+        return cls(**build(conf, "a detector", "detector._target_"), threads=threads)
 
     def detect(self, rgb: np.ndarray) -> list[ModelDetections]:
         """All classes' detections per model (non-vehicle classes are kept: they count as false positives)."""
@@ -226,8 +228,10 @@ class Detector:
 
 def check_detector(conf: Any) -> None:
     """The `detector` group's values (that the weights exist is checked by `model_format(resolve_model(m))`)."""
+    from garage_exp.core.plugins import check_target
     from garage_exp.perception.detect.matching import check_match
 
+    check_target(str(conf._target_), "a detector", "detector._target_")
     if not conf.models:
         raise GarageError("no detector models given", "detector.models")
     if not 0.0 <= float(conf.conf) < 1.0:
@@ -236,11 +240,15 @@ def check_detector(conf: Any) -> None:
     check_match(conf.match, conf.iou, conf.threshold)
 
 
-def spec_from_config(conf: Any) -> dict[str, Any]:
-    """`Detector` arguments from a `DetectorConf`, as plain picklable values (a child process rebuilds it)."""
-    return {"models": [resolve_model(m) for m in conf.models], "classes": tuple(conf.classes),
-            "person_classes": tuple(getattr(conf, "person_classes", ("person",))),
-            "conf": float(conf.conf), "imgsz": int(conf.imgsz), "device": str(getattr(conf, "device", "cpu"))}
+def detector_spec(*, models: Sequence[str], classes: Sequence[str] = ("car", "truck", "bus"),
+                  person_classes: Sequence[str] = ("person",), conf: float = 0.05, imgsz: int = 640,
+                  device: str = "cpu", name: str = "", iou: float = 0.5, match: str = "full",
+                  threshold: float = 0.5) -> dict[str, Any]:
+    """The default `detector._target_`, called with the `detector` group's keys: the `Detector` arguments as
+    plain picklable values (the detector's child process builds it from them), model entries resolved against
+    the models dir. name is the level's; iou, match and threshold are the scoring's (score_target)."""
+    return {"models": [resolve_model(m) for m in models], "classes": tuple(classes),
+            "person_classes": tuple(person_classes), "conf": float(conf), "imgsz": int(imgsz), "device": str(device)}
 
 
 def _unique(names: Iterable[str]) -> list[str]:

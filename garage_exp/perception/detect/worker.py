@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
 
 log = logging.getLogger("garage_exp")
@@ -167,9 +168,8 @@ class DetectorProcess:
 
     def _discard(self) -> None:
         """Kill the child: after an interrupted exchange the pipe is out of step and cannot be trusted."""
-        global _WORKER
-        if _WORKER is self:
-            _WORKER = None
+        if STATE.detector is self:
+            STATE.detector = None
         self._loading, self._reloading, self._names, self._spec = False, False, None, None
         self._flight.clear()
         if self._proc.poll() is None:
@@ -313,9 +313,6 @@ class _Collect(logging.Handler):
         return out
 
 
-_WORKER: DetectorProcess | None = None
-
-
 def configured_threads() -> int:
     raw = os.environ.get("GARAGE_EXP_OV_THREADS", str(DEFAULT_THREADS))
     try:
@@ -330,7 +327,6 @@ def use_process() -> bool:
 
 def open_detector(spec: dict[str, Any]) -> DetectorProcess | InlineDetector:
     """The process's detector child, loading `spec` (started on first use, reused by later jobs)."""
-    global _WORKER
     from garage_exp.perception.detect.detector import model_format
 
     for path in spec["models"]:
@@ -338,19 +334,20 @@ def open_detector(spec: dict[str, Any]) -> DetectorProcess | InlineDetector:
     threads = configured_threads()
     if not use_process():
         return InlineDetector(spec, threads=0)  # serial: nothing runs beside it, so OpenVINO takes all cores
-    if _WORKER is not None and (not _WORKER.alive() or _WORKER.threads != threads):
-        _WORKER.close()
-        _WORKER = None
-    if _WORKER is None:
-        _WORKER = DetectorProcess(threads)
-    _WORKER.load(spec)
-    return _WORKER
+    worker = STATE.detector
+    if worker is not None and (not worker.alive() or worker.threads != threads):
+        worker.close()
+        worker = STATE.detector = None
+    if worker is None:
+        worker = STATE.detector = DetectorProcess(threads)
+    worker.load(spec)
+    return worker
 
 
 @atexit.register
 def _close_worker() -> None:
-    if _WORKER is not None:
-        _WORKER.close()  # without this the child still exits, on end-of-file, once this process is gone
+    if STATE.detector is not None:
+        STATE.detector.close()  # without this the child still exits, on end-of-file, once this process is gone
 
 
 if __name__ == "__main__":
