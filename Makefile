@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 RUN_ARGS ?= -m light=bright,dim case=1,2,3 replicates=2
 export YOLO_OFFLINE := 1
 
-.PHONY: setup system python data run test ui dashboard map bench clean mutation
+.PHONY: setup system python data run test ui dashboard map bench clean mutation docs
 
 setup: system python data
 
@@ -35,9 +35,16 @@ run: setup
 	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open the link it prints"
 
 # GARAGE_EXP_PROVISIONED: setup provided Vulkan, vehicles and weights, so a render/detect/slow skip is an error.
-test: setup
+test: setup docs
 	$(BIN)/lint-imports --no-cache
 	GARAGE_EXP_PROVISIONED=1 $(BIN)/python -m pytest -q -p no:cacheprovider
+
+# The docs site (mkdocs.yml, docs/) into outputs/site. --strict: a broken link, anchor or image fails the build, and
+# `make test` builds it first. mkdocs-material is in the `test` extra; installed here too if the venv lacks it.
+docs: python
+	@$(BIN)/python -c "import material, mkdocs" 2>/dev/null || \
+		$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt mkdocs-material
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -d outputs/site
 
 # Mutation testing of the pure modules ([tool.mutmut] in pyproject.toml; results in docs/testing.md). Not part
 # of `make test`: it runs the fast unit tests once per mutant (CPU-heavy).

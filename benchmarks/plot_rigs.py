@@ -1,4 +1,5 @@
-"""The README's rig tables and figure from two sweeps' job dirs (each job's frames.csv and .hydra/overrides.yaml):
+"""The rig tables and figure of docs/results.md from two sweeps' job dirs (each job's frames.csv and
+.hydra/overrides.yaml):
 
     python -m garage_exp -m case=2 camera=fisheye camera.view=raw,perspective,cylindrical case.motion.step=1
     python -m garage_exp -m case=1,3 camera.mount=roof,mirror,bumper camera.fovy=30,60,90,120 case.motion.step=2

@@ -44,7 +44,7 @@ def main() -> Path:
     b.grid(alpha=0.3)
     fig.suptitle("Frame cost against garage size (case 1; 2 shared cores, see scale_run.txt for the load)", fontsize=9)
     fig.tight_layout()
-    out = HERE / "scale.png"
+    out = HERE.parent / "docs" / "img" / "scale.png"
     fig.savefig(out)
     return out
 

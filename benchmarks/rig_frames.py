@@ -1,4 +1,5 @@
-"""The README's frames of the camera rigs (docs/img/rigs_*.png): `python benchmarks/rig_frames.py [--out docs/img]`.
+"""The frames of the camera rigs in docs/configuration.md (docs/img/rigs_*.png):
+`python benchmarks/rig_frames.py [--out docs/img]`.
 
 - rigs_mounts.png: case 1 from each forward mount (rows) at 30, 60, 90 and 120 degrees vertical FOV (columns),
   plus the legacy `camera=front` and the rear and side-mirror mounts.

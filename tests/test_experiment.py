@@ -91,7 +91,7 @@ def test_blank_control_keeps_the_car_and_drops_the_garage(pipeline):
 
 def test_pillar_at_the_corner_hides_the_target_in_case_1(pipeline):
     """Case 1 on the research plan: far from the corner the target is only partly visible, the pillar cuts
-    it; with occluder=none the same frames see more of it and the detectors are more confident (the README's
+    it; with occluder=none the same frames see more of it and the detectors are more confident (docs/results.md's
     control: removing the pillar restores confidence)."""
     args = ("case=1", "light=bright", "case.motion.start=11.0", "case.motion.end=9.0", "case.motion.step=1.0",
             "palette.target_colours=[black]")

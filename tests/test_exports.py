@@ -277,12 +277,12 @@ def test_an_actor_without_a_box_gets_kittis_unknown_3d_fields():
     assert [float(v) for v in line[8:]] == [-1, -1, -1, -1000, -1000, -1000, -10]
 
 
-def test_readme_says_the_codes_ids_and_types():
+def test_docs_say_the_codes_ids_and_types():
     from conftest import ROOT
 
-    readme = (ROOT / "README.md").read_text()
-    assert ", ".join(f"{c['name']} {c['id']}" for c in coco.CATEGORIES) in readme
-    assert "Car for cars and SUVs, Van, Truck for pickups and trucks, Pedestrian, Misc for buses" in readme
+    page = (ROOT / "docs" / "outputs.md").read_text()
+    assert ", ".join(f"{c['name']} {c['id']}" for c in coco.CATEGORIES) in page
+    assert "Car for cars and SUVs, Van, Truck for pickups and trucks, Pedestrian, Misc for buses" in page
     assert kitti.KITTI_TYPES == {"car": "Car", "suv": "Car", "van": "Van", "pickup": "Truck", "truck": "Truck",
                                  "bus": "Misc", "person": "Pedestrian"}
 

@@ -152,13 +152,13 @@ def test_a_users_own_scenario_and_site_run_with_no_change_to_the_package(library
         build(library, "case=cut_in", config_dir=tmp_path)
 
 
-def test_the_readme_scenario_example_builds_as_it_says(library, tmp_path):
+def test_the_docs_scenario_example_builds_as_it_says(library, tmp_path):
     import re
 
-    readme = (PROJECT_ROOT / "README.md").read_text()
-    start = readme.index("Save it as\n`my_conf/case/cut_in.yaml`")
+    page = (PROJECT_ROOT / "docs" / "scenarios.md").read_text()
+    start = re.search(r"Save it as\s+`my_conf/case/cut_in.yaml`", page).start()
     (tmp_path / "case").mkdir()
-    (tmp_path / "case" / "cut_in.yaml").write_text(re.search(r"```yaml\n(.*?)```", readme[start:], re.S).group(1))
+    (tmp_path / "case" / "cut_in.yaml").write_text(re.search(r"```yaml\n(.*?)```", page[start:], re.S).group(1))
     _, setup = build(library, "case=cut_in", config_dir=tmp_path)
     assert [s.label for s in setup.shots] == ["10 m"] * 5 + ["15 m"] * 5
     assert [s.position for s in setup.shots[:5]] == [2.0, 1.5, 1.0, 0.5, 0.0]

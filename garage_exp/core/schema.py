@@ -277,7 +277,7 @@ class SearchConf:
     min_box: int = 25
     max_truncation: float = 0.5
     top: int = 5  # the hardest N scenarios the report lists and shows
-    saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (2D + 2) trials)
+    saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (D + 2) trials)
     grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)
     suite: SuiteConf = field(default_factory=SuiteConf)
     trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary

@@ -85,7 +85,7 @@ def study_lock(config: DictConfig):
 
 def budget(search, space: space_mod.Space, study) -> int:
     """How many trials the study holds at the end: `search.trials`; a grid (sampler=grid) all its cells; a
-    Saltelli design (sampler=saltelli) enqueues N x (2D + 2) trials and takes as many as it needs."""
+    Saltelli design (sampler=saltelli) enqueues N x (D + 2) trials and takes as many as it needs."""
     if search.sampler == "grid":  # the whole grid, whatever search.trials says
         return study_mod.grid_size(space.params, int(search.grid_levels))
     if search.sampler != "saltelli":
