@@ -37,15 +37,15 @@ def test_a_second_renderer_is_one_module_named_by_target(tmp_path, monkeypatch):
         "class Flat:\n"
         "    def __init__(self, conf):\n"
         "        self.conf = conf\n"
-        "def make(conf):\n"
-        "    return Flat(conf)\n")
+        "def make(**settings):\n"
+        "    return Flat(settings)\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("GARAGE_EXP_MODIFIER_MODULES", "my_backend")
     conf = OmegaConf.create({"name": "flat", "_target_": "my_backend.make", "max_lights": 4, "shadows": False,
                              "save_frames": "none"})
     check_renderer(conf)
     renderer = open_renderer(conf)
-    assert type(renderer).__name__ == "Flat" and renderer.conf.max_lights == 4
+    assert type(renderer).__name__ == "Flat" and renderer.conf["max_lights"] == 4
     assert Frame.__module__ == "garage_exp.render.base"
 
 
@@ -65,7 +65,7 @@ def test_sapien_backend_has_every_member_of_the_interface():
     from garage_exp.render.sapien_backend import SapienRenderer
 
     members = {n for n in vars(Renderer) if not n.startswith("_")}
-    assert members == {"load", "ids", "set_pose", "render", "unoccluded_ids", "blank_composite"}
+    assert members == {"load", "ids", "set_pose", "render", "unoccluded_ids"}
     assert all(hasattr(SapienRenderer, n) for n in members)
 
 
