@@ -144,11 +144,99 @@ def child_env(env: dict | None = None) -> dict:
     return full
 
 
-def run_app(args: list[str], tmp_path: Path, env: dict | None = None, timeout: int = 600):
-    """Run `python -m garage_exp` in a subprocess with outputs under tmp_path."""
-    import subprocess
+# --- the command line, in this process or a fresh one ---------------------------------------------------------------
+# A fresh `python -m garage_exp` pays ~5 s of imports, a new MLflow store's migrations (~4 s) and, for a job that
+# renders, SAPIEN's shader compilation on lavapipe (10-30 s) and the detectors' loading. Most tests are about what
+# a job or a sweep does, not about the interpreter: they run the command line in this process, as __main__ does
+# (garage_exp.cli.app.cli, whose STATE keeps the renderer and the detector warm between jobs), on a store copied
+# from one migrated template. Tests about the process itself (signals, fault injection through sitecustomize on
+# PYTHONPATH, a fresh interpreter's output) pass process=True, or are sent to a subprocess by their env.
+_TEMPLATE: list[Path] = []
 
-    full_env = child_env(env)
-    cmd = [PYTHON, "-m", "garage_exp", *args,
-           f"hydra.run.dir={tmp_path}/run", f"hydra.sweep.dir={tmp_path}/sweep"]
-    return subprocess.run(cmd, cwd=tmp_path, env=full_env, capture_output=True, text=True, timeout=timeout)
+
+def store_template() -> Path:
+    """An empty MLflow sqlite store, migrated once per test session."""
+    if not _TEMPLATE:
+        import tempfile
+
+        from garage_exp.tracking import runs as tracking
+
+        path = Path(tempfile.mkdtemp(prefix="garage_store_")) / "mlflow.db"
+        tracking.client(f"sqlite:///{path}").search_experiments()
+        _TEMPLATE.append(path)
+    return _TEMPLATE[0]
+
+
+def seed_store(args: list[str], cwd: Path) -> None:
+    """Copy the migrated template to a sqlite store the command names that does not exist yet."""
+    import shutil
+
+    for arg in args:
+        if arg.startswith("tracking.uri=sqlite:///"):
+            path = Path(arg.split("sqlite:///", 1)[1])
+            path = path if path.is_absolute() else cwd / path
+            if not path.exists() and path.parent.is_dir():
+                shutil.copyfile(store_template(), path)
+
+
+def run_app(args: list[str], tmp_path: Path, env: dict | None = None, timeout: int = 600, process: bool = False,
+            fresh_store: bool = False):
+    """`python -m garage_exp ARGS` with outputs under tmp_path, as a CompletedProcess (returncode, stdout,
+    stderr). In this process unless process=True, env sets PYTHONPATH (code a fresh interpreter must load) or
+    the caller is not the main thread (a job runs beside another); an absent sqlite store the command names
+    starts from the template unless fresh_store=True."""
+    cmd = [*args, f"hydra.run.dir={tmp_path}/run", f"hydra.sweep.dir={tmp_path}/sweep"]
+    if not fresh_store:
+        seed_store(cmd, tmp_path)
+    import threading
+
+    if process or (env and "PYTHONPATH" in env) or threading.current_thread() is not threading.main_thread():
+        import subprocess  # signal handlers can only be installed from the main thread
+
+        return subprocess.run([PYTHON, "-m", "garage_exp", *cmd], cwd=tmp_path, env=child_env(env),
+                              capture_output=True, text=True, timeout=timeout)
+    return run_in_process(cmd, tmp_path, env)
+
+
+def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
+    """What `python -m garage_exp ARGS` does, in this process: argv, working dir and environment set for the
+    call and restored after it, stdout and stderr captured, SystemExit as the return code, an uncaught
+    exception as its traceback and 1 (as the interpreter would)."""
+    import contextlib
+    import io
+    import logging
+    import subprocess
+    import traceback
+
+    from hydra.core.global_hydra import GlobalHydra
+
+    from garage_exp.cli.app import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    saved = (dict(os.environ), os.getcwd(), sys.argv)
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    os.environ.update(env or {})
+    os.chdir(cwd)
+    sys.argv = [str(ROOT / "garage_exp" / "__main__.py"), *args]
+    code = 0
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                cli()
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+                if isinstance(exc.code, str):
+                    print(exc.code, file=sys.stderr)
+            except Exception:
+                traceback.print_exc()
+                code = 1
+    finally:
+        os.environ.clear()
+        os.environ.update(saved[0])
+        os.chdir(saved[1])
+        sys.argv = saved[2]
+        GlobalHydra.instance().clear()
+        root.handlers[:] = handlers  # Hydra's job logging configured the root logger for the call
+        root.setLevel(level)
+    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())

@@ -102,7 +102,7 @@ def test_sweep_with_a_bad_job_is_refused_before_any_job_runs(tmp_path, mlflow_ur
     # case.site=nonsense passes the schema (a string) but not the check of every job that runs before the
     # sweep opens its parent run. (A job that crashes after its start: tests/test_reliability_faults.py.)
     r = run_app(["-m", "plan=tiny", "case.site=nonsense,corner", "light=bright", f"tracking.uri={mlflow_uri}"],
-                tmp_path)
+                tmp_path, fresh_store=True)
     assert r.returncode == 2
     assert "case.site" in r.stderr and "nonsense" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "mlflow.db").exists() and not (tmp_path / "sweep").exists()
