@@ -9,7 +9,7 @@ from conftest import require
 
 from garage_exp.perception.detect import GTBox, ModelDetections, iou, model_format, score_target
 from garage_exp.perception.detect import detector as detector_module
-from garage_exp.perception.detect import offline
+from garage_exp.core import offline
 from garage_exp.core.errors import GarageError
 
 DEFAULT_MODELS = ("yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model", "yolo26n_int8_openvino_model")
