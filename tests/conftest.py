@@ -209,6 +209,7 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
     import traceback
 
     from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.hydra_config import HydraConfig
 
     from garage_exp.cli.app import cli
 
@@ -237,6 +238,7 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
         os.chdir(saved[1])
         sys.argv = saved[2]
         GlobalHydra.instance().clear()
+        HydraConfig.instance().cfg = None  # as in a new process: no job's Hydra config
         root.handlers[:] = handlers  # Hydra's job logging configured the root logger for the call
         root.setLevel(level)
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import ROOT, compose_cfg, require, run_app
 
+from garage_exp.render.composite import blank_composite
 from garage_exp.tracking import runs as tracking
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
@@ -61,7 +62,7 @@ def shoot(pipeline, *overrides: str):
         frame = renderer.render(cam)
         in_view = [n for n, p in shot.poses.items() if p is not None]
         truth = ground_truth(frame, renderer.unoccluded_ids(cam, in_view), scene, renderer.ids)
-        rgb = frame.rgb if scene.background else renderer.blank_composite(frame.rgb, frame, [shot.target])
+        rgb = frame.rgb if scene.background else blank_composite(frame.rgb, frame, renderer.ids, [shot.target])
         target = next(t for t in truth if t.name == shot.target)
         score = score_target(detector.detect(rgb), target, truth, classes=tuple(cfg.detector.classes))
         out.append((shot, target, score, rgb))

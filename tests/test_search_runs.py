@@ -27,7 +27,7 @@ def stores(tmp_path) -> list[str]:
     ("light.intensity=interval(-1.0,1.0)", "search space light.intensity=-1.0"),  # a value the job would refuse
 ])
 def test_a_bad_search_space_is_one_line_exit_2_and_nothing_written(tmp_path, space, message):
-    r = run_app([*SEARCH, "dry_run=true", space, *stores(tmp_path)], tmp_path)
+    r = run_app([*SEARCH, "dry_run=true", space, *stores(tmp_path)], tmp_path, fresh_store=True)
     assert r.returncode == 2, r.stderr
     lines = [line for line in r.stderr.splitlines() if line.startswith("garage_exp:")]
     assert len(lines) == 1 and message in lines[0], r.stderr
