@@ -152,3 +152,37 @@ def run_app(args: list[str], tmp_path: Path, env: dict | None = None, timeout: i
     cmd = [PYTHON, "-m", "garage_exp", *args,
            f"hydra.run.dir={tmp_path}/run", f"hydra.sweep.dir={tmp_path}/sweep"]
     return subprocess.run(cmd, cwd=tmp_path, env=full_env, capture_output=True, text=True, timeout=timeout)
+
+
+def cli_forked(argv: list[str], cwd: Path, env: dict | None = None):
+    """`python -m garage_exp ARGV` in a child forked from this process, as tests/cli_forkserver.py runs it (no
+    interpreter start-up), so that what the test patched or put on sys.path here holds there too. Only the
+    command's own work runs in the child; the detectors still run in their own process. Outputs under cwd (hydra
+    dirs as run_app's unless ARGV names them); stdout and stderr come back as a CompletedProcess's."""
+    import subprocess
+    import tempfile
+
+    import cli_forkserver
+
+    given = {a.split("=", 1)[0] for a in argv}
+    dirs = [d for d in (f"hydra.run.dir={cwd}/run", f"hydra.sweep.dir={cwd}/sweep") if d.split("=")[0] not in given]
+    argv = [*argv, *dirs]
+    with tempfile.TemporaryDirectory() as scratch:
+        request = {"argv": argv, "cwd": str(cwd), "env": env or {}, "stdout": f"{scratch}/out",
+                   "stderr": f"{scratch}/err"}
+        pid = os.fork()
+        if pid == 0:
+            code = 70
+            try:
+                from hydra.core.global_hydra import GlobalHydra
+
+                from garage_exp.core.state import STATE
+
+                GlobalHydra.instance().clear()
+                STATE.renderer = STATE.detector = None  # this process's warm renderer and detector stay its own
+                code = cli_forkserver.child(request)
+            finally:
+                os._exit(code)
+        _, status = os.waitpid(pid, 0)
+        return subprocess.CompletedProcess(argv, os.waitstatus_to_exitcode(status), Path(request["stdout"]).read_text(),
+                                           Path(request["stderr"]).read_text())
