@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require
 
 from garage_exp.core import paths
 from garage_exp.assets import ac3d, locate, vehicles
@@ -26,15 +27,22 @@ def _vehicles_dir() -> Path | None:
 
 
 VEHICLES = _vehicles_dir()
-needs_vehicles = pytest.mark.skipif(
-    VEHICLES is None, reason="no FlightGear vehicles: set GARAGE_EXP_ASSETS or run `python -m garage_exp.assets fetch`")
+
+
+@pytest.fixture
+def vehicles_present() -> None:
+    """The real FlightGear vehicles: a test that needs them skips where the machine lacks them, and fails under
+    `make test` or CI=true, which provision them (conftest.require), so a broken lookup cannot hide as a skip."""
+    require("vehicles")
+
+
+needs_vehicles = pytest.mark.usefixtures("vehicles_present")
 
 
 @pytest.fixture(scope="module")
 def library(tmp_path_factory) -> VehicleLibrary:
     """One library over the real vehicles with its own cache, shared by the tests of this module."""
-    if VEHICLES is None:
-        pytest.skip("no FlightGear vehicles: set GARAGE_EXP_ASSETS or run `python -m garage_exp.assets fetch`")
+    require("vehicles")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("GARAGE_EXP_CACHE", str(tmp_path_factory.mktemp("cache")))
         yield VehicleLibrary(VEHICLES)

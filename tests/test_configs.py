@@ -37,7 +37,7 @@ def test_level_composes_with_its_file_values(group, level):
     cfg = compose_cfg(f"{group}={level}")
     text = (CONF / group / f"{level}.yaml").read_text()
     data = {k: v for k, v in (yaml.safe_load(text) or {}).items() if k != "defaults"}
-    package = text.split("# @package ", 1)[1].split()[0] if "# @package " in text else group
+    package = level_package(group, level)
     node = OmegaConf.to_container(OmegaConf.select(cfg, package), resolve=False)
     assert data, f"{group}/{level}.yaml sets nothing"
     missing = [key for key, value in data.items() if not holds(node.get(key), value)]
@@ -78,12 +78,21 @@ def test_dry_run_with_every_level_and_experiment(tmp_path_factory):
         work = tmp_path_factory.mktemp(name.replace("=", "-"))
         shutil.copy(template, work / "mlflow.db")
         batch.append((["dry_run=true", *args, f"tracking.uri=sqlite:///{work}/mlflow.db"], work, {}))
-    for (name, _), (_, work, _), proc in zip(jobs, batch, forked_cli(batch, tmp_path_factory.mktemp("forkserver"))):
+    for (name, _), (args, work, _), proc in zip(jobs, batch, forked_cli(batch, tmp_path_factory.mktemp("forkserver"))):
         assert proc.returncode == 0, (name, proc.stderr[-3000:])
         written = OmegaConf.load(work / "run" / "config.yaml")
         group, level = name.split("=")
         if group == "experiment":
             assert written.tracking.experiment == compose_cfg(f"+experiment={level}").tracking.experiment
-        else:
-            assert OmegaConf.select(written, group) is not None or OmegaConf.select(written, f"modifiers.{group}")
+        else:  # the job ran with the level: its written config holds what the level composes to, at its package
+            package = level_package(group, level)
+            expected = OmegaConf.to_container(OmegaConf.select(conftest.compose_cfg(*args), package), resolve=True)
+            got = OmegaConf.to_container(OmegaConf.select(written, package), resolve=True)
+            assert expected and holds(got, expected), (name, package, got, expected)
         assert (work / "run" / "plan_map.png").stat().st_size > 1000, name
+
+
+def level_package(group: str, level: str) -> str:
+    """Where a level's file puts its values: its `# @package` line, else its group."""
+    text = (CONF / group / f"{level}.yaml").read_text()
+    return text.split("# @package ", 1)[1].split()[0] if "# @package " in text else group

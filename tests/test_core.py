@@ -30,23 +30,87 @@ def test_app_holds_only_the_entry_point_and_the_command_line():
     assert "def run_job" not in source and "def preflight" not in source and "def input_error" not in source
 
 
-def test_a_second_renderer_is_one_module_named_by_target(tmp_path, monkeypatch):
-    from garage_exp.render import Frame, check_renderer, open_renderer
+FLAT_BACKEND = '''
+"""A second backend, written by the test: every camera sees one flat colour and no entity; each call is logged."""
+import json
+import os
 
-    (tmp_path / "my_backend.py").write_text(
-        "class Flat:\n"
-        "    def __init__(self, conf):\n"
-        "        self.conf = conf\n"
-        "def make(**settings):\n"
-        "    return Flat(settings)\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setenv("GARAGE_EXP_MODIFIER_MODULES", "my_backend")
-    conf = OmegaConf.create({"name": "flat", "_target_": "my_backend.make", "max_lights": 4, "shadows": False,
-                             "save_frames": "none"})
-    check_renderer(conf)
-    renderer = open_renderer(conf)
-    assert type(renderer).__name__ == "Flat" and renderer.conf["max_lights"] == 4
-    assert Frame.__module__ == "garage_exp.render.base"
+import numpy as np
+
+from garage_exp.render.base import Frame
+from garage_exp.scene.camera import camera_to_world, intrinsics_of
+
+
+GREY = 90
+
+
+class Flat:
+    def __init__(self, settings):
+        self.log = open(os.environ["FLAT_LOG"], "a")
+        self.log.write(json.dumps({"call": "make", **settings}) + "\\n")
+
+    def load(self, scene):
+        self.scene, self.poses = scene, {}
+        self.cameras = {c.name: c for c in scene.cameras}
+        self._ids = {e.name: k + 1 for k, e in enumerate(scene.actors())}
+        self.log.write(json.dumps({"call": "load", "cameras": list(self.cameras)}) + "\\n")
+
+    @property
+    def ids(self):
+        return self._ids
+
+    def set_pose(self, name, pose):
+        self.poses[name] = pose
+
+    def render(self, camera_name):
+        spec, ego = self.cameras[camera_name], self.poses["ego"]
+        rgb = np.full((spec.height, spec.width, 3), GREY, np.uint8)
+        ids = np.zeros((spec.height, spec.width), np.int32)
+        self.log.write(json.dumps({"call": "render", "camera": camera_name, "x": ego.x, "y": ego.y}) + "\\n")
+        self.log.flush()
+        return Frame(camera_name, rgb, ids, camera_to_world(ego, spec), *intrinsics_of(spec))
+
+    def unoccluded_ids(self, camera_name, names):
+        return {}
+
+
+def make(*, name, max_lights, shadows, save_frames):
+    return Flat({"name": name, "max_lights": max_lights, "shadows": shadows, "save_frames": save_frames})
+'''
+
+
+@pytest.mark.detect
+def test_a_second_renderer_is_one_module_named_by_target(tmp_path, monkeypatch):
+    """A backend is one module with a `make(**settings)` factory, named by `renderer._target_` (allowed through
+    $GARAGE_EXP_MODIFIER_MODULES): a real two-frame job renders every shot with it, without SAPIEN, and its
+    frame table is made of what it drew (one render call per row, nothing in view)."""
+    import csv
+    import json
+
+    from conftest import require, run_app
+
+    require("vehicles", "models")
+    (tmp_path / "flat_backend.py").write_text(FLAT_BACKEND)
+    monkeypatch.syspath_prepend(str(tmp_path))  # the job runs in this process (conftest.run_app)
+    log = tmp_path / "calls.jsonl"
+    env = {"GARAGE_EXP_MODIFIER_MODULES": "flat_backend", "FLAT_LOG": str(log)}
+    r = run_app(["plan=tiny", "case.motion.start=5.0", "case.motion.end=4.0", "case.motion.step=1.0",
+                    "palette.target_colours=[black]", "detector.models=[yolov8n_int8_openvino_model]",
+                    "renderer._target_=flat_backend.make", "renderer.name=flat", "renderer.max_lights=3",
+                    "renderer.save_frames=none", f"tracking.uri=sqlite:///{tmp_path}/mlflow.db"], tmp_path, env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    calls = [json.loads(line) for line in log.read_text().splitlines()]
+    renders = [c for c in calls if c["call"] == "render"]
+    assert calls[:2] == [{"call": "make", "name": "flat", "max_lights": 3, "shadows": False, "save_frames": "none"},
+                         {"call": "load", "cameras": ["front"]}]
+    assert len(renders) == 2
+    with open(tmp_path / "run" / "frames.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(x["camera"], float(x["ego_x"]), float(x["ego_y"])) for x in rows] == \
+        [(c["camera"], pytest.approx(c["x"], abs=1e-3), pytest.approx(c["y"], abs=1e-3)) for c in renders]
+    assert [float(x["position"]) for x in rows] == [5.0, 4.0]
+    assert {(x["visible_fraction"], x["kitti"]) for x in rows} == {("0.0", "out_of_view")}  # it drew no target
+    assert OmegaConf.load(tmp_path / "run" / "config.yaml").renderer._target_ == "flat_backend.make"
 
 
 def test_renderer_target_outside_the_allowed_modules_is_refused(monkeypatch):

@@ -98,13 +98,24 @@ def page(browser):
     context.close()
 
 
+ASSISTANT_CLOSE = 'button[data-component-id="mlflow.assistant.chat_panel.close"]'
+
+
 def open_page(pg, url: str) -> None:
+    """Go to url as a user would, and close the UI's chat assistant: on a local server MLflow opens it by itself
+    on a fresh browser's first page (its `mlflow.assistant.fab.autoOpenedOnFirstLoad`), beside the page, hiding
+    half the table. Tolerated: only that it did not open within 10 s (nothing to close then). A navigation error,
+    two close buttons, a close button that cannot be clicked or a panel that stays open fail the test."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     pg.goto(url)
-    close = pg.locator('button[data-component-id="mlflow.assistant.chat_panel.close"]')
-    try:  # the UI's chat assistant opens beside every page and hides half the table: a user closes it
-        close.click(timeout=10_000)
-    except Exception:
-        pass
+    close = pg.locator(ASSISTANT_CLOSE)
+    try:
+        close.wait_for(state="visible", timeout=10_000)
+    except PlaywrightTimeout:
+        return
+    close.click(timeout=10_000)
+    close.wait_for(state="hidden", timeout=10_000)
 
 
 def shot(pg, name: str) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PYTHON, child_env, run_app
+from conftest import PYTHON, child_env, compose_cfg, run_app
 from mlflow_server import Server, free_port
 
 from garage_exp.tracking import runs as tracking
@@ -283,22 +283,34 @@ def test_a_full_disk_stops_the_sweep_in_one_line_keeping_the_finished_runs(small
     assert "2 finished, 2 skipped (finished before), 0 failed" in again.stdout
 
 
-def test_preflight_refuses_a_sweep_the_free_space_cannot_hold(small_fs, monkeypatch):
-    from garage_exp.run import diskspace
+def test_preflight_refuses_a_sweep_the_free_space_cannot_hold(tmp_path, monkeypatch):
+    """A four-job sweep whose filesystem has 1 MB free: the sweep's own check (the callback's check_sweep, with
+    preflight's estimate of each job) refuses it in one line naming the directory, exit 2, nothing written.
+    The free-space probe reports 1 MB for this directory only, so the check is reached on any machine; the
+    command line runs in a child forked from this process (it inherits the patched probe)."""
+    import shutil
 
-    fs, mounted = small_fs
-    if mounted:  # a real filesystem with 1 MB free: four plan-only jobs need about 4 MB with their store
-        with open(fs / "filler", "wb") as fh:
-            fh.write(b"\0" * (15 << 20))
-        proc = run_app(["-m", *DRY, LIGHTS, f"tracking.uri=sqlite:///{fs}/mlflow.db"], fs)
-        line = one_line_error(proc.stderr)
-        assert proc.returncode == 2
-        assert line.startswith(f"garage_exp: {fs}: not enough free disk space: the sweep (4 jobs) will write about ")
-        assert "1.0 MB is free" in line
-        assert sorted(p.name for p in fs.iterdir()) == ["filler", "sweep"] or \
-            sorted(p.name for p in fs.iterdir()) == ["filler"]
-        assert not (fs / "mlflow.db").exists()
-    # The same check with the free space faked, wherever the test runs.
+    from garage_exp.run import diskspace
+    from garage_exp.run.preflight import job_bytes
+
+    fs = tmp_path / "fs"
+    fs.mkdir()
+    real_usage = shutil.disk_usage
+    monkeypatch.setattr(diskspace.shutil, "disk_usage", lambda path: shutil_usage(free=1 << 20)
+                        if Path(path).absolute().is_relative_to(fs) else real_usage(path))
+    uri = f"sqlite:///{fs}/mlflow.db"
+    args = [*DRY, LIGHTS, f"tracking.uri={uri}"]
+    out, store = job_bytes(compose_cfg(*DRY, f"tracking.uri={uri}"), None, None)  # a plan-only job's estimate
+    assert out > 0 and store > out
+    proc = run_app(["-m", *args], fs, fresh_store=True)
+    line = one_line_error(proc.stderr)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert line == (f"garage_exp: {fs}: not enough free disk space: the sweep (4 jobs) will write about "
+                    f"{diskspace.mb(4 * (out + store))} on this filesystem and 1.0 MB is free; free some space, or "
+                    "write elsewhere (hydra.sweep.dir=..., tracking.uri=...), or save fewer frames "
+                    "(renderer.save_frames=key)")
+    assert [p for p in fs.rglob("*") if p.is_file()] == []  # no store, no job's files
+    # check_free itself: directories on one filesystem add up.
     monkeypatch.setattr(diskspace.shutil, "disk_usage", lambda path: shutil_usage(free=3 << 20))
     diskspace.check_free([(fs, 1 << 20), (fs / "store", 1 << 20)], "the sweep (2 jobs)")  # 2 MB fit in 3
     with pytest.raises(GarageError, match=r"the sweep \(3 jobs\) will write about 4.0 MB on this filesystem and "
