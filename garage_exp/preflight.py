@@ -98,6 +98,9 @@ def preflight(cfg: DictConfig, needs: list | None = None):
     but rendering, in ~0.1 s. Then the disk space the job will write: checked against the free space, or,
     given `needs` (a sweep checking all its jobs), added to it as (bytes in the job's dir, bytes in a local
     store). Returns (plan path, classified plan)."""
+    from garage_exp.schema_check import check_schema
+
+    check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
     plan_path = resolve_plan_path(cfg.plan)
     classified = _classified(plan_path)
     check_config(cfg)
