@@ -124,7 +124,7 @@ def _check_room(site: Site, actor, name: str, length: float, values: list[tuple[
     lo, hi = path.room(length)
     for key, value in values:
         if not lo - 1e-9 <= value <= hi + 1e-9:
-            raise no_room(path, actor.path, name, f"{value:g} m", length, f"case.motion.{key}")
+            raise no_room(path, actor.path, f"case.actors.{name}", f"{value:g} m", length, f"case.motion.{key}")
 
 
 def level_file(cfg, group: str) -> str:
