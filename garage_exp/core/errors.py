@@ -17,3 +17,12 @@ def check_range(value, lo: float, hi: float, where: str, what: str = "") -> None
         ok = False
     if not ok:
         raise GarageError(f"{what or value} is outside {lo:g}-{hi:g}", where)
+
+
+def did_you_mean(word: str, options) -> str:
+    """' (did you mean ...?)' with the option nearest to `word` (difflib), else ' (have: a, b, ...)'."""
+    import difflib
+
+    options = [str(o) for o in options]
+    close = difflib.get_close_matches(str(word), options, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else f" (have: {', '.join(options)})"

@@ -62,6 +62,9 @@ def input_error(exc: BaseException) -> str | None:
 
     if isinstance(exc, GarageError):
         return str(exc)
+    unknown = unknown_key_line(exc)
+    if unknown is not None:
+        return unknown
     if isinstance(exc, yaml.YAMLError):  # a config file that is not YAML, or asks for Python objects
         return one_line(str(exc))
     if isinstance(exc, OmegaConfBaseException) or (
@@ -76,6 +79,55 @@ def input_error(exc: BaseException) -> str | None:
             text += "\n" + str(cause)
         return one_line(text)
     return None
+
+
+def unknown_key_line(exc: BaseException) -> str | None:
+    """Hydra's error for a key the schema lacks, as one line naming the override (or the config file), the key
+    and the nearest valid key: `case.bumper_gapp=1: case has no key 'bumper_gapp' (did you mean 'bumper_gap'?)`
+    instead of Hydra's advice to add `+` (which would add a key nothing reads). None for any other error, and
+    where the key's parent is an open dict (`sensor.params`, `case.actors`): there `+` is the right advice."""
+    import dataclasses
+    import re
+
+    from hydra.errors import ConfigCompositionException
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError
+
+    from garage_exp.core.errors import did_you_mean
+
+    cause = exc.__cause__ or exc.__context__  # an override's error is chained, a config file's raised in handling
+    schema = getattr(cause, "object_type", None)
+    if not (isinstance(exc, ConfigCompositionException) and isinstance(cause, (ConfigAttributeError, ConfigKeyError))
+            and isinstance(schema, type) and dataclasses.is_dataclass(schema) and cause.key is not None
+            and cause.full_key):
+        return None
+    key, text = str(cause.key), str(exc)
+    if key in {f.name for f in dataclasses.fields(schema)}:
+        return None
+    override = re.search(r"To append to your config use \+(\S+)", text)
+    level = re.match(r"In '([^']+)'", text)
+    if override:
+        where = override.group(1)
+    elif level:
+        where = config_file(level.group(1), exc)
+    else:
+        return None
+    owner = str(cause.full_key)[:-len(key)].rstrip(".") or "the config"
+    return f"{where}: {owner} has no key {key!r}{did_you_mean(key, [f.name for f in dataclasses.fields(schema)])}"
+
+
+def config_file(name: str, exc: BaseException) -> str:
+    """The YAML file of the config Hydra names ('case/mine' In its message): Hydra's composition was merging
+    it (its `loaded` result names the config source, e.g. file:///.../conf) when the error came; else the name."""
+    from pathlib import Path
+
+    tb = exc.__traceback__
+    while tb is not None:
+        loaded = tb.tb_frame.f_locals.get("loaded") if tb.tb_frame.f_code.co_name.startswith("_compose") else None
+        source = str(getattr(loaded, "path", "") or "")
+        if source.startswith("file://") and (Path(source[len("file://"):]) / f"{name}.yaml").is_file():
+            return str(Path(source[len("file://"):]) / f"{name}.yaml")
+        tb = tb.tb_next
+    return f"In '{name}'"
 
 
 def one_line(text: str) -> str:

@@ -132,6 +132,7 @@ class ActorConf:
     offset: float = 0.0
     yaw: float = 0.0  # degrees, added to the heading the placement gives
     align: str = "centre"  # centre: distance is the actor's centre; start: its rear, from the path's start
+    clip: bool = False  # with path: a distance the path has no room for is trimmed to its room (else an error)
     before: str = ""  # with path: distance counted back from this bay, or from this actor
     bay: str = ""  # in this bay of the site (a name from `bays`, or an index), nose to the lane
     gap: Optional[float] = None  # in a bay: front bumper this far behind the bay line (None: centred)

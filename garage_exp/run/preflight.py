@@ -104,6 +104,9 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     the vehicle assets, and builds its scene description (garage, case, palette, modifiers, cameras) - all
     but rendering, in ~0.1 s. Then the disk space the job will write, against the free space unless
     check_space is false (a sweep adds up all its jobs' estimates and checks them once)."""
+    from garage_exp.core.schema_check import check_schema
+
+    check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
     plan_path = resolve_plan_path(cfg.plan)
     prepared = PreparedJob(plan_path, classified_plan(plan_path))
     check_config(cfg)

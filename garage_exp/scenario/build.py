@@ -20,7 +20,7 @@ from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
 from garage_exp.scenario.replicate import build_replicate, merge
 from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
-from garage_exp.scenario.place import (check_overlaps, pose_between, pose_in_bay, pose_on_path,
+from garage_exp.scenario.place import (check_overlaps, no_room, pose_between, pose_in_bay, pose_on_path,
                                        pose_relative, site_bay, site_path)
 from garage_exp.scenario.sites import Site, find_site
 from garage_exp.scene.description import Pose
@@ -96,20 +96,35 @@ def variants(case, actors: dict, colours: list[str]) -> tuple[list[Variant], dic
 
 
 def frame_values(case, actor, site: Site, length: float, bays: dict) -> list[float]:
-    """The motion's values: listed, or start..end by step, trimmed to the room the path leaves the actor."""
+    """The motion's values: listed, or start..end by step; a distance the actor's path has no room for is an
+    error, or trimmed to the room with the actor's `clip: true`."""
     m = OmegaConf.to_object(case.motion)  # a DictConfig's `.values` is its method, not the key
-    if m.values:
-        return [float(v) for v in m.values]
-    if m.start is None or m.end is None:
-        return [float(getattr(actor, m.key))]
+    on_path = m.key == "distance" and actor.path and not actor.before and not actor.relative \
+        and actor.align == "centre"
+    if m.values or m.start is None or m.end is None:
+        listed = [float(v) for v in m.values] if m.values else [float(getattr(actor, m.key))]
+        if m.values and on_path and not actor.clip:  # (a value of the actor's own is checked where it stands)
+            _check_room(site, actor, m.actor, length, [("values", v) for v in listed])
+        return listed
     start, end = float(m.start), float(m.end)
-    if m.key == "distance" and actor.path and not actor.before and not actor.relative and actor.align == "centre":
+    if on_path:
         lo, hi = site_path(site, actor.path, f"case.actors.{m.actor}.path").room(length)
+        if not actor.clip:
+            _check_room(site, actor, m.actor, length, [("start", start), ("end", end)])
         start, end = (min(start, hi), max(end, lo)) if start >= end else (max(start, lo), min(end, hi))
         if (start < end) != (float(m.start) < float(m.end)) and start != end:
             raise GarageError(f"the path {actor.path!r} leaves {lo:.1f}..{hi:.1f} m; motion {m.start}..{m.end} "
                               "does not fit", "case.motion")
     return steps(start, end, float(m.step))
+
+
+def _check_room(site: Site, actor, name: str, length: float, values: list[tuple[str, float]]) -> None:
+    """The motion's distances fit the room the actor's path leaves; else GarageError naming the motion key."""
+    path = site_path(site, actor.path, f"case.actors.{name}.path")
+    lo, hi = path.room(length)
+    for key, value in values:
+        if not lo - 1e-9 <= value <= hi + 1e-9:
+            raise no_room(path, actor.path, f"case.actors.{name}", f"{value:g} m", length, f"case.motion.{key}")
 
 
 def level_file(cfg, group: str) -> str:

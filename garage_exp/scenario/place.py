@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from garage_exp.core.errors import GarageError
-from garage_exp.scenario.sites import Path, Site, SiteBay
+from garage_exp.scenario.sites import Path, Site, SiteBay, compass
 from garage_exp.scene.description import Pose
 
 
@@ -36,17 +36,61 @@ def site_path(site: Site, name: str, where: str) -> Path:
 
 
 def path_position(site: Site, actor, length: float, bays: dict, where: str) -> float:
-    """The actor's distance along its path (its centre), from `distance` and how it is counted."""
+    """The actor's distance along its path (its centre), from `distance` and how it is counted; one the path
+    has no room for is an error, or trimmed to the room with `clip: true`."""
     path = site_path(site, actor.path, where + ".path")
-    if actor.before:
+    if actor.before:  # counted back from a bay, it may stand beyond the path's start (case 3's ego)
         bay = site_bay(site, actor.before, bays, where + ".before").bay
         return path.along(bay.x, bay.y) - float(actor.distance)
     if actor.align == "start":  # the actor's rear `distance` metres past the path's start
-        return path.lo + length / 2 + float(actor.distance)
+        return fit_on_path(path, actor, path.lo + length / 2 + float(actor.distance), length, where,
+                           f"{float(actor.distance):g} m from its start (align: start)", margin=0.0, rear=True)
     if actor.align != "centre":
         raise GarageError(f"unknown align {actor.align!r} (centre | start)", where + ".align")
-    lo, hi = path.room(length)  # trimmed to the room the path leaves (a short lane on a small plan)
-    return min(max(float(actor.distance), lo), hi) if lo <= hi else float(actor.distance)
+    return fit_on_path(path, actor, float(actor.distance), length, where)
+
+
+def describe_path(path: Path, name: str) -> str:
+    """`'stem' (from cell (4, 7) towards S, 9.2 m long)`: a path as a message names it."""
+    towards = compass(math.degrees(math.atan2(path.axis[1], path.axis[0])))
+    start = f"cell {path.cell}" if path.cell is not None else f"({path.origin[0]:.1f}, {path.origin[1]:.1f})"
+    return f"{name!r} (from {start} towards {towards}, {path.hi - path.lo:.1f} m long)"
+
+
+def room(path: Path, length: float, margin: float | None = None) -> tuple[float, float]:
+    """Where the centre of an actor `length` long may stand on the path: `margin` m (the path's MARGIN by
+    default) from either end."""
+    lo, hi = path.room(length)
+    if margin is None:
+        return lo, hi
+    return path.lo + length / 2 + margin, path.hi - length / 2 - margin
+
+
+def no_room(path: Path, name: str, actor: str, asked: str, length: float, where: str,
+            margin: float | None = None, rear: bool = False) -> GarageError:
+    """The GarageError for a distance a path has no room for: the actor (its key, `case.actors.ego`), the
+    distance, the path, its length and the room it leaves (for its centre, or its rear from the path's start)."""
+    lo, hi = room(path, length, margin)
+    who = actor.rpartition(".")[2]
+    base, part = (path.lo + length / 2, "rear") if rear else (0.0, "centre")
+    fits = (f"{who}, {length:.1f} m long, fits with its {part} {lo - base:.1f} to {hi - base:.1f} m along it"
+            if lo <= hi else f"too short for {who}, {length:.1f} m long")
+    return GarageError(f"{asked} does not fit {who}'s path {describe_path(path, name)}: {fits}; give a distance "
+                       f"that fits, or {actor}.clip=true to trim it to the path", where)
+
+
+def fit_on_path(path: Path, actor, s: float, length: float, where: str, asked: str = "",
+                margin: float | None = None, rear: bool = False) -> float:
+    """s (the actor's centre, in the path's own frame) when the actor fits on the path; trimmed to the room the
+    path leaves with `clip: true` (an opt-in: a short lane on a small plan); else GarageError naming the actor,
+    the asked distance, the path and its length."""
+    lo, hi = room(path, length, margin)
+    if lo - 1e-9 <= s <= hi + 1e-9:
+        return s
+    if getattr(actor, "clip", False) and lo <= hi:
+        return min(max(s, lo), hi)
+    raise no_room(path, actor.path, where, asked or f"{float(actor.distance):g} m", length, where + ".distance",
+                  margin, rear)
 
 
 def pose_on_path(site: Site, actor, length: float, bays: dict, where: str) -> Pose:

@@ -29,6 +29,7 @@ class Path:
     heading: float  # yaw (degrees) of an actor driving along the path
     lo: float
     hi: float
+    cell: tuple[int, int] | None = None  # the plan cell (i, j) at distance 0, for messages
 
     def point(self, s: float, offset: float = 0.0) -> tuple[float, float]:
         """The point s along the path, `offset` to the left of the axis."""
@@ -82,8 +83,8 @@ def corner(classified: Classified, garage) -> Site:
     c = corner_nearest_entrance(classified)
     centre = classified.plan.cell_center(c.cell.i, c.cell.j)
     u, v = UNIT[c.approach], UNIT[c.exit]
-    approach = Path(centre, (-u[0], -u[1]), YAW[c.approach], 0.0, c.approach_length)
-    exit_ = Path(centre, v, YAW[c.exit], 0.0, c.exit_length)
+    approach = Path(centre, (-u[0], -u[1]), YAW[c.approach], 0.0, c.approach_length, c.centre)
+    exit_ = Path(centre, v, YAW[c.exit], 0.0, c.exit_length, c.centre)
     focus = Pose(*pillar_centre(classified.plan, c.pillar, garage.pillar_size), 0.0, YAW[c.approach])
     return Site("corner", {"approach": approach, "exit": exit_}, pillar=f"pillar_{c.pillar.a}_{c.pillar.b}",
                 focus=focus)
@@ -122,7 +123,7 @@ def bay_beside_pillar(classified: Classified, garage) -> Site:
     right = {"N": "S", "S": "N", "E": "W", "W": "E"}[left]
     origin = (lx, bay.y) if side in "EW" else (bay.x, ly)  # the lane's centre line meets the bay's axis
     lane = Path(origin, UNIT[right], YAW[right], -run_length(plan, lane_i, lane_j, left),
-                run_length(plan, lane_i, lane_j, right))
+                run_length(plan, lane_i, lane_j, right), (lane_i, lane_j))
     focus = Pose(*pillar_centre(plan, pillar, garage.pillar_size), 0.0, YAW[right])
     return Site("bay_beside_pillar", {"lane": lane}, [SiteBay(bay, UNIT[side])],
                 pillar=f"pillar_{pillar.a}_{pillar.b}", focus=focus)
@@ -138,7 +139,7 @@ def straight_run(classified: Classified, garage) -> Site:
     h = UNIT[run.heading]
     lengths = [float(plan.C[c.j] if run.heading == "E" else plan.R[c.i]) for c in run.cells]
     lane = Path(plan.cell_center(first.i, first.j), h, YAW[run.heading], -lengths[0] / 2,
-                sum(lengths) - lengths[0] / 2)
+                sum(lengths) - lengths[0] / 2, (first.i, first.j))
     sides = {}
     for side in run.bay_sides:
         cells = {(c.i, c.j) for c in run.cells}
@@ -169,9 +170,10 @@ def t_junction(classified: Classified, garage) -> Site:
     arrive = OPPOSITE[stem]  # heading of a car coming up the stem
     left, right = LEFT_OF[arrive], OPPOSITE[LEFT_OF[arrive]]
     centre = plan.cell_center(cell.i, cell.j)
-    paths = {"stem": Path(centre, UNIT[stem], YAW[arrive], 0.0, run_length(plan, cell.i, cell.j, stem))}
+    paths = {"stem": Path(centre, UNIT[stem], YAW[arrive], 0.0, run_length(plan, cell.i, cell.j, stem),
+                          (cell.i, cell.j))}
     for name, d in (("left", left), ("right", right)):
-        paths[name] = Path(centre, UNIT[d], YAW[d], 0.0, run_length(plan, cell.i, cell.j, d))
+        paths[name] = Path(centre, UNIT[d], YAW[d], 0.0, run_length(plan, cell.i, cell.j, d), (cell.i, cell.j))
     return Site("t_junction", paths)
 
 
