@@ -182,15 +182,18 @@ def seed_store(args: list[str], cwd: Path) -> None:
 def run_app(args: list[str], tmp_path: Path, env: dict | None = None, timeout: int = 600, process: bool = False,
             fresh_store: bool = False):
     """`python -m garage_exp ARGS` with outputs under tmp_path, as a CompletedProcess (returncode, stdout,
-    stderr). In this process unless process=True, env sets PYTHONPATH (code a fresh interpreter must load) or
-    the caller is not the main thread (a job runs beside another); an absent sqlite store the command names
-    starts from the template unless fresh_store=True."""
+    stderr). In this process (env's PYTHONPATH put before sys.path for the call) unless process=True, env's
+    PYTHONPATH holds a sitecustomize (code only a starting interpreter runs) or the caller is not the main
+    thread (a job runs beside another); an absent sqlite store the command names starts from the template
+    unless fresh_store=True."""
     cmd = [*args, f"hydra.run.dir={tmp_path}/run", f"hydra.sweep.dir={tmp_path}/sweep"]
     if not fresh_store:
         seed_store(cmd, tmp_path)
     import threading
 
-    if process or (env and "PYTHONPATH" in env) or threading.current_thread() is not threading.main_thread():
+    paths = [p for p in (env or {}).get("PYTHONPATH", "").split(os.pathsep) if p]
+    startup = any((Path(p) / "sitecustomize.py").is_file() for p in paths)  # runs only when an interpreter starts
+    if process or startup or threading.current_thread() is not threading.main_thread():
         import subprocess  # signal handlers can only be installed from the main thread
 
         return subprocess.run([PYTHON, "-m", "garage_exp", *cmd], cwd=tmp_path, env=child_env(env),
@@ -214,10 +217,11 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
     from garage_exp.cli.app import cli
 
     out, err = io.StringIO(), io.StringIO()
-    saved = (dict(os.environ), os.getcwd(), sys.argv)
+    saved = (dict(os.environ), os.getcwd(), sys.argv, list(sys.path))
     root = logging.getLogger()
     handlers, level = list(root.handlers), root.level
     os.environ.update(env or {})
+    sys.path[:0] = [p for p in (env or {}).get("PYTHONPATH", "").split(os.pathsep) if p]
     os.chdir(cwd)
     sys.argv = [str(ROOT / "garage_exp" / "__main__.py"), *args]
     code = 0
@@ -237,6 +241,7 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
         os.environ.update(saved[0])
         os.chdir(saved[1])
         sys.argv = saved[2]
+        sys.path[:] = saved[3]
         GlobalHydra.instance().clear()
         HydraConfig.instance().cfg = None  # as in a new process: no job's Hydra config
         root.handlers[:] = handlers  # Hydra's job logging configured the root logger for the call

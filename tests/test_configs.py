@@ -8,9 +8,8 @@ import shutil
 import pytest
 import yaml
 import conftest
-from conftest import ROOT
+from conftest import ROOT, run_app
 from omegaconf import OmegaConf
-from test_reliability_inputs import forked_cli
 
 from garage_exp.tracking import runs as tracking
 
@@ -78,7 +77,8 @@ def test_dry_run_with_every_level_and_experiment(tmp_path_factory):
         work = tmp_path_factory.mktemp(name.replace("=", "-"))
         shutil.copy(template, work / "mlflow.db")
         batch.append((["dry_run=true", *args, f"tracking.uri=sqlite:///{work}/mlflow.db"], work, {}))
-    for (name, _), (args, work, _), proc in zip(jobs, batch, forked_cli(batch, tmp_path_factory.mktemp("forkserver"))):
+    for (name, _), (args, work, _) in zip(jobs, batch):
+        proc = run_app(args, work)  # in this process, one after another
         assert proc.returncode == 0, (name, proc.stderr[-3000:])
         written = OmegaConf.load(work / "run" / "config.yaml")
         group, level = name.split("=")
