@@ -87,17 +87,6 @@ def test_multirun_has_parent_and_children(tmp_path, mlflow_uri):
     assert sorted(c.data.params["light.name"] for c in children) == ["bright", "dim"]
 
 
-def test_multirun_with_joblib_parents_children_in_other_processes(tmp_path, mlflow_uri):
-    r = run_app(["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "dry_run=true", "plan=tiny",
-                 "light=bright,dim,clear", f"tracking.uri={mlflow_uri}"], tmp_path)
-    assert r.returncode == 0, r.stderr
-    _, runs = runs_of(mlflow_uri)
-    parents = [x for x in runs if x.data.tags.get("sweep") == "parent"]
-    children = [x for x in runs if x.data.tags.get("mlflow.parentRunId")]
-    assert len(parents) == 1 and len(children) == 3
-    assert all(c.info.status == "FINISHED" for c in children)
-
-
 def test_sweep_with_a_bad_job_is_refused_before_any_job_runs(tmp_path, mlflow_uri):
     # case.site=nonsense passes the schema (a string) but not the check of every job that runs before the
     # sweep opens its parent run. (A job that crashes after its start: tests/test_reliability_faults.py.)
