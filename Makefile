@@ -35,9 +35,11 @@ run: setup
 	@echo "Results: outputs/ (frames, tables, plots); MLflow: make ui, then open the link it prints"
 
 # GARAGE_EXP_PROVISIONED: setup provided Vulkan, vehicles and weights, so a render/detect/slow skip is an error.
+# -n auto --dist loadfile: a worker per core, each test file on one worker (its module-scoped sweeps run once, its
+# jobs share that worker's warm renderer and detector).
 test: setup docs
 	$(BIN)/lint-imports --no-cache
-	GARAGE_EXP_PROVISIONED=1 $(BIN)/python -m pytest -q -p no:cacheprovider
+	GARAGE_EXP_PROVISIONED=1 $(BIN)/python -m pytest -q -p no:cacheprovider -n auto --dist loadfile
 
 # The docs site (mkdocs.yml, docs/) into outputs/site. --strict: a broken link, anchor or image fails the build, and
 # `make test` builds it first. mkdocs-material is in the `test` extra; installed here too if the venv lacks it.
