@@ -28,6 +28,25 @@ def preload() -> None:
     Plugins.instance()  # plugin discovery scans site-packages once
 
 
+def call_cli() -> int:
+    """`garage_exp.cli.app.cli()` on sys.argv, as `python -m garage_exp` runs it: its exit code, an uncaught
+    exception printed as the interpreter would, with 1."""
+    from garage_exp.cli.app import cli
+
+    try:
+        cli()
+    except SystemExit as exc:
+        if isinstance(exc.code, str):
+            print(exc.code, file=sys.stderr)
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except Exception:
+        import traceback
+
+        traceback.print_exc()
+        return 1
+    return 0
+
+
 def child(request: dict) -> int:
     os.chdir(request["cwd"])
     os.environ.update(request.get("env") or {})
@@ -40,20 +59,7 @@ def child(request: dict) -> int:
     import garage_exp
 
     sys.argv = [os.path.join(os.path.dirname(garage_exp.__file__), "__main__.py"), *request["argv"]]
-    code = 0
-    try:
-        from garage_exp.cli.app import cli
-
-        cli()
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-        if isinstance(exc.code, str):
-            print(exc.code, file=sys.stderr)
-    except BaseException:  # what the interpreter would print for an uncaught exception
-        import traceback
-
-        traceback.print_exc()
-        code = 1
+    code = call_cli()
     sys.stdout.flush()
     sys.stderr.flush()
     return code

@@ -209,12 +209,13 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
     import io
     import logging
     import subprocess
-    import traceback
 
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.hydra_config import HydraConfig
 
-    from garage_exp.cli.app import cli
+    from cli_forkserver import call_cli
+
+    from garage_exp.core.state import STATE
 
     out, err = io.StringIO(), io.StringIO()
     saved = (dict(os.environ), os.getcwd(), sys.argv, list(sys.path))
@@ -224,18 +225,9 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
     sys.path[:0] = [p for p in (env or {}).get("PYTHONPATH", "").split(os.pathsep) if p]
     os.chdir(cwd)
     sys.argv = [str(ROOT / "garage_exp" / "__main__.py"), *args]
-    code = 0
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            try:
-                cli()
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-                if isinstance(exc.code, str):
-                    print(exc.code, file=sys.stderr)
-            except Exception:
-                traceback.print_exc()
-                code = 1
+            code = call_cli()
     finally:
         os.environ.clear()
         os.environ.update(saved[0])
@@ -244,6 +236,7 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
         sys.path[:] = saved[3]
         GlobalHydra.instance().clear()
         HydraConfig.instance().cfg = None  # as in a new process: no job's Hydra config
+        STATE.begin()  # nor its sweep, counts or tracking outage (the warm renderer and detector stay)
         root.handlers[:] = handlers  # Hydra's job logging configured the root logger for the call
         root.setLevel(level)
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
