@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import shutil
 
 import pytest
 import yaml
@@ -11,7 +10,6 @@ import conftest
 from conftest import ROOT, run_app
 from omegaconf import OmegaConf
 
-from garage_exp.tracking import runs as tracking
 
 CONF = ROOT / "conf"
 GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir() and p.name not in ("hydra", "experiment"))
@@ -67,18 +65,13 @@ def test_experiment_composes_its_sweep(experiment):
 def test_dry_run_with_every_level_and_experiment(tmp_path_factory):
     """A plan-only job (dry_run=true) with each level of each group and with each +experiment= finishes: the
     product's own checks accept it and it writes its config and plan map."""
-    template = tmp_path_factory.mktemp("store") / "template.db"
-    tracking.client(f"sqlite:///{template}")
     jobs = [(f"{g}={lv}", [f"{g}={lv}"] if g in ("plan", "case") else ["plan=tiny", f"{g}={lv}"])
             for g, lv in LEVELS]  # the small plan, unless the level needs a feature of the default plan
     jobs += [(f"experiment={e}", [f"+experiment={e}"]) for e in EXPERIMENTS]
-    batch = []
-    for name, args in jobs:
+    for name, level_args in jobs:
         work = tmp_path_factory.mktemp(name.replace("=", "-"))
-        shutil.copy(template, work / "mlflow.db")
-        batch.append((["dry_run=true", *args, f"tracking.uri=sqlite:///{work}/mlflow.db"], work, {}))
-    for (name, _), (args, work, _) in zip(jobs, batch):
-        proc = run_app(args, work)  # in this process, one after another
+        args = ["dry_run=true", *level_args, f"tracking.uri=sqlite:///{work}/mlflow.db"]
+        proc = run_app(args, work)  # in this process, one after another, on a copy of the migrated store
         assert proc.returncode == 0, (name, proc.stderr[-3000:])
         written = OmegaConf.load(work / "run" / "config.yaml")
         group, level = name.split("=")

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import PYTHON, child_env, run_app
+from conftest import PYTHON, child_env, run_app, store_template
 
 from garage_exp.tracking import runs as tracking
 
@@ -53,21 +53,13 @@ def job_runs(runs):
     return [r for r in runs if r.data.tags.get("mlflow.parentRunId")]
 
 
-@pytest.fixture(scope="module")
-def store_template(tmp_path_factory) -> Path:
-    """MLflow's schema in a sqlite file, made once: creating it takes seconds. No experiment: the app creates
-    it, so its artifacts go where they would for a user."""
-    template = tmp_path_factory.mktemp("store") / "template.db"
-    tracking.client(f"sqlite:///{template}")
-    return template
-
-
 @pytest.fixture
-def fresh_store(store_template, tmp_path) -> str:
-    """A new, empty store for one test (a copy of the template)."""
+def fresh_store(tmp_path) -> str:
+    """A new, empty store for one test (a copy of the session's migrated template, conftest.store_template: no
+    experiment, the app creates it, so its artifacts go where they would for a user)."""
     import shutil
 
-    shutil.copy(store_template, tmp_path / "mlflow.db")
+    shutil.copy(store_template(), tmp_path / "mlflow.db")
     return f"sqlite:///{tmp_path / 'mlflow.db'}"
 
 

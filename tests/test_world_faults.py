@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PYTHON, child_env, compose_cfg, run_app
+from conftest import PYTHON, child_env, compose_cfg, run_app, store_template
 from mlflow_server import Server, free_port
 
 from garage_exp.tracking import runs as tracking
@@ -150,11 +150,9 @@ def break_store(path: Path) -> None:
         con.execute("create table _alembic_tmp_experiments (experiment_id integer)")
 
 
-@pytest.fixture(scope="module")
-def template(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("store") / "template.db"
-    tracking.client(f"sqlite:///{path}")
-    return path
+@pytest.fixture
+def template() -> Path:
+    return store_template()  # the session's migrated store: tests copy it, never write into it
 
 
 def test_a_broken_store_is_one_line_naming_it_and_the_way_back(tmp_path, template):

@@ -100,8 +100,8 @@ def unknown_key_line(exc: BaseException) -> str | None:
             and isinstance(schema, type) and dataclasses.is_dataclass(schema) and cause.key is not None
             and cause.full_key):
         return None
-    key, text = str(cause.key), str(exc)
-    if key in {f.name for f in dataclasses.fields(schema)}:
+    key, text, names = str(cause.key), str(exc), [f.name for f in dataclasses.fields(schema)]
+    if key in names:
         return None
     override = re.search(r"To append to your config use \+(\S+)", text)
     level = re.match(r"In '([^']+)'", text)
@@ -112,7 +112,7 @@ def unknown_key_line(exc: BaseException) -> str | None:
     else:
         return None
     owner = str(cause.full_key)[:-len(key)].rstrip(".") or "the config"
-    return f"{where}: {owner} has no key {key!r}{did_you_mean(key, [f.name for f in dataclasses.fields(schema)])}"
+    return f"{where}: {owner} has no key {key!r}{did_you_mean(key, names)}"
 
 
 def config_file(name: str, exc: BaseException) -> str:

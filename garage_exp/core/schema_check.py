@@ -1,4 +1,4 @@
-"""The composed config against the schema (garage_exp/config.py), once per job, before anything is written.
+"""The composed config against the schema (garage_exp/core/schema.py), once per job, before anything is written.
 
 Hydra's `+key=value` and `++key=value` open the struct flag to add a key, so a typo such as
 `+case.bumper_gapp=1` or `+case.actors.target.offsett=1` would be added and silently ignored. Here every key of

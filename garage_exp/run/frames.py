@@ -98,8 +98,8 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     from garage_exp.render import open_renderer
     from garage_exp.scene.gltf import export_glb
 
-    # First, so that the models load in the detector's process while this one builds and loads the scene and
-    # compiles its shaders (the first frame).
+    # First, so that the models load in the detector's process while this one loads the scene (built by the
+    # job's preflight) and compiles its shaders (the first frame).
     detector = open_detector(build(cfg.detector, "a detector", "detector._target_"))
     scene, setup = prepared.scene, prepared.setup
     sensor = build(cfg.sensor, "a sensor model", "sensor._target_")
