@@ -193,12 +193,43 @@ class CaseConf:
 
 
 @dataclass
+class LookConf:
+    """How real the world looks (conf/look): `real` picks textured materials, clutter and the real camera (its
+    defaults list) and adds contact shadows; `flat` is the renderer's output before the real look."""
+
+    name: str = "real"
+    contact_shadows: bool = True  # soft decals under vehicles, people, pillars and along walls
+    # metres each lamp's point light hangs below its panel: a fixture's reflector sends its light down, so the
+    # ceiling above it is not a blown-out disc (0: the light just under the panel, as the flat look has it)
+    fixture_drop: float = 0.0
+
+
+@dataclass
+class MaterialsConf:
+    """Procedural surfaces (conf/materials; garage_exp/scene/look.py)."""
+
+    name: str = "none"
+    level: str = "none"  # none | clean | worn | wet | random
+    grime: Optional[float] = None  # 0-1: override the level's stains and dirt
+    wetness: Optional[float] = None  # 0-1: override the level's puddles
+    seed: int = 0  # added to the job's seed: which stains, cracks and (random level) which garage
+
+
+@dataclass
+class ClutterConf:
+    """Ducts, pipes, signs, wheel stops, bollards, floor arrows (conf/clutter; garage_exp/scene/clutter.py)."""
+
+    name: str = "none"
+    level: str = "none"  # none | typical | dense
+
+
+@dataclass
 class SensorConf:
     """The camera sensor: `_target_` names the factory called with the other keys (name, kind, params)."""
 
     name: str = "ideal"
     _target_: str = "garage_exp.perception.sensor.make_sensor"
-    kind: str = "ideal"  # ideal | noisy
+    kind: str = "ideal"  # ideal | noisy | camera
     params: dict[str, Any] = field(default_factory=dict)
 
 
@@ -294,6 +325,9 @@ class Config:
     occluder: OccluderConf = field(default_factory=OccluderConf)
     case: CaseConf = field(default_factory=CaseConf)
     sensor: SensorConf = field(default_factory=SensorConf)
+    look: LookConf = field(default_factory=LookConf)
+    materials: MaterialsConf = field(default_factory=MaterialsConf)
+    clutter: ClutterConf = field(default_factory=ClutterConf)
     detector: DetectorConf = field(default_factory=DetectorConf)
     renderer: RendererConf = field(default_factory=RendererConf)
     tracking: TrackingConf = field(default_factory=TrackingConf)
@@ -312,6 +346,7 @@ class Config:
 GROUPS = {
     "plan": PlanConf, "garage": GarageConf, "light": LightConf, "camera": CameraRigConf, "palette": PaletteConf,
     "occluder": OccluderConf, "case": CaseConf, "sensor": SensorConf, "detector": DetectorConf,
+    "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf,
     "renderer": RendererConf, "tracking": TrackingConf,
 }
 

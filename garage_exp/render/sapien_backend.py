@@ -52,7 +52,7 @@ from garage_exp.render.device import ensure_device
 from garage_exp.render.fisheye import (CubeMap, Fisheye, Pinhole, cube_map, face_rotation, lens_of, lookup,
                                       remap_bilinear, view_lens, view_remap)
 from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
-from garage_exp.scene.description import VEHICLE_ROLES, Box, CameraSpec, Entity, Material, Mesh, Pose, Scene
+from garage_exp.scene.description import VEHICLE_ROLES, Box, CameraSpec, Decal, Entity, Material, Mesh, Pose, Scene
 
 # SAPIEN's point light adds albedo * colour * cos / (pi * d^2): a description intensity of 1.0 (a ~40 W LED
 # batten) becomes a colour of LAMP_POWER, which lights a grey (0.5) floor 2.5 m below one lamp to ~0.25
@@ -63,6 +63,7 @@ SHADOW_NEAR, SHADOW_FAR = 0.05, 30.0
 MAX_SHADOWED = 3  # SAPIEN's default shader: "too many point lights that cast shadows" beyond this
 STATIC_ROLES = ("structure", "marking", "lamp")
 STATIC_TILE = 12.0  # metres: static shapes merge per material and tile, so that frames can hide far tiles
+DECALS = ":decals"  # suffix of the entity holding an actor's decals (its contact shadow)
 
 
 @dataclass
@@ -165,9 +166,10 @@ class SapienRenderer:
         """What the merged static bodies are made of: their geometry (with each shape's material left out), the
         materials of their shapes in order, and the settings. Lamps and ambient light are set on every load."""
         merged = [e for e in scene.entities if self._merges(e)]
-        geometry = [(e.name, e.pose, [replace(sh, material=None) if isinstance(sh, Box) else sh for sh in e.shapes])
+        # A textured material's picture is part of the geometry (a mesh with UVs): it is not recoloured.
+        geometry = [(e.name, e.pose, [replace(sh, material=None) if _plain(sh) else sh for sh in e.shapes])
                     for e in merged]
-        materials = [sh.material for e in merged for sh in e.shapes if isinstance(sh, Box)]
+        materials = [sh.material for e in merged for sh in e.shapes if _plain(sh)]
         return (geometry, materials, scene.background, self.max_lights, self.shadows, self.batch_static)
 
     def _recolouring(self, static: tuple) -> dict[Material, Material] | None:
@@ -229,7 +231,7 @@ class SapienRenderer:
             if self._merges(entity):
                 for shape in entity.shapes:
                     world = entity.pose.compose(shape.offset)
-                    key = shape.material if isinstance(shape, Box) else None
+                    key = shape.material if isinstance(shape, (Box, Decal)) else None
                     tile = (math.floor(world.x / STATIC_TILE), math.floor(world.y / STATIC_TILE))
                     merged.setdefault(key, {}).setdefault(tile, []).append((world, shape))
             else:
@@ -274,7 +276,8 @@ class SapienRenderer:
             raise GarageError(f"two entities are named {entity.name!r}", "scene")
         body = sr.RenderBodyComponent()
         for shape in entity.shapes:
-            body.attach(self._shape(shape, shape.offset, entity.name))
+            if not isinstance(shape, Decal):
+                body.attach(self._shape(shape, shape.offset, entity.name, entity.pose.compose(shape.offset)))
         node = sapien.Entity()
         node.name = entity.name
         node.add_component(body)
@@ -286,6 +289,19 @@ class SapienRenderer:
         self._poses[entity.name] = entity.pose
         if entity.role in VEHICLE_ROLES:
             self._vehicles.add(entity.name)
+        decals = [shape for shape in entity.shapes if isinstance(shape, Decal)]
+        if decals:
+            # Its own SAPIEN entity, moved with the actor: the shadow's pixels never carry the actor's id.
+            under = sr.RenderBodyComponent()
+            for shape in decals:
+                under.attach(self._shape(shape, shape.offset, entity.name))
+            holder = sapien.Entity()
+            holder.name = entity.name + DECALS
+            holder.add_component(under)
+            holder.set_pose(_sapien_pose(entity.pose))
+            self._scene.add_entity(holder)
+            self._entities[holder.name] = holder
+            self._bodies[holder.name] = under
 
     def _add_merged(self, name: str, shapes: Sequence[tuple[Pose, Box | Mesh]]) -> None:
         import sapien
@@ -293,33 +309,46 @@ class SapienRenderer:
 
         body = sr.RenderBodyComponent()
         for world, shape in shapes:
-            body.attach(self._shape(shape, world, name))
+            body.attach(self._shape(shape, world, name, world))
         node = sapien.Entity()
         node.name = name
         node.add_component(body)
         self._scene.add_entity(node)
         self._merged.append(body)
 
-    def _shape(self, shape: Box | Mesh, local: Pose, owner: str):
+    def _shape(self, shape: Box | Mesh | Decal, local: Pose, owner: str, world: Pose | None = None):
+        """One SAPIEN shape at `local` in its body; `world` is where that puts it (textures map by world
+        position, so boxes side by side continue one another's picture)."""
         import sapien.render as sr
 
-        if isinstance(shape, Box):
+        if isinstance(shape, Decal):
+            out = sr.RenderShapeTriangleMesh(*_decal_mesh(shape.size), self._material(shape.material, decal=True))
+        elif isinstance(shape, Box):
             if min(shape.size) <= 0:  # plain Python: np.any on 3 numbers was a fifth of a 26,000-box load
                 raise GarageError(f"box size {shape.size} must be positive", owner)
-            half = np.asarray(shape.size, dtype=np.float32) / 2.0
-            out = sr.RenderShapeBox(half, self._material(shape.material))
+            if shape.material.texture is not None:
+                mesh = _box_mesh(shape.size, world or local, shape.material.texture.tile)
+                out = sr.RenderShapeTriangleMesh(*mesh, self._material(shape.material))
+            else:
+                half = np.asarray(shape.size, dtype=np.float32) / 2.0
+                out = sr.RenderShapeBox(half, self._material(shape.material))
         else:
             out = self._mesh(shape, owner)
         out.local_pose = _sapien_pose(local)
         return out
 
-    def _material(self, material: Material):
+    def _material(self, material: Material, decal: bool = False):
         import sapien.render as sr
 
         if material not in self._materials:
-            self._materials[material] = sr.RenderMaterial(
-                emission=[*material.emission, 1.0], base_color=list(material.color),
-                roughness=material.roughness, metallic=material.metallic)
+            colour = list(material.color)
+            if decal:
+                colour[3] = min(colour[3], 0.999)  # alpha below 1: SAPIEN's blended (transparent) pass
+            rm = sr.RenderMaterial(emission=[*material.emission, 1.0], base_color=colour,
+                                   roughness=material.roughness, metallic=material.metallic)
+            if material.texture is not None:
+                _texture(rm, material)
+            self._materials[material] = rm
         return self._materials[material]
 
     def _mesh(self, mesh: Mesh, owner: str):
@@ -416,6 +445,10 @@ class SapienRenderer:
         node.set_pose(_sapien_pose(pose))
         self._poses[name] = pose
         self._moved.add(name)
+        under = self._entities.get(name + DECALS)
+        if under is not None:
+            under.set_pose(_sapien_pose(pose))
+            self._moved.add(name + DECALS)
 
     def camera_pose(self, camera_name: str) -> np.ndarray:
         return camera_to_world(self._poses[self._ego], self._camera(camera_name).spec)
@@ -585,6 +618,46 @@ class SapienRenderer:
         cam.silhouette.take_picture()
         # The minimal shader packs position (mm) and the entity id into one int32 picture.
         return cam.silhouette.get_picture("PositionSegmentation")[..., 3].copy()
+
+
+def _plain(shape) -> bool:
+    """A box drawn in a flat colour (a SAPIEN box whose material can be recoloured in place)."""
+    return isinstance(shape, Box) and shape.material.texture is None
+
+
+def _texture(rm, material: Material) -> None:
+    """Give a SAPIEN material its procedural picture (8-bit sRGB with mipmaps: a far floor does not shimmer)."""
+    import sapien.render as sr
+
+    from garage_exp.scene.textures import image, srgb8
+
+    rgba, rough = image(material)
+    levels = max(1, int(math.log2(min(rgba.shape[:2]))) - 1)
+    rm.base_color_texture = sr.RenderTexture2D(np.ascontiguousarray(srgb8(rgba)), "R8G8B8A8Unorm", mipmap_levels=levels, srgb=True)
+    if rough is not None:
+        rm.roughness_texture = sr.RenderTexture2D(np.ascontiguousarray(rough, dtype=np.float32)[..., None], "R32Sfloat",
+                                                  mipmap_levels=levels)
+
+
+def _box_mesh(size: Sequence[float], world: Pose, tile: float):
+    """A box as a triangle mesh (vertices, triangles, normals, uvs) in its own frame, its UVs mapped by world
+    position (scene/boxmesh.box_uvs)."""
+    from garage_exp.scene.boxmesh import UNIT_CORNERS, UNIT_FACES, UNIT_NORMALS, box_uvs
+
+    local = UNIT_CORNERS * np.asarray(size, dtype=float)
+    c, s = math.cos(math.radians(world.yaw)), math.sin(math.radians(world.yaw))
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    uv = box_uvs(local @ rot.T + np.array([world.x, world.y, world.z]), UNIT_NORMALS @ rot.T, tile)
+    return (local.astype(np.float32), UNIT_FACES.astype(np.uint32), UNIT_NORMALS.astype(np.float32),
+            uv.astype(np.float32))
+
+
+def _decal_mesh(size: Sequence[float]):
+    from garage_exp.scene.boxmesh import quad
+
+    vertices, triangles, normals, uvs = quad(size)
+    return (vertices.astype(np.float32), triangles.astype(np.uint32), normals.astype(np.float32),
+            uvs.astype(np.float32))
 
 
 def _minimal_shader_dir() -> str:

@@ -77,13 +77,15 @@ def check_config(cfg: DictConfig) -> None:
     from garage_exp.render import check_renderer
     from garage_exp.scenario import check_case
     from garage_exp.scene.camera import check_camera
+    from garage_exp.scene.clutter import check_clutter
     from garage_exp.scene.lamps import check_light
+    from garage_exp.scene.look import check_look, check_materials
     from garage_exp.scene.modifiers import check_modifiers
     from garage_exp.scene.parking import check_palette
     from garage_exp.scene.structure import check_garage
     from garage_exp.core.plugins import build
 
-    for key in ("seed", "light.seed", "palette.seed"):
+    for key in ("seed", "light.seed", "palette.seed", "materials.seed"):
         value = OmegaConf.select(cfg, key)
         if value is not None and int(value) < 0:
             raise GarageError(f"{value} is negative (seeds are >= 0)", key)
@@ -96,6 +98,9 @@ def check_config(cfg: DictConfig) -> None:
     check_renderer(cfg.renderer)
     build(cfg.sensor, "a sensor model", "sensor._target_")  # the sensor model checks its own parameters
     check_modifiers(cfg.get("modifiers") or {})
+    check_look(cfg.look)
+    check_materials(cfg.materials)
+    check_clutter(cfg.clutter)
 
 
 def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:

@@ -16,6 +16,7 @@ HIDDEN = Pose(0.0, 0.0, -500.0, 0.0)  # vehicles a shot does not use wait far be
 
 def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[Scene, CaseSetup]:
     """The garage from the plan, the case's vehicles, parked cars by occupancy, cameras and modifiers."""
+    from garage_exp.scene.look import dress
     from garage_exp.scene.modifiers import apply_modifiers, remove_entity, resize_pillar
     from garage_exp.scene.parking import park_vehicles
     from garage_exp.scene.structure import build_garage
@@ -34,6 +35,7 @@ def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[
     if cfg.palette.parked_occupancy > 0:
         scene.entities.extend(park_vehicles(classified, cfg.garage, cfg.palette, library, rng, scene,
                                             exclude=setup.used_bays))
+    dress(scene, classified, cfg.garage, cfg.look, cfg.materials, cfg.clutter, int(cfg.seed))
     scene.cameras = cameras(cfg, setup)
     scene.background = not cfg.blank
     return scene, setup

@@ -38,12 +38,33 @@ class Pose:
 
 
 @dataclass(frozen=True)
+class Texture:
+    """A procedural texture: plain data that `garage_exp.scene.textures.image` turns into pixels, the same for
+    every renderer and for the glTF export. A box's texture is mapped by world position, `tile` metres per
+    repeat, so neighbouring boxes join without seams; a decal's spans the decal once.
+
+    kind: what it draws (textures.KINDS: concrete, asphalt, wall, stripes, paint, ceiling, sign, shadow...).
+    seed: which stains, cracks and marks. params: (name, value) pairs the kind reads (grime, wetness, wear...).
+    """
+
+    kind: str
+    seed: int = 0
+    tile: float = 4.0
+    params: tuple[tuple[str, float | str], ...] = ()
+
+    def param(self, name: str, default: float | str = 0.0) -> float | str:
+        return dict(self.params).get(name, default)
+
+
+@dataclass(frozen=True)
 class Material:
     name: str
     color: tuple[float, float, float, float] = (0.5, 0.5, 0.5, 1.0)  # linear RGBA
     roughness: float = 0.8
     metallic: float = 0.0
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # emissive panels (lamps)
+    # A picture instead of the flat colour (its pixels already hold `color`); None: today's flat colour.
+    texture: Texture | None = None
 
 
 @dataclass(frozen=True)
@@ -64,7 +85,18 @@ class Mesh:
     scale: float = 1.0
 
 
-Shape = Box | Mesh
+@dataclass(frozen=True)
+class Decal:
+    """A flat, alpha-blended picture `size` (x, y) metres on the floor: contact shadows, floor arrows, stains.
+    It belongs to its entity (a shadow moves with its car) but carries no id of the entity's: renderers draw
+    it as a separate body, so ground truth never counts its pixels as the actor's."""
+
+    size: tuple[float, float]
+    material: Material
+    offset: Pose = Pose()
+
+
+Shape = Box | Mesh | Decal
 
 
 @dataclass

@@ -17,7 +17,8 @@ import trimesh
 from trimesh.visual.material import PBRMaterial
 
 from garage_exp.core.errors import GarageError
-from garage_exp.scene.description import VEHICLE_ROLES, Box, Entity, Material, Mesh, Pose, Scene
+from garage_exp.scene.boxmesh import UNIT_CORNERS, UNIT_FACES, UNIT_NORMALS, box_uvs, quad
+from garage_exp.scene.description import VEHICLE_ROLES, Box, Decal, Entity, Material, Mesh, Pose, Scene
 
 ROOT = "garage_z_up"
 # Z up -> Y up: (x, y, z) -> (x, z, -y), a -90 degree turn about x.
@@ -39,48 +40,50 @@ def pbr(material: Material) -> PBRMaterial:
     peak = max(emissive)
     if peak > 1.0:
         emissive = [e / peak for e in emissive]
-    return PBRMaterial(name=material.name, baseColorFactor=[float(c) for c in material.color],
+    if material.texture is None:
+        return PBRMaterial(name=material.name, baseColorFactor=[float(c) for c in material.color],
+                           metallicFactor=float(material.metallic), roughnessFactor=float(material.roughness),
+                           emissiveFactor=emissive if any(emissive) else None)
+    from PIL import Image
+
+    from garage_exp.scene.textures import image, srgb8
+
+    rgba, _ = image(material)
+    blend = bool(np.any(rgba[..., 3] < 1.0))  # decals and see-through signs
+    return PBRMaterial(name=material.name, baseColorTexture=Image.fromarray(srgb8(rgba)),
                        metallicFactor=float(material.metallic), roughnessFactor=float(material.roughness),
-                       emissiveFactor=emissive if any(emissive) else None)
+                       emissiveFactor=emissive if any(emissive) else None,
+                       alphaMode="BLEND" if blend else "OPAQUE")
 
 
-def _unit_box() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A unit cube with 4 vertices per face (24), so every face keeps its own flat normal."""
-    corners, normals, faces = [], [], []
-    for axis in range(3):
-        for sign in (-1.0, 1.0):
-            u, v = [a for a in range(3) if a != axis]
-            quad = []
-            for du, dv in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-                p = [0.0, 0.0, 0.0]
-                p[axis], p[u], p[v] = sign * 0.5, du * 0.5, dv * 0.5
-                quad.append(p)
-            n = [0.0, 0.0, 0.0]
-            n[axis] = sign
-            base = len(corners)
-            corners += quad
-            normals += [n] * 4
-            # Counter-clockwise seen from outside: (u, v, axis) is right-handed for the + face.
-            right_handed = (u, v, axis) in ((0, 1, 2), (1, 2, 0), (2, 0, 1))
-            tris = [(0, 1, 2), (0, 2, 3)] if right_handed == (sign > 0) else [(0, 2, 1), (0, 3, 2)]
-            faces += [(base + a, base + b, base + c) for a, b, c in tris]
-    return np.array(corners), np.array(normals), np.array(faces)
 
 
-UNIT_CORNERS, UNIT_NORMALS, UNIT_FACES = _unit_box()
-
-
-def boxes_mesh(boxes: list[tuple[Box, np.ndarray]]) -> trimesh.Trimesh:
-    """One mesh of many boxes, each (box, its entity's world transform). Built directly from a template:
-    trimesh.creation.box per box costs ~0.3 ms, which adds up to seconds for a big garage."""
-    vertices, normals, faces = [], [], []
-    for k, (box, transform) in enumerate(boxes):
-        m = transform @ pose_matrix(box.offset)
-        vertices.append((UNIT_CORNERS * box.size) @ m[:3, :3].T + m[:3, 3])
-        normals.append(UNIT_NORMALS @ m[:3, :3].T)
-        faces.append(UNIT_FACES + 24 * k)
+def boxes_mesh(boxes: list[tuple[Box | Decal, np.ndarray]]) -> trimesh.Trimesh:
+    """One mesh of many boxes (and decals), each (shape, its entity's world transform). Built directly from a
+    template: trimesh.creation.box per box costs ~0.3 ms, which adds up to seconds for a big garage. A
+    textured material gets the renderer's UVs (scene/boxmesh.py)."""
+    vertices, normals, faces, uvs = [], [], [], []
+    count = 0
+    for shape, transform in boxes:
+        m = transform @ pose_matrix(shape.offset)
+        tex = shape.material.texture
+        if isinstance(shape, Decal):
+            corners, tris, norms, uv = quad(shape.size)
+        else:
+            corners, tris, norms = UNIT_CORNERS * shape.size, UNIT_FACES, UNIT_NORMALS
+            uv = None
+        world, world_normals = corners @ m[:3, :3].T + m[:3, 3], norms @ m[:3, :3].T
+        if uv is None and tex is not None:
+            uv = box_uvs(world, world_normals, tex.tile)
+        vertices.append(world)
+        normals.append(world_normals)
+        faces.append(tris + count)
+        uvs.append(uv if uv is not None else np.zeros((len(world), 2)))
+        count += len(world)
     mesh = trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False,
                            vertex_normals=np.concatenate(normals))
+    if boxes and boxes[0][0].material.texture is not None:
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.concatenate(uvs), material=pbr(boxes[0][0].material))
     return mesh
 
 
@@ -145,7 +148,8 @@ def build_trimesh_scene(scene: Scene) -> trimesh.Scene:
 
 def _add_boxes(out: trimesh.Scene, name: str, material: Material, parts: list[tuple[Box, np.ndarray]]) -> None:
     mesh = boxes_mesh(parts)
-    mesh.visual = trimesh.visual.TextureVisuals(material=pbr(material))
+    if material.texture is None:
+        mesh.visual = trimesh.visual.TextureVisuals(material=pbr(material))
     out.add_geometry(mesh, node_name=name, geom_name=name, parent_node_name=ROOT)
 
 

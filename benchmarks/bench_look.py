@@ -1,0 +1,47 @@
+"""Frame cost of the real look against the flat one: `python benchmarks/bench_look.py [--frames 24] [--repeat 3]`.
+
+A frame is what the job pays per camera image before detection: the lit render, ground truth's silhouette
+renders and the sensor model (`run.frames.render_frames`). Each plan and look is one job built as the real
+one is (jobkit), warmed by one frame; the time is the best of `--repeat` passes over `--frames` shots, so the
+ratio is measured in one run, in one process, on one machine. Issue 21's goal: real <= 1.5x flat.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("TQDM_DISABLE", "1")  # the table, not 30 progress bars
+
+import jobkit
+
+PLANS = {"research": ["case=light"], "garage26x30": ["plan=garage26x30", "case=1", "case.motion.step=2"]}
+
+
+def frame_seconds(overrides: list[str], frames: int, repeat: int) -> float:
+    job = jobkit.build_job(overrides)
+    best = float("inf")
+    for _ in range(repeat):
+        start = time.perf_counter()
+        n = sum(1 for _ in job.frames(frames))
+        best = min(best, (time.perf_counter() - start) / n)
+    return best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=24)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    print(f"# {jobkit.machine()}; {jobkit.load()}")
+    print("| plan | flat s/frame | real s/frame | real/flat |")
+    print("|---|---|---|---|")
+    for plan, overrides in PLANS.items():
+        flat = frame_seconds([*overrides, "look=flat"], args.frames, args.repeat)
+        real = frame_seconds([*overrides, "look=real"], args.frames, args.repeat)
+        print(f"| {plan} | {flat:.3f} | {real:.3f} | {real / flat:.2f}x |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,224 @@
+"""Procedural, seeded textures for the `real` look: worn concrete, lane asphalt, dirty wall paint, hazard
+stripes, worn line paint, signs and the soft shadows under things. No asset packs: every picture is made here
+from a `Texture` spec with numpy, so a renderer, the glTF export and a test all get the same pixels.
+
+Pictures are linear RGBA float32 (H x W x 4), plus a roughness map where the surface is not uniform (oil and
+puddles shine). A box's picture tiles: noise is periodic (wrapped), so a floor of many boxes shows no seams.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from functools import lru_cache
+
+import numpy as np
+
+from garage_exp.core.errors import GarageError
+from garage_exp.scene.description import Material, Texture
+
+PX_PER_M = 96  # texels per metre of a tiled texture: ~1 cm, finer than a pixel of the front camera past 2 m
+MAX_SIZE = 512
+DECAL_SIZE = 128
+
+
+def _size(tex: Texture) -> int:
+    return int(min(MAX_SIZE, max(32, round(tex.tile * PX_PER_M)))) if tex.tile > 0 else DECAL_SIZE
+
+
+def fbm(size: int, rng: np.random.Generator, octaves: int = 5, base: int = 4, falloff: float = 0.55) -> np.ndarray:
+    """Periodic fractal noise in about [-1, 1]: random grids upsampled with wrap-around, finer octaves weaker."""
+    from scipy.ndimage import zoom
+
+    out = np.zeros((size, size), dtype=np.float32)
+    amp, total = 1.0, 0.0
+    for k in range(octaves):
+        cells = min(size, base * 2 ** k)
+        grid = rng.standard_normal((cells, cells)).astype(np.float32)
+        out += amp * zoom(grid, size / cells, order=3, mode="grid-wrap", grid_mode=True)[:size, :size]
+        total += amp
+        amp *= falloff
+    return out / (total * 1.5)
+
+
+def _blobs(size: int, rng: np.random.Generator, count: int, radius: tuple[float, float],
+           stretch: float = 1.0) -> np.ndarray:
+    """Soft periodic blobs (stains, puddles, tyre smears) in [0, 1]."""
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32) / size
+    out = np.zeros((size, size), dtype=np.float32)
+    for _ in range(count):
+        cx, cy = rng.random(2)
+        r = rng.uniform(*radius)
+        angle = rng.uniform(0, math.pi)
+        dx = (xx - cx + 0.5) % 1.0 - 0.5  # wrapped distance: the blob tiles
+        dy = (yy - cy + 0.5) % 1.0 - 0.5
+        u = dx * math.cos(angle) + dy * math.sin(angle)
+        v = -dx * math.sin(angle) + dy * math.cos(angle)
+        out = np.maximum(out, np.exp(-((u / (r * stretch)) ** 2 + (v / r) ** 2) * 2.0) * rng.uniform(0.5, 1.0))
+    return out
+
+
+def _cracks(size: int, rng: np.random.Generator, count: int) -> np.ndarray:
+    """Thin dark random-walk lines in [0, 1] (1: crack)."""
+    import cv2
+
+    canvas = np.zeros((size * 3, size * 3), dtype=np.uint8)  # drawn on a 3x3 tiling, the middle tile kept
+    for _ in range(count):
+        p = rng.random(2) * size + size
+        heading = rng.uniform(0, 2 * math.pi)
+        points = [p.copy()]
+        for _ in range(int(rng.integers(6, 14))):
+            heading += rng.normal(0, 0.5)
+            p = p + np.array([math.cos(heading), math.sin(heading)]) * size * rng.uniform(0.02, 0.06)
+            points.append(p.copy())
+        cv2.polylines(canvas, [np.array(points, dtype=np.int32)], False, 255, 1, cv2.LINE_AA)
+    tiles = canvas.reshape(3, size, 3, size).max(axis=(0, 2))
+    return tiles.astype(np.float32) / 255.0
+
+
+def _rgba(colour: np.ndarray, shade: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
+    rgb = np.clip(colour[None, None, :3] * shade[..., None], 0.0, 1.0)
+    a = np.ones(shade.shape, np.float32) if alpha is None else alpha
+    return np.concatenate([rgb, a[..., None]], axis=2).astype(np.float32)
+
+
+def _floor(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, np.ndarray]:
+    grime, wet = float(tex.param("grime", 0.5)), float(tex.param("wetness", 0.0))
+    shade = 1.0 + 0.18 * fbm(size, rng) + 0.05 * fbm(size, rng, octaves=3, base=32)
+    rough = np.full((size, size), mat.roughness, np.float32)
+    if grime > 0:
+        stains = _blobs(size, rng, int(2 + 4 * grime), (0.03, 0.09))
+        smears = _blobs(size, rng, int(3 + 6 * grime), (0.015, 0.03), stretch=6.0)
+        shade *= 1.0 - 0.45 * grime * stains - 0.25 * grime * smears
+        shade *= 1.0 - 0.5 * _cracks(size, rng, int(1 + 3 * grime))
+        rough -= 0.35 * stains * grime  # oil shines
+    if wet > 0:
+        puddles = np.clip((fbm(size, rng, octaves=4, base=2) + 0.15) * 4.0, 0.0, 1.0) * wet
+        shade *= 1.0 - 0.3 * puddles  # wet concrete darkens
+        rough = rough * (1.0 - 0.9 * puddles) + 0.04 * puddles
+    return _rgba(np.asarray(mat.color), shade), np.clip(rough, 0.03, 1.0)
+
+
+def _wall(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
+    """Paint with dirt: streaks running down from the slab, scuffs near the floor. v is height (world z)."""
+    grime = float(tex.param("grime", 0.5))
+    shade = 1.0 + 0.06 * fbm(size, rng)
+    z = (np.arange(size, dtype=np.float32) / size * tex.tile)[:, None]  # rows are world z, 0 at the floor
+    streaks = np.clip(fbm(size, rng, octaves=3, base=16), 0, 1)
+    streaks = np.repeat(streaks.mean(axis=0, keepdims=True), size, axis=0)
+    shade *= 1.0 - grime * (0.25 * streaks * np.clip((z - 1.0) / 1.8, 0, 1) + 0.3 * np.exp(-z / 0.35))
+    return _rgba(np.asarray(mat.color), np.clip(shade, 0.2, 1.3)), None
+
+
+def _stripes(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
+    """Hazard stripes: the material's colour and near-black, diagonal, worn a little."""
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32) / size * tex.tile
+    band = ((xx + yy) / 0.2).astype(np.int32) % 2
+    colour = np.where(band[..., None] == 0, np.asarray(mat.color[:3])[None, None], 0.02)
+    shade = 1.0 + 0.1 * fbm(size, rng) - 0.25 * float(tex.param("grime", 0.5)) * _blobs(size, rng, 3, (0.05, 0.1))
+    rgb = np.clip(colour * shade[..., None], 0, 1)
+    return np.concatenate([rgb, np.ones((size, size, 1))], axis=2).astype(np.float32), None
+
+
+def _paint(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
+    """Line paint worn through to the floor colour in patches, more where `wear` is higher."""
+    wear = float(tex.param("wear", 0.3))
+    floor = np.array([float(tex.param(f"floor_{c}", 0.1)) for c in "rgb"], np.float32)
+    noise = fbm(size, rng, octaves=5, base=8)
+    gone = np.clip((noise + 1.2 * wear - 0.85) * 5.0, 0.0, 1.0)[..., None]
+    rgb = np.asarray(mat.color[:3], np.float32)[None, None] * (1 - gone) + floor[None, None] * gone
+    rgb *= (1.0 + 0.08 * fbm(size, rng, octaves=3, base=32))[..., None]
+    return np.concatenate([np.clip(rgb, 0, 1), np.ones((size, size, 1))], axis=2).astype(np.float32), None
+
+
+def _ceiling(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
+    """Cast concrete with formwork joints every 1.2 m and damp patches."""
+    shade = 1.0 + 0.12 * fbm(size, rng) - 0.2 * _blobs(size, rng, 3, (0.05, 0.12))
+    joints = (np.arange(size) / size * tex.tile) % 1.2 < 0.02
+    shade[joints, :] *= 0.7
+    shade[:, joints] *= 0.7
+    return _rgba(np.asarray(mat.color), shade), None
+
+
+def _shadow(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
+    """A contact shadow: black, densest under the object's footprint (the decal's inner `core` fraction),
+    fading to nothing at the decal's edge; `strength` is the darkest alpha. `shape`: box | round | edge
+    (a wall's: dark at v = 0, fading with distance from the wall)."""
+    core, strength = float(tex.param("core", 0.7)), float(tex.param("strength", 0.75))
+    yy, xx = np.mgrid[-1:1:complex(0, size), -1:1:complex(0, size)].astype(np.float32)
+    shape = tex.param("shape", "box")
+    if shape == "round":
+        d = np.sqrt(xx ** 2 + yy ** 2)
+    elif shape == "edge":
+        d = (yy + 1.0) / 2.0 * 1.0 / max(1e-3, 1.0 - core) + core  # yy = -1 is the wall
+    else:
+        cx, cy = float(tex.param("core_x", core)), float(tex.param("core_y", core))
+        d = np.maximum(np.abs(xx) / max(cx, 1e-3), np.abs(yy) / max(cy, 1e-3)) * core
+    fall = np.clip((1.0 - d) / max(1e-3, 1.0 - core), 0.0, 1.0)
+    alpha = strength * np.where(d <= core, 1.0, fall ** 1.6)
+    rgb = np.zeros((size, size, 3), np.float32)
+    return np.concatenate([rgb, alpha[..., None]], axis=2).astype(np.float32), None
+
+
+def _arrow(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
+    """A painted floor arrow pointing along +x, worn like the lines."""
+    import cv2
+
+    a = np.zeros((size, size), np.uint8)
+    s = size
+    pts = np.array([[0.05, 0.42], [0.6, 0.42], [0.6, 0.25], [0.95, 0.5], [0.6, 0.75], [0.6, 0.58], [0.05, 0.58]])
+    cv2.fillPoly(a, [(pts * s).astype(np.int32)], 255, cv2.LINE_AA)
+    wear = float(tex.param("wear", 0.3))
+    alpha = a.astype(np.float32) / 255.0 * np.clip(1.0 - wear * (0.6 + 0.6 * fbm(s, rng, base=8)), 0, 1)
+    rgb = np.broadcast_to(np.asarray(mat.color[:3], np.float32), (s, s, 3))
+    return np.concatenate([rgb, alpha[..., None] * 0.9], axis=2).astype(np.float32), None
+
+
+def _sign(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
+    """A sign face: the material's colour with white text (`text`), e.g. EXIT, B2, a bay number."""
+    import cv2
+
+    text = str(tex.param("text", "EXIT"))
+    w, h = size * 2, size
+    mask = np.zeros((h, w), np.uint8)
+    scale = cv2.getFontScaleForHeight(cv2.FONT_HERSHEY_SIMPLEX, int(h * 0.55), 3) \
+        if hasattr(cv2, "getFontScaleForHeight") else h / 40.0
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, max(2, h // 16))
+    scale *= min(1.0, 0.85 * w / max(tw, 1))
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, max(2, h // 16))
+    cv2.putText(mask, text, ((w - tw) // 2, (h + th) // 2), cv2.FONT_HERSHEY_SIMPLEX, scale, 255,
+                max(2, h // 16), cv2.LINE_AA)
+    ink = (mask.astype(np.float32) / 255.0)[..., None]
+    if float(tex.param("clear", 0.0)):  # paint only: the text on a see-through ground (a decal)
+        rgb = np.broadcast_to(np.asarray(mat.color[:3], np.float32), (h, w, 3))
+        return np.concatenate([rgb, ink * 0.9], axis=2).astype(np.float32), None
+    img = np.asarray(mat.color[:3], np.float32)[None, None] * (1 - ink) + 0.85 * ink
+    return np.concatenate([img, np.ones((h, w, 1), np.float32)], axis=2), None
+
+
+_MAKERS = {"concrete": _floor, "asphalt": _floor, "wall": _wall, "stripes": _stripes, "paint": _paint,
+           "ceiling": _ceiling, "shadow": _shadow, "arrow": _arrow, "sign": _sign}
+KINDS = tuple(_MAKERS)
+
+
+@lru_cache(maxsize=256)
+def image(material: Material) -> tuple[np.ndarray, np.ndarray | None]:
+    """The material's texture as (linear RGBA float32 H x W x 4, roughness H x W or None). Cached: a scene
+    has a few dozen distinct textures, each made once per process."""
+    tex = material.texture
+    if tex is None:
+        raise GarageError("material has no texture", material.name)
+    maker = _MAKERS.get(tex.kind)
+    if maker is None:
+        raise GarageError(f"unknown texture kind {tex.kind!r} ({' | '.join(KINDS)})", material.name)
+    rng = np.random.default_rng([zlib.crc32(tex.kind.encode()), tex.seed])  # str hash() varies by process
+    rgba, rough = maker(material, tex, rng, _size(tex))
+    return rgba, rough
+
+
+def srgb8(rgba: np.ndarray) -> np.ndarray:
+    """Linear RGBA float -> 8-bit sRGB RGBA (for PNG and glTF)."""
+    rgb = np.clip(rgba[..., :3], 0, 1)
+    srgb = np.where(rgb <= 0.0031308, rgb * 12.92, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
+    out = np.concatenate([srgb, np.clip(rgba[..., 3:4], 0, 1)], axis=2)
+    return np.rint(out * 255).astype(np.uint8)
