@@ -35,7 +35,7 @@ def test_level_composes_with_its_file_values(group, level):
     text = (CONF / group / f"{level}.yaml").read_text()
     data = {k: v for k, v in (yaml.safe_load(text) or {}).items() if k != "defaults"}
     package = level_package(group, level)
-    node = OmegaConf.to_container(OmegaConf.select(cfg, package), resolve=False)
+    node = OmegaConf.to_container(cfg if package == "_global_" else OmegaConf.select(cfg, package), resolve=False)
     assert data, f"{group}/{level}.yaml sets nothing"
     missing = [key for key, value in data.items() if not holds(node.get(key), value)]
     assert not missing, (group, level, missing)
@@ -79,6 +79,7 @@ def test_dry_run_with_every_level_and_experiment(tmp_path_factory):
             assert written.tracking.experiment == compose_cfg(f"+experiment={level}").tracking.experiment
         else:  # the job ran with the level: its written config holds what the level composes to, at its package
             package = level_package(group, level)
+            package = group if package == "_global_" else package  # a preset (look=): its own node suffices
             expected = OmegaConf.to_container(OmegaConf.select(conftest.compose_cfg(*args), package), resolve=True)
             got = OmegaConf.to_container(OmegaConf.select(written, package), resolve=True)
             assert expected and holds(got, expected), (name, package, got, expected)

@@ -66,7 +66,7 @@ def test_nested_dataclasses_inside_dict_and_list_fields_are_checked():
 @pytest.mark.parametrize("override", [
     "+modifiers.extra._target_=garage_exp.scene.modifiers.pillar_size",  # dict[str, Any]: the extra factors
     "+modifiers.pillar.anything=1",  # a modifier's keyword arguments are its own to check (when it is called)
-    "+sensor.params.read_noise=2.0",  # dict[str, Any]: the sensor model checks its parameters itself
+    "+sensor.params.gain_map=2.0",  # dict[str, Any]: the sensor model checks its parameters itself
     "+search.suite.bands.low=[0,0.5]",  # dict[str, list[float]]: band names are the user's
     "+palette.target_models.red=hatchback_red",  # dict[str, str]: colour -> model
     "+case.bays.near=1",  # dict[str, str]: the scenario's names for bays
@@ -123,7 +123,7 @@ def test_an_unprefixed_typo_says_the_key_is_not_in_the_schema():
 
 def test_an_unprefixed_key_of_an_open_dict_keeps_hydras_advice():
     """sensor.params is open: there `+sensor.params.read_noise=2` is the right advice, and Hydra's line stays."""
-    exc = composition_error("sensor.params.read_noise=2")
+    exc = composition_error("sensor=ideal", "sensor.params.read_noise=2")
     assert unknown_key_line(exc) is None
     assert "+sensor.params.read_noise=2" in input_error(exc)
 

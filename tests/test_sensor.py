@@ -159,7 +159,7 @@ def test_each_range_check_at_its_boundary(key, bad, good, message):
 def test_unknown_kind_message_lists_the_kinds():
     with pytest.raises(GarageError) as err:
         SensorModel(name="x", kind="thermal")
-    assert "unknown sensor kind 'thermal' (ideal | noisy)" in str(err.value) and err.value.where == "sensor.kind"
+    assert "unknown sensor kind 'thermal' (ideal | noisy | camera)" in str(err.value) and err.value.where == "sensor.kind"
 
 
 @pytest.mark.parametrize("value", [True, float("inf"), float("nan"), None, "1.0"])
