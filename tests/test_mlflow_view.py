@@ -44,7 +44,7 @@ def test_params_and_run_name_name_the_plan_file_and_the_level_that_ran(dry_job):
     tmp, r, mlc, exp, run, args = dry_job
     assert run.data.params["plan.name"] == run.data.tags["plan"] == "big"
     assert run.data.params["light.name"] == "night" and run.data.params["light.coverage"] == "0.1"
-    assert run.data.params["case.name"] == "1" and run.data.params["sensor.name"] == "ideal"
+    assert run.data.params["case.name"] == "1" and run.data.params["sensor.name"] == "camera"  # look=real's
     assert run.data.params["occluder.name"] == "no_pillar"  # a name given on the command line is kept
     assert run.data.tags["mlflow.runName"] == " ".join(args[2:-1])  # where it is logged is not part of it
     config = open(mlc.download_artifacts(run.info.run_id, "config.yaml", str(tmp))).read()

@@ -107,7 +107,7 @@ def test_bad_replicate_values_name_their_key(override, where):
 def test_a_replicated_job_renders_replicate_zero_as_before(tmp_path, mlflow_uri):
     """Replicate 0 of a replicated job is the golden frame table; the other replicates see their own
     target, unoccluded in the lighting case (no replicate's car stands in another's frames)."""
-    proc = run_app(["case=light", "light=bright", "case.motion.values=[6.0,12.0]", "replicates=2",
+    proc = run_app(["case=light", "light=bright", "look=flat", "case.motion.values=[6.0,12.0]", "replicates=2",
                     "renderer.save_frames=none", f"tracking.uri={mlflow_uri}"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     table = pd.read_csv(tmp_path / "run" / "frames.csv")

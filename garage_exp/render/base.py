@@ -40,6 +40,9 @@ class Frame:
     # A fisheye or cylindrical frame's lens (render/fisheye.py); None: the pinhole fx, fy, cx, cy above. For a
     # fisheye, fx = fy is the lens's f and (cx, cy) its centre.
     lens: object | None = None
+    # Ids of flat pictures on the floor (contact shadows, painted arrows): they may cover an actor's lowest
+    # millimetres, and ground truth counts such pixels as the actor's, not as occluded.
+    see_through: frozenset[int] = frozenset()
 
     @property
     def width(self) -> int:

@@ -115,6 +115,7 @@ class SapienRenderer:
         self._lamp_rgb = np.zeros((0, 3))
         self._lamp_weight = np.zeros(0)
         self._materials: dict[Material, object] = {}  # one RenderMaterial per description material and load
+        self._decal_ids: set[int] = set()  # bodies that are only decals (Frame.see_through)
         self._static: tuple | None = None  # what the loaded static bodies were built from (see load)
         self._reset_bodies()
 
@@ -199,6 +200,17 @@ class SapienRenderer:
         # rebuilt at once: a swap (A -> B, B -> A) must not read a value written in this loop
         self._materials = {**{m: rm for m, rm in self._materials.items() if m not in change}, **moved}
 
+    def restyle(self, change: dict[Material, Material]) -> None:
+        """Give loaded textured materials other pictures (a replicate's stains and wetness): the shapes keep
+        their SAPIEN materials, whose textures are replaced; nothing is rebuilt."""
+        for old, new in change.items():
+            rm = self._materials.pop(old, None)
+            if rm is None:
+                continue
+            if new.texture is not None and new != old:
+                _texture(rm, new)
+            self._materials[new] = rm
+
     def _merges(self, entity: Entity) -> bool:
         return self.batch_static and entity.static and entity.role in STATIC_ROLES
 
@@ -207,6 +219,7 @@ class SapienRenderer:
         the light pool stay (shown again in full: the last frame may have culled some)."""
         for node in self._entities.values():
             self._scene.remove_entity(node)
+            self._decal_ids.discard(int(node.per_scene_id))
         for cam in self._cameras.values():
             for _, pinhole in cam.faces or [(None, cam)]:  # a fisheye's cube faces are cameras of their own
                 self._scene.remove_entity(pinhole.component.entity)
@@ -265,6 +278,7 @@ class SapienRenderer:
     def _reset(self) -> None:
         self._scene, self.description, self._static = None, None, None
         self._entities, self._bodies, self._merged, self._materials = {}, {}, [], {}
+        self._decal_ids = set()
         self._ids, self._poses, self._vehicles, self._cameras, self._pool = {}, {}, set(), {}, []
         self._reset_bodies()
 
@@ -300,6 +314,7 @@ class SapienRenderer:
             holder.add_component(under)
             holder.set_pose(_sapien_pose(entity.pose))
             self._scene.add_entity(holder)
+            self._decal_ids.add(int(holder.per_scene_id))
             self._entities[holder.name] = holder
             self._bodies[holder.name] = under
 
@@ -315,6 +330,8 @@ class SapienRenderer:
         node.add_component(body)
         self._scene.add_entity(node)
         self._merged.append(body)
+        if all(isinstance(shape, Decal) for _, shape in shapes):
+            self._decal_ids.add(int(node.per_scene_id))
 
     def _shape(self, shape: Box | Mesh | Decal, local: Pose, owner: str, world: Pose | None = None):
         """One SAPIEN shape at `local` in its body; `world` is where that puts it (textures map by world
@@ -476,7 +493,7 @@ class SapienRenderer:
             rgb[ids == 0] = BLANK_GREY
         fx, fy, cx, cy = intrinsics_of(cam.spec)
         poses = {name: self._poses[name] for name in self._poses if name in self._vehicles}
-        return Frame(camera_name, rgb, ids, pose, fx, fy, cx, cy, poses)
+        return Frame(camera_name, rgb, ids, pose, fx, fy, cx, cy, poses, see_through=frozenset(self._decal_ids))
 
     def _render_fisheye(self, cam: _Camera, pose: np.ndarray) -> Frame:
         """Each cube face, stacked in an atlas and remapped: colour bilinear, ids nearest; then the view the
@@ -500,9 +517,11 @@ class SapienRenderer:
             rgb[ids == 0] = BLANK_GREY
         poses = {name: self._poses[name] for name in self._poses if name in self._vehicles}
         if isinstance(lens, Pinhole):  # a perspective view is a plain pinhole frame
-            return Frame(cam.spec.name, rgb, ids, pose, lens.fx, lens.fy, lens.cx, lens.cy, poses)
+            return Frame(cam.spec.name, rgb, ids, pose, lens.fx, lens.fy, lens.cx, lens.cy, poses,
+                         see_through=frozenset(self._decal_ids))
         f = lens.f
-        return Frame(cam.spec.name, rgb, ids, pose, f, f, lens.cx, lens.cy, poses, lens=lens)
+        return Frame(cam.spec.name, rgb, ids, pose, f, f, lens.cx, lens.cy, poses, lens=lens,
+                     see_through=frozenset(self._decal_ids))
 
     def unoccluded_ids(self, camera_name: str, names: Iterable[str]) -> dict[str, np.ndarray]:
         """Each named vehicle's unoccluded silhouette (HxW bool) as this camera would see it alone.

@@ -39,6 +39,24 @@ class Rendered:
     geometry: exports.FrameGeometry | None  # the camera and the actors' poses, for the dataset's 3D labels
 
 
+def replicate_materials(cfg: DictConfig, scene: Scene, replicate: int, loaded: int) -> dict:
+    """Old -> new materials that turn the loaded replicate's surfaces into `replicate`'s: each replicate draws
+    its own stains, cracks and (materials=random) its own grime, wetness and tint: domain randomisation within a
+    job, the same draw in every cell of a sweep."""
+    from garage_exp.scene.look import dress_of, redress
+
+    level = str(cfg.materials.level)
+    if level == "none":
+        return {}
+
+    def draw(k):
+        return dress_of(level, int(cfg.seed) + int(cfg.materials.seed) + k, cfg.materials.get("grime"),
+                        cfg.materials.get("wetness"))
+
+    back = redress(scene, draw(loaded))  # the scene holds replicate 0's materials; the renderer `loaded`'s
+    return {back[m]: new for m, new in redress(scene, draw(replicate)).items()}
+
+
 def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sensor,
                   sensor_rng: np.random.Generator) -> Iterator[Rendered]:
     """Every camera of every shot, in order: the sensor's random stream is drawn in this order."""
@@ -46,7 +64,11 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
 
     from garage_exp.perception.groundtruth import ground_truth
 
+    dressed = None  # the replicate whose materials are loaded (the build drew replicate 0's)
     for shot in tqdm(setup.shots, desc=f"case {cfg.case.name}", unit="frame", leave=False):
+        if shot.replicate != (dressed or 0) and hasattr(renderer, "restyle"):
+            renderer.restyle(replicate_materials(cfg, scene, shot.replicate, dressed or 0))
+            dressed = shot.replicate
         renderer.set_pose("ego", shot.ego)
         for name, pose in shot.poses.items():
             renderer.set_pose(name, pose if pose is not None else HIDDEN)

@@ -70,24 +70,47 @@ def check_materials(conf) -> None:
 
 
 def _textured(base: Material, kind: str, dress: Dress, tile: float = 4.0, **params) -> Material:
-    colour = base.color
-    if dress.tint and kind == "wall":
-        colour = tuple(min(1.0, c * (1.0 + dress.tint)) for c in colour[:3]) + (colour[3],)
-    rough = base.roughness
-    if kind in ("concrete", "asphalt") and dress.wetness > 0:
-        rough = rough * (1.0 - 0.5 * dress.wetness)
-    items = tuple(sorted({"grime": round(dress.grime, 4), **params}.items()))
-    return Material(f"{base.name}~{kind}", colour, rough, base.metallic, base.emission,
-                    Texture(kind, dress.seed, tile, items))
+    """`base` with its picture. Everything a replicate may redraw (seed, grime, wetness, wear, tint) is in the
+    Texture, so `redress` can swap pictures on a loaded scene without touching its geometry."""
+    return Material(f"{base.name}~{kind}", base.color, base.roughness, base.metallic, base.emission,
+                    Texture(kind, dress.seed, tile, _params(kind, dress, params)))
+
+
+def _params(kind: str, dress: Dress, extra: dict) -> tuple:
+    values = {**extra, "grime": round(dress.grime, 4)}
+    if kind in ("concrete", "asphalt"):
+        values["wetness"] = round(dress.wetness, 4)
+    if kind == "paint":
+        values["wear"] = round(dress.paint_wear, 4)
+    if kind == "wall" and dress.tint:
+        values["tint"] = round(dress.tint, 4)
+    return tuple(sorted(values.items()))
+
+
+DRESSED = ("concrete", "asphalt", "wall", "stripes", "paint", "ceiling")
+
+
+def redress(scene: Scene, dress: Dress) -> dict[Material, Material]:
+    """Old -> new material for every dressed surface of a built scene, drawn again for `dress` (one replicate's
+    draw): the same shapes with other stains, wetness and wear."""
+    out = {}
+    for entity in scene.entities:
+        for shape in entity.shapes:
+            tex = shape.material.texture if isinstance(shape, Box) else None
+            if tex is None or tex.kind not in DRESSED or shape.material in out:
+                continue
+            kept = {k: v for k, v in tex.params if k.startswith("floor_")}
+            out[shape.material] = replace(shape.material, texture=replace(
+                tex, seed=dress.seed, params=_params(tex.kind, dress, kept)))
+    return out
 
 
 def material_map(dress: Dress) -> dict[str, callable]:
     """Flat material name -> its textured version (markings: by name prefix, see `_paint`)."""
-    wet = {"wetness": round(dress.wetness, 4)}
     return {
-        mat.ASPHALT.name: lambda m: _textured(EPOXY, "asphalt", dress, **wet),
-        mat.BAY_FLOOR.name: lambda m: _textured(m, "concrete", dress, **wet),
-        mat.FREE_FLOOR.name: lambda m: _textured(m, "concrete", dress, **wet),
+        mat.ASPHALT.name: lambda m: _textured(EPOXY, "asphalt", dress),
+        mat.BAY_FLOOR.name: lambda m: _textured(m, "concrete", dress),
+        mat.FREE_FLOOR.name: lambda m: _textured(m, "concrete", dress),
         mat.OBSTACLE.name: lambda m: _textured(m, "wall", dress),
         mat.WALL_PAINT.name: lambda m: _textured(m, "wall", dress),
         mat.WALL_BAND.name: lambda m: _textured(m, "wall", dress),
@@ -100,8 +123,7 @@ def material_map(dress: Dress) -> dict[str, callable]:
 
 def _paint(m: Material, dress: Dress) -> Material:
     floor = mat.ASPHALT if "yellow" in m.name or "asphalt" in m.name else mat.BAY_FLOOR
-    params = {"wear": round(dress.paint_wear, 4), **{f"floor_{c}": v for c, v in zip("rgb", floor.color[:3])}}
-    return _textured(m, "paint", dress, tile=2.0, **params)
+    return _textured(m, "paint", dress, tile=2.0, **{f"floor_{c}": v for c, v in zip("rgb", floor.color[:3])})
 
 
 def dress_scene(scene: Scene, dress: Dress) -> None:

@@ -87,22 +87,24 @@ def _floor(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, np.
     shade = 1.0 + 0.18 * fbm(size, rng) + 0.05 * fbm(size, rng, octaves=3, base=32)
     rough = np.full((size, size), mat.roughness, np.float32)
     if grime > 0:
-        stains = _blobs(size, rng, int(2 + 4 * grime), (0.03, 0.09))
-        smears = _blobs(size, rng, int(3 + 6 * grime), (0.015, 0.03), stretch=6.0)
-        shade *= 1.0 - 0.45 * grime * stains - 0.25 * grime * smears
+        stains = _blobs(size, rng, int(3 + 7 * grime), (0.03, 0.09))
+        smears = _blobs(size, rng, int(4 + 10 * grime), (0.015, 0.03), stretch=7.0)
+        shade *= 1.0 - 0.6 * grime * stains - 0.35 * grime * smears
         shade *= 1.0 - 0.5 * _cracks(size, rng, int(1 + 3 * grime))
         rough -= 0.35 * stains * grime  # oil shines
     if wet > 0:
+        rough *= 1.0 - 0.5 * wet  # a damp film everywhere, puddles where the floor dips
         puddles = np.clip((fbm(size, rng, octaves=4, base=2) + 0.15) * 4.0, 0.0, 1.0) * wet
         shade *= 1.0 - 0.3 * puddles  # wet concrete darkens
-        rough = rough * (1.0 - 0.9 * puddles) + 0.04 * puddles
+        rough = rough * (1.0 - puddles) + 0.03 * puddles
     return _rgba(np.asarray(mat.color), shade), np.clip(rough, 0.03, 1.0)
 
 
 def _wall(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
-    """Paint with dirt: streaks running down from the slab, scuffs near the floor. v is height (world z)."""
+    """Paint with dirt: streaks running down from the slab, scuffs near the floor. v is height (world z).
+    `tint` shifts the paint's brightness (the random level's other garages)."""
     grime = float(tex.param("grime", 0.5))
-    shade = 1.0 + 0.06 * fbm(size, rng)
+    shade = (1.0 + float(tex.param("tint", 0.0))) * (1.0 + 0.06 * fbm(size, rng))
     z = (np.arange(size, dtype=np.float32) / size * tex.tile)[:, None]  # rows are world z, 0 at the floor
     streaks = np.clip(fbm(size, rng, octaves=3, base=16), 0, 1)
     streaks = np.repeat(streaks.mean(axis=0, keepdims=True), size, axis=0)
@@ -201,10 +203,10 @@ _MAKERS = {"concrete": _floor, "asphalt": _floor, "wall": _wall, "stripes": _str
 KINDS = tuple(_MAKERS)
 
 
-@lru_cache(maxsize=256)
+@lru_cache(maxsize=48)
 def image(material: Material) -> tuple[np.ndarray, np.ndarray | None]:
     """The material's texture as (linear RGBA float32 H x W x 4, roughness H x W or None). Cached: a scene
-    has a few dozen distinct textures, each made once per process."""
+    has about twenty distinct textures (each replicate redraws eight), each made once per process (~2 MB each)."""
     tex = material.texture
     if tex is None:
         raise GarageError("material has no texture", material.name)

@@ -1,0 +1,223 @@
+"""The real look (issue 21): procedural materials, clutter, contact shadows and the real camera.
+
+Description-level tests need no renderer; one module-scoped job renders the lighting case under the real look
+to check that ground truth stays exact where clutter hides a target and that a contact shadow never carries
+its actor's id."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import compose_cfg, run_app
+
+from garage_exp.perception.sensor import make_sensor
+from garage_exp.scene.description import Box, Decal, Material, Texture
+from garage_exp.scene.textures import image
+
+
+def built(*overrides: str):
+    from garage_exp.assets.vehicles import VehicleLibrary
+    from garage_exp.plan import classify, load_plan
+    from garage_exp.run.preflight import resolve_plan_path
+    from garage_exp.scenario.assemble import build_scene
+
+    cfg = compose_cfg(*overrides)
+    classified = classify(load_plan(resolve_plan_path(cfg.plan)))
+    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    return cfg, classified, scene, setup
+
+
+def test_flat_look_is_the_scene_before_the_look():
+    """look=flat adds nothing: the description is what the build gave before issue 21 (the golden tables
+    then prove the frames did not move)."""
+    from garage_exp.scene import look
+
+    calls = []
+    original = look.dress
+    look.dress = lambda *a, **k: calls.append(1)
+    try:
+        _, _, bare, _ = built("case=light", "look=flat")
+    finally:
+        look.dress = original
+    _, _, flat, _ = built("case=light", "look=flat")
+    assert calls == [1]
+    assert [(e.name, e.pose, e.shapes) for e in flat.entities] == [(e.name, e.pose, e.shapes) for e in bare.entities]
+    assert flat.lights == bare.lights
+    assert all(s.material.texture is None for e in flat.entities for s in e.shapes if isinstance(s, Box))
+
+
+def test_real_look_dresses_the_structure_adds_clutter_and_shadows():
+    cfg, _, scene, _ = built("case=light")
+    assert (cfg.look.name, cfg.materials.level, cfg.clutter.level, cfg.sensor.name) == ("real", "worn", "typical",
+                                                                                      "camera")
+    floors = [s for e in scene.entities if e.name.startswith("floor_") for s in e.shapes]
+    assert floors and all(s.material.texture is not None for s in floors)
+    kinds = {e.name.split("_")[1] for e in scene.entities if e.name.startswith("clutter_")}
+    assert {"duct", "main", "tray", "sprinkler", "arrow", "bay", "wheel", "extinguisher", "level"} <= kinds
+    for actor in scene.actors():  # every car and person stands on its own soft shadow
+        decals = [s for s in actor.shapes if isinstance(s, Decal)]
+        assert len(decals) == 1 and decals[0].material.texture.kind == "shadow", actor.name
+    assert any(e.name.startswith("ao_pillar_") for e in scene.entities)
+    assert any(e.name.startswith("ao_wall_") for e in scene.entities)
+    # the lights hang below their panels (the fixture's reflector), by fixture_drop
+    _, _, flat, _ = built("case=light", "look=flat")
+    drops = {round(a.position[2] - b.position[2], 6) for a, b in zip(flat.lights, scene.lights)}
+    assert drops == {cfg.look.fixture_drop}
+
+
+def test_nothing_low_stands_in_a_lane():
+    """Clutter over a lane hangs above 2.2 m; on a lane's floor only paint (decals) and, at an entrance, the
+    bollards at its two sides: a case's path stays clear."""
+    _, classified, scene, _ = built("case=1", "clutter=dense")
+    plan = classified.plan
+    for e in scene.entities:
+        if not e.name.startswith("clutter_"):
+            continue
+        for s in e.shapes:
+            cell = plan.cell_at(e.pose.x, e.pose.y)
+            if isinstance(s, Box) and cell is not None and plan.is_driveable(*cell):
+                if "bollard" in e.name:
+                    x0, y0, x1, y1 = plan.cell_rect(*cell)
+                    assert min(e.pose.x - x0, x1 - e.pose.x, e.pose.y - y0, y1 - e.pose.y) < 0.3, e.name
+                else:
+                    assert s.offset.z - s.size[2] / 2 >= 2.2, e.name
+
+
+def test_materials_levels_differ_and_are_seeded():
+    from garage_exp.scene.look import dress_of
+
+    assert dress_of("clean", 0).grime < dress_of("worn", 0).grime
+    assert dress_of("wet", 0).wetness > 0 == dress_of("worn", 0).wetness
+    assert dress_of("random", 3) == dress_of("random", 3) != dress_of("random", 4)
+    base = Material("bay_floor", (0.22, 0.21, 0.19, 1.0), 0.85)
+    one = image(Material(base.name, base.color, 0.85, texture=Texture("concrete", 1, 4.0, (("grime", 1.0),))))[0]
+    same = image(Material(base.name, base.color, 0.85, texture=Texture("concrete", 1, 4.0, (("grime", 1.0),))))[0]
+    other = image(Material(base.name, base.color, 0.85, texture=Texture("concrete", 2, 4.0, (("grime", 1.0),))))[0]
+    assert np.array_equal(one, same) and not np.array_equal(one, other)
+
+
+def test_a_tiled_texture_has_no_seam():
+    """Floors are many boxes mapped by world position: a texture's last column continues into its first."""
+    rgba, _ = image(Material("f", (0.2, 0.2, 0.2, 1.0), texture=Texture("concrete", 5, 4.0, (("grime", 0.0),))))
+    lum = rgba[..., :3].mean(axis=2)
+    seam = np.abs(lum[:, 0] - lum[:, -1]).mean()
+    inner = np.abs(lum[:, 100] - lum[:, 101]).mean()
+    far = np.abs(lum[:, 0] - lum[:, lum.shape[1] // 2]).mean()
+    assert seam < 2 * inner < far
+
+
+def test_wet_floors_shine_where_puddles_are():
+    wet = Material("f", (0.2, 0.2, 0.2, 1.0), 0.8, texture=Texture("concrete", 1, 4.0, (("grime", 0.0),
+                                                                                      ("wetness", 1.0))))
+    _, rough = image(wet)
+    assert rough.min() < 0.1 < 0.3 < rough.max()  # puddles mirror, the damp film between them less
+
+
+def test_camera_sensor_noise_vignetting_and_tone():
+    params = {"full_well": 10000.0, "exposure": 1.0, "read_noise": 0.0, "target_brightness": 0.18,
+              "max_gain": 1.0, "blur_sigma": 0.0, "vignetting": 0.0, "tone": "srgb", "quantize": False}
+    grey = np.full((200, 200, 3), 60, np.uint8)  # linear 0.045: 450 e- at exposure 1, 10,000 e- full well
+    out = make_sensor(name="t", kind="camera", params=params).apply(grey, np.random.default_rng(0))
+    from garage_exp.perception.sensor import srgb_to_linear
+
+    electrons = srgb_to_linear(out.astype(np.float64)) * 10000.0
+    assert abs(electrons.mean() - 450.0) < 5 and abs(electrons.std() / np.sqrt(450.0) - 1.0) < 0.05
+    vignetted = make_sensor(name="t", kind="camera", params={**params, "vignetting": 0.35, "full_well": 1e7,
+                                                             "exposure": 1.0}).apply(grey, np.random.default_rng(0))
+    assert vignetted[0, 0].mean() < 0.9 * vignetted[100, 100].mean()
+    white = np.full((8, 8, 3), 255, np.uint8)
+    hot = {**params, "full_well": 1e7, "exposure": 1.0, "max_gain": 1.0, "target_brightness": 1.0, "quantize": True}
+    assert make_sensor(name="t", kind="camera", params=hot).apply(white, np.random.default_rng(0)).max() == 255
+    filmic = make_sensor(name="t", kind="camera", params={**hot, "tone": "filmic"})
+    assert filmic.apply(white, np.random.default_rng(0)).max() < 255  # highlights roll off
+
+
+# ---- rendered: ground truth with clutter, shadows without ids ------------------------------------------------
+
+@pytest.fixture(scope="module")
+def light_job():
+    """The lighting case under the real look, loaded into the process's renderer."""
+    from garage_exp.render.sapien_backend import get_renderer
+
+    cfg, classified, scene, setup = built("case=light", "case.motion.values=[8.0]")
+    renderer = get_renderer(max_lights=cfg.renderer.max_lights)
+    return cfg, scene, setup, renderer
+
+
+def render_truth(scene, setup, renderer, shot=0):
+    from garage_exp.perception.groundtruth import ground_truth
+    from garage_exp.scenario.assemble import HIDDEN
+
+    renderer.load(scene)
+    s = setup.shots[shot]
+    renderer.set_pose("ego", s.ego)
+    for name, pose in s.poses.items():
+        renderer.set_pose(name, pose if pose is not None else HIDDEN)
+    frame = renderer.render(scene.cameras[0].name)
+    silhouettes = renderer.unoccluded_ids(scene.cameras[0].name, [s.target])
+    return frame, ground_truth(frame, silhouettes, scene, renderer.ids)[0], silhouettes[s.target]
+
+
+@pytest.mark.render
+def test_clutter_that_hides_part_of_a_target_counts_as_an_occluder(light_job):
+    """A bollard (clutter, merged static structure) put between the camera and the target: the target's
+    visible fraction is exactly its pixels left in the id picture over its unoccluded silhouette."""
+    from dataclasses import replace
+
+    from garage_exp.scene.clutter import BOLLARD, _box
+
+    cfg, scene, setup, renderer = light_job
+    _, clear, _ = render_truth(scene, setup, renderer)
+    assert clear.visible_fraction > 0.99
+    shot = setup.shots[0]
+    ego, target = shot.ego, shot.poses[shot.target]
+    # 2 m ahead of the ego on the line to the target's centre, 1.6 m tall: it cuts the car's middle
+    t = 2.5 / np.hypot(target.x - ego.x, target.y - ego.y)
+    x, y = ego.x + t * (target.x - ego.x), ego.y + t * (target.y - ego.y)
+    hidden = replace(scene, entities=[*scene.entities, _box("clutter_bollard_test", x, y, (0.3, 0.3, 1.6), BOLLARD,
+                                                                0.8)])
+    frame, truth, silhouette = render_truth(hidden, setup, renderer)
+    seen = (frame.ids == renderer.ids[shot.target]) & silhouette
+    assert 0.2 < truth.visible_fraction < 0.95
+    assert truth.visible_pixels == int(seen.sum()) and truth.unoccluded_pixels == int(silhouette.sum())
+    assert truth.unoccluded_pixels == clear.unoccluded_pixels  # the silhouette ignores the bollard
+    assert truth.visible_fraction == pytest.approx(seen.sum() / silhouette.sum())
+
+
+@pytest.mark.render
+def test_a_contact_shadow_carries_no_id_of_its_actor(light_job):
+    """The shadow decal darkens the floor around the car but its pixels are never the car's: the silhouette and
+    the visible pixels are those of the same scene without contact shadows."""
+    from dataclasses import replace
+
+    cfg, scene, setup, renderer = light_job
+    frame, truth, _ = render_truth(scene, setup, renderer)
+    bare = replace(scene, entities=[replace(e, shapes=[s for s in e.shapes if not isinstance(s, Decal)])
+                                    for e in scene.entities])
+    frame_bare, truth_bare, _ = render_truth(bare, setup, renderer)
+    assert truth.unoccluded_pixels == truth_bare.unoccluded_pixels
+    assert truth.visible_pixels == truth_bare.visible_pixels
+    # ... and it is there: the floor just below the car is darker with it
+    x1, y1, x2, y2 = truth.full_box
+    below = (slice(y2 + 1, min(y2 + 8, frame.height)), slice(x1, x2))
+    assert frame.rgb[below].mean() < 0.85 * frame_bare.rgb[below].mean()
+
+
+@pytest.mark.render
+@pytest.mark.detect
+def test_the_default_job_runs_the_real_look_and_exports_its_textures(tmp_path):
+    """The CLI's default is look=real: the job logs the camera sensor, and scene.glb holds the textures and
+    the blended decals."""
+    import json
+    import struct
+
+    proc = run_app(["case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]",
+                    "renderer.save_frames=none"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    run = next(p for p in (tmp_path / "run").parent.rglob("scene.glb"))
+    data = run.read_bytes()
+    length = struct.unpack("<I", data[12:16])[0]
+    gltf = json.loads(data[20:20 + length])
+    assert len(gltf.get("images", [])) >= 5
+    assert any(m.get("alphaMode") == "BLEND" for m in gltf["materials"])
+    assert "sensor=camera" in proc.stdout + proc.stderr
