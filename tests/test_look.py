@@ -221,3 +221,27 @@ def test_the_default_job_runs_the_real_look_and_exports_its_textures(tmp_path):
     assert len(gltf.get("images", [])) >= 5
     assert any(m.get("alphaMode") == "BLEND" for m in gltf["materials"])
     assert "sensor=camera" in proc.stdout + proc.stderr
+
+
+def test_each_replicate_draws_its_own_materials_and_comes_back():
+    """Replicate k's surfaces are drawn from seed + k (materials=random: another garage); going from the loaded
+    replicate to another and back is the identity, so the renderer's pictures follow the shots' order."""
+    from garage_exp.run.frames import replicate_materials
+
+    cfg, _, scene, _ = built("case=light", "materials=random")
+    forward = replicate_materials(cfg, scene, 1, 0)
+    assert forward and all(old.texture.seed + 1 == new.texture.seed for old, new in forward.items())
+    assert any(dict(old.texture.params) != dict(new.texture.params) for old, new in forward.items())
+    back = replicate_materials(cfg, scene, 0, 1)
+    assert {new: back[new] for new in forward.values()} == {new: old for old, new in forward.items()}
+    assert replicate_materials(compose_cfg("case=light", "look=flat"), scene, 1, 0) == {}
+
+
+def test_the_wear_factor_wears_the_textured_paint_too():
+    def paint_wear(*overrides):
+        _, _, scene, _ = built("case=light", *overrides)
+        return {dict(s.material.texture.params)["wear"] for e in scene.by_role("marking") for s in e.shapes
+                if isinstance(s, Box) and s.material.texture is not None}
+
+    fresh, worn = paint_wear("wear=fresh"), paint_wear("wear=worn")
+    assert len(fresh) == len(worn) == 1 and min(worn) > min(fresh) + 0.3

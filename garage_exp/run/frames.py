@@ -43,15 +43,14 @@ def replicate_materials(cfg: DictConfig, scene: Scene, replicate: int, loaded: i
     """Old -> new materials that turn the loaded replicate's surfaces into `replicate`'s: each replicate draws
     its own stains, cracks and (materials=random) its own grime, wetness and tint: domain randomisation within a
     job, the same draw in every cell of a sweep."""
-    from garage_exp.scene.look import dress_of, redress
+    from garage_exp.scenario.assemble import marking_wear
+    from garage_exp.scene.look import dress_for, redress
 
-    level = str(cfg.materials.level)
-    if level == "none":
+    if str(cfg.materials.level) == "none":
         return {}
 
     def draw(k):
-        return dress_of(level, int(cfg.seed) + int(cfg.materials.seed) + k, cfg.materials.get("grime"),
-                        cfg.materials.get("wetness"))
+        return dress_for(cfg.materials, int(cfg.seed) + k, marking_wear(cfg))
 
     back = redress(scene, draw(loaded))  # the scene holds replicate 0's materials; the renderer `loaded`'s
     return {back[m]: new for m, new in redress(scene, draw(replicate)).items()}
@@ -78,9 +77,14 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
                        if v.role != "ego" and v.kind != "box" and shot.poses.get(v.name, v.pose)]
             silhouettes = renderer.unoccluded_ids(cam.name, in_view)
             truth = ground_truth(frame, silhouettes, scene, renderer.ids)
-            rgb = sensor.apply(frame.rgb, sensor_rng)
-            if not scene.background:
-                rgb = blank_composite(rgb, frame, renderer.ids, [shot.target])
+            if not scene.background and str(cfg.look.name) != "flat":
+                # The blank control is a scene (the car alone on grey) that the camera then sees: exposure, blur
+                # and noise act on the grey too. The flat look keeps the order its published tables used.
+                rgb = sensor.apply(blank_composite(frame.rgb, frame, renderer.ids, [shot.target]), sensor_rng)
+            else:
+                rgb = sensor.apply(frame.rgb, sensor_rng)
+                if not scene.background:
+                    rgb = blank_composite(rgb, frame, renderer.ids, [shot.target])
             target = next((t for t in truth if t.name == shot.target), None)
             # copied only when a dataset will label the frame in 3D
             geometry = exports.FrameGeometry.of(frame) if cfg.dataset else None

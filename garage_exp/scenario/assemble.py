@@ -35,10 +35,16 @@ def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[
     if cfg.palette.parked_occupancy > 0:
         scene.entities.extend(park_vehicles(classified, cfg.garage, cfg.palette, library, rng, scene,
                                             exclude=setup.used_bays))
-    dress(scene, classified, cfg.garage, cfg.look, cfg.materials, cfg.clutter, int(cfg.seed))
+    dress(scene, classified, cfg.garage, cfg.look, cfg.materials, cfg.clutter, int(cfg.seed), marking_wear(cfg))
     scene.cameras = cameras(cfg, setup)
     scene.background = not cfg.blank
     return scene, setup
+
+
+def marking_wear(cfg: DictConfig) -> float:
+    """How worn the line paint is by the `wear` factor (its modifier's value, else the garage's)."""
+    wear = (cfg.get("modifiers") or {}).get("wear") or {}
+    return float(wear.get("wear", cfg.garage.marking_wear))
 
 
 def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:

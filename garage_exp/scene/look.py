@@ -213,15 +213,22 @@ def _wall_shadows(entity: Entity, bounds, sx: float, sy: float) -> list[Entity]:
                    [Decal((hi - lo, WALL_SHADOW), material, Pose(0.0, 0.0, SHADOW_Z, yaw))])]
 
 
-def dress(scene: Scene, classified, garage, look, materials, clutter, seed: int) -> None:
+def dress_for(materials, seed: int, marking_wear: float = 0.0) -> Dress:
+    """The `materials` group's draw for a seed (the job's seed plus the replicate), with the line paint worn
+    as much again as the `wear` factor says: 1 - (1 - level's wear) x (1 - the factor's)."""
+    out = dress_of(str(materials.level), int(seed) + int(materials.seed), materials.get("grime"),
+                   materials.get("wetness"))
+    return replace(out, paint_wear=1.0 - (1.0 - out.paint_wear) * (1.0 - float(marking_wear)))
+
+
+def dress(scene: Scene, classified, garage, look, materials, clutter, seed: int, marking_wear: float = 0.0) -> None:
     """The look's changes to a built scene (actors included): clutter, then materials, then contact shadows.
     `flat` with materials and clutter `none` changes nothing."""
     from garage_exp.scene.clutter import add_clutter
 
     add_clutter(scene, classified, garage, str(clutter.level), int(seed))
     if str(materials.level) != "none":
-        dress_scene(scene, dress_of(str(materials.level), int(seed) + int(materials.seed),
-                                    materials.get("grime"), materials.get("wetness")))
+        dress_scene(scene, dress_for(materials, seed, marking_wear))
     if bool(look.contact_shadows):
         add_structure_shadows(scene)
         add_actor_shadows(scene)
