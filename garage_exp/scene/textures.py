@@ -105,7 +105,7 @@ def _floor(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, np.
         rough *= 1.0 - 0.5 * wet  # a damp film everywhere, puddles where the floor dips
         puddles = np.clip((fbm(size, rng, octaves=4, base=2) + 0.15) * 4.0, 0.0, 1.0) * wet
         shade *= 1.0 - 0.3 * puddles  # wet concrete darkens
-        rough = rough * (1.0 - puddles) + 0.03 * puddles
+        rough = rough * (1.0 - puddles) + 0.1 * puddles  # glossy, not a mirror: a lamp's reflection is a blob
     return _rgba(np.asarray(mat.color), shade), np.clip(rough, 0.03, 1.0)
 
 
