@@ -18,7 +18,7 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-CASE1 = ["case=1", "case.motion.values=[4.0]", "case.motion.start=null", "case.motion.end=null"]
+AHEAD = ["case=light", "case.motion.values=[10.0]", "palette.target_colours=[white]"]
 PROBE = ["case=light", "case.motion.values=[6.0]"]
 PERSON = ["case=pedestrian", "case.motion.start=1.0", "case.motion.end=1.0", "case.variants=[{label: adult,"
           " show: [adult, car_left, car_right, car_before1, car_before2], target: adult, set: {ego.distance: 6.0,"
@@ -42,9 +42,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(jobkit.PROJECT_ROOT / "docs" / "img" / "realism.png"))
     args = parser.parse_args()
-    panels = [("flat look (ideal camera)", frame([*CASE1, "look=flat"])[0])]
+    panels = [("flat look (ideal camera)", frame([*AHEAD, "look=flat"])[0])]
     for level in ("clean", "worn", "wet", "random"):
-        panels.append((f"real look, materials={level}", frame([*CASE1, f"materials={level}"])[0]))
+        panels.append((f"real look, materials={level}", frame([*AHEAD, f"materials={level}"])[0]))
     rgb, target = frame([*PROBE, "look=flat"])
     panels.append(("flat: a car at 6 m", crop(rgb, target)))
     rgb, target = frame(PROBE)
@@ -56,7 +56,8 @@ def main() -> None:
         ax.imshow(image)
         ax.set_title(title, fontsize=10)
         ax.axis("off")
-    fig.suptitle("Case 1 at 4 m (top row, first of the bottom row) and close views: flat against real", fontsize=12)
+    fig.suptitle("The lighting case, a white car 10 m ahead (top row, first of the bottom row), and close views",
+                 fontsize=12)
     fig.tight_layout()
     fig.savefig(args.out, dpi=80)
     print(args.out)

@@ -110,7 +110,7 @@ def test_wet_floors_shine_where_puddles_are():
     wet = Material("f", (0.2, 0.2, 0.2, 1.0), 0.8, texture=Texture("concrete", 1, 4.0, (("grime", 0.0),
                                                                                       ("wetness", 1.0))))
     _, rough = image(wet)
-    assert rough.min() < 0.1 < 0.3 < rough.max()  # puddles mirror, the damp film between them less
+    assert rough.min() < 0.15 < 0.3 < rough.max()  # puddles gloss, the damp film between them less
 
 
 def test_camera_sensor_noise_vignetting_and_tone():

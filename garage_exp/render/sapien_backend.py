@@ -196,6 +196,7 @@ class SapienRenderer:
                 rm.set_emission([*new.emission, 1.0])
                 rm.set_roughness(new.roughness)
                 rm.set_metallic(new.metallic)
+                rm.set_specular(new.specular)
             moved[new] = rm
         # rebuilt at once: a swap (A -> B, B -> A) must not read a value written in this loop
         self._materials = {**{m: rm for m, rm in self._materials.items() if m not in change}, **moved}
@@ -362,7 +363,8 @@ class SapienRenderer:
             if decal:
                 colour[3] = min(colour[3], 0.999)  # alpha below 1: SAPIEN's blended (transparent) pass
             rm = sr.RenderMaterial(emission=[*material.emission, 1.0], base_color=colour,
-                                   roughness=material.roughness, metallic=material.metallic)
+                                   roughness=material.roughness, metallic=material.metallic,
+                                   specular=material.specular)
             if material.texture is not None:
                 _texture(rm, material)
             self._materials[material] = rm

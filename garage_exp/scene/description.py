@@ -65,6 +65,9 @@ class Material:
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)  # emissive panels (lamps)
     # A picture instead of the flat colour (its pixels already hold `color`); None: today's flat colour.
     texture: Texture | None = None
+    # Specular reflectance of a dielectric, SAPIEN's convention (0.5: F0 = 0.04, paint, concrete, epoxy). The
+    # flat look's surfaces have none: no highlights at all, which is part of why it looks flat.
+    specular: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ WALL_SHADOW = 0.6  # depth (m) of the darkening along a wall's foot
 # Lanes in the real look: grey-green epoxy coating, as most underground garages have, not the flat look's
 # near-black asphalt (on which neither a black car nor a shadow stands out).
 EPOXY = Material(mat.ASPHALT.name, (0.11, 0.125, 0.115, 1.0), roughness=0.55)
+SPECULAR = 0.5  # every dressed surface is a dielectric (F0 0.04): lamps glint on gloss and mirror in puddles
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ def _textured(base: Material, kind: str, dress: Dress, tile: float = 4.0, **para
     """`base` with its picture. Everything a replicate may redraw (seed, grime, wetness, wear, tint) is in the
     Texture, so `redress` can swap pictures on a loaded scene without touching its geometry."""
     return Material(f"{base.name}~{kind}", base.color, base.roughness, base.metallic, base.emission,
-                    Texture(kind, dress.seed, tile, _params(kind, dress, params)))
+                    Texture(kind, dress.seed, tile, _params(kind, dress, params)), specular=SPECULAR)
 
 
 def _params(kind: str, dress: Dress, extra: dict) -> tuple:
