@@ -166,7 +166,7 @@ class SensorModel:
             radiance = cv2.GaussianBlur(radiance, (0, 0), sigmaX=self.blur_sigma, sigmaY=self.blur_sigma,
                                         borderType=cv2.BORDER_REFLECT)
         if self.vignetting > 0:
-            radiance = radiance * _falloff(radiance.shape[:2], self.vignetting)[..., None]
+            radiance *= _falloff(radiance.shape[:2], self.vignetting)[..., None]  # a fresh array: in place
         exposure, gain = self.exposure_and_gain(float(radiance.mean()))
         if self.kind == "camera":
             return self._fast(radiance * np.float32(exposure * self.full_well), gain, rng)
