@@ -101,7 +101,8 @@ def train(cfg: DictConfig) -> dict:
     results_csv = out / "ultralytics" / "results.csv"
     if results_csv.is_file():
         run.log_artifact(results_csv)
-    run.log_metrics({"train_images_per_s": result["images_per_s"], "train_wall_s": result["wall_s"]})
+    run.log_metrics({"train_images_per_s": result["images_per_s"], "train_wall_s": result["wall_s"],
+                     **{f"final/{k}": v for k, v in result["metrics"].items()}})
     run.set_tag("device", result["device"])
     mlc = run.mlc
     version = None

@@ -44,12 +44,17 @@ def epoch_logger(run, n_images: int, timings: list[float]):
         timings.append(time.perf_counter() - started.get("t", time.perf_counter()))
 
     def on_fit_epoch_end(trainer):
+        # ultralytics calls this again after its last epoch, validating best.pt: that is the run's final metrics
+        # (logged once training ends), not another epoch.
+        if len(timings) <= started.get("logged", 0):
+            return
+        started["logged"] = len(timings)
         values = {**trainer.label_loss_items(trainer.tloss, prefix="train"), **(trainer.metrics or {}),
                   **(trainer.lr or {})}
         values = {metric_key(k): float(v) for k, v in values.items()}
         if timings:
             values["train_images_per_s"] = n_images / max(timings[-1], 1e-9)
-        run.log_metrics(values, step=int(trainer.epoch) + 1)
+        run.log_metrics(values, step=len(timings))
 
     return {"on_train_epoch_start": on_train_epoch_start, "on_train_epoch_end": on_train_epoch_end,
             "on_fit_epoch_end": on_fit_epoch_end}
