@@ -30,6 +30,8 @@ def check_loop(cfg: DictConfig) -> None:
         check_range(cfg[key], 1, 100_000, key)
     check_range(cfg.replay_fraction, 0, 10, "replay_fraction")
     check_range(cfg.hard_below, 0, 1, "hard_below")
+    if cfg.heldout_graded_by not in ("d0", "shipped"):
+        raise GarageError(f"{cfg.heldout_graded_by!r}: d0 | shipped", "heldout_graded_by")
     if not cfg.seeds:
         raise GarageError("no training seeds", "seeds")
     if int(cfg.imgsz) % 32:
@@ -109,13 +111,10 @@ def run_loop(cfg: DictConfig) -> dict:
                     f"{arm}_seed{seed}", data=[arm_data], val=[base_val], base=d0["model"], epochs=int(cfg.epochs),
                     seed=int(seed), replay=[base_train], study="failures_D0" if arm == "H" else "random"))
         budget.assert_equal_budget(arms["H"][int(seed)], arms["R"][int(seed)])
-    # 5. Held-out: scenarios of a plan no training frame came from; the hardest and the easiest third for D0.
-    held = loop.step("held-out suites", lambda: loop.study("heldout", [cfg.eval_plan], cfg.eval_trials, "qmc", 3,
-                                                           [d0["model"]]))
-    done = sorted((t for t in held if t.state == "COMPLETE" and t.dataset is not None),
-                  key=lambda t: (-t.difficulty, t.number))
-    third = max(1, len(done) // 3)
-    suites = {"hard": done[:third], "easy": done[-third:]}
+    # 5. Held-out: scenarios of a plan no training frame came from (scored in the study by the shipped detectors);
+    # the hardest and the easiest third, graded by D0 itself (heldout_graded_by=d0) or by the shipped detectors.
+    held = loop.step("held-out suites", lambda: loop.study("heldout", [cfg.eval_plan], cfg.eval_trials, "qmc", 3))
+    suites = report.heldout_suites(cfg, held, d0)
     # 6. A second round: search the fine-tuned detectors again (seed 0 of each arm), as D0 was searched.
     first = int(cfg.seeds[0])
     round2 = {arm: loop.step(f"{arm}'s failures", lambda arm=arm: loop.study(

@@ -24,6 +24,24 @@ def weights_of(result: dict) -> Path:
     return Path(result["weights"])
 
 
+def heldout_suites(cfg, held: list, d0: dict) -> dict:
+    """The held-out hard and easy suites: the hardest and the easiest third of the held-out study's fairly visible
+    trials, by D0's fair difficulty (scored here on the trials' frames) or by the shipped detectors' (the study's)."""
+    from garage_exp.loop.evaluate import score_frames
+
+    done = [t for t in held if t.state == "COMPLETE" and t.dataset is not None]
+    if cfg.heldout_graded_by == "d0":
+        frames = score_frames(weights_of(d0), int(cfg.imgsz), done, float(cfg.threshold))
+        fair = frames[frames.fair].groupby("trial").confidence.mean()
+        done = [t for t in done if t.number in fair.index]
+        key = {t.number: 1.0 - float(fair[t.number]) for t in done}
+    else:
+        key = {t.number: t.difficulty for t in done}
+    done.sort(key=lambda t: (-key[t.number], t.number))
+    third = max(1, len(done) // 3)
+    return {"hard": done[:third], "easy": done[-third:]}
+
+
 def evaluate_all(cfg, models: dict[str, dict[int, dict]], suites: dict) -> dict:
     """{"scores": one row per (model, seed, suite), "frames": every scored frame}."""
     rows, frames = [], []
