@@ -34,8 +34,9 @@ def draw(arms: pd.DataFrame, fails: pd.DataFrame, scores: pd.DataFrame, found: p
     for k, arm in enumerate(order):
         part = arms[arms.arm == arm].set_index("suite").reindex(["hard", "easy"]).reset_index()
         x = np.arange(2) + (k - (len(order) - 1) / 2) * width
-        ax.bar(x, part.fair_recall, width, yerr=_errors(part, "fair_recall"), capsize=3, color=COLOURS[arm],
-               label=arm)
+        bars = ax.bar(x, part.fair_recall, width, yerr=_errors(part, "fair_recall"), capsize=3,
+                      color=COLOURS[arm], label=arm)
+        ax.bar_label(bars, fmt="%.2f", fontsize=7, padding=2)
     ax.set_xticks(range(2), ["held-out hard", "held-out easy"])
     ax.set_ylabel("recall on fair frames")
     ax.set_ylim(0, 1.05)
@@ -45,8 +46,9 @@ def draw(arms: pd.DataFrame, fails: pd.DataFrame, scores: pd.DataFrame, found: p
     ax = fig.add_subplot(grid[0, 1])
     x = np.arange(len(fails))
     err = np.vstack([(fails.per_100 - fails.low).clip(lower=0), (fails.high - fails.per_100).clip(lower=0)])
-    ax.bar(x, fails.per_100, 0.6, yerr=err, capsize=4,
-           color=[COLOURS.get(d, "#999") for d in fails.detector])
+    bars = ax.bar(x, fails.per_100, 0.6, yerr=err, capsize=4,
+                  color=[COLOURS.get(d, "#999") for d in fails.detector])
+    ax.bar_label(bars, fmt="%.0f", fontsize=8, padding=2)
     ax.set_xticks(x, [f"{d}\n{f}/{n}" for d, f, n in zip(fails.detector, fails.failures, fails.trials)])
     ax.set_ylabel("hard-and-fair failures per 100 trials")
     ax.set_title("A search against each detector (Wilson 95 %)")
