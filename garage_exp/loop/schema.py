@@ -22,13 +22,13 @@ class LoopConf:
     eval_plan: str = "obstacles"  # no training frame comes from it
     base: str = "yolov8n.yaml"  # a model YAML: D0 trained from scratch; a .pt: D0 is that detector
     base_trials: int = 32  # QMC scenarios of base data
-    base_epochs: int = 35
+    base_epochs: int = 25
     failure_trials: int = 30  # each search for failures (D0's, then the fine-tuned detectors')
     hard_scenarios: int = 8  # D0's hardest fair scenarios: arm H's training data
     random_trials: int = 16  # random scenarios from the same space: arm R's pool
     eval_trials: int = 24  # QMC scenarios on eval_plan; the hardest and the easiest third are the held-out suites
     heldout_graded_by: str = "d0"  # d0 | shipped: who grades the held-out scenarios into the hard and easy third
-    epochs: int = 10  # each arm's fine-tuning
+    epochs: int = 8  # each arm's fine-tuning
     imgsz: int = 320
     batch: int = 16
     replay_fraction: float = 0.5

@@ -138,7 +138,16 @@ def main(cfg: DictConfig) -> dict:
 def cli(argv: list[str] | None = None) -> None:
     """`python -m garage_exp.train overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written or
     registered); 1 a crash (traceback)."""
+    import signal
+
+    from garage_exp.core.exits import on_sigterm
+
     if argv is not None:
         sys.argv[1:] = list(argv)
     install_error_report()
-    main()
+    # SIGTERM (a scheduler's limit, the loop stopped) ends the training's run KILLED, as Ctrl-C does, not RUNNING.
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        main()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
