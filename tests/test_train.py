@@ -24,14 +24,18 @@ FRAMES = ["case.motion.start=12", "case.motion.end=10.5", "palette.target_colour
 def run_train(args: list[str], cwd: Path, uri: str):
     """What `python -m garage_exp.train ARGS` does, in this process (as conftest.run_in_process does for
     `python -m garage_exp`): exit code, stdout and stderr."""
-    from hydra.core.global_hydra import GlobalHydra
-
     from garage_exp.train.app import cli
+
+    return run_entry(cli, [*args, f"tracking.uri={uri}", f"hydra.run.dir={cwd}/train_run", "workers=0"], cwd)
+
+
+def run_entry(cli, argv: list[str], cwd: Path):
+    from hydra.core.global_hydra import GlobalHydra
 
     out, err = io.StringIO(), io.StringIO()
     saved = (os.getcwd(), sys.argv)
     os.chdir(cwd)
-    sys.argv = ["garage_exp.train", *args, f"tracking.uri={uri}", f"hydra.run.dir={cwd}/train_run", "workers=0"]
+    sys.argv = ["garage_exp", *argv]
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
@@ -43,7 +47,7 @@ def run_train(args: list[str], cwd: Path, uri: str):
         os.chdir(saved[0])
         sys.argv = saved[1]
         GlobalHydra.instance().clear()
-    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
+    return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
 
 
 @pytest.fixture(scope="module")
@@ -254,3 +258,27 @@ def test_split_never_puts_a_scenario_on_both_sides(tmp_path):
         assert len(val) == 2 and len(plan.scenarios("train")) == 4
         assert val.isdisjoint(plan.scenarios("train")) and val.isdisjoint(plan.scenarios("replay"))
         assert len(plan.train) == 12 and len(plan.replay) == 6 and len(plan.val) == 6
+
+
+def test_failures_per_100_trials_count_only_hard_fair_trials():
+    from garage_exp.loop import budget
+    from garage_exp.loop.steps import Trial
+
+    trials = [Trial("s", 0, "COMPLETE", 0.9, None), Trial("s", 1, "COMPLETE", 0.5, None),
+              Trial("s", 2, "PRUNED", None, None), Trial("s", 3, "COMPLETE", 0.61, None),
+              Trial("s", 4, "RUNNING", None, None)]
+    assert budget.failures(trials, hard_below=0.4) == (2, 4)  # confidence 0.1 and 0.39; the pruned trial counts
+    low, high = budget.wilson(0, 30)
+    assert low == 0.0 and 0.10 < high < 0.13  # Wilson's interval is not empty at 0 / 30
+    low, high = budget.wilson(15, 30)
+    assert low < 0.5 < high and abs((low + high) / 2 - 0.5) < 1e-9
+
+
+def test_the_loop_refuses_a_held_out_plan_it_trains_on(tmp_path):
+    """Held-out means another plan: the loop stops before anything runs."""
+    from garage_exp.loop.app import cli
+
+    r = run_entry(cli, [f"dir={tmp_path}/loop", "eval_plan=research"], tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "garage_exp.loop: eval_plan: 'research' is also a training plan: held-out data must come from another plan"]
+    assert not (tmp_path / "loop").exists()

@@ -48,24 +48,33 @@ class Loop:
         self.cfg = cfg
         self.dir = Path(cfg.dir)
         self.log = self.dir / "loop.log"
-        self.times: dict[str, float] = {}
+        # Each step's wall time when it last ran (a step skipped because its result is on disk keeps its time).
+        self.times_file = self.dir / "times.json"
+        self.times: dict[str, float] = json.loads(self.times_file.read_text()) if self.times_file.is_file() else {}
+        self.ran = False
 
-    def step(self, name: str, fn):
+    def step(self, name: str, fn, always: bool = False):
         start = time.perf_counter()
         print(f"garage_exp.loop: {name} ...", flush=True)
+        self.ran = always
         result = fn()
-        self.times[name] = time.perf_counter() - start
-        print(f"garage_exp.loop: {name}: {self.times[name]:.0f} s", flush=True)
+        if self.ran:
+            self.times[name] = time.perf_counter() - start
+            self.times_file.write_text(json.dumps(self.times, indent=1))
+        print(f"garage_exp.loop: {name}: {time.perf_counter() - start:.0f} s"
+              + ("" if self.ran else " (done before)"), flush=True)
         return result
 
     def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None):
         if not steps.study_done(self.cfg, name, trials):
+            self.ran = True
             steps.run(steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models), self.log)
         return steps.trials(self.cfg, name)
 
     def train(self, name: str, **kw) -> dict:
         out = self.dir / "train" / name
         if not (out / "result.json").is_file():
+            self.ran = True
             steps.run(steps.train_command(self.cfg, name, out, **kw), self.log)
         return json.loads((out / "result.json").read_text())
 
@@ -120,8 +129,8 @@ def run_loop(cfg: DictConfig) -> dict:
     round2 = {arm: loop.step(f"{arm}'s failures", lambda arm=arm: loop.study(
         f"failures_{arm}", plans, cfg.failure_trials, "tpe", 1, [arms[arm][first]["model"]])) for arm in ("H", "R")}
     models = {"D0": {0: d0}, **arms}
-    result = loop.step("evaluation", lambda: report.evaluate_all(cfg, models, suites))
-    loop.times["total"] = sum(loop.times.values())
+    result = loop.step("evaluation", lambda: report.evaluate_all(cfg, models, suites), always=True)
+    loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
     return report.write(cfg, loop.dir / "results", result, {"D0": round1, **round2}, suites, hard, loop.times)
 
 
@@ -132,6 +141,14 @@ def main(cfg: DictConfig) -> dict:
     try:
         check_loop(cfg)
     except GarageError as exc:
+        from hydra.core.hydra_config import HydraConfig
+
+        from garage_exp.train.app import remove_untouched
+
+        out = Path(HydraConfig.get().runtime.output_dir)
+        remove_untouched(out)  # Hydra's log dir: a refused loop leaves nothing
+        if out.parent.is_dir() and not any(out.parent.iterdir()):
+            out.parent.rmdir()
         print(f"garage_exp.loop: {exc}", file=sys.stderr)
         sys.exit(EXIT_INPUT)
     with open_dict(cfg):

@@ -48,7 +48,7 @@ def check_train(cfg: DictConfig) -> None:
         raise GarageError("empty name", "registered_name")
 
 
-def _remove_untouched(out: Path) -> None:
+def remove_untouched(out: Path) -> None:
     """Hydra's dir of a training refused for bad input: removed when it holds nothing but Hydra's own files."""
     try:
         if out.is_dir() and all(p.name == ".hydra" or p.suffix == ".log" for p in out.iterdir()):
@@ -75,7 +75,7 @@ def train(cfg: DictConfig) -> dict:
         base = load_base(str(cfg.base), cfg.tracking.uri)
         check_names(base, plan.names)
     except GarageError:
-        _remove_untouched(out)
+        remove_untouched(out)
         raise
     from garage_exp.tracking import runs as tracking
     from garage_exp.train.fit import fit, register
