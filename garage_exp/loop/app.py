@@ -100,7 +100,8 @@ def run_loop(cfg: DictConfig) -> dict:
         d0 = {"model": str(Path(str(cfg.base)).expanduser().absolute()), "weights": str(cfg.base)}
     else:
         d0 = loop.step("D0", lambda: loop.train("D0", data=[base_train], val=[base_val], base=str(cfg.base),
-                                                epochs=int(cfg.base_epochs), seed=0, study="base"))
+                                                epochs=int(cfg.base_epochs), seed=0, lr0=float(cfg.base_lr0),
+                                                study="base"))
     # 3. D0's failures: a search against D0 itself; its hardest fair scenarios are H's training data.
     round1 = loop.step("D0's failures", lambda: loop.study("failures_D0", plans, cfg.failure_trials, "tpe", 1,
                                                            [d0["model"]]))
@@ -118,7 +119,8 @@ def run_loop(cfg: DictConfig) -> dict:
             arms[arm][int(seed)] = loop.step(
                 f"arm {arm} seed {seed}", lambda arm=arm, arm_data=arm_data, seed=seed: loop.train(
                     f"{arm}_seed{seed}", data=[arm_data], val=[base_val], base=d0["model"], epochs=int(cfg.epochs),
-                    seed=int(seed), replay=[base_train], study="failures_D0" if arm == "H" else "random"))
+                    seed=int(seed), lr0=float(cfg.lr0), replay=[base_train],
+                    study="failures_D0" if arm == "H" else "random"))
         budget.assert_equal_budget(arms["H"][int(seed)], arms["R"][int(seed)])
     # 5. Held-out: scenarios of a plan no training frame came from (scored in the study by the shipped detectors);
     # the hardest and the easiest third, graded by D0 itself (heldout_graded_by=d0) or by the shipped detectors.

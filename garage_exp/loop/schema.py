@@ -23,6 +23,9 @@ class LoopConf:
     base: str = "yolov8n.yaml"  # a model YAML: D0 trained from scratch; a .pt: D0 is that detector
     base_trials: int = 32  # QMC scenarios of base data
     base_epochs: int = 25
+    optimizer: str = "AdamW"  # for D0 and the arms (ultralytics' auto would pick lr 0.00012: see TrainConf)
+    base_lr0: float = 0.002
+    lr0: float = 0.001  # the arms' fine-tuning
     failure_trials: int = 30  # each search for failures (D0's, then the fine-tuned detectors')
     hard_scenarios: int = 8  # D0's hardest fair scenarios: arm H's training data
     random_trials: int = 16  # random scenarios from the same space: arm R's pool

@@ -50,10 +50,11 @@ def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, s
 
 
 def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: list[Path], base: str, epochs: int,
-                  seed: int, replay: list[Path] = (), study: str = "") -> list[str]:
+                  seed: int, lr0: float, replay: list[Path] = (), study: str = "") -> list[str]:
     cmd = [sys.executable, "-m", "garage_exp.train", f"data=[{','.join(map(str, data))}]",
            f"val=[{','.join(map(str, val))}]", f"base={base}", f"epochs={epochs}", f"imgsz={cfg.imgsz}",
-           f"batch={cfg.batch}", f"seed={seed}", f"name={name}", f"study={study}",
+           f"batch={cfg.batch}", f"seed={seed}", f"optimizer={cfg.optimizer}", f"lr0={lr0}", f"name={name}",
+           f"study={study}",
            f"tracking.uri={cfg.tracking.uri}", f"tracking.experiment={cfg.tracking.experiment}",
            f"hydra.run.dir={out}"]
     if replay:

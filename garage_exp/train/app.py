@@ -44,6 +44,13 @@ def check_train(cfg: DictConfig) -> None:
     device = str(cfg.device)
     if not (device in ("auto", "cpu", "mps") or device.replace("cuda:", "").replace(",", "").isdigit()):
         raise GarageError(f"{device!r}: use auto, cpu, a GPU index (0) or cuda:N", "device")
+    optimizers = ("auto", "SGD", "Adam", "Adamax", "AdamW", "NAdam", "RAdam", "RMSprop", "MuSGD")
+    if str(cfg.optimizer) not in optimizers:
+        raise GarageError(f"{cfg.optimizer!r} is not one of {', '.join(optimizers)}", "optimizer")
+    if cfg.lr0 is not None:
+        check_range(cfg.lr0, 1e-7, 1.0, "lr0")
+        if str(cfg.optimizer) == "auto":
+            raise GarageError("lr0 needs a named optimizer (ultralytics' auto sets its own)", "lr0")
     if cfg.register and not str(cfg.registered_name).strip():
         raise GarageError("empty name", "registered_name")
 

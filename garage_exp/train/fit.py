@@ -72,8 +72,11 @@ def fit(cfg, plan: DataPlan, base: Base, data_yaml: Path, out: Path, run) -> dic
     timings: list[float] = []
     for event, fn in epoch_logger(run, len(plan.fit_frames), timings).items():
         model.add_callback(event, fn)
+    extra = {"optimizer": str(cfg.optimizer)}
+    if cfg.lr0 is not None:
+        extra["lr0"] = float(cfg.lr0)
     start = time.perf_counter()
-    model.train(data=str(data_yaml), epochs=int(cfg.epochs), imgsz=int(cfg.imgsz), batch=int(cfg.batch),
+    model.train(**extra, data=str(data_yaml), epochs=int(cfg.epochs), imgsz=int(cfg.imgsz), batch=int(cfg.batch),
                 seed=int(cfg.seed), deterministic=True, freeze=int(cfg.freeze) or None, device=device,
                 workers=int(cfg.workers), project=str(out), name="ultralytics", exist_ok=True, plots=False,
                 amp=device != "cpu", verbose=True)

@@ -28,6 +28,10 @@ class TrainConf:
     batch: int = 16
     seed: int = 0
     freeze: int = 0  # the first N layers kept frozen (ultralytics' `freeze`)
+    # ultralytics' `auto` picks AdamW at lr 0.002 x 5 / (4 + classes) for short trainings: 0.00012 for COCO's 80
+    # classes, too slow to learn from scratch in a few hundred iterations. Name one (SGD, AdamW, ...) to set lr0.
+    optimizer: str = "auto"
+    lr0: Optional[float] = None  # the initial learning rate (with a named optimizer); None: ultralytics' default
     device: str = "auto"  # auto: the first GPU when there is one, else the CPU; or cpu, 0, cuda:0, ...
     workers: int = 2  # dataloader workers
     register: bool = True  # register the weights as a version of `registered_name`
