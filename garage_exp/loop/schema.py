@@ -31,7 +31,7 @@ class LoopConf:
     random_trials: int = 16  # random scenarios from the same space: arm R's pool
     eval_trials: int = 24  # QMC scenarios on eval_plan; the hardest and the easiest third are the held-out suites
     heldout_graded_by: str = "d0"  # d0 | shipped: who grades the held-out scenarios into the hard and easy third
-    epochs: int = 8  # each arm's fine-tuning
+    epochs: int = 6  # each arm's fine-tuning
     imgsz: int = 320
     batch: int = 16
     replay_fraction: float = 0.5
