@@ -60,7 +60,9 @@ class Loop:
         result = fn()
         if self.ran:
             self.times[name] = time.perf_counter() - start
-            self.times_file.write_text(json.dumps(self.times, indent=1))
+        elif name not in self.times and isinstance(result, dict) and "wall_s" in result:
+            self.times[name] = float(result["wall_s"])  # a training that finished outside this loop's process
+        self.times_file.write_text(json.dumps(self.times, indent=1))
         print(f"garage_exp.loop: {name}: {time.perf_counter() - start:.0f} s"
               + ("" if self.ran else " (done before)"), flush=True)
         return result
