@@ -219,7 +219,7 @@ class DetectorConf:
     imgsz: int = 640
     # The MLflow store that `models:/NAME/VERSION` entries are read from; None: $MLFLOW_TRACKING_URI, else
     # outputs/mlflow.db. By default the job's own store (tracking.uri), where `python -m garage_exp.train` registers.
-    registry: Optional[str] = "${tracking.uri}"
+    registry: Optional[str] = "${oc.select:tracking.uri,null}"
 
 
 @dataclass
