@@ -32,6 +32,8 @@ def check_loop(cfg: DictConfig) -> None:
     check_range(cfg.hard_below, 0, 1, "hard_below")
     if cfg.heldout_graded_by not in ("d0", "shipped"):
         raise GarageError(f"{cfg.heldout_graded_by!r}: d0 | shipped", "heldout_graded_by")
+    if cfg.variant and not str(cfg.variant).replace("_", "").replace("-", "").isalnum():
+        raise GarageError(f"{cfg.variant!r}: letters, digits, - and _ only (it names folders and studies)", "variant")
     if not cfg.seeds:
         raise GarageError("no training seeds", "seeds")
     if int(cfg.imgsz) % 32:
@@ -52,6 +54,22 @@ class Loop:
         self.times_file = self.dir / "times.json"
         self.times: dict[str, float] = json.loads(self.times_file.read_text()) if self.times_file.is_file() else {}
         self.ran = False
+        # The command each step ran with: a step's result is reused only for the same command, never silently
+        # for other settings.
+        self.commands_file = self.dir / "commands.json"
+        self.commands: dict[str, list[str]] = (json.loads(self.commands_file.read_text())
+                                               if self.commands_file.is_file() else {})
+
+    def reuse(self, name: str, cmd: list[str], done: bool) -> bool:
+        """Whether step `name`'s result on disk is reused; GarageError when it was made by another command."""
+        known = self.commands.get(name)
+        if done and known is not None and known != cmd:
+            changed = sorted(set(cmd) ^ set(known))[:4]
+            raise GarageError(f"{self.dir} holds step {name!r} run with other settings ({', '.join(changed)}); give "
+                              "this run its own variant=NAME (its arms and second round apart) or another dir", "dir")
+        self.commands[name] = cmd
+        self.commands_file.write_text(json.dumps(self.commands, indent=1))
+        return done
 
     def step(self, name: str, fn, always: bool = False):
         start = time.perf_counter()
@@ -68,16 +86,18 @@ class Loop:
         return result
 
     def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None):
-        if not steps.study_done(self.cfg, name, trials):
+        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models)
+        if not self.reuse(name, cmd, steps.study_done(self.cfg, name, trials)):
             self.ran = True
-            steps.run(steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models), self.log)
+            steps.run(cmd, self.log)
         return steps.trials(self.cfg, name)
 
     def train(self, name: str, **kw) -> dict:
         out = self.dir / "train" / name
-        if not (out / "result.json").is_file():
+        cmd = steps.train_command(self.cfg, name, out, **kw)
+        if not self.reuse(name, cmd, (out / "result.json").is_file()):
             self.ran = True
-            steps.run(steps.train_command(self.cfg, name, out, **kw), self.log)
+            steps.run(cmd, self.log)
         return json.loads((out / "result.json").read_text())
 
 
@@ -115,12 +135,14 @@ def run_loop(cfg: DictConfig) -> dict:
                                                        [d0["model"]]))
     random_frames = budget.draw_frames(budget.images([t.dataset for t in pool if t.dataset is not None]), n_hard, 0)
     random_yaml = budget.write_list(data / "random.yaml", random_frames, names)
+    suffix = f"_{cfg.variant}" if cfg.variant else ""  # a variant's arms, second round and results stand apart
     arms: dict[str, dict[int, dict]] = {"H": {}, "R": {}}
     for seed in cfg.seeds:
         for arm, arm_data in (("H", hard_yaml), ("R", random_yaml)):
             arms[arm][int(seed)] = loop.step(
-                f"arm {arm} seed {seed}", lambda arm=arm, arm_data=arm_data, seed=seed: loop.train(
-                    f"{arm}_seed{seed}", data=[arm_data], val=[base_val], base=d0["model"], epochs=int(cfg.epochs),
+                f"arm {arm} seed {seed}{suffix}", lambda arm=arm, arm_data=arm_data, seed=seed: loop.train(
+                    f"{arm}_seed{seed}{suffix}", data=[arm_data], val=[base_val], base=d0["model"],
+                    epochs=int(cfg.epochs),
                     seed=int(seed), lr0=float(cfg.lr0), replay=[base_train],
                     study="failures_D0" if arm == "H" else "random"))
         budget.assert_equal_budget(arms["H"][int(seed)], arms["R"][int(seed)])
@@ -130,12 +152,13 @@ def run_loop(cfg: DictConfig) -> dict:
     suites = report.heldout_suites(cfg, held, d0)
     # 6. A second round: search the fine-tuned detectors again (seed 0 of each arm), as D0 was searched.
     first = int(cfg.seeds[0])
-    round2 = {arm: loop.step(f"{arm}'s failures", lambda arm=arm: loop.study(
-        f"failures_{arm}", plans, cfg.failure_trials, "tpe", 1, [arms[arm][first]["model"]])) for arm in ("H", "R")}
+    round2 = {arm: loop.step(f"{arm}'s failures{suffix}", lambda arm=arm: loop.study(
+        f"failures_{arm}{suffix}", plans, cfg.failure_trials, "tpe", 1, [arms[arm][first]["model"]]))
+        for arm in ("H", "R")}
     models = {"D0": {0: d0}, **arms}
-    result = loop.step("evaluation", lambda: report.evaluate_all(cfg, models, suites), always=True)
+    result = loop.step(f"evaluation{suffix}", lambda: report.evaluate_all(cfg, models, suites), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
-    return report.write(cfg, loop.dir / "results", result, {"D0": round1, **round2}, suites, hard, loop.times)
+    return report.write(cfg, loop.dir / f"results{suffix}", result, {"D0": round1, **round2}, suites, hard, loop.times)
 
 
 @hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="loop")
@@ -144,6 +167,10 @@ def main(cfg: DictConfig) -> dict:
 
     try:
         check_loop(cfg)
+        with open_dict(cfg):
+            cfg.tracking.uri = tracking_uri(cfg.tracking.uri)  # every step's store, also for models:/ entries
+            cfg.dir = str(Path(str(cfg.dir)).absolute())
+        return run_loop(cfg)
     except GarageError as exc:
         from hydra.core.hydra_config import HydraConfig
 
@@ -155,10 +182,6 @@ def main(cfg: DictConfig) -> dict:
             out.parent.rmdir()
         print(f"garage_exp.loop: {exc}", file=sys.stderr)
         sys.exit(EXIT_INPUT)
-    with open_dict(cfg):
-        cfg.tracking.uri = tracking_uri(cfg.tracking.uri)  # every step's store, also for models:/ entries
-        cfg.dir = str(Path(str(cfg.dir)).absolute())
-    return run_loop(cfg)
 
 
 def cli() -> None:

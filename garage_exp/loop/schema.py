@@ -13,6 +13,10 @@ from garage_exp.core.schema import TrackingConf
 @dataclass
 class LoopConf:
     dir: str = "outputs/loop/default"  # every study, dataset, training and result of the loop
+    # A name for a run of the arms with other settings (replay_fraction=1, epochs=10, ...) in the same dir: its
+    # trainings, second round and results/ get this suffix; base data, D0, its failures and the held-out suites
+    # are shared. Empty: the first run's names. A step is never reused for another command.
+    variant: str = ""
     # The declared scenario space, in the search's override grammar (docs/search.md), shared by every study.
     space: list[str] = field(default_factory=lambda: ["case=choice('1','2','3',pedestrian)",
                                                       "light=choice(bright,clear,moderate,dim)",
