@@ -282,3 +282,17 @@ def test_the_loop_refuses_a_held_out_plan_it_trains_on(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "garage_exp.loop: eval_plan: 'research' is also a training plan: held-out data must come from another plan"]
     assert not (tmp_path / "loop").exists()
+
+
+def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
+    """A loop rerun with other settings in the same dir is refused, not answered with the old step's result."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop.app import Loop
+
+    loop = Loop(OmegaConf.create({"dir": str(tmp_path)}))
+    assert loop.reuse("arm", ["train", "epochs=6"], done=False) is False  # not done: run it
+    assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
+    with pytest.raises(GarageError, match="epochs=8"):
+        Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
