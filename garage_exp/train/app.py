@@ -57,9 +57,15 @@ def check_train(cfg: DictConfig) -> None:
 
 def remove_untouched(out: Path) -> None:
     """Hydra's dir of a training refused for bad input: removed when it holds nothing but Hydra's own files."""
+    from garage_exp.core.paths import OUTPUTS_DIR
+
     try:
         if out.is_dir() and all(p.name == ".hydra" or p.suffix == ".log" for p in out.iterdir()):
             shutil.rmtree(out)
+            parent = out.parent  # outputs/train/<date>/<time>: the date and train levels too when empty
+            while parent != OUTPUTS_DIR and OUTPUTS_DIR in parent.parents and not any(parent.iterdir()):
+                parent.rmdir()
+                parent = parent.parent
     except OSError:
         pass
 
