@@ -248,6 +248,9 @@ class DetectorConf:
     match: str = "full"  # full | visible | either
     threshold: float = 0.5  # composite confidence counted as detected
     imgsz: int = 640
+    # The MLflow store that `models:/NAME/VERSION` entries are read from; None: $MLFLOW_TRACKING_URI, else
+    # outputs/mlflow.db. By default the job's own store (tracking.uri), where `python -m garage_exp.train` registers.
+    registry: Optional[str] = "${oc.select:tracking.uri,null}"
 
 
 @dataclass

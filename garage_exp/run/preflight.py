@@ -122,7 +122,7 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
         from garage_exp.scenario.assemble import build_scene
 
         for entry in cfg.detector.models:
-            model_format(resolve_model(entry))  # missing weights fail here (nothing is downloaded)
+            model_format(resolve_model(entry, cfg.detector.registry))  # missing weights fail here (nothing downloaded)
         prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
                                                      np.random.default_rng(int(cfg.seed)))
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)

@@ -3,7 +3,8 @@
 Two weight formats are accepted, both loaded through ultralytics' `YOLO`:
 - an OpenVINO export: a folder whose name ends in `_openvino_model` (ultralytics rejects other folder names),
   holding the `.xml`/`.bin` IR and `metadata.yaml`;
-- PyTorch weights: an existing `.pt` file (official or fine-tuned).
+- PyTorch weights: an existing `.pt` file (official or fine-tuned), or a version of MLflow's Model Registry,
+  `models:/garage-detector/N` (registry.py: copied once into the cache as a `.pt`).
 A bare name such as "yolo11n.pt" that is not an existing file is refused: ultralytics would try to download it
 from GitHub.
 """
@@ -68,8 +69,13 @@ def model_label(path: Path) -> str:
     return path.stem
 
 
-def resolve_model(entry: str | Path) -> Path:
-    """A config entry: an absolute path or an existing relative path as is, else a name under the models dir."""
+def resolve_model(entry: str | Path, registry: str | None = None) -> Path:
+    """A config entry: `models:/NAME/VERSION` from the registry of the store `registry` (None: the default
+    store), an absolute path or an existing relative path as is, else a name under the models dir."""
+    from garage_exp.perception.detect import registry as model_registry
+
+    if model_registry.is_registered(entry):
+        return model_registry.resolve(str(entry), registry)
     path = Path(entry).expanduser()
     if path.is_absolute() or path.exists():
         return path
@@ -243,11 +249,12 @@ def check_detector(conf: Any) -> None:
 def detector_spec(*, models: Sequence[str], classes: Sequence[str] = ("car", "truck", "bus"),
                   person_classes: Sequence[str] = ("person",), conf: float = 0.05, imgsz: int = 640,
                   device: str = "cpu", name: str = "", iou: float = 0.5, match: str = "full",
-                  threshold: float = 0.5) -> dict[str, Any]:
+                  threshold: float = 0.5, registry: str | None = None) -> dict[str, Any]:
     """The default `detector._target_`, called with the `detector` group's keys: the `Detector` arguments as
     plain picklable values (the detector's child process builds it from them), model entries resolved against
-    the models dir. name is the level's; iou, match and threshold are the scoring's (score_target)."""
-    return {"models": [resolve_model(m) for m in models], "classes": tuple(classes),
+    the models dir (`models:/` entries from the registry of the store `registry`). name is the level's; iou, match
+    and threshold are the scoring's (score_target)."""
+    return {"models": [resolve_model(m, registry) for m in models], "classes": tuple(classes),
             "person_classes": tuple(person_classes), "conf": float(conf), "imgsz": int(imgsz), "device": str(device)}
 
 

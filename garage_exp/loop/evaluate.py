@@ -1,0 +1,120 @@
+"""Scoring a detector on held-out scenarios: the frames a study rendered (each trial's dataset), run through the
+project's own Detector and score_target, as a job scores them, without rendering them again.
+
+Per frame: the target's confidence (0 when missed) and whether it is a fair test (the search's rule). Per
+detector and suite: fair recall, fair difficulty, recall by the target's visible fraction, and mAP50 over every
+labelled actor by COCOeval on the exported COCO file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from garage_exp.core.schema import SearchConf
+from garage_exp.exports.coco import CATEGORY_IDS
+from garage_exp.loop.steps import Trial
+from garage_exp.perception.detect import GTBox, score_target
+from garage_exp.results.table import fair_mask
+
+VISIBLE_BINS = (0.0, 0.25, 0.5, 0.75, 1.0001)
+
+
+def xyxy(bbox) -> tuple[float, float, float, float]:
+    x, y, w, h = bbox
+    return (x, y, x + w, y + h)
+
+
+def score_frames(model: Path, imgsz: int, trials: list[Trial], threshold: float, keep_coco: list | None = None
+                 ) -> pd.DataFrame:
+    """One row per frame of the trials' primary camera: trial, shot, image, visible fraction, box height,
+    truncation, fair, confidence, detected. Every detection of a COCO class the datasets label goes to
+    `keep_coco` as (trial, file name, category id, xywh, score), for mAP."""
+    from PIL import Image
+
+    from garage_exp.perception.detect import Detector
+
+    detector = Detector(models=[model], imgsz=imgsz, conf=0.05)
+    rows = []
+    for trial in trials:
+        table = pd.read_csv(trial.output_dir / "frames.csv")
+        table = table[table.camera == table.camera.iloc[0]]
+        coco = json.loads((trial.dataset / "coco.json").read_text())
+        by_image = {im["id"]: im["file_name"] for im in coco["images"]}
+        targets = {(by_image[a["image_id"]], a["attributes"]["name"]): a for a in coco["annotations"]}
+        for row in table.itertuples():
+            name = f"{int(row.shot):04d}_{row.camera}.png"
+            rgb = np.asarray(Image.open(trial.dataset / "images" / name).convert("RGB"))
+            dets = detector.detect(rgb)
+            ann = targets.get((name, row.target))
+            truth = None if ann is None else GTBox(xyxy(ann["bbox"]), xyxy(ann["attributes"]["visible_bbox"]),
+                                                   "person" if ann["category_id"] == CATEGORY_IDS["person"]
+                                                   else "vehicle")
+            score = score_target(dets, truth, iou_threshold=0.5, match="full", threshold=threshold)
+            rows.append({"study": trial.study, "trial": trial.number, "shot": int(row.shot),
+                         "image": str(trial.dataset / "images" / name), "visible_fraction": row.visible_fraction,
+                         "box_height": row.box_height, "truncation": row.truncation, "confidence": score.composite,
+                         "detected": score.detected})
+            if keep_coco is not None:
+                for box, conf, cls in zip(dets[0].boxes, dets[0].confs, dets[0].classes):
+                    if cls in CATEGORY_IDS:
+                        x1, y1, x2, y2 = (float(v) for v in box)
+                        keep_coco.append((trial.number, name, CATEGORY_IDS[cls], [x1, y1, x2 - x1, y2 - y1],
+                                          float(conf)))
+    frames = pd.DataFrame(rows)
+    frames["fair"] = fair_mask(frames, SearchConf()).to_numpy() if len(frames) else []
+    return frames
+
+
+def map50(trials: list[Trial], detections: list) -> float:
+    """COCO AP at IoU 0.5 over every labelled actor of the trials' datasets (their COCO files merged)."""
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    gt = {"images": [], "annotations": [], "categories": []}
+    ids = {}
+    for trial in trials:
+        coco = json.loads((trial.dataset / "coco.json").read_text())
+        gt["categories"] = gt["categories"] or coco["categories"]
+        remap = {}
+        for im in coco["images"]:
+            ids[(trial.number, im["file_name"])] = remap[im["id"]] = len(gt["images"]) + 1
+            gt["images"].append({**im, "id": remap[im["id"]]})
+        for a in coco["annotations"]:
+            gt["annotations"].append({**a, "id": len(gt["annotations"]) + 1, "image_id": remap[a["image_id"]]})
+    dts = [{"image_id": ids[(t, name)], "category_id": c, "bbox": b, "score": s} for t, name, c, b, s in detections
+           if (t, name) in ids]
+    if not gt["annotations"] or not dts:
+        return 0.0
+    with contextlib.redirect_stdout(io.StringIO()):  # COCOeval prints its whole table
+        ground = COCO()
+        ground.dataset = gt
+        ground.createIndex()
+        ev = COCOeval(ground, ground.loadRes(dts), "bbox")
+        ev.evaluate()
+        ev.accumulate()
+        ev.summarize()
+    return float(max(ev.stats[1], 0.0))  # -1 means no ground truth of any category evaluated
+
+
+def summarise(frames: pd.DataFrame, ap50: float) -> dict:
+    fair = frames[frames.fair]
+    out = {"frames": len(frames), "fair_frames": len(fair),
+           "fair_recall": float(fair.detected.mean()) if len(fair) else float("nan"),
+           "fair_difficulty": float(1.0 - fair.confidence.mean()) if len(fair) else float("nan"), "map50": ap50}
+    seen = frames[(frames.visible_fraction > 0) & (frames.box_height >= SearchConf().min_box)]
+    for lo, hi in zip(VISIBLE_BINS[:-1], VISIBLE_BINS[1:]):
+        part = seen[(seen.visible_fraction >= lo) & (seen.visible_fraction < hi)]
+        out[f"recall_vis_{lo:.2f}-{min(hi, 1.0):.2f}"] = float(part.detected.mean()) if len(part) else float("nan")
+    return out
+
+
+def evaluate(model: Path, imgsz: int, trials: list[Trial], threshold: float) -> tuple[dict, pd.DataFrame]:
+    detections: list = []
+    frames = score_frames(model, imgsz, trials, threshold, detections)
+    return summarise(frames, map50(trials, detections)), frames

@@ -1,0 +1,94 @@
+"""The loop's steps as the project's own commands, run as child processes, and what their studies left.
+
+A search with dataset=true leaves each trial's frames, labelled, in its job dir (`<sweep>/<k>/dataset`): a trial
+is a scenario, so a study's trials are training or evaluation data as they are, without rendering them again.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+
+@dataclass
+class Trial:
+    study: str
+    number: int
+    state: str  # COMPLETE | PRUNED (no fair frame) | FAIL
+    difficulty: float | None  # 1 - mean confidence over the fair frames (COMPLETE only)
+    output_dir: Path | None
+
+    @property
+    def dataset(self) -> Path | None:
+        if self.output_dir is None:
+            return None
+        d = self.output_dir / "dataset"
+        return d if (d / "data.yaml").is_file() else None
+
+
+def storage(cfg: DictConfig) -> str:
+    return f"sqlite:///{Path(cfg.dir) / 'optuna.db'}"
+
+
+def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, sampler: str, seed: int,
+                   models: list[str] | None = None) -> list[str]:
+    """`python -m garage_exp -m hydra/sweeper=search ...` over the loop's space on `plans`, each trial with its
+    dataset; scored by `models` (None: the shipped detectors)."""
+    plan = f"plan=choice({','.join(plans)})" if len(plans) > 1 else f"plan={plans[0]}"
+    cmd = [sys.executable, "-m", "garage_exp", "-m", "hydra/sweeper=search", f"search.trials={trials}",
+           f"search.sampler={sampler}", f"search.seed={seed}", f"search.study={study}",
+           f"search.storage={storage(cfg)}", plan, *cfg.space, *cfg.fixed, "dataset=true",
+           f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
+           f"tracking.experiment={cfg.tracking.experiment}", f"hydra.sweep.dir={Path(cfg.dir) / 'studies' / study}"]
+    if models:
+        cmd += [f"detector.models=[{','.join(models)}]", f"detector.imgsz={cfg.imgsz}"]
+    return cmd
+
+
+def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: list[Path], base: str, epochs: int,
+                  seed: int, lr0: float, replay: list[Path] = (), study: str = "") -> list[str]:
+    cmd = [sys.executable, "-m", "garage_exp.train", f"data=[{','.join(map(str, data))}]",
+           f"val=[{','.join(map(str, val))}]", f"base={base}", f"epochs={epochs}", f"imgsz={cfg.imgsz}",
+           f"batch={cfg.batch}", f"seed={seed}", f"optimizer={cfg.optimizer}", f"lr0={lr0}", f"name={name}",
+           f"study={study}",
+           f"tracking.uri={cfg.tracking.uri}", f"tracking.experiment={cfg.tracking.experiment}",
+           f"hydra.run.dir={out}"]
+    if replay:
+        cmd += [f"replay=[{','.join(map(str, replay))}]", f"replay_fraction={cfg.replay_fraction}"]
+    return cmd
+
+
+def run(cmd: list[str], log: Path) -> None:
+    """Run a step, its output (progress bars included) appended to `log`; a failed step stops the loop."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "a") as fh:
+        fh.write("\n$ " + " ".join(cmd) + "\n")
+        fh.flush()
+        code = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT).returncode
+    if code not in (0, 1):  # 1: a study with failed trials (a case a plan cannot hold) still has its others
+        raise RuntimeError(f"step failed with exit code {code}: {' '.join(cmd[2:6])} ... (log: {log})")
+
+
+def trials(cfg: DictConfig, study: str) -> list[Trial]:
+    """Every trial of a study in the loop's storage, in order."""
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    s = optuna.load_study(study_name=study, storage=storage(cfg))
+    out = []
+    for t in s.get_trials(deepcopy=False):
+        d = t.user_attrs.get("output_dir")
+        out.append(Trial(study, t.number, t.state.name, t.values[0] if t.values else None,
+                         Path(d) if d else None))
+    return out
+
+
+def study_done(cfg: DictConfig, study: str, n: int) -> bool:
+    try:
+        return len([t for t in trials(cfg, study) if t.state != "RUNNING"]) >= n
+    except KeyError:  # no such study yet
+        return False

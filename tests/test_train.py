@@ -1,0 +1,298 @@
+"""`python -m garage_exp.train` (issue 22): a tiny training through the real command line (8 rendered frames, 1
+epoch, 128 px) that registers a version, whose weights load as a detector and score a job; the split by scenario;
+each bad input refused in one line with exit 2 and nothing written or registered; the loop's equal budgets."""
+
+import contextlib
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from conftest import require, run_app
+
+NAME = "garage-detector"
+FRAMES = ["case.motion.start=12", "case.motion.end=10.5", "palette.target_colours=[black]", "dataset=true",
+          "renderer.save_frames=none"]
+
+
+def run_train(args: list[str], cwd: Path, uri: str):
+    """What `python -m garage_exp.train ARGS` does, in this process (as conftest.run_in_process does for
+    `python -m garage_exp`): exit code, stdout and stderr."""
+    from garage_exp.train.app import cli
+
+    return run_entry(cli, [*args, f"tracking.uri={uri}", f"hydra.run.dir={cwd}/train_run", "workers=0"], cwd)
+
+
+def run_entry(cli, argv: list[str], cwd: Path):
+    from hydra.core.global_hydra import GlobalHydra
+
+    out, err = io.StringIO(), io.StringIO()
+    saved = (os.getcwd(), sys.argv)
+    os.chdir(cwd)
+    sys.argv = ["garage_exp", *argv]
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                cli()
+                code = 0
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else 1
+    finally:
+        os.chdir(saved[0])
+        sys.argv = saved[1]
+        GlobalHydra.instance().clear()
+    return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """Two rendered scenarios (two seeds of case 1, 4 frames each: 8 images with labels) and a store."""
+    require("vulkan", "vehicles", "models")
+    tmp = tmp_path_factory.mktemp("train")
+    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    r = run_app(["-m", "seed=0,1", *FRAMES, f"tracking.uri={uri}"], tmp)
+    assert r.returncode == 0, r.stderr[-2000:]
+    jobs = sorted((tmp / "sweep").glob("[0-9]*"))
+    assert len(jobs) == 2 and all(len(list((j / "dataset" / "images").glob("*.png"))) == 4 for j in jobs)
+    return tmp, uri, jobs
+
+
+@pytest.fixture(scope="module")
+def trained(work):
+    tmp, uri, jobs = work
+    r = run_train([f"data=[{jobs[0]},{jobs[1]}/dataset/data.yaml]", "epochs=1", "imgsz=128", "batch=4",
+                   "study=test_study"], tmp, uri)
+    assert r.returncode == 0, (r.stdout[-3000:], r.stderr[-3000:])
+    return tmp, uri, jobs, r
+
+
+def versions(uri: str) -> list:
+    import mlflow
+
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    return client.search_model_versions(f"name = '{NAME}'")
+
+
+def runs(uri: str) -> int:
+    import mlflow
+
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    exp = client.get_experiment_by_name("garage_train")
+    return 0 if exp is None else len(client.search_runs([exp.experiment_id]))
+
+
+@pytest.mark.slow
+def test_training_is_tracked_and_registered(trained):
+    import mlflow
+
+    tmp, uri, jobs, r = trained
+    assert f"registered as models:/{NAME}/1" in r.stdout
+    (version,) = versions(uri)
+    assert version.tags["base"] == "yolov8n.yaml" and version.tags["study"] == "test_study"
+    data = json.loads(version.tags["data"])
+    assert data["train_frames"] + data["val_frames"] == 8 and data["train_scenarios"] == data["val_scenarios"] == 1
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    run = client.get_run(version.run_id)
+    assert run.info.status == "FINISHED" and run.data.params["epochs"] == "1"
+    history = client.get_metric_history(version.run_id, "metrics/mAP50_B")
+    assert [m.step for m in history] == [1]  # one value per epoch
+    assert client.get_metric_history(version.run_id, "train/box_loss")[0].value > 0
+    artifacts = {a.path for a in client.list_artifacts(version.run_id, "weights")} | \
+                {a.path for a in client.list_artifacts(version.run_id, "data")}
+    assert {"weights/best.pt", "data/manifest.csv"} <= artifacts
+
+
+@pytest.mark.slow
+def test_split_is_by_scenario(trained):
+    import pandas as pd
+
+    tmp = trained[0]
+    manifest = pd.read_csv(tmp / "train_run" / "data" / "manifest.csv")
+    sides = manifest.groupby("scenario").split.nunique()
+    assert (sides == 1).all() and set(manifest.split) == {"train", "val"}
+    train = (tmp / "train_run" / "data" / "train.txt").read_text().split()
+    val = (tmp / "train_run" / "data" / "val.txt").read_text().split()
+    assert len(train) == len(val) == 4
+    assert {Path(p).parent.parent for p in train}.isdisjoint({Path(p).parent.parent for p in val})
+
+
+@pytest.mark.slow
+def test_registered_weights_load_and_score_a_job(trained):
+    from garage_exp.perception.detect import Detector, resolve_model
+
+    tmp, uri, jobs, _ = trained
+    path = resolve_model(f"models:/{NAME}/1", uri)
+    assert path.name == f"{NAME}_v1.pt"
+    detector = Detector(models=[path], imgsz=128)
+    assert {"car", "truck", "bus", "person"} <= set(detector._models[0].names.values())
+    (tmp / "score").mkdir()
+    r = run_app([f"detector.models=[models:/{NAME}/latest]", "detector.imgsz=128", *FRAMES,
+                 f"tracking.uri={uri}"], tmp / "score")
+    assert r.returncode == 0, r.stderr[-2000:]
+    import pandas as pd
+
+    table = pd.read_csv(tmp / "score" / "run" / "frames.csv")
+    assert f"conf_{NAME}_v1" in table.columns and len(table) == 4
+
+
+def write_dataset(root: Path, label: str = "2 0.5 0.5 0.2 0.2\n", names=None) -> Path:
+    """A dataset folder as a job writes it (no rendering: the checks refuse it before any image is read)."""
+    from PIL import Image
+
+    from garage_exp.results.labels import coco_names
+
+    (root / "images").mkdir(parents=True)
+    (root / "labels").mkdir()
+    Image.new("RGB", (64, 48)).save(root / "images" / "0000_front.png")
+    (root / "labels" / "0000_front.txt").write_text(label)
+    (root / "data.yaml").write_text(yaml.safe_dump({"path": str(root), "train": "images", "val": "images",
+                                                    "names": names or coco_names()}))
+    return root
+
+
+def bad_inputs(tmp: Path, jobs: list[Path]) -> dict[str, tuple[list[str], list[str]]]:
+    """id -> (arguments, what the one line must say)."""
+    empty = tmp / "bad" / "empty_suite"
+    (empty / "dataset" / "images").mkdir(parents=True)
+    (empty / "manifest.csv").write_text("scenario,band\n")
+    (empty / "dataset" / "data.yaml").write_text(yaml.safe_dump({"train": ["images"], "names": {0: "person"}}))
+    no_dataset = tmp / "bad" / "suite_without_dataset"
+    no_dataset.mkdir()
+    (no_dataset / "manifest.csv").write_text("scenario,band\n")
+    outside = write_dataset(tmp / "bad" / "outside", "2 0.5 0.5 0.2 0.2\n2 0.95 0.5 0.3 0.2\n")
+    other_map = write_dataset(tmp / "bad" / "other_map", "0 0.5 0.5 0.2 0.2\n", {0: "forklift"})
+    fake = tmp / "bad" / "fake.pt"
+    fake.write_bytes(b"not a torch checkpoint" * 10)
+    data = f"data=[{jobs[0]},{jobs[1]}]"
+    return {
+        "missing-suite": ([f"data=[{tmp}/no_such_suite]"], ["data[0]", "no_such_suite", "not found"]),
+        "empty-suite": ([f"data=[{empty}]"], ["data[0]", "no images", "empty"]),
+        "suite-without-dataset": ([f"data=[{no_dataset}]"], ["suite_without_dataset", "dataset=true"]),
+        "label-outside-image": ([data, f"val=[{outside}]"], ["0000_front.txt", "line 2", "outside the image"]),
+        "pt-not-a-detector": ([data, f"base={fake}"], ["fake.pt", "not a detector"]),
+        "class-map-mismatch": ([data, f"val=[{other_map}]"], ["val[0]", "class map", "forklift"]),
+        "registry-name-unknown": ([data, "base=models:/garage-detectr/1"],
+                                  ["base", "no registered model 'garage-detectr'", "did you mean 'garage-detector'"]),
+        "registry-version-unknown": ([data, f"base=models:/{NAME}/99"], ["base", "has no version 99", "have: 1"]),
+        "one-scenario": ([f"data=[{jobs[0]}]"], ["data", "at least 2"]),
+        "imgsz-not-stride": ([data, "imgsz=100"], ["imgsz", "multiple of 32"]),
+        "unknown-key": ([data, "+epochz=3"], ["epochz"]),
+    }
+
+
+BAD = ["missing-suite", "empty-suite", "suite-without-dataset", "label-outside-image", "pt-not-a-detector",
+       "class-map-mismatch", "registry-name-unknown", "registry-version-unknown", "one-scenario",
+       "imgsz-not-stride", "unknown-key"]
+
+
+@pytest.fixture(scope="module")
+def bad(trained):
+    tmp, uri, jobs, _ = trained
+    return bad_inputs(tmp, jobs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_is_one_line_and_registers_nothing(trained, bad, case, tmp_path):
+    _, uri, _, _ = trained
+    args, expect = bad[case]
+    before = (len(versions(uri)), runs(uri))
+    r = run_train(args, tmp_path, uri)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr[-2000:]
+    for text in expect:
+        assert text in lines[0], (text, lines[0])
+    assert (len(versions(uri)), runs(uri)) == before
+    assert not (tmp_path / "train_run").exists()
+
+
+@pytest.mark.slow
+def test_a_job_refuses_a_version_the_registry_lacks(trained):
+    tmp, uri, _, _ = trained
+    (tmp / "refused").mkdir()
+    r = run_app([f"detector.models=[models:/{NAME}/7]", f"tracking.uri={uri}"], tmp / "refused")
+    assert r.returncode == 2
+    assert "detector.models" in r.stderr and "has no version 7 (have: 1)" in r.stderr
+
+
+def test_the_arms_budgets_are_equal(tmp_path):
+    """The random arm draws exactly the hard arm's frame count; trainings that differ in any budget are refused."""
+    from garage_exp.loop import budget
+
+    pool = [tmp_path / f"s{k // 10}" / "images" / f"{k % 10:04d}_front.png" for k in range(60)]
+    drawn = budget.draw_frames(pool, 23, seed=0)
+    assert len(drawn) == len(set(drawn)) == 23 and drawn == budget.draw_frames(pool, 23, seed=0)
+    with pytest.raises(ValueError, match="fewer than the 61"):
+        budget.draw_frames(pool, 61, seed=0)
+    h = {"train_frames": 23, "replay_frames": 12, "val_frames": 40, "epochs": 8, "imgsz": 320}
+    budget.assert_equal_budget(h, dict(h))
+    for key in budget.BUDGET_KEYS:
+        with pytest.raises(AssertionError, match=key):
+            budget.assert_equal_budget(h, {**h, key: h[key] + 1})
+
+
+def test_split_never_puts_a_scenario_on_both_sides(tmp_path):
+    """Six scenarios of three frames: every seed holds whole scenarios out, and the replay never draws from them."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.train.data import plan_data
+
+    sets = []
+    for k in range(6):
+        root = write_dataset(tmp_path / f"scenario{k}")
+        for j in (1, 2):
+            shutil.copy(root / "images" / "0000_front.png", root / "images" / f"000{j}_front.png")
+            shutil.copy(root / "labels" / "0000_front.txt", root / "labels" / f"000{j}_front.txt")
+        sets.append(str(root))
+    for seed in range(5):
+        cfg = OmegaConf.create({"data": sets, "val": [], "val_fraction": 0.3, "replay": sets, "replay_fraction": 0.5,
+                                "seed": seed})
+        plan = plan_data(cfg)
+        val = set(plan.scenarios("val"))
+        assert len(val) == 2 and len(plan.scenarios("train")) == 4
+        assert val.isdisjoint(plan.scenarios("train")) and val.isdisjoint(plan.scenarios("replay"))
+        assert len(plan.train) == 12 and len(plan.replay) == 6 and len(plan.val) == 6
+
+
+def test_failures_per_100_trials_count_only_hard_fair_trials():
+    from garage_exp.loop import budget
+    from garage_exp.loop.steps import Trial
+
+    trials = [Trial("s", 0, "COMPLETE", 0.9, None), Trial("s", 1, "COMPLETE", 0.5, None),
+              Trial("s", 2, "PRUNED", None, None), Trial("s", 3, "COMPLETE", 0.61, None),
+              Trial("s", 4, "RUNNING", None, None)]
+    assert budget.failures(trials, hard_below=0.4) == (2, 4)  # confidence 0.1 and 0.39; the pruned trial counts
+    low, high = budget.wilson(0, 30)
+    assert low == 0.0 and 0.10 < high < 0.13  # Wilson's interval is not empty at 0 / 30
+    low, high = budget.wilson(15, 30)
+    assert low < 0.5 < high and abs((low + high) / 2 - 0.5) < 1e-9
+
+
+def test_the_loop_refuses_a_held_out_plan_it_trains_on(tmp_path):
+    """Held-out means another plan: the loop stops before anything runs."""
+    from garage_exp.loop.app import cli
+
+    r = run_entry(cli, [f"dir={tmp_path}/loop", "eval_plan=research"], tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "garage_exp.loop: eval_plan: 'research' is also a training plan: held-out data must come from another plan"]
+    assert not (tmp_path / "loop").exists()
+
+
+def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
+    """A loop rerun with other settings in the same dir is refused, not answered with the old step's result."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop.app import Loop
+
+    loop = Loop(OmegaConf.create({"dir": str(tmp_path)}))
+    assert loop.reuse("arm", ["train", "epochs=6"], done=False) is False  # not done: run it
+    assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
+    with pytest.raises(GarageError, match="epochs=8"):
+        Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
