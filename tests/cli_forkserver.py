@@ -28,11 +28,12 @@ def preload() -> None:
     Plugins.instance()  # plugin discovery scans site-packages once
 
 
-def call_cli() -> int:
-    """`garage_exp.cli.app.cli()` on sys.argv, as `python -m garage_exp` runs it: its exit code, an uncaught
-    exception printed as the interpreter would, with 1."""
+def call_cli(entry=None) -> int:
+    """`garage_exp.cli.app.cli()` (or another entry point's, `entry`) on sys.argv, as `python -m garage_exp`
+    runs it: its exit code, an uncaught exception printed as the interpreter would, with 1."""
     from garage_exp.cli.app import cli
 
+    cli = entry or cli
     try:
         cli()
     except SystemExit as exc:

@@ -201,10 +201,11 @@ def run_app(args: list[str], tmp_path: Path, env: dict | None = None, timeout: i
     return run_in_process(cmd, tmp_path, env)
 
 
-def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
+def run_in_process(args: list[str], cwd: Path, env: dict | None = None, entry=None):
     """What `python -m garage_exp ARGS` does, in this process: argv, working dir and environment set for the
     call and restored after it, stdout and stderr captured, SystemExit as the return code, an uncaught
-    exception as its traceback and 1 (as the interpreter would)."""
+    exception as its traceback and 1 (as the interpreter would). `entry`: another entry point's function
+    (`garage_exp.train.app.cli`), run and cleaned up after the same way."""
     import contextlib
     import io
     import logging
@@ -227,7 +228,7 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None):
     sys.argv = [str(ROOT / "garage_exp" / "__main__.py"), *args]
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = call_cli()
+            code = call_cli(entry)
     finally:
         os.environ.clear()
         os.environ.update(saved[0])

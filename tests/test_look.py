@@ -245,3 +245,24 @@ def test_the_wear_factor_wears_the_textured_paint_too():
 
     fresh, worn = paint_wear("wear=fresh"), paint_wear("wear=worn")
     assert len(fresh) == len(worn) == 1 and min(worn) > min(fresh) + 0.3
+
+
+@pytest.mark.render
+def test_a_job_after_a_restyled_one_renders_the_same_frames():
+    """Replicates swap the loaded materials' pictures; the next job loading the same scene must not inherit the
+    last replicate's: two runs of a two-replicate job in one process give the same frames."""
+    from garage_exp.core.plugins import build
+    from garage_exp.render.sapien_backend import get_renderer
+    from garage_exp.run.frames import render_frames
+
+    cfg, _, scene, setup = built("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]",
+                                 "replicates=2", "materials=random")
+    renderer = get_renderer(max_lights=cfg.renderer.max_lights)
+    runs = []
+    for _ in range(2):
+        renderer.load(scene)
+        sensor = build(cfg.sensor, "a sensor model", "sensor._target_")
+        runs.append([f.rgb for f in render_frames(cfg, scene, setup, renderer, sensor, np.random.default_rng(1))])
+    assert len(runs[0]) == 2 and [s.replicate for s in setup.shots] == [0, 1]
+    assert all(np.array_equal(a, b) for a, b in zip(*runs))
+    assert not np.array_equal(runs[0][0], runs[0][1])  # the replicates differ (materials, target's model)

@@ -2,13 +2,8 @@
 epoch, 128 px) that registers a version, whose weights load as a detector and score a job; the split by scenario;
 each bad input refused in one line with exit 2 and nothing written or registered; the loop's equal budgets."""
 
-import contextlib
-import io
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -30,24 +25,11 @@ def run_train(args: list[str], cwd: Path, uri: str):
 
 
 def run_entry(cli, argv: list[str], cwd: Path):
-    from hydra.core.global_hydra import GlobalHydra
+    """An entry point run in this process as conftest.run_app runs the main one: Hydra's globals, its job
+    logging on the root logger and the process state are reset after it, as at a process's end."""
+    from conftest import run_in_process
 
-    out, err = io.StringIO(), io.StringIO()
-    saved = (os.getcwd(), sys.argv)
-    os.chdir(cwd)
-    sys.argv = ["garage_exp", *argv]
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            try:
-                cli()
-                code = 0
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else 1
-    finally:
-        os.chdir(saved[0])
-        sys.argv = saved[1]
-        GlobalHydra.instance().clear()
-    return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
+    return run_in_process(argv, cwd, entry=cli)
 
 
 @pytest.fixture(scope="module")

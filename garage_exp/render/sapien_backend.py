@@ -116,6 +116,7 @@ class SapienRenderer:
         self._lamp_weight = np.zeros(0)
         self._materials: dict[Material, object] = {}  # one RenderMaterial per description material and load
         self._decal_ids: set[int] = set()  # bodies that are only decals (Frame.see_through)
+        self._restyled = False  # restyle() swapped pictures since the last full load
         self._static: tuple | None = None  # what the loaded static bodies were built from (see load)
         self._reset_bodies()
 
@@ -140,7 +141,8 @@ class SapienRenderer:
         import sapien
 
         static = self._static_key(scene)
-        recolour = self._recolouring(static) if self._scene is not None else None
+        # A restyled scene (a replicate's pictures) no longer shows its description's materials: rebuild it.
+        recolour = self._recolouring(static) if self._scene is not None and not self._restyled else None
         if recolour is not None:
             try:
                 self._recolour(recolour)
@@ -204,6 +206,7 @@ class SapienRenderer:
     def restyle(self, change: dict[Material, Material]) -> None:
         """Give loaded textured materials other pictures (a replicate's stains and wetness): the shapes keep
         their SAPIEN materials, whose textures are replaced; nothing is rebuilt."""
+        self._restyled = self._restyled or bool(change)
         for old, new in change.items():
             rm = self._materials.pop(old, None)
             if rm is None:
@@ -280,6 +283,7 @@ class SapienRenderer:
         self._scene, self.description, self._static = None, None, None
         self._entities, self._bodies, self._merged, self._materials = {}, {}, [], {}
         self._decal_ids = set()
+        self._restyled = False
         self._ids, self._poses, self._vehicles, self._cameras, self._pool = {}, {}, set(), {}, []
         self._reset_bodies()
 
