@@ -212,7 +212,7 @@ def test_the_default_job_runs_the_real_look_and_exports_its_textures(tmp_path):
     import struct
 
     proc = run_app(["case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]",
-                    "renderer.save_frames=none"], tmp_path)
+                    "renderer.save_frames=none", f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     run = next(p for p in (tmp_path / "run").parent.rglob("scene.glb"))
     data = run.read_bytes()
