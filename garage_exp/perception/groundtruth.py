@@ -169,6 +169,8 @@ def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Sce
     the description's.
     """
     camera = frame.position
+    # Decal pixels (a shadow over a tyre's last millimetre) hide nothing: one mask for every actor of the frame.
+    see_through = np.isin(frame.ids, list(frame.see_through)) if frame.see_through else None
     out = []
     for name, silhouette in silhouettes.items():
         silhouette = np.asarray(silhouette, dtype=bool)
@@ -180,8 +182,8 @@ def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Sce
         entity = scene.entity(name)
         pose = frame.poses.get(name, entity.pose)
         shown = frame.ids == ids[name]
-        if frame.see_through:  # a shadow decal over a tyre's last millimetre hides nothing
-            shown |= np.isin(frame.ids, list(frame.see_through))
+        if see_through is not None:
+            shown |= see_through
         visible = shown & silhouette
         unoccluded_pixels = int(silhouette.sum())
         visible_pixels = int(visible.sum())
