@@ -18,7 +18,7 @@ a percentile bootstrap over seeds for ratios against random).
 
 Run: .venv/bin/python benchmarks/bench_falsification.py [--seeds 5] [--trials 20] [--workers 2]
      [--methods random,qmc,tpe,cmaes,gp,tpe+pre,random+pre,rl] [--scenarios corner,stepout]
-     [--definitions hard,late]
+     [--definitions hard,late] [--resume]
 Writes benchmarks/falsification_run.txt (the tables) and benchmarks/falsification_records.json (every arm).
 """
 
@@ -235,6 +235,7 @@ def main() -> int:
     parser.add_argument("--radius", type=float, default=0.15)
     parser.add_argument("--records", default=str(ROOT / "benchmarks" / "falsification_records.json"))
     parser.add_argument("--tables-only", action="store_true", help="print the tables of a records file")
+    parser.add_argument("--resume", action="store_true", help="keep the records file's arms, run the others")
     opts = parser.parse_args()
     os.environ.setdefault("YOLO_OFFLINE", "1")
     if opts.tables_only:
@@ -259,8 +260,10 @@ def collect(opts) -> list[dict]:
                         if method == "rl" and scenario != "stepout":
                             continue  # the adversary acts in the step-out scenario (garage_exp.gym)
                         tasks.append((scenario, definition, method, seed, opts.trials, tmp))
-        arms = []
         path = Path(opts.records)
+        arms = json.loads(path.read_text()) if opts.resume and path.is_file() else []
+        done = {(a["scenario"], a["definition"], a["method"], a["seed"]) for a in arms}
+        tasks = [t for t in tasks if t[:4] not in done]
         with ProcessPoolExecutor(opts.workers, initializer=warm_up, initargs=(tmp,)) as pool:
             for arm in pool.map(run_arm, tasks):
                 arms.append(arm)

@@ -165,6 +165,14 @@ def test_each_job_logs_its_table_series_summary_and_artifacts(sweep):
         assert {"frames.csv", "confidence.png", "scene.glb", "plan_map.png", "config.yaml", "frames"} <= arts
         assert {a.path.split("/")[-1].split("_")[0] for a in mlc.list_artifacts(rid, "frames")} == {
             "first", "hardest", "last"}
+        if run.data.params["case.name"] == "3":  # the ego drives: seen in time to stop? (docs/late.md)
+            assert "late.csv" in arts
+            verdicts = read_table(f"{run.data.tags['output_dir']}/late.csv")
+            assert len(verdicts) == len({r["label"] for r in table}) == m["late_testable"] + sum(
+                r["testable"] == "False" for r in verdicts)
+            assert m["critical_distance"] == pytest.approx(5.0245, abs=1e-3)
+        else:  # the light case's ego stands: no stopping distance, no verdict
+            assert "late.csv" not in arts and "late" not in m
 
 
 def test_case_3_runs_every_placement_and_targets_the_far_car(sweep):

@@ -76,6 +76,16 @@ def test_a_target_never_fairly_visible_before_the_critical_distance_is_untestabl
     assert v.detection_distance == 3.0
 
 
+def test_a_target_that_peeks_out_for_one_frame_is_untestable():
+    """k=2 of n=3: one fair frame before the critical distance is no chance to confirm it in time."""
+    fair = [False, False, True, False, False, False, False, False, True, True, True]
+    v = late.judge(*approach([False] * 11, fair), EGO)
+    assert not v.testable and not v.late
+    fair[3] = True  # two fair frames in a row: a perfect detector would have confirmed it at 9 m
+    v = late.judge(*approach([False] * 11, fair), EGO)
+    assert v.testable and v.late
+
+
 def test_a_single_hit_is_not_a_confirmation():
     hits = [True, False, False, False, False, True, False, False, False, False, False]
     v = late.judge(*approach(hits), EGO)
@@ -147,3 +157,14 @@ def test_static_cases_have_no_times():
 
     shots = preflight(compose_cfg("case=2", "case.motion.step=5"), check_space=False).setup.shots
     assert {s.time for s in shots} == {0.0}
+
+
+def test_the_sweep_report_tabulates_the_runs_whose_ego_moves():
+    from garage_exp.report.tables import late_table
+
+    runs = pd.DataFrame([{"run_name": "a", "late": 0.5, "late_testable": 2.0, "detection_distance": 6.0,
+                          "ttc_at_detection": 2.1, "critical_distance": 5.0},
+                         {"run_name": "b", "late": None, "late_testable": None}])
+    table = late_table(runs)
+    assert list(table["run"]) == ["a"] and table["late (share)"].tolist() == [0.5]
+    assert late_table(pd.DataFrame([{"run_name": "static"}])).empty
