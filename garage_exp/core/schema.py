@@ -154,6 +154,19 @@ class OccluderConf:
 
 
 @dataclass
+class AlongConf:
+    """An actor moving at the same time as the motion's (a person stepping out while the ego drives): its
+    placement value `key` goes from `start` towards `end` at `speed` (m/s) from the frame where the motion's
+    value passes `at` (None: from the first frame). The time of a frame is the ego's travel over `ego.speed`."""
+
+    key: str = "out"  # distance | offset | yaw | out | gap
+    start: float = 0.0
+    end: float = 0.0
+    speed: float = 1.4  # m/s (1.4: an adult's walking speed)
+    at: Optional[float] = None
+
+
+@dataclass
 class MotionConf:
     """The per-frame sweep: one placement value of one actor (its copies, for a palette-coloured actor)."""
 
@@ -164,6 +177,7 @@ class MotionConf:
     end: Optional[float] = None
     step: float = 0.5
     values: list[float] = field(default_factory=list)  # instead of start/end/step
+    along: dict[str, AlongConf] = field(default_factory=dict)  # actor -> its motion at the same time (the ego's)
 
 
 @dataclass
@@ -296,13 +310,24 @@ class SuiteConf:
 
 
 @dataclass
+class PrescreenConf:
+    """A cheap first look at each trial before its full render (garage_exp/search/prescreen.py)."""
+
+    level: str = "none"  # none | truth (ground truth at low resolution) | detector (and one detector on it)
+    scale: float = 0.5  # of each camera's resolution and of the detector's input size
+    easy: float = 0.25  # detector: a fair difficulty under this is screened as easy
+    slack: float = 2.0  # detector, late objective: confirmed this many metres before the critical distance: easy
+    slack_visible: float = 0.1  # the fairness rule's visible fraction loosened by this much
+
+
+@dataclass
 class SearchConf:
     """The search for hard scenarios (`hydra/sweeper=search`, garage_exp/search); read by the sweeper."""
 
     mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
     trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
-    sampler: str = "tpe"  # tpe | cmaes | random | qmc | nsga2 | saltelli | grid
-    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction; NSGA-II)
+    sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
+    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness)
     seed: Optional[int] = None  # the sampler's seed; None: the config's seed
     study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)
     storage: Optional[str] = None  # an Optuna RDB URL; None: sqlite under outputs/search/optuna.db
@@ -315,7 +340,22 @@ class SearchConf:
     saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (D + 2) trials)
     grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)
     suite: SuiteConf = field(default_factory=SuiteConf)
+    prescreen: PrescreenConf = field(default_factory=PrescreenConf)
     trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary
+
+
+@dataclass
+class EgoConf:
+    """How the ego drives and when it must know (garage_exp/results/late.py): its stopping distance is
+    speed x reaction + speed^2 / (2 deceleration); a target first confirmed (k hits in n frames) nearer than
+    that plus `margin` (camera to the target's centre) was seen too late to stop. Sources in docs/late.md."""
+
+    speed: float = 10.0  # km/h, an AVP car's manoeuvring speed
+    reaction: float = 0.5  # s, from the confirming frame to full braking (system latency and brake build-up)
+    deceleration: float = 3.4  # m/s^2, AASHTO's braking rate for stopping sight distance
+    margin: float = 2.5  # m, roof camera to front bumper (~1.5 m) and the target's half depth, stopping short
+    k: int = 2  # a target is confirmed at the frame completing k hits ...
+    n: int = 3  # ... within the last n frames
 
 
 @dataclass
@@ -327,6 +367,7 @@ class Config:
     palette: PaletteConf = field(default_factory=PaletteConf)
     occluder: OccluderConf = field(default_factory=OccluderConf)
     case: CaseConf = field(default_factory=CaseConf)
+    ego: EgoConf = field(default_factory=EgoConf)
     sensor: SensorConf = field(default_factory=SensorConf)
     look: LookConf = field(default_factory=LookConf)
     materials: MaterialsConf = field(default_factory=MaterialsConf)

@@ -19,8 +19,9 @@ import pandas as pd
 from garage_exp.results import stats
 from garage_exp.tracking import runs as tracking
 from garage_exp.report import plots, visibility
-from garage_exp.report.tables import (breakdown, by_camera, child_runs, factors_of, main_effects, markdown_table,
-                                      number, pair_effects, parse_overrides, pivot, significance, summary, units)
+from garage_exp.report.tables import (breakdown, by_camera, child_runs, factors_of, late_table, main_effects,
+                                      markdown_table, number, pair_effects, parse_overrides, pivot, significance,
+                                      summary, units)
 
 __all__ = ["child_runs", "factors_of", "main_effects", "markdown", "pair_effects", "parse_overrides",
            "summary", "sweep_report", "latest_parent", "main"]
@@ -55,6 +56,11 @@ def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs
     for title, df in (tables or {}).items():
         if not df.empty:
             text += [f"## {title}\n", markdown_table(pivot(df).reset_index())]
+    late = late_table(runs)
+    if not late.empty:
+        text += ["## Seen in time to stop (runs whose ego moves; docs/late.md)\n",
+                 "A trajectory is late when its target, fairly visible before the critical distance, was confirmed "
+                 "(k of n frames) only inside it, or never.\n", markdown_table(late)]
     if cameras is not None and not cameras[0].empty:
         first = cameras[1].pivot(index="what", columns="levels", values="first")
         text += ["## Per camera: mean composite confidence where it sees the target (best camera: the highest)\n",

@@ -33,6 +33,8 @@ from garage_exp.report import sensitivity
 
 FANOVA_SEED = 0  # the importances of one study are the same every time they are computed
 ATTRS = ("visible_fraction", "fair_frames", "frames", "recall", "confidence")
+# a moving ego's verdict, when the trials' case drives the ego (search.objective=late ranks by lateness)
+LATE_ATTRS = ("late", "detection_distance", "ttc_at_detection")
 THIRDS = ("low third", "middle third", "high third")
 ALPHA = 0.05  # a side is called harder only when Welch's t-test tells it from the hardest other side
 
@@ -72,13 +74,14 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
     for t in study.get_trials(deepcopy=False):
         done = t.state == TrialState.COMPLETE
         row = {"trial": t.number, "state": t.state.name, "difficulty": difficulty(t) if done else np.nan}
-        for key in ATTRS:
+        for key in (*ATTRS, *LATE_ATTRS):
             row[key] = t.user_attrs.get(key, np.nan)
         if multi and done and pd.isna(row["visible_fraction"]):
             row["visible_fraction"] = t.values[1]
         row.update(t.params)
         row["overrides"] = " ".join(overrides(t))
-        row["why"] = ("infeasible: no fairly visible frame" if t.user_attrs.get("infeasible")
+        row["why"] = ("screened as easy by the pre-screen" if t.user_attrs.get("screened") == "easy"
+                      else "infeasible: no fairly visible frame" if t.user_attrs.get("infeasible")
                       else str(t.user_attrs.get("error", "")))
         row["run_id"] = t.user_attrs.get("run_id", "")
         row["frame"] = t.user_attrs.get("frame", "")
@@ -289,21 +292,24 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
     """The hardest scenarios: a table, then each one's command, reasons and frame; hardest.csv."""
     top_trials = hardest(study, top)
     by_number = table.set_index("trial")
+    late = [c for c in LATE_ATTRS if by_number[c].notna().any()]
     hard = by_number.loc[[t.number for t in top_trials]].reset_index()[
-        ["trial", "difficulty", *ATTRS, "overrides", "run_id", "frame"]]
+        ["trial", "difficulty", *ATTRS, *late, "overrides", "run_id", "frame"]]
     hard.insert(0, "rank", range(1, len(hard) + 1))
     hard.to_csv(out_dir / "hardest.csv", index=False)
     written = [out_dir / "hardest.csv"]
     lines = [f"## The {len(top_trials)} hardest scenarios", ""]
     if not top_trials:
         return [*lines, "No complete trial: nothing to rank.", ""], written
-    lines += [*md_table(hard[["rank", "trial", "difficulty", "visible_fraction", "fair_frames", "frames"]].rename(
-        columns={"visible_fraction": "visible fraction", "fair_frames": "fair frames"})), ""]
+    name = objective_names(study)[0]
+    lines += [*md_table(hard[["rank", "trial", "difficulty", "visible_fraction", "fair_frames", "frames", *late]].rename(
+        columns={"difficulty": name, "visible_fraction": "visible fraction", "fair_frames": "fair frames",
+                 "detection_distance": "detection distance (m)", "ttc_at_detection": "TTC at detection (s)"})), ""]
     dists = distributions(study)
     higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
     for rank, t in enumerate(top_trials, 1):
         command = " ".join(["python -m garage_exp", *map(shlex.quote, rerun_overrides(t))])
-        lines += [f"### {rank}. trial {t.number}: difficulty {difficulty(t):.2f}, visible fraction "
+        lines += [f"### {rank}. trial {t.number}: {name} {difficulty(t):.2f}, visible fraction "
                   f"{fmt(by_number.loc[t.number, 'visible_fraction'])}", "",
                   "Rerun it:", "", "```bash", command, "```", "",
                   *what_makes_it_hard(why_hard(t, table, dists, importance, higher_is_harder))]

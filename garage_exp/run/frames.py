@@ -20,10 +20,11 @@ from omegaconf import DictConfig
 from garage_exp import exports
 from garage_exp.perception.groundtruth import VehicleTruth
 from garage_exp.render.composite import blank_composite
-from garage_exp.results import figures
+from garage_exp.results import figures, late
 from garage_exp.results import table as frame_table
 from garage_exp.scenario import CaseSetup, Shot
 from garage_exp.scenario.assemble import HIDDEN
+from garage_exp.scenario.build import moves_ego
 from garage_exp.scene.description import Scene
 
 log = logging.getLogger("garage_exp")
@@ -89,6 +90,15 @@ def render_frames(cfg: DictConfig, scene: Scene, setup: CaseSetup, renderer, sen
             # copied only when a dataset will label the frame in 3D
             geometry = exports.FrameGeometry.of(frame) if cfg.dataset else None
             yield Rendered(shot, cam.name, rgb, truth, target, geometry)
+
+
+def late_verdict(cfg: DictConfig, table: pd.DataFrame, setup: CaseSetup, out: Path, run) -> dict:
+    """Each trajectory's late verdict (late.csv, logged) and the job's late metrics."""
+    per = late.trajectories(table, {s.index: s.time for s in setup.shots}, frame_table.fair_mask(table, cfg.search),
+                            cfg.ego, cfg.detector.threshold)
+    per.to_csv(out / "late.csv", index=False)
+    run.log_artifact(out / "late.csv")
+    return late.summary(per, cfg.ego)
 
 
 def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered, list]]:
@@ -178,6 +188,8 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     run.log_series("visible_fraction", table[table.camera == primary].visible_fraction.tolist())
     search = cfg.search
     summary.update(frame_table.fair_summary(table, primary, search, cfg.detector.threshold))
+    if moves_ego(cfg.case):  # seen in time to stop? (a static ego has no stopping distance)
+        summary.update(late_verdict(cfg, table[table.camera == primary], setup, out, run))
     run.log_metrics(summary)
     if len(scene.cameras) > 1:  # which camera saw the target first and best (frame_table.per_camera)
         cams = frame_table.per_camera(table, cfg.detector.threshold)
@@ -196,4 +208,6 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     if dataset is not None:
         run.log_artifact(dataset.finish())
     print(frame_table.one_line(cfg, summary, len(table)))
+    if "late_testable" in summary:
+        print(late.line(summary))
     return summary

@@ -75,7 +75,9 @@ def check_config(cfg: DictConfig) -> None:
     needed."""
     from garage_exp.perception.detect.detector import check_detector
     from garage_exp.render import check_renderer
+    from garage_exp.results.late import check_ego
     from garage_exp.scenario import check_case
+    from garage_exp.scenario.build import moves_ego
     from garage_exp.scene.camera import check_camera
     from garage_exp.scene.clutter import check_clutter
     from garage_exp.scene.lamps import check_light
@@ -94,6 +96,7 @@ def check_config(cfg: DictConfig) -> None:
     check_palette(cfg.palette)
     check_camera(cfg.camera, dataset=bool(cfg.dataset))
     check_case(cfg)
+    check_ego(cfg.ego, moving=moves_ego(cfg.case))
     check_detector(cfg.detector)
     check_renderer(cfg.renderer)
     build(cfg.sensor, "a sensor model", "sensor._target_")  # the sensor model checks its own parameters

@@ -50,6 +50,37 @@ def _check_motion(case) -> None:
     if case.motion.key not in MOVABLE:
         raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
                           "case.motion.key")
+    for name, along in (case.motion.get("along") or {}).items():
+        where = f"case.motion.along.{name}"
+        if not moves_ego(case):
+            raise GarageError("an actor moves along with the ego's motion (a frame's time is the ego's travel "
+                              f"over ego.speed); this motion moves {case.motion.actor or 'nothing'!r}", where)
+        if along.key not in MOVABLE:
+            raise GarageError(f"key {along.key!r} is not a placement value ({' | '.join(MOVABLE)})", where + ".key")
+        if float(along.speed) < 0:
+            raise GarageError(f"{along.speed} m/s is negative", where + ".speed")
+        if along.at is not None and case.motion.start is not None and case.motion.end is not None:
+            lo, hi = sorted((float(case.motion.start), float(case.motion.end)))
+            if not lo <= float(along.at) <= hi:
+                raise GarageError(f"{along.at} is outside the motion's {lo:g}..{hi:g}", where + ".at")
+
+
+def moves_ego(case) -> bool:
+    """Whether the scenario's motion drives the ego (then its frames have times and a late verdict)."""
+    return str(case.motion.actor) == EGO
+
+
+def frame_times(values: list[float], speed_kmh: float) -> list[float]:
+    """Seconds since the first frame, for the ego's motion values (metres along its path) at `speed_kmh`."""
+    v = speed_kmh / 3.6
+    return [abs(x - values[0]) / v if v > 0 else 0.0 for x in values]
+
+
+def along_value(along, t: float, t_at: float) -> float:
+    """An along-moving actor's value at time t: from start towards end at its speed, from t_at on."""
+    start, end = float(along.start), float(along.end)
+    moved = float(along.speed) * max(0.0, t - t_at)
+    return min(start + moved, end) if end >= start else max(start - moved, end)
 
 
 def steps(start: float, end: float, step: float) -> list[float]:
@@ -198,14 +229,20 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
             mover = variant.target
         values = (frame_values(case, actors[mover], site, _longest(made, made[mover].source), bays) if mover
                   else [float("nan")])
-        for value in values:
+        times = frame_times(values, float(cfg.ego.speed)) if mover == EGO else [0.0] * len(values)
+        alongs = [(n, a, frame_times([values[0], float(a.at)], float(cfg.ego.speed))[1] if a.at is not None else 0.)
+                  for n, a in (case.motion.get("along") or {}).items() if n in actors]
+        for value, time in zip(values, times):
             placed = dict(actors)
             if mover:
                 placed[mover] = replace(actors[mover], **{case.motion.key: value})
+            for name, along, t_at in alongs:
+                placed[name] = replace(placed[name], **{along.key: along_value(along, time, t_at)})
             poses = resolve(placed, made, site, bays)
             check_overlaps(poses, made, variant.label, value)
             shot_poses = {n: poses.get(n) for n in made if n != EGO}
-            shots.append(Shot(len(shots), variant.label, value, poses[EGO], shot_poses, variant.target))
+            shots.append(Shot(len(shots), variant.label, value, poses[EGO], shot_poses, variant.target,
+                              time=round(time, 6)))
     free = [site_bay(site, ref, bays, "case.keep_free").bay for ref in case.keep_free]
     taken = {b for m in made.values() for b in m.bays} | {(b.i, b.j, b.index) for b in free}
     arrange(cfg, classified, library, site, bays, rng, made, shots, taken)

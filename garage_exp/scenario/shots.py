@@ -22,6 +22,7 @@ class Shot:
     poses: dict[str, Pose | None]
     target: str
     replicate: int = 0  # which replicate of the scenario (garage_exp/scenario/replicate.py)
+    time: float = 0.0  # seconds since the trajectory's first frame (the ego's travel over its speed; 0: static)
 
 
 @dataclass

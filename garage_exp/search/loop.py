@@ -26,6 +26,7 @@ from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 
 log = logging.getLogger("garage_exp")
+LATE_ATTRS = ("late", "lateness", "detection_distance", "ttc_at_detection", "fair_difficulty")
 COUNTED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL, TrialState.RUNNING)
 
 
@@ -51,6 +52,13 @@ def outcome(result, objective: str) -> Outcome:
     if result.get("frame"):
         attrs["frame"] = str(result["frame"])
     difficulty = result.get("fair_difficulty", math.nan)
+    if "late_testable" in result:
+        attrs.update({k: _num(result.get(k)) for k in LATE_ATTRS})
+    if objective == "late":  # untestable: the target was never fairly visible before the critical distance
+        if not result.get("late_testable"):
+            attrs["infeasible"] = True
+            return Outcome(TrialState.PRUNED, None, attrs)
+        return Outcome(TrialState.COMPLETE, [float(result["lateness"])], attrs)
     if attrs["fair_frames"] == 0 or difficulty is None or math.isnan(difficulty):
         attrs["infeasible"] = True
         return Outcome(TrialState.PRUNED, None, attrs)
@@ -92,9 +100,10 @@ class SearchLoop:
     """Runs a study's trials as jobs. `launch(overrides, job_idx)` runs one job and returns its JobReturn."""
 
     def __init__(self, search, space: space_mod.Space, study: optuna.Study, launch, budget: int,
-                 stop=lambda study: False):
+                 stop=lambda study: False, compose=None):
         self.search, self.space, self.study, self.launch, self.budget = search, space, study, launch, budget
         self.stop = stop  # asked before each trial (a suite stops once its bands are full)
+        self.compose = compose  # overrides -> the trial's config, for the pre-screen
         self.url = study_mod.storage_url(search)
         self.ran: list[int] = []  # trial numbers this worker ran
 
@@ -113,6 +122,8 @@ class SearchLoop:
                 break
             overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
             trial.set_user_attr("overrides", overrides)
+            if self.screened(trial, overrides):
+                continue
             with heartbeat(self.study, trial):
                 try:
                     # the trial's number is its job's: workers sharing a sweep dir never share a job dir
@@ -140,11 +151,48 @@ class SearchLoop:
         return self.ran
 
 
+    def screened(self, trial: optuna.Trial, overrides: list[str]) -> bool:
+        """The pre-screen's cheap look (search.prescreen): True when it pruned the trial."""
+        if self.search.prescreen.level == "none" or self.compose is None:
+            return False
+        from garage_exp.search import prescreen
+
+        try:
+            with heartbeat(self.study, trial):
+                seen = prescreen.look(self.compose(overrides))
+        except (KeyboardInterrupt, SystemExit):
+            self.study.tell(trial, state=TrialState.FAIL)
+            raise
+        except Exception as exc:  # noqa: BLE001 - the full job will report what is wrong with the trial
+            log.warning("trial %d: pre-screen failed (%s); running it in full", trial.number, exc)
+            return False
+        for key, value in seen.attrs.items():
+            trial.set_user_attr(key, value)
+        if seen.full:
+            return False
+        trial.set_user_attr("screened", seen.why)
+        if seen.why == "infeasible":
+            trial.set_user_attr("infeasible", True)
+        self.study.tell(trial, state=TrialState.PRUNED)
+        self.ran.append(trial.number)
+        print(f"garage_exp: trial {trial.number + 1}/{self.budget}: pre-screen ({seen.frames} cheap frames): "
+              f"{'never fairly visible: infeasible' if seen.why == 'infeasible' else 'clearly easy'}; not rendered "
+              "in full")
+        return True
+
+
 def line(number: int, out: Outcome, budget: int) -> str:
     if out.state == TrialState.FAIL:
         return f"garage_exp: trial {number + 1}/{budget} failed: {out.attrs['error'].splitlines()[0]}"
     if out.state == TrialState.PRUNED:
+        if "late" in out.attrs:
+            return (f"garage_exp: trial {number + 1}/{budget}: never fairly visible before the critical distance: "
+                    "infeasible")
         return (f"garage_exp: trial {number + 1}/{budget}: no fairly visible frame (visible fraction "
                 f"{out.attrs['visible_fraction']:.2f}): infeasible")
+    if "late" in out.attrs and out.attrs.get("lateness") == out.values[0]:
+        distance = out.attrs.get("detection_distance")
+        return (f"garage_exp: trial {number + 1}/{budget}: lateness {out.values[0]:.3f} (late "
+                f"{out.attrs['late']:.2f}, confirmed at {'never' if distance is None else f'{distance:.1f} m'})")
     return (f"garage_exp: trial {number + 1}/{budget}: difficulty {out.values[0]:.3f} over "
             f"{out.attrs['fair_frames']} fair frame(s), visible fraction {out.attrs['visible_fraction']:.2f}")

@@ -14,8 +14,9 @@ import optuna
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 
-SAMPLERS = ("tpe", "cmaes", "random", "qmc", "nsga2", "saltelli", "grid")
-OBJECTIVES = {"difficulty": ["difficulty"], "pareto": ["difficulty", "visible_fraction"]}
+SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid")
+# late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
+OBJECTIVES = {"difficulty": ["difficulty"], "pareto": ["difficulty", "visible_fraction"], "late": ["lateness"]}
 MODES = ("search", "suite")
 # Trials a lost worker left RUNNING are failed once their heartbeat is this old (Optuna's heartbeat).
 HEARTBEAT_S, GRACE_S = 30, 120
@@ -75,6 +76,12 @@ def check_search(search) -> None:
     if search.objective == "pareto" and search.sampler not in ("nsga2", "tpe", "random", "qmc"):
         raise GarageError(f"the pareto objective needs a multi-objective sampler (nsga2, tpe, random, qmc), "
                           f"not {search.sampler}", "search.sampler")
+    from garage_exp.search.prescreen import check_prescreen
+
+    check_prescreen(search.prescreen)
+    if search.objective == "pareto" and search.prescreen.level != "none":
+        raise GarageError("the pre-screen serves one objective (difficulty or late), not pareto",
+                          "search.prescreen.level")
     if int(search.grid_levels) < 2:
         raise GarageError(f"{search.grid_levels} levels: a grid needs at least 2 (its ends)", "search.grid_levels")
     if int(search.trials) < 1:
@@ -131,6 +138,8 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
         # CMA-ES samples the continuous factors; categorical ones fall back to TPE (warn_independent off: said here)
         return optuna.samplers.CmaEsSampler(seed=seed, warn_independent_sampling=False,
                                             independent_sampler=optuna.samplers.TPESampler(seed=seed))
+    if name == "gp":  # Optuna's Gaussian-process Bayesian optimisation (torch on the CPU)
+        return optuna.samplers.GPSampler(seed=seed, independent_sampler=optuna.samplers.RandomSampler(seed=seed))
     if name == "nsga2":
         return optuna.samplers.NSGAIISampler(seed=seed)
     if name == "qmc":

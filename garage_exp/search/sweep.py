@@ -54,9 +54,11 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     space = space_mod.build(kept, config, group_levels(loader))
     base = space_mod.default_point(space)
     try:  # the fixed part first: a case the plan cannot hold is the command's problem, not a searched value's
-        preflight(loader.load_sweep_config(config, space.fixed), check_space=False)
+        fixed = loader.load_sweep_config(config, space.fixed)
+        preflight(fixed, check_space=False)
     except GarageError as exc:
         raise GarageError(str(exc), "search") from None
+    _check_objective(config.search, fixed)
     for name, value in space_mod.probe_points(space):
         point = space.overrides({**base, name: value})
         where = f"search space {name}={space_mod.format_value(value)}"
@@ -72,6 +74,16 @@ def check(config: DictConfig, loader) -> space_mod.Space:
             raise GarageError(text, where) from None
     _CHECKED[arguments] = space
     return space
+
+
+def _check_objective(search, job: DictConfig) -> None:
+    """The late objective needs an ego that drives: a static ego has no stopping distance to be late for."""
+    from garage_exp.scenario.build import moves_ego
+
+    if search.objective == "late" and not moves_ego(job.case):
+        raise GarageError(f"the late objective needs a case whose motion drives the ego; case {job.case.name} "
+                          f"moves {job.case.motion.actor or 'nothing'!r} (try case=stepout or case=1)",
+                          "search.objective")
 
 
 def study_name_of(config: DictConfig) -> str:
@@ -120,7 +132,8 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     from garage_exp.search.loop import SearchLoop
 
     until = _suite_full(search, stop) if search.mode == "suite" else (lambda _study: stop())
-    loop = SearchLoop(search, space, study, launch, total, stop=until)
+    compose = getattr(launch, "compose", None) or (lambda overrides: loader.load_sweep_config(config, overrides))
+    loop = SearchLoop(search, space, study, launch, total, stop=until, compose=compose)
     ran = loop.run()
     return {"study": study, "name": name, "ran": ran, "space": space}
 
@@ -176,15 +189,18 @@ def summary(result: dict, out_dir: Path) -> str:
     from collections import Counter
 
     study = result["study"]
-    states = Counter(t.state.name for t in study.get_trials(deepcopy=False))
-    counts = ", ".join(f"{n} {s.lower().replace('pruned', 'infeasible')}" for s, n in sorted(states.items()))
+    states = Counter("SCREENED_EASY" if t.user_attrs.get("screened") == "easy" else t.state.name
+                     for t in study.get_trials(deepcopy=False))
+    counts = ", ".join(f"{n} {s.lower().replace('pruned', 'infeasible').replace('_', ' ')}"
+                       for s, n in sorted(states.items()))
     lines = [f"garage_exp: study {result['name']!r}: {sum(states.values())} trials ({counts}); "
              f"this worker ran {len(result['ran'])}"]
     best = ranked(study)
     if best:
         top = best[0]
         searched = " ".join(o for o in top.user_attrs.get("overrides", []) if o.split("=")[0] in top.params)
-        lines.append(f"  hardest fair scenario: trial {top.number}, difficulty {top.values[0]:.3f}: {searched}")
+        name = (study.user_attrs.get("direction_names") or ["difficulty"])[0]
+        lines.append(f"  hardest fair scenario: trial {top.number}, {name} {top.values[0]:.3f}: {searched}")
     lines.append(f"  report: {out_dir / 'search_report.md'}")
     return "\n".join(lines)
 

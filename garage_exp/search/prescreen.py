@@ -1,0 +1,157 @@
+"""A cheap first look at a trial before it pays for the full render and three detectors (multi-fidelity, as
+SAVME pre-screens with a cheap simulator).
+
+`search.prescreen.level`:
+- `truth`: the trial's frames at a fraction of the resolution (`scale`), ground truth only. A trial whose target
+  is never fairly visible (for the late objective: never before the critical distance) is pruned as
+  infeasible without its full render. The rule is looser than the full one (`slack_visible`), so a trial that
+  might pass it pays full price.
+- `detector`: also one detector (the first model, at `scale` of the input size) on those frames. A trial it
+  finds clearly easy (difficulty under `easy`; or, late objective, confirmed `slack` metres before the critical
+  distance) is pruned as screened easy. One small model on a small picture misses more than three on the full
+  one, so it errs towards calling a trial hard, which costs only time.
+
+Everything uncertain runs in full. Pruned trials tell Optuna nothing better than a complete one, so the
+samplers learn to avoid those regions as they avoid infeasible ones.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from garage_exp.core.errors import GarageError
+
+LEVELS = ("none", "truth", "detector")
+_DETECTORS: dict[str, object] = {}  # the cheap detector of this process, by spec (loaded once)
+
+
+@dataclass
+class Look:
+    """What the cheap look decided: run the trial in full, or prune it (`why`: infeasible | easy)."""
+
+    full: bool
+    why: str = ""
+    frames: int = 0
+    attrs: dict = field(default_factory=dict)
+
+
+def check_prescreen(conf) -> None:
+    if conf.level not in LEVELS:
+        raise GarageError(f"unknown level {conf.level!r} ({' | '.join(LEVELS)})", "search.prescreen.level")
+    if not 0.1 <= float(conf.scale) <= 1.0:
+        raise GarageError(f"{conf.scale}: a resolution scale is in 0.1-1", "search.prescreen.scale")
+    if not 0.0 <= float(conf.easy) <= 1.0:
+        raise GarageError(f"{conf.easy} is outside 0-1", "search.prescreen.easy")
+    if float(conf.slack) < 0 or float(conf.slack_visible) < 0:
+        raise GarageError("slacks are >= 0", "search.prescreen.slack")
+
+
+def cheap_config(cfg: DictConfig, scale: float) -> DictConfig:
+    """The trial's config at `scale` of each camera's resolution, saving no frame."""
+    cheap = copy.deepcopy(cfg)
+    with open_dict(cheap):
+        rig = cheap.camera
+        if rig.width is not None:
+            rig.width, rig.height = _scaled(rig.width, scale), _scaled(rig.height, scale)
+        for cam in rig.cameras:
+            cam.width, cam.height = _scaled(cam.width, scale), _scaled(cam.height, scale)
+        cheap.renderer.save_frames = "none"
+        cheap.dataset = False
+    return cheap
+
+
+def _scaled(pixels, scale: float) -> int:
+    return max(32, int(round(int(pixels) * scale / 2)) * 2)
+
+
+def cheap_detector(detector_conf, scale: float):
+    """The first model of the trial's detectors at `scale` of its input size, in this process."""
+    from garage_exp.core.plugins import build
+    from garage_exp.perception.detect.detector import Detector
+
+    spec = dict(build(detector_conf, "a detector", "detector._target_"))
+    spec["models"] = spec["models"][:1]
+    spec["imgsz"] = max(160, int(round(spec["imgsz"] * scale / 32)) * 32)
+    key = repr(sorted(spec.items()))
+    if key not in _DETECTORS:
+        _DETECTORS[key] = Detector(**spec)
+    return _DETECTORS[key]
+
+
+def frames_table(cfg: DictConfig, with_detector: bool, scale: float) -> tuple[pd.DataFrame, object]:
+    """The cheap frames' table (ground truth; the cheap detector's confidence when asked) and the job's setup."""
+    from garage_exp.core.plugins import build
+    from garage_exp.perception.detect import score_target
+    from garage_exp.render import open_renderer
+    from garage_exp.results.table import frame_row
+    from garage_exp.run.frames import render_frames
+    from garage_exp.run.preflight import preflight
+
+    cheap = cheap_config(cfg, scale)
+    prepared = preflight(cheap, check_space=False)
+    renderer = open_renderer(cheap.renderer)
+    renderer.load(prepared.scene)
+    sensor = build(cheap.sensor, "a sensor model", "sensor._target_")
+    detector = cheap_detector(cfg.detector, scale) if with_detector else None
+    det = cfg.detector
+    rows = []
+    for item in render_frames(cheap, prepared.scene, prepared.setup, renderer, sensor,
+                              np.random.default_rng(cfg.seed + 1)):
+        if item.camera != prepared.scene.cameras[0].name:
+            continue
+        if detector is None:  # ground truth alone: no score
+            score = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
+        else:
+            score = score_target(detector.detect(item.rgb), item.target, item.truth, iou_threshold=det.iou,
+                                 match=det.match, threshold=det.threshold, classes=tuple(det.classes),
+                                 person_classes=tuple(det.person_classes))
+        rows.append(frame_row(item.shot, item.camera, item.target, score, ["cheap"],
+                              replicated=cfg.replicates > 1))
+    return pd.DataFrame(rows), prepared.setup
+
+
+def lenient(search, scale: float, slack_visible: float) -> DictConfig:
+    """The fairness rule loosened for the cheap look: a box at the small scale, a visible fraction short by
+    `slack_visible` (the small silhouettes' edges round the other way)."""
+    return OmegaConf.create({"min_visible": max(0.0, float(search.min_visible) - slack_visible),
+                             "min_box": float(search.min_box) * scale * 0.8,
+                             "max_truncation": min(1.0, float(search.max_truncation) + slack_visible)})
+
+
+def look(cfg: DictConfig) -> Look:
+    """The cheap look at one trial's composed config."""
+    from garage_exp.results import late
+    from garage_exp.results.table import fair_mask
+
+    conf = cfg.search.prescreen
+    scale, detect = float(conf.scale), conf.level == "detector"
+    table, setup = frames_table(cfg, detect, scale)
+    rule = lenient(cfg.search, scale, float(conf.slack_visible))
+    fair = fair_mask(table, rule) if len(table) else pd.Series(dtype=bool)
+    attrs = {"prescreen_frames": len(table)}
+    if cfg.search.objective == "late":
+        per = late.trajectories(table, {s.index: s.time for s in setup.shots}, fair, cfg.ego, cfg.detector.threshold)
+        if not per.testable.any():
+            return Look(False, "infeasible", len(table), attrs)
+        if detect:
+            confirmed = per[per.testable].detection_distance
+            margin = late.critical_distance(cfg.ego) + float(conf.slack)
+            attrs["prescreen_detection_distance"] = float(confirmed.min()) if confirmed.notna().all() else math.nan
+            if confirmed.notna().all() and (confirmed >= margin).all():
+                return Look(False, "easy", len(table), attrs)
+        return Look(True, "", len(table), attrs)
+    if not fair.any():
+        return Look(False, "infeasible", len(table), attrs)
+    if detect:
+        difficulty = 1.0 - float(table[fair].composite.mean())
+        attrs["prescreen_difficulty"] = difficulty
+        if difficulty < float(conf.easy):
+            return Look(False, "easy", len(table), attrs)
+    return Look(True, "", len(table), attrs)
