@@ -23,4 +23,11 @@ def falsify(cfg, seed: int, episodes: int) -> list[dict]:
     return run(cfg, seed, episodes)
 
 
-__all__ = ["ENV_ID", "falsify"]
+def bench_records(overrides: list[str], definition: str, seed: int, episodes: int) -> list[dict]:
+    """`falsify` as the falsification benchmark's trial records (garage_exp/gym/train.py)."""
+    from garage_exp.gym.train import bench_records as run
+
+    return run(overrides, definition, seed, episodes)
+
+
+__all__ = ["ENV_ID", "bench_records", "falsify"]

@@ -119,7 +119,8 @@ def run_train(cfg: DictConfig, env, out: Path) -> dict:
         result["model"].save(out / "policy.zip")
         suite_root = Path(str(g.suite_dir)) if g.suite_dir else out / "suite"
         files = export.write_suite(env.job, result["after_full"], suite_root, env.movers,
-                                   float(cfg.ego.speed) / 3.6, int(g.per_band))
+                                   float(cfg.ego.speed) / 3.6, int(g.per_band),
+                                   slides=env.live.slides_between)
         figure = learning_curve(result["train"], before, after, out / "learning_curve.png")
         for path in (out / "episodes.csv", out / "policy.zip", figure):
             run.log_artifact(path)
@@ -163,7 +164,8 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
     model = PPO.load(str(Path(str(cfg.gym.policy)).expanduser()), env=env, device="cpu")
     rows, full = rollouts(model, env, int(cfg.gym.eval_episodes), int(cfg.gym.seed) + 10_000, "export")
     root = Path(str(cfg.gym.suite_dir)) if cfg.gym.suite_dir else out / "suite"
-    export.write_suite(env.job, full, root, env.movers, float(cfg.ego.speed) / 3.6, int(cfg.gym.per_band))
+    export.write_suite(env.job, full, root, env.movers, float(cfg.ego.speed) / 3.6, int(cfg.gym.per_band),
+                       slides=env.live.slides_between)
     return {"late_rate": late_rate(rows), "suite": str(root)}
 
 

@@ -89,6 +89,10 @@ class StepOutEnv(gymnasium.Env):
         self.drive_key = str(case.motion.key)
         self.movers = limits.resolve_movers(self.cfg.gym.movers, self.live.actors, MOVABLE)
         self.critical = reward.critical(job.ego)
+        self.objective = str(self.cfg.gym.objective)
+        if self.objective not in reward.OBJECTIVES:
+            raise GarageError(f"unknown objective {self.objective!r} ({' | '.join(reward.OBJECTIVES)})",
+                              "gym.objective")
         self.shaping = float(self.cfg.gym.shaping)
         self.stop_when_decided = bool(self.cfg.gym.stop_when_decided)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(len(self.movers),), dtype=np.float32)
@@ -163,13 +167,15 @@ class StepOutEnv(gymnasium.Env):
             self.fair_before = True
         if not self.confirmed and reward.confirmed_now(self.hits, self.ego):
             self.confirmed = True
-        r = self.shaping * (1.0 - row["composite"]) if (row["fair"] and before) else 0.0
-        decided = self.confirmed or not before
+        # The dense term counts the fair frames the objective judges: before the critical distance for `late`.
+        counted = row["fair"] and (before or self.objective == "hard")
+        r = self.shaping * (1.0 - row["composite"]) if counted else 0.0
+        decided = self.objective == "late" and (self.confirmed or not before)
         terminated = self.k >= len(self.drive) - 1 or (self.stop_when_decided and decided)
         info = {"frame": row}
         if terminated:
             verdict = self.verdict()
-            r += 1.0 if verdict["late"] else 0.0
+            r += 1.0 if verdict[reward.OBJECTIVES[self.objective]] else 0.0
             verdict["return"] = self.ret + r
             info["episode_verdict"] = verdict
         self.ret += r
@@ -250,7 +256,7 @@ class StepOutEnv(gymnasium.Env):
         moved values per frame, renders and wall time."""
         record = reward.episode(self.frames, self.ego, [m.name for m in self.movers], self.critical,
                                 time.perf_counter() - self.started)
-        record["params"] = limits.summary(self.movers, record["values"], self.dt)
+        record["params"] = limits.summary(self.movers, record["values"], self.dt, self.drive)
         record["variant"] = int(self.cfg.gym.variant)
         return record
 

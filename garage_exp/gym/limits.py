@@ -105,9 +105,11 @@ def placed_once(mover: Mover, action: float) -> float:
     return mover.low + (a + 1.0) / 2.0 * (mover.high - mover.low)
 
 
-def summary(movers: list[Mover], values: dict[str, list[float]], dt: float) -> dict[str, float]:
+def summary(movers: list[Mover], values: dict[str, list[float]], dt: float, drive: list[float]) -> dict[str, float]:
     """An episode's moves as a few numbers per value (for tables and for clustering failures): a `once` value
-    itself; for the others when it began to move (s, NaN: never), its mean speed while moving and its last value."""
+    itself; for the others when it began to move (s, NaN: never), where the ego then was (its motion value; the
+    co-motion's `at`: the drive's last value when it never moved), its mean speed while moving, its last value.
+    `drive`: the ego's motion value at the start and at each frame."""
     out: dict[str, float] = {}
     for m in movers:
         seq = values.get(m.name) or []
@@ -118,6 +120,7 @@ def summary(movers: list[Mover], values: dict[str, list[float]], dt: float) -> d
         steps = [abs(b - a) for a, b in zip(prev, prev[1:])]
         moving = [i for i, s in enumerate(steps) if s > 1e-6]
         out[f"{m.name}.start_s"] = float(moving[0] * dt) if moving else float("nan")
+        out[f"{m.name}.at"] = float(drive[moving[0]]) if moving else float(drive[len(seq)])
         out[f"{m.name}.speed"] = float(sum(steps[i] for i in moving) / (len(moving) * dt)) if moving else 0.0
         out[f"{m.name}.end"] = float(seq[-1]) if seq else m.start
     return out

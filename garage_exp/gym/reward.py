@@ -13,7 +13,10 @@ from garage_exp.core.errors import GarageError
 from garage_exp.results import late
 from garage_exp.results.table import fair_mask
 
-HARD = 0.6  # a hard-and-fair episode: difficulty (1 - mean confidence over its fair frames) at least this
+HARD = 0.6
+# The episode's verdict each objective rewards: seen too late to stop, or hard over its fair frames (the search's
+# difficulty, the benchmark's other failure).
+OBJECTIVES = {"late": "late", "hard": "hard_fair"}  # a hard-and-fair episode: difficulty (1 - mean confidence over its fair frames) at least this
 
 
 def check_ego(ego) -> None:

@@ -38,9 +38,10 @@ class AdversaryConf:
 
     movers: list[MoverConf] = field(default_factory=lambda: [
         MoverConf("child", "out", -1.0, 2.5), MoverConf("child", "offset", -0.25, 0.25, once=True)])
+    objective: str = "late"  # late: rewarded for a late detection | hard: for a hard-and-fair episode (>= 0.6)
     variant: int = 0  # which of the case's variants is the episode (its shown actors and target)
     shaping: float = 0.05  # x (1 - confidence) per fair frame before the critical distance; 0: only `late`
-    stop_when_decided: bool = True  # end an episode once the verdict cannot change (confirmed, or too near)
+    stop_when_decided: bool = True  # objective late: end an episode once its verdict cannot change
     timesteps: int = 1024  # PPO's training steps (each one a rendered, detected frame)
     n_steps: int = 128  # steps per PPO rollout
     batch_size: int = 32

@@ -124,7 +124,29 @@ def falsify(cfg: DictConfig, seed: int, episodes: int) -> list[dict]:
         out.append({"episode": row["episode"], "seed": int(seed), "params": dict(record["params"]),
                     "late": bool(record["late"]), "testable": bool(record["testable"]),
                     "hard_fair": bool(record["hard_fair"]), "difficulty": record["difficulty"],
+                    "lateness": record["lateness"],
                     "detection_distance": record["detection_distance"], "renders": int(record["renders"]),
                     "cpu_s": float(row["cpu_s"]), "wall_s": float(record["wall_s"])})
     env.close()
+    return out
+
+
+# The benchmark's names for the adversary's moves: the step-out case's co-motion keys (its search space's).
+BENCH_PARAMS = {"child.out.at": "case.motion.along.child.at", "child.out.speed": "case.motion.along.child.speed",
+                "child.out.end": "case.motion.along.child.end", "child.offset": "case.actors.child.offset"}
+
+
+def bench_records(overrides: list[str], definition: str, seed: int, episodes: int) -> list[dict]:
+    """`falsify` on the gym config composed with `overrides`, rewarded for the benchmark's failure definition
+    (`hard` or `late`), as the benchmark's trial records: params (the search space's keys), full_frames (the
+    episode's renders), failure, value."""
+    from garage_exp.gym.env import compose
+
+    cfg = compose([*overrides, f"gym.objective={definition}"])
+    out = []
+    for r in falsify(cfg, seed, episodes):
+        failure = r["late"] if definition == "late" else r["hard_fair"]
+        out.append({"params": {BENCH_PARAMS.get(k, k): v for k, v in r["params"].items()}, "state": "COMPLETE",
+                    "screened": "", "full_frames": r["renders"], "cheap_frames": 0, "failure": bool(failure),
+                    "value": r["lateness"] if definition == "late" else r["difficulty"], "cpu_s": r["cpu_s"]})
     return out

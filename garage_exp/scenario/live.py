@@ -44,7 +44,7 @@ class LiveScenario:
             raise GarageError(f"the scene has no entity for actor(s) {', '.join(missing)}", "case.actors")
         # build.py's pose_between ignores `offset`; here a person's offset slides it along the gap (to the left of
         # its heading, as pose_in_bay's does) unless build.py places it itself.
-        self._shift_between = not _between_takes_offset(self.site, self.bays, actors)
+        self.slides_between = not _between_takes_offset(self.site, self.bays, actors)
 
     def value(self, actor: str, key: str) -> float:
         return float(getattr(self.actors[actor], key))
@@ -60,7 +60,7 @@ class LiveScenario:
             if bad:
                 raise GarageError(f"{bad[0]!r} is not a placement value ({' | '.join(MOVABLE)})", "gym.movers")
             placed[name] = replace(placed[name], **{k: float(v) for k, v in keys.items()})
-        if self._shift_between:
+        if self.slides_between:
             for name, a in placed.items():
                 if a.between and float(a.offset):
                     shifts[name] = float(a.offset)
