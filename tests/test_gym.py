@@ -112,6 +112,13 @@ def test_reward_on_hand_made_frames():
     assert inside["late"] and inside["detection_distance"] == 4.0 < crit
     hidden = episode(frames(False, [False] * 5), ego, ["child.out"], crit, 0.0)
     assert not hidden["testable"] and not hidden["late"]
+    # One fair peek before the critical distance, hidden again: late by late.judge, but no detector needing k=2
+    # hits could have confirmed it in time, so no reward.
+    peek = frames(True, [False] * 5)
+    for row in peek[:3]:  # fair at 6 m only before the critical distance (and at 4 m, inside it)
+        row["fair"] = False
+    peek = episode(peek, ego, ["child.out"], crit, 0.0)
+    assert peek["late_judge"] and not peek["fair_chance"] and not peek["late"]
 
 
 @pytest.mark.slow
@@ -146,7 +153,9 @@ def test_seeded_ppo_is_deterministic(env):
             self.rewards.append(float(self.locals["rewards"][0]))
             return True
 
-    cfg = env.cfg.copy()
+    import copy
+
+    cfg = copy.deepcopy(env.cfg)
     cfg.gym.n_steps, cfg.gym.batch_size, cfg.gym.n_epochs, cfg.gym.seed = 8, 8, 2, 3
     runs = []
     for _ in range(2):

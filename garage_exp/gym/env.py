@@ -12,8 +12,10 @@ were hits, whether the target is confirmed, whether it was fairly visible before
 each moved value with its velocity.
 
 Reward: 1 at the end of an episode the target was fairly visible in before the critical distance and confirmed
-only inside it, or never (late, garage_exp/results/late.py); plus `gym.shaping` x (1 - confidence) on each fair
-frame before the critical distance. A target never fairly visible in time earns nothing, hidden or not.
+only inside it, or never (late, garage_exp/results/late.py), provided a perfect detector could have confirmed it in
+time (k fair frames within n before the critical distance: one fair peek between two hidings is no test); plus
+`gym.shaping` x (1 - confidence) on each fair frame before the critical distance. A target never fairly visible in
+time earns nothing, hidden or not. `gym.objective=hard` rewards a hard-and-fair episode instead.
 """
 
 from __future__ import annotations
@@ -51,9 +53,19 @@ def compose(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
 
     if not OmegaConf.has_resolver("garage_root"):
         OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
+    from hydra.core.global_hydra import GlobalHydra
+
     schema.register()
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        return hydra_compose(config_name="gym", overrides=quote_numeric_choices(list(overrides)))
+    # A caller's own Hydra (a benchmark after a search in its process) is set aside for the call, then restored.
+    global_hydra = GlobalHydra.instance()
+    saved = global_hydra.hydra if global_hydra.is_initialized() else None
+    global_hydra.clear()
+    try:
+        with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+            return hydra_compose(config_name="gym", overrides=quote_numeric_choices(list(overrides)))
+    finally:
+        if saved is not None:
+            GlobalHydra.instance().initialize(saved)
 
 
 class StepOutEnv(gymnasium.Env):
