@@ -251,3 +251,18 @@ def test_gym_config_keeps_the_experiments_groups():
     main, gym = groups("config.yaml"), groups("gym.yaml")
     assert {k: v for k, v in main.items() if k != "case"} == {k: v for k, v in gym.items() if k != "case"}
     assert gym["case"] == "stepout"
+
+
+@pytest.mark.slow
+def test_bench_records_for_the_falsification_benchmark(env):
+    """`garage_exp.gym.bench_records`: the benchmark's trial records, one per episode of an adversary trained as it
+    goes, its moves named as the step-out search space's keys, every render counted."""
+    from garage_exp.gym import bench_records
+
+    records = bench_records(["plan=research", "case=stepout", *FAST], "late", seed=1, episodes=2)
+    assert len(records) == 2
+    for r in records:
+        assert {"case.motion.along.child.at", "case.motion.along.child.speed", "case.motion.along.child.end",
+                "case.actors.child.offset"} <= set(r["params"])
+        assert 1 <= r["full_frames"] <= 11 and r["cheap_frames"] == 0 and r["cpu_s"] > 0
+        assert isinstance(r["failure"], bool) and r["state"] == "COMPLETE"
