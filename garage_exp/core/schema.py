@@ -329,6 +329,7 @@ class SearchConf:
     sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
     objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness)
     seed: Optional[int] = None  # the sampler's seed; None: the config's seed
+    startup: int = 10  # tpe, gp, cmaes: random trials before the model guides (Optuna's n_startup_trials)
     study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)
     storage: Optional[str] = None  # an Optuna RDB URL; None: sqlite under outputs/search/optuna.db
     # A frame is a fair test when the target is at least this visible, its box at least this tall and at most

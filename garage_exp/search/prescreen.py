@@ -85,8 +85,9 @@ def cheap_detector(detector_conf, scale: float):
     return _DETECTORS[key]
 
 
-def frames_table(cfg: DictConfig, with_detector: bool, scale: float) -> tuple[pd.DataFrame, object]:
-    """The cheap frames' table (ground truth; the cheap detector's confidence when asked) and the job's setup."""
+def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame, object]:
+    """The frames' table at `scale` of the resolution (ground truth; with `detector`, an in-process `Detector`,
+    its scores too) and the job's setup."""
     from garage_exp.core.plugins import build
     from garage_exp.perception.detect import score_target
     from garage_exp.render import open_renderer
@@ -99,7 +100,6 @@ def frames_table(cfg: DictConfig, with_detector: bool, scale: float) -> tuple[pd
     renderer = open_renderer(cheap.renderer)
     renderer.load(prepared.scene)
     sensor = build(cheap.sensor, "a sensor model", "sensor._target_")
-    detector = cheap_detector(cfg.detector, scale) if with_detector else None
     det = cfg.detector
     rows = []
     for item in render_frames(cheap, prepared.scene, prepared.setup, renderer, sensor,
@@ -112,7 +112,7 @@ def frames_table(cfg: DictConfig, with_detector: bool, scale: float) -> tuple[pd
             score = score_target(detector.detect(item.rgb), item.target, item.truth, iou_threshold=det.iou,
                                  match=det.match, threshold=det.threshold, classes=tuple(det.classes),
                                  person_classes=tuple(det.person_classes))
-        rows.append(frame_row(item.shot, item.camera, item.target, score, ["cheap"],
+        rows.append(frame_row(item.shot, item.camera, item.target, score, detector.names if detector else [],
                               replicated=cfg.replicates > 1))
     return pd.DataFrame(rows), prepared.setup
 
@@ -132,7 +132,7 @@ def look(cfg: DictConfig) -> Look:
 
     conf = cfg.search.prescreen
     scale, detect = float(conf.scale), conf.level == "detector"
-    table, setup = frames_table(cfg, detect, scale)
+    table, setup = frames_table(cfg, cheap_detector(cfg.detector, scale) if detect else None, scale)
     rule = lenient(cfg.search, scale, float(conf.slack_visible))
     fair = fair_mask(table, rule) if len(table) else pd.Series(dtype=bool)
     attrs = {"prescreen_frames": len(table)}

@@ -84,6 +84,8 @@ def check_search(search) -> None:
                           "search.prescreen.level")
     if int(search.grid_levels) < 2:
         raise GarageError(f"{search.grid_levels} levels: a grid needs at least 2 (its ends)", "search.grid_levels")
+    if int(search.startup) < 0:
+        raise GarageError(f"{search.startup} startup trials: at least 0", "search.startup")
     if int(search.trials) < 1:
         raise GarageError(f"{search.trials} trials: at least 1", "search.trials")
     if not 0.0 <= float(search.min_visible) <= 1.0:
@@ -133,13 +135,15 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
         return _Grid(grid(params or {}, int(search.grid_levels)), seed=seed)
     if name == "tpe":
         # multivariate: factors of a scenario interact (a dark garage and a far target), as TPE's docs advise
-        return optuna.samplers.TPESampler(seed=seed, multivariate=True)
+        return optuna.samplers.TPESampler(seed=seed, multivariate=True, n_startup_trials=int(search.startup))
     if name == "cmaes":
         # CMA-ES samples the continuous factors; categorical ones fall back to TPE (warn_independent off: said here)
         return optuna.samplers.CmaEsSampler(seed=seed, warn_independent_sampling=False,
+                                            n_startup_trials=int(search.startup),
                                             independent_sampler=optuna.samplers.TPESampler(seed=seed))
     if name == "gp":  # Optuna's Gaussian-process Bayesian optimisation (torch on the CPU)
-        return optuna.samplers.GPSampler(seed=seed, independent_sampler=optuna.samplers.RandomSampler(seed=seed))
+        return optuna.samplers.GPSampler(seed=seed, n_startup_trials=int(search.startup),
+                                         independent_sampler=optuna.samplers.RandomSampler(seed=seed))
     if name == "nsga2":
         return optuna.samplers.NSGAIISampler(seed=seed)
     if name == "qmc":
