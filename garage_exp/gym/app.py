@@ -1,0 +1,217 @@
+"""The gym entry point: check the config and build the environment (bad input: one line, exit 2, nothing
+written), then `mode=train` (PPO, evaluated before and after, tracked in MLflow, the policy saved, its episodes
+exported as a suite), `mode=check` (Gymnasium's env checker and one random episode) or `mode=export` (a saved
+policy's episodes as a suite)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp.core.errors import GarageError, check_range
+from garage_exp.core.exits import EXIT_INPUT, install_error_report
+from garage_exp.core.paths import PROJECT_ROOT
+from garage_exp.gym import schema
+
+if not OmegaConf.has_resolver("garage_root"):
+    OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
+schema.register()
+
+
+def check_gym(cfg: DictConfig) -> None:
+    """`mode` and the `gym` node (the schema checked the types; keys forced past it are refused here)."""
+    from garage_exp.core.schema_check import unknown_keys
+
+    gym = OmegaConf.to_container(cfg.gym, resolve=False)
+    for path, key, owner in unknown_keys(gym, schema.AdversaryConf, ("gym",)):
+        raise GarageError(f"unknown key {key!r} (not in {owner.__name__})", ".".join((*path, key)))
+    if cfg.mode not in schema.MODES:
+        raise GarageError(f"unknown mode {cfg.mode!r} ({' | '.join(schema.MODES)})", "mode")
+    g = cfg.gym
+    for key, hi in (("timesteps", 10**8), ("n_steps", 10**6), ("batch_size", 10**6), ("n_epochs", 1000),
+                    ("eval_episodes", 10**5), ("per_band", 1000)):
+        check_range(g[key], 1, hi, f"gym.{key}")
+    check_range(g.seed, 0, 2**31 - 1, "gym.seed")
+    check_range(g.learning_rate, 1e-8, 1.0, "gym.learning_rate")
+    check_range(g.gamma, 0.0, 1.0, "gym.gamma")
+    check_range(g.ent_coef, 0.0, 1.0, "gym.ent_coef")
+    check_range(g.shaping, 0.0, 1.0, "gym.shaping")
+    if cfg.mode == "export":
+        if not g.policy:
+            raise GarageError("mode=export needs a saved policy (gym.policy=.../policy.zip)", "gym.policy")
+        if not Path(str(g.policy)).expanduser().is_file():
+            raise GarageError("no such file", f"gym.policy={g.policy}")
+
+
+def remove_untouched(out: Path) -> None:
+    """Hydra's dir of a command refused for bad input: removed while it holds nothing but Hydra's own files, and
+    the date folder above it when that is left empty (as garage_exp/train does; train sits above this layer)."""
+    import shutil
+
+    try:
+        if out.is_dir() and all(p.name == ".hydra" or p.suffix == ".log" for p in out.iterdir()):
+            shutil.rmtree(out)
+            if out.parent.is_dir() and not any(out.parent.iterdir()):
+                out.parent.rmdir()
+    except OSError:
+        pass
+
+
+def learning_curve(rows: list[dict], before: float, after: float, path: Path) -> Path:
+    """Each training episode's return and the late rate over a moving window, with the late rate of the
+    untrained and the trained policy's evaluation episodes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    ret = np.array([r["return"] for r in rows], dtype=float)
+    late = np.array([float(r["late"]) for r in rows])
+    w = max(1, min(10, len(rows) // 4 or 1))
+    fig, ax = plt.subplots(figsize=(7, 4.4))
+    x = np.arange(len(rows))
+    ax.plot(x, ret, ".", color="0.6", label="episode return")
+    if len(rows) >= w:
+        ax.plot(x[w - 1:], np.convolve(late, np.ones(w) / w, mode="valid"), "-", color="C3",
+                label=f"late rate, last {w} episodes")
+    ax.axhline(before, color="C0", ls="--", label=f"late rate untrained ({before:.2f})")
+    ax.axhline(after, color="C2", ls="--", label=f"late rate trained ({after:.2f})")
+    ax.set_xlabel("training episode")
+    ax.set_ylabel("return / late rate")
+    ax.set_ylim(-0.05, max(1.05, float(ret.max()) + 0.1) if len(ret) else 1.05)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, fontsize=8, frameon=False)
+    ax.set_title("PPO adversary: a child stepping out between parked cars")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def run_train(cfg: DictConfig, env, out: Path) -> dict:
+    import pandas as pd
+
+    from garage_exp.gym import export
+    from garage_exp.gym.train import late_rate, train
+    from garage_exp.tracking import runs as tracking
+
+    g = cfg.gym
+    tags = {"kind": "gym", "case": str(cfg.case.name), "output_dir": str(out)}
+    run = tracking.start_job_run(cfg, f"adversary on {cfg.case.name}, {g.timesteps} steps, seed {g.seed}", tags, None)
+    try:
+        result = train(cfg, env)
+        rows = result["before"] + result["train"] + result["after"]
+        table = pd.DataFrame(rows)
+        table.to_csv(out / "episodes.csv", index=False)
+        before, after = late_rate(result["before"]), late_rate(result["after"])
+        for k, r in enumerate(result["train"]):
+            run.log_metrics({"episode_return": r["return"], "episode_late": float(r["late"]),
+                             "episode_renders": r["renders"]}, step=k)
+        summary = {"late_rate_before": before, "late_rate_after": after, "train_episodes": len(result["train"]),
+                   "train_late_rate": late_rate(result["train"]), "renders": result["renders"],
+                   "wall_s": result["wall_s"]}
+        run.log_metrics(summary)
+        result["model"].save(out / "policy.zip")
+        suite_root = Path(str(g.suite_dir)) if g.suite_dir else out / "suite"
+        files = export.write_suite(env.job, result["after_full"], suite_root, env.movers,
+                                   float(cfg.ego.speed) / 3.6, int(g.per_band),
+                                   slides=env.live.slides_between)
+        figure = learning_curve(result["train"], before, after, out / "learning_curve.png")
+        for path in (out / "episodes.csv", out / "policy.zip", figure):
+            run.log_artifact(path)
+        for path in files:
+            run.log_artifact(path, "suite" if path.parent == suite_root else "suite/scenario")
+    except BaseException as exc:
+        run.set_tag("error", f"{type(exc).__name__}: {exc}"[:2000])
+        run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
+        raise
+    run.end("FINISHED")
+    summary.update(run_id=run.run_id, policy=str(out / "policy.zip"), suite=str(suite_root))
+    (out / "result.json").write_text(json.dumps(summary, indent=1))
+    print(f"garage_exp.gym: late rate {before:.2f} untrained -> {after:.2f} trained ({len(result['before'])} "
+          f"episodes each); {len(result['train'])} training episodes, {result['renders']} renders in "
+          f"{result['wall_s']:.0f} s; policy {out / 'policy.zip'}")
+    return summary
+
+
+def run_check(cfg: DictConfig, env) -> dict:
+    from gymnasium.utils.env_checker import check_env
+
+    check_env(env, skip_render_check=True)  # no render modes: the env renders for its detectors, not for people
+    env.reset(seed=int(cfg.gym.seed))
+    env.action_space.seed(int(cfg.gym.seed))
+    done, info = False, {}
+    while not done:
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        done = terminated or truncated
+    v = info["episode_verdict"]
+    print(f"garage_exp.gym: the env checker passed; a random episode: {v['renders']} frames, "
+          f"{'late' if v['late'] else 'in time' if v['testable'] else 'untestable'}, return {v['return']:.3f}")
+    return {k: v[k] for k in ("late", "testable", "renders", "return")}
+
+
+def run_export(cfg: DictConfig, env, out: Path) -> dict:
+    from stable_baselines3 import PPO
+
+    from garage_exp.gym import export
+    from garage_exp.gym.train import late_rate, rollouts
+
+    model = PPO.load(str(Path(str(cfg.gym.policy)).expanduser()), env=env, device="cpu")
+    rows, full = rollouts(model, env, int(cfg.gym.eval_episodes), int(cfg.gym.seed) + 10_000, "export")
+    root = Path(str(cfg.gym.suite_dir)) if cfg.gym.suite_dir else out / "suite"
+    export.write_suite(env.job, full, root, env.movers, float(cfg.ego.speed) / 3.6, int(cfg.gym.per_band),
+                       slides=env.live.slides_between)
+    return {"late_rate": late_rate(rows), "suite": str(root)}
+
+
+def gym_main(cfg: DictConfig) -> dict:
+    from garage_exp.gym.env import StepOutEnv
+
+    out = Path(HydraConfig.get().runtime.output_dir)
+    try:
+        check_gym(cfg)
+        env = StepOutEnv(cfg)
+    except GarageError:
+        remove_untouched(out)
+        raise
+    try:
+        if cfg.mode == "check":
+            return run_check(cfg, env)
+        if cfg.mode == "export":
+            return run_export(cfg, env, out)
+        return run_train(cfg, env, out)
+    finally:
+        env.close()
+
+
+@hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="gym")
+def main(cfg: DictConfig) -> dict:
+    try:
+        return gym_main(cfg)
+    except GarageError as exc:
+        print(f"garage_exp.gym: {exc}", file=sys.stderr)
+        sys.exit(EXIT_INPUT)
+
+
+def cli(argv: list[str] | None = None) -> None:
+    """`python -m garage_exp.gym overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written);
+    1 a crash (traceback)."""
+    import signal
+
+    from garage_exp.gym.overrides import quote_numeric_choices
+    from garage_exp.core.exits import on_sigterm
+    from garage_exp.core.state import STATE
+
+    sys.argv[1:] = quote_numeric_choices(sys.argv[1:] if argv is None else list(argv))
+    STATE.begin()
+    install_error_report()
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        main()
+    finally:
+        signal.signal(signal.SIGTERM, previous)

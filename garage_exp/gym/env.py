@@ -1,0 +1,277 @@
+"""The Gymnasium environment `garage_exp/StepOut-v0`: the ego drives the case's path at `ego.speed` while an
+adversary moves a person (how fast, when, where in the gap) so that the detectors confirm it too late to stop.
+
+Each step is one frame: time advances by the ego's step over its speed, the adversary's action moves its values
+within physical limits (limits.py), the ego's front camera renders the scene and the detectors score the target,
+as a job's frame loop does (garage_exp/run/frames.py) but one frame at a time, in the process's warm renderer and
+detector child. The scene is built once per environment with every actor in it; a step only moves them.
+
+Observation (a Box, not pixels): time, the ego's speed, its distance before the target's spot, the critical
+distance, the camera's range to the target, the last frame's confidence, the share of the last n frames that
+were hits, whether the target is confirmed, whether it was fairly visible before the critical distance yet, and
+each moved value with its velocity.
+
+Reward: 1 at the end of an episode the target was fairly visible in before the critical distance and confirmed
+only inside it, or never (late, garage_exp/results/late.py), provided a perfect detector could have confirmed it in
+time (k fair frames within n before the critical distance: one fair peek between two hidings is no test); plus
+`gym.shaping` x (1 - confidence) on each fair frame before the critical distance. A target never fairly visible in
+time earns nothing, hidden or not. `gym.objective=hard` rewards a hard-and-fair episode instead.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp.core.errors import GarageError
+from garage_exp.gym import limits, reward
+
+# Plain bounds of the observation's state entries (time, speeds, distances): wide enough for any garage.
+FAR = 500.0
+
+
+def job_config(cfg: DictConfig) -> DictConfig:
+    """The experiment's part of a gym config (what a job of `python -m garage_exp` would take)."""
+    keys = [k for k in cfg if k not in ("gym", "mode", "hydra")]
+    return OmegaConf.masked_copy(cfg, keys)
+
+
+def compose(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
+    """The gym config as `python -m garage_exp.gym OVERRIDES` composes it (for gymnasium.make)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    from garage_exp.gym.overrides import quote_numeric_choices
+    from garage_exp.core.paths import PROJECT_ROOT
+    from garage_exp.gym import schema
+
+    if not OmegaConf.has_resolver("garage_root"):
+        OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
+    from hydra.core.global_hydra import GlobalHydra
+
+    schema.register()
+    # A caller's own Hydra (a benchmark after a search in its process) is set aside for the call, then restored.
+    global_hydra = GlobalHydra.instance()
+    saved = global_hydra.hydra if global_hydra.is_initialized() else None
+    global_hydra.clear()
+    try:
+        with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+            return hydra_compose(config_name="gym", overrides=quote_numeric_choices(list(overrides)))
+    finally:
+        if saved is not None:
+            GlobalHydra.instance().initialize(saved)
+
+
+class StepOutEnv(gymnasium.Env):
+    """A sequential adversary's environment on one case (`cfg`: a composed gym config, or `overrides` to compose
+    one). Construction checks everything and builds the scene: GarageError on bad input."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, cfg: DictConfig | None = None, overrides: list[str] | tuple[str, ...] = ()):
+        from garage_exp.run.preflight import preflight
+        from garage_exp.scenario.build import EGO, MOVABLE, frame_values
+        from garage_exp.scenario.live import LiveScenario
+
+        super().__init__()
+        self.cfg = cfg if cfg is not None else compose(overrides)
+        self.job = job = job_config(self.cfg)
+        self.ego = job.ego
+        reward.check_ego(job.ego)
+        case = job.case
+        if str(case.motion.actor) != EGO:
+            raise GarageError(f"the environment drives the ego by the case's motion; case {case.name!r} moves "
+                              f"{case.motion.actor or 'nothing'!r} (use case=stepout)", "case.motion.actor")
+        prepared = preflight(job, check_space=False)
+        self.scene, self.setup = prepared.scene, prepared.setup
+        self.live = LiveScenario(job, prepared.classified, self.setup, int(self.cfg.gym.variant))
+        ego_conf = self.live.actors[EGO]
+        self.drive = [float(v) for v in frame_values(case, ego_conf, self.live.site, self.live.made[EGO].extent[0],
+                                                     self.live.bays)]
+        if len(self.drive) < 2:
+            raise GarageError("the ego's motion has a single frame: nothing to drive", "case.motion")
+        self.step_m = abs(self.drive[1] - self.drive[0])
+        self.dt = self.step_m / (float(job.ego.speed) / 3.6)
+        self.drive_key = str(case.motion.key)
+        self.movers = limits.resolve_movers(self.cfg.gym.movers, self.live.actors, MOVABLE)
+        self.critical = reward.critical(job.ego)
+        self.objective = str(self.cfg.gym.objective)
+        if self.objective not in reward.OBJECTIVES:
+            raise GarageError(f"unknown objective {self.objective!r} ({' | '.join(reward.OBJECTIVES)})",
+                              "gym.objective")
+        self.shaping = float(self.cfg.gym.shaping)
+        self.stop_when_decided = bool(self.cfg.gym.stop_when_decided)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(len(self.movers),), dtype=np.float32)
+        t_end = self.dt * len(self.drive)
+        low = [0.0, 0.0, -FAR, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        high = [t_end, FAR, FAR, FAR, FAR, 1.0, 1.0, 1.0, 1.0]
+        for m in self.movers:
+            low += [m.low, -m.rate]
+            high += [m.high, m.rate]
+        self.observation_space = spaces.Box(np.array(low, dtype=np.float32), np.array(high, dtype=np.float32),
+                                            dtype=np.float32)
+        self.renderer = self.detector = self.sensor = None
+        self.renders = 0  # frames rendered and detected by this environment, all episodes
+        self.k = 0
+        self._state_reset()
+
+    # -- the warm renderer and detector of the process ------------------------------------------------------------
+
+    def _open(self) -> None:
+        from garage_exp.core.plugins import build
+        from garage_exp.perception.detect.worker import open_detector
+        from garage_exp.render import open_renderer
+
+        job = self.job
+        if self.detector is None or (hasattr(self.detector, "alive") and not self.detector.alive()):
+            self.detector = open_detector(build(job.detector, "a detector", "detector._target_"))
+        if self.sensor is None:
+            self.sensor = build(job.sensor, "a sensor model", "sensor._target_")
+        self.renderer = open_renderer(job.renderer)
+        if getattr(self.renderer, "description", None) is not self.scene:  # another env's scene was loaded since
+            self.renderer.load(self.scene)
+
+    # -- the episode ----------------------------------------------------------------------------------------------
+
+    def _state_reset(self) -> None:
+        self.k = 0
+        self.values = {m.name: m.start for m in self.movers}
+        self.velocity = {m.name: 0.0 for m in self.movers}
+        self.frames: list[dict] = []
+        self.hits: list[bool] = []
+        self.confirmed = False
+        self.fair_before = False
+        self.last = {"composite": 0.0, "range": FAR}
+        self.ret = 0.0
+        self.started = time.perf_counter()
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._open()
+        self._state_reset()
+        self.sensor_rng = np.random.default_rng(int(self.np_random.integers(2**63)))
+        ego_pose, poses = self._poses(self.drive[0])
+        self.last["range"] = self._range(ego_pose, poses)
+        return self._observation(), {}
+
+    def step(self, action):
+        action = np.asarray(action, dtype=float).reshape(-1)
+        self.k += 1
+        for i, m in enumerate(self.movers):
+            if m.once:
+                if self.k == 1:
+                    self.values[m.name] = limits.placed_once(m, action[i])
+            else:
+                self.values[m.name], self.velocity[m.name] = limits.advance(
+                    m, self.values[m.name], self.velocity[m.name], action[i], self.dt)
+        ego_pose, poses = self._poses(self.drive[self.k])
+        row = self._frame(ego_pose, poses)
+        self.frames.append(row)
+        self.hits.append(row["detected"])
+        before = row["range"] > self.critical
+        if row["fair"] and before:
+            self.fair_before = True
+        if not self.confirmed and reward.confirmed_now(self.hits, self.ego):
+            self.confirmed = True
+        # The dense term counts the fair frames the objective judges: before the critical distance for `late`.
+        counted = row["fair"] and (before or self.objective == "hard")
+        r = self.shaping * (1.0 - row["composite"]) if counted else 0.0
+        decided = self.objective == "late" and (self.confirmed or not before)
+        terminated = self.k >= len(self.drive) - 1 or (self.stop_when_decided and decided)
+        info = {"frame": row}
+        if terminated:
+            verdict = self.verdict()
+            r += 1.0 if verdict[reward.OBJECTIVES[self.objective]] else 0.0
+            verdict["return"] = self.ret + r
+            info["episode_verdict"] = verdict
+        self.ret += r
+        self.last = row
+        return self._observation(), float(r), bool(terminated), False, info
+
+    def _poses(self, drive: float):
+        from garage_exp.scenario.build import EGO
+
+        values: dict[str, dict[str, float]] = {EGO: {self.drive_key: drive}}
+        for m in self.movers:
+            values.setdefault(m.actor, {})[m.key] = self.values[m.name]
+        return self.live.poses(values)
+
+    def _range(self, ego_pose, poses) -> float:
+        """Camera to the target's centre (m), from the poses alone (ground truth's `distance`, also unrendered)."""
+        from garage_exp.scene.camera import camera_to_world
+
+        cam = self.scene.cameras[0]
+        position = camera_to_world(ego_pose, cam)[:3, 3]
+        target = poses[self.live.target]
+        height = self.live.made[self.live.target].extent[2]
+        return float(np.linalg.norm(position - np.array([target.x, target.y, height / 2])))
+
+    def _frame(self, ego_pose, poses) -> dict:
+        """Render the ego's first camera, detect and score the target: one frame table row and its verdicts."""
+        from garage_exp.perception.detect import score_target
+        from garage_exp.perception.groundtruth import ground_truth
+        from garage_exp.render.composite import blank_composite
+        from garage_exp.scenario.assemble import HIDDEN
+
+        job, scene, renderer = self.job, self.scene, self.renderer
+        renderer.set_pose("ego", ego_pose)
+        for name, pose in poses.items():
+            renderer.set_pose(name, pose if pose is not None else HIDDEN)
+        cam = scene.cameras[0]
+        frame = renderer.render(cam.name)
+        in_view = [v.name for v in scene.actors() if v.role != "ego" and v.kind != "box" and poses.get(v.name)]
+        truth = ground_truth(frame, renderer.unoccluded_ids(cam.name, in_view), scene, renderer.ids)
+        if not scene.background and str(job.look.name) != "flat":  # as run.frames.render_frames orders it
+            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, renderer.ids, [self.live.target]),
+                                    self.sensor_rng)
+        else:
+            rgb = self.sensor.apply(frame.rgb, self.sensor_rng)
+            if not scene.background:
+                rgb = blank_composite(rgb, frame, renderer.ids, [self.live.target])
+        self.detector.submit(rgb)
+        dets = self.detector.result()
+        self.renders += 1
+        target = next((t for t in truth if t.name == self.live.target), None)
+        d = job.detector
+        score = score_target(dets, target, truth, iou_threshold=d.iou, match=d.match, threshold=d.threshold,
+                             classes=tuple(d.classes), person_classes=tuple(d.person_classes))
+        row = {"frame": self.k, "time": round(self.k * self.dt, 6), "ego": self.drive[self.k],
+               **{m.name: round(self.values[m.name], 6) for m in self.movers},
+               "range": self._range(ego_pose, poses),
+               "distance": round(target.distance, 4) if target else math.nan,
+               "visible_fraction": round(target.visible_fraction, 6) if target else 0.0,
+               "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
+               "truncation": round(target.truncation, 4) if target else math.nan,
+               "composite": round(float(score.composite), 6), "detected": bool(score.detected)}
+        row["fair"] = reward.fair(row, job.search)
+        return row
+
+    def _observation(self) -> np.ndarray:
+        n = int(self.ego.n)
+        window = self.hits[-n:]
+        obs = [self.k * self.dt, float(self.ego.speed) / 3.6, self.drive[self.k], self.critical,
+               min(self.last["range"], FAR), self.last["composite"], sum(window) / n, float(self.confirmed),
+               float(self.fair_before)]
+        for m in self.movers:
+            obs += [self.values[m.name], self.velocity[m.name]]
+        box = self.observation_space
+        return np.clip(np.array(obs, dtype=np.float32), box.low, box.high)
+
+    def verdict(self) -> dict:
+        """The episode so far, judged: late (the reward's), testable, detection distance, fair difficulty, the
+        moved values per frame, renders and wall time."""
+        record = reward.episode(self.frames, self.ego, [m.name for m in self.movers], self.critical,
+                                time.perf_counter() - self.started)
+        record["params"] = limits.summary(self.movers, record["values"], self.dt, self.drive)
+        record["variant"] = int(self.cfg.gym.variant)
+        return record
+
+    def close(self) -> None:
+        # The renderer and the detector child belong to the process (core.state.STATE): later envs and jobs reuse them.
+        self.renderer = self.detector = None

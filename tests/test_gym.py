@@ -1,0 +1,272 @@
+"""`garage_exp.gym` (issue 23, item 2): the Gymnasium environment passes gymnasium's checker; its limits are the
+action space's (no child runs at 20 km/h); a seeded PPO run repeats exactly; no reward for a target never fairly
+visible before the critical distance, 1 for one seen but confirmed too late (hand-made frames); a static ego is
+refused in one line with exit 2 and nothing written; a trained adversary is tracked and saved through the command
+line, and its episodes export as a suite whose scenario a job composes and runs.
+
+Everything runs at QVGA on the research plan (the step-out case needs a straight lane with bays: the tiny plan has
+none), the ego's drive from 14 m by 1 m steps, so that an episode is at most 11 frames."""
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import require, run_app, run_in_process
+
+FAST = ["camera.width=320", "camera.height=240", "detector.imgsz=320", "renderer.save_frames=none",
+        "case.motion.start=14", "case.motion.step=1.0"]
+HIDDEN = ["gym.movers=[{actor: child, key: out, low: -1.6, high: -1.5, start: -1.6}]"]  # deep between the cars
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    from conftest import seed_store
+
+    tmp = tmp_path_factory.mktemp("gym")
+    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    seed_store([f"tracking.uri={uri}"], tmp)  # a migrated copy: the CLI's runs do not pay the migrations
+    return tmp, uri
+
+
+def make_env(store, *overrides):
+    from garage_exp.gym.env import StepOutEnv, compose
+
+    return StepOutEnv(compose([*FAST, f"tracking.uri={store[1]}", *overrides]))
+
+
+@pytest.fixture(scope="module")
+def env(store):
+    require("vulkan", "vehicles", "models")
+    return make_env(store)
+
+
+def episode(env, action, seed=0):
+    """One episode with a fixed action: (rewards, the final info)."""
+    env.reset(seed=seed)
+    rewards, done, info = [], False, {}
+    while not done:
+        _, r, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32))
+        rewards.append(r)
+        done = terminated or truncated
+    return rewards, info
+
+
+@pytest.mark.slow
+def test_env_checker_passes(env):
+    import gymnasium
+    from gymnasium.utils.env_checker import check_env
+
+    from garage_exp.gym import ENV_ID
+
+    assert ENV_ID in gymnasium.registry
+    check_env(env, skip_render_check=True)
+    # The registered id makes the same environment from overrides.
+    made = gymnasium.make(ENV_ID, cfg=env.cfg)
+    assert made.observation_space == env.observation_space and made.action_space == env.action_space
+    assert env.action_space.shape == (2,) and env.dt == pytest.approx(1.0 / (10 / 3.6))
+    assert [(m.name, m.rate) for m in env.movers] == [("child.out", 3.0), ("child.offset", 3.0)]
+
+
+def test_limits_bound_every_action():
+    """Whatever the actions, a child's value moves no faster than a child runs and speeds up no faster than a
+    running start; 20 km/h (5.6 m/s) is refused as a limit, naming the key."""
+    from garage_exp.core.errors import GarageError
+    from garage_exp.core.schema import ActorConf
+    from garage_exp.gym.limits import advance, resolve_movers
+    from garage_exp.gym.schema import MoverConf
+
+    actors = {"ego": ActorConf(role="ego"), "child": ActorConf(kind="person", age="child")}
+    (m,) = resolve_movers([MoverConf("child", "out", -1.0, 2.5)], actors, ("out", "offset"))
+    assert (m.rate, m.accel, m.start) == (3.0, 3.0, 0.0)
+    rng = np.random.default_rng(0)
+    value, velocity, dt = m.start, 0.0, 0.18
+    for action in rng.uniform(-5, 5, 500):  # out-of-range actions too
+        before = velocity
+        value, velocity = advance(m, value, velocity, action, dt)
+        assert m.low <= value <= m.high and abs(velocity) <= m.rate + 1e-9
+        assert abs(velocity - before) <= m.accel * dt + 1e-9 or velocity == 0.0  # stopped at a bound
+    with pytest.raises(GarageError, match=r"gym.movers.0.rate: 5.56 m/s is outside 0-3 m/s"):
+        resolve_movers([MoverConf("child", "out", -1.0, 2.5, rate=5.56)], actors, ("out",))
+    with pytest.raises(GarageError, match=r"gym.movers.0.actor: no actor 'ego' to move"):
+        resolve_movers([MoverConf("ego", "distance", 0, 1)], actors, ("distance",))
+
+
+def test_reward_on_hand_made_frames():
+    """late.judge's verdict as the episode's: fair before the critical distance and never confirmed is late;
+    a target never fairly visible before it is untestable, however badly it was detected."""
+    from garage_exp.core.schema import EgoConf
+    from garage_exp.gym.reward import critical, episode
+
+    ego = EgoConf()
+    crit = critical(ego)
+
+    def frames(fair_far: bool, hits: list[bool]):
+        d = [12.0, 10.0, 8.0, 6.0, 4.0]
+        return [{"frame": k + 1, "time": k * 0.36, "ego": d[k], "child.out": 0.0, "distance": d[k],
+                 "composite": 0.9 if h else 0.1, "detected": h,
+                 "fair": fair_far if d[k] > crit else True} for k, h in enumerate(hits)]
+
+    missed = episode(frames(True, [False] * 5), ego, ["child.out"], crit, 0.0)
+    assert missed["late"] and missed["testable"] and math.isnan(missed["detection_distance"])
+    assert missed["hard_fair"] and missed["difficulty"] == pytest.approx(0.9)
+    early = episode(frames(True, [True, True, False, False, False]), ego, ["child.out"], crit, 0.0)
+    assert not early["late"] and early["detection_distance"] == 10.0
+    inside = episode(frames(True, [False, False, False, True, True]), ego, ["child.out"], crit, 0.0)
+    assert inside["late"] and inside["detection_distance"] == 4.0 < crit
+    hidden = episode(frames(False, [False] * 5), ego, ["child.out"], crit, 0.0)
+    assert not hidden["testable"] and not hidden["late"]
+    # One fair peek before the critical distance, hidden again: late by late.judge, but no detector needing k=2
+    # hits could have confirmed it in time, so no reward.
+    peek = frames(True, [False] * 5)
+    for row in peek[:3]:  # fair at 6 m only before the critical distance (and at 4 m, inside it)
+        row["fair"] = False
+    peek = episode(peek, ego, ["child.out"], crit, 0.0)
+    assert peek["late_judge"] and not peek["fair_chance"] and not peek["late"]
+
+
+@pytest.mark.slow
+def test_no_reward_for_a_target_never_fairly_visible(store):
+    """A child kept deep between the cars (the adversary may only move it there) is never confirmed - the
+    detector never finds it - yet earns nothing: it was never a fair test."""
+    require("vulkan", "vehicles", "models")
+    env = make_env(store, *HIDDEN)
+    rewards, info = episode(env, [1.0])
+    verdict = info["episode_verdict"]
+    assert verdict["renders"] == len(rewards) == 11  # the whole drive: nothing decided early
+    assert not verdict["testable"] and not verdict["late"] and verdict["fair_frames"] == 0
+    assert math.isnan(verdict["detection_distance"])  # never confirmed: a miss, but not a fair one
+    assert sum(rewards) == 0.0
+
+
+@pytest.mark.slow
+def test_seeded_ppo_is_deterministic(env):
+    """Two short PPO trainings with one seed (an update half-way, so the second rollout is the trained
+    policy's): the same actions and rewards, step for step."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from garage_exp.gym.train import make_ppo
+
+    class Record(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.actions, self.rewards = [], []
+
+        def _on_step(self):
+            self.actions.append(np.array(self.locals["actions"]).copy())
+            self.rewards.append(float(self.locals["rewards"][0]))
+            return True
+
+    import copy
+
+    cfg = copy.deepcopy(env.cfg)
+    cfg.gym.n_steps, cfg.gym.batch_size, cfg.gym.n_epochs, cfg.gym.seed = 8, 8, 2, 3
+    runs = []
+    for _ in range(2):
+        model, rec = make_ppo(env, cfg), Record()
+        model.learn(total_timesteps=16, callback=rec)
+        runs.append(rec)
+    a, b = runs
+    assert len(a.actions) == 16
+    np.testing.assert_array_equal(np.concatenate(a.actions), np.concatenate(b.actions))
+    assert a.rewards == b.rewards
+    assert len({tuple(np.round(x.ravel(), 6)) for x in a.actions}) > 1  # a policy that acts, not a constant
+
+
+def test_static_ego_is_refused(store, tmp_path):
+    """ego.speed=0: one line naming the key, exit 2, no output dir left (checked before the scene is built)."""
+    from garage_exp.gym.app import cli
+
+    out = tmp_path / "run"
+    r = run_in_process([*FAST, "ego.speed=0", f"tracking.uri={store[1]}", f"hydra.run.dir={out}"], tmp_path,
+                       entry=cli)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("garage_exp.gym: ego.speed: a static ego"), lines
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
+    """Two episodes (a child that runs out at once: seen and confirmed; one that stays in the gap: untestable)
+    export as a suite of the testable one; its scenario composes as a job's and reruns the episode's drive."""
+    import pandas as pd
+    import yaml
+
+    from garage_exp.gym.export import write_suite
+
+    records = [episode(env, [1.0, 0.0])[1]["episode_verdict"], episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
+    assert [r["testable"] for r in records] == [True, False]
+    root = tmp_path / "suite"
+    files = write_suite(env.job, records, root, env.movers, 10 / 3.6, per_band=2)
+    manifest = pd.read_csv(files[0])
+    assert len(manifest) == 1 and manifest.episode.tolist() == [0] and (root / "README.md").is_file()
+    name = manifest.scenario[0]
+    text = (root / "scenario" / f"{name}.yaml").read_text()
+    values = yaml.safe_load(text)
+    assert values["case"]["motion"]["values"] == records[0]["ego"]
+    assert values["case"]["actors"]["child"]["offset"] == pytest.approx(records[0]["values"]["child.offset"][0])
+    r = run_app(["--config-dir", str(root), f"+scenario={name}", f"tracking.uri={store[1]}"], tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    table = pd.read_csv(tmp_path / "run" / "frames.csv")
+    assert table.position.tolist() == records[0]["ego"]  # the episode's drive, frame for frame
+
+
+@pytest.mark.slow
+def test_training_through_the_command_line(store, tmp_path):
+    """`python -m garage_exp.gym` trains (a handful of steps), tracks the run in MLflow, saves the policy, writes
+    every episode and the suite; the policy loads back for mode=export."""
+    require("vulkan", "vehicles", "models")
+    import json
+
+    import mlflow
+
+    from garage_exp.gym.app import cli
+
+    out = tmp_path / "run"
+    args = [*FAST, "gym.timesteps=8", "gym.n_steps=8", "gym.batch_size=8", "gym.n_epochs=1", "gym.eval_episodes=1",
+            f"tracking.uri={store[1]}", f"hydra.run.dir={out}"]
+    r = run_in_process(args, tmp_path, entry=cli)
+    assert r.returncode == 0, (r.stdout[-2000:], r.stderr[-2000:])
+    result = json.loads((out / "result.json").read_text())
+    assert (out / "policy.zip").is_file() and (out / "suite" / "manifest.csv").is_file()
+    client = mlflow.MlflowClient(tracking_uri=store[1])
+    run = client.get_run(result["run_id"])
+    assert run.info.status == "FINISHED" and run.data.params["gym.timesteps"] == "8"
+    assert run.data.metrics["renders"] == result["renders"] > 8
+    assert {a.path for a in client.list_artifacts(result["run_id"])} >= {"policy.zip", "episodes.csv",
+                                                                          "learning_curve.png"}
+    r = run_in_process([*FAST, "mode=export", f"gym.policy={out / 'policy.zip'}", "gym.eval_episodes=1",
+                        f"tracking.uri={store[1]}", f"hydra.run.dir={tmp_path / 'export'}"], tmp_path, entry=cli)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "export" / "suite" / "README.md").is_file()
+
+
+def test_gym_config_keeps_the_experiments_groups():
+    """conf/gym.yaml lists conf/config.yaml's groups (its own case aside): a group added there is added here."""
+    import yaml
+
+    from conftest import ROOT
+
+    def groups(name):
+        d = yaml.safe_load((ROOT / "conf" / name).read_text())["defaults"]
+        return {k: v for item in d if isinstance(item, dict) for k, v in item.items()}
+
+    main, gym = groups("config.yaml"), groups("gym.yaml")
+    assert {k: v for k, v in main.items() if k != "case"} == {k: v for k, v in gym.items() if k != "case"}
+    assert gym["case"] == "stepout"
+
+
+@pytest.mark.slow
+def test_bench_records_for_the_falsification_benchmark(env):
+    """`garage_exp.gym.bench_records`: the benchmark's trial records, one per episode of an adversary trained as it
+    goes, its moves named as the step-out search space's keys, every render counted."""
+    from garage_exp.gym import bench_records
+
+    records = bench_records(["plan=research", "case=stepout", *FAST], "late", seed=1, episodes=2)
+    assert len(records) == 2
+    for r in records:
+        assert {"case.motion.along.child.at", "case.motion.along.child.speed", "case.motion.along.child.end",
+                "case.actors.child.offset"} <= set(r["params"])
+        assert 1 <= r["full_frames"] <= 11 and r["cheap_frames"] == 0 and r["cpu_s"] > 0
+        assert isinstance(r["failure"], bool) and r["state"] == "COMPLETE"
