@@ -116,13 +116,13 @@ def test_reward_on_hand_made_frames():
     assert inside["late"] and inside["detection_distance"] == 4.0 < crit
     hidden = episode(frames(False, [False] * 5), ego, ["child.out"], crit, 0.0)
     assert not hidden["testable"] and not hidden["late"]
-    # One fair peek before the critical distance, hidden again: late by late.judge, but no detector needing k=2
-    # hits could have confirmed it in time, so no reward.
+    # One fair peek before the critical distance, hidden again: no detector needing k=2 hits could have
+    # confirmed it in time, so it is untestable (late.judge) and earns no reward.
     peek = frames(True, [False] * 5)
     for row in peek[:3]:  # fair at 6 m only before the critical distance (and at 4 m, inside it)
         row["fair"] = False
     peek = episode(peek, ego, ["child.out"], crit, 0.0)
-    assert peek["late_judge"] and not peek["fair_chance"] and not peek["late"]
+    assert not peek["testable"] and not peek["late"]
 
 
 @pytest.mark.slow

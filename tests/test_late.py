@@ -84,6 +84,11 @@ def test_a_target_that_peeks_out_for_one_frame_is_untestable():
     fair[3] = True  # two fair frames in a row: a perfect detector would have confirmed it at 9 m
     v = late.judge(*approach([False] * 11, fair), EGO)
     assert v.testable and v.late
+    # confirmed in time while fairly visible in one frame only (the hits came while it was partly hidden): a
+    # test the detectors passed
+    hits = [False, True, True] + [False] * 8
+    v = late.judge(*approach(hits, [False, False, True] + [False] * 8), EGO)
+    assert v.testable and not v.late and v.detection_distance == 10.0
 
 
 def test_a_single_hit_is_not_a_confirmation():
@@ -168,3 +173,21 @@ def test_the_sweep_report_tabulates_the_runs_whose_ego_moves():
     table = late_table(runs)
     assert list(table["run"]) == ["a"] and table["late (share)"].tolist() == [0.5]
     assert late_table(pd.DataFrame([{"run_name": "static"}])).empty
+
+
+def test_an_along_actor_takes_listed_values_and_a_person_its_place_in_the_gap():
+    """What an adversary's exported episode says: the child's `out` frame by frame (held after the list), and
+    `offset` along the gap (to the left of the child's heading into the lane)."""
+    from garage_exp.run.preflight import preflight
+
+    base = ["case=stepout", "case.motion.start=6", "case.motion.end=3", "case.motion.step=1.0"]
+    listed = preflight(compose_cfg(*base, "case.motion.along.child.values=[0.0,0.5,1.0]",
+                                   "case.actors.child.offset=0.3"), check_space=False).setup.shots
+    plain = preflight(compose_cfg(*base, "case.motion.along.child.values=[0.0,0.5,1.0]"),
+                      check_space=False).setup.shots
+    outs = [math.dist((s.poses["child"].x, s.poses["child"].y), (listed[0].poses["child"].x,
+                                                                listed[0].poses["child"].y)) for s in listed]
+    assert outs == pytest.approx([0.0, 0.5, 1.0, 1.0])  # the list, then its last value held
+    for a, b in zip(listed, plain):
+        assert math.dist((a.poses["child"].x, a.poses["child"].y), (b.poses["child"].x, b.poses["child"].y)) \
+            == pytest.approx(0.3)

@@ -164,6 +164,8 @@ class AlongConf:
     end: float = 0.0
     speed: float = 1.4  # m/s (1.4: an adult's walking speed)
     at: Optional[float] = None
+    values: list[float] = field(default_factory=list)  # instead: the value at each frame of the motion (the last
+    # one held after), as an adversary's episode moved it (garage_exp/gym/export.py)
 
 
 @dataclass

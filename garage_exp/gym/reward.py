@@ -40,32 +40,20 @@ def fair(row: dict, search) -> bool:
     return bool(fair_mask(pd.DataFrame([row]), search).iloc[0])
 
 
-def fair_chance(distance, fair, ego) -> bool:
-    """Whether a perfect detector - a hit on every fair frame, none elsewhere - would have confirmed the target
-    before the critical distance: k fair frames within n, all farther than it. A target shown for fewer frames
-    (one fair peek, then hidden again) cannot be confirmed in time by any detector: not a detector's failure."""
-    d = np.asarray(distance, dtype=float)
-    chances = np.asarray(fair, dtype=bool) & (d > late.critical_distance(ego))
-    return late.confirmed_at(list(chances), int(ego.k), int(ego.n)) is not None
-
-
 def episode(frames: list[dict], ego, movers: list[str], critical_m: float, wall_s: float) -> dict:
-    """One episode's record: the late verdict on its frames (late.judge), narrowed to targets a perfect
-    detector could have confirmed in time (`fair_chance`: `late` is the reward's, `late_judge` late.judge's own),
-    its fair difficulty and hard_fair, each moved value per frame, and what it cost."""
+    """One episode's record: the late verdict on its frames (late.judge: testable only when a perfect detector
+    could have confirmed the target in time, so one fair peek earns nothing), its fair difficulty and hard_fair,
+    each moved value per frame, and what it cost."""
     t = pd.DataFrame(frames)
     if t.empty:
         verdict = late.judge([], [], [], [], ego)
         fair_conf = np.array([])
-        chance = False
     else:
         verdict = late.judge(t.distance.to_numpy(float), t.time.to_numpy(float), t.detected.to_numpy(bool),
                              t.fair.to_numpy(bool), ego)
         fair_conf = t.composite[t.fair].to_numpy(float)
-        chance = fair_chance(t.distance.to_numpy(float), t.fair.to_numpy(bool), ego)
     difficulty = float(1.0 - fair_conf.mean()) if len(fair_conf) else math.nan
-    return {"late": bool(verdict.late and chance), "late_judge": bool(verdict.late), "fair_chance": chance,
-            "testable": bool(verdict.testable), "lateness": verdict.lateness,
+    return {"late": bool(verdict.late), "testable": bool(verdict.testable), "lateness": verdict.lateness,
             "detection_distance": verdict.detection_distance, "first_fair_distance": verdict.first_fair_distance,
             "critical_distance": critical_m, "fair_frames": int(len(fair_conf)), "difficulty": difficulty,
             "hard_fair": bool(len(fair_conf) and difficulty >= HARD), "renders": int(len(t)), "wall_s": wall_s,

@@ -122,8 +122,7 @@ def falsify(cfg: DictConfig, seed: int, episodes: int) -> list[dict]:
     out = []
     for row, record in zip(log.records, log.full):
         out.append({"episode": row["episode"], "seed": int(seed), "params": dict(record["params"]),
-                    "late": bool(record["late"]), "late_judge": bool(record["late_judge"]),
-                    "fair_chance": bool(record["fair_chance"]), "testable": bool(record["testable"]),
+                    "late": bool(record["late"]), "testable": bool(record["testable"]),
                     "hard_fair": bool(record["hard_fair"]), "difficulty": record["difficulty"],
                     "lateness": record["lateness"],
                     "detection_distance": record["detection_distance"], "renders": int(record["renders"]),
@@ -149,6 +148,5 @@ def bench_records(overrides: list[str], definition: str, seed: int, episodes: in
         failure = r["late"] if definition == "late" else r["hard_fair"]
         out.append({"params": {BENCH_PARAMS.get(k, k): v for k, v in r["params"].items()}, "state": "COMPLETE",
                     "screened": "", "full_frames": r["renders"], "cheap_frames": 0, "failure": bool(failure),
-                    "value": r["lateness"] if definition == "late" else r["difficulty"], "cpu_s": r["cpu_s"],
-                    "late_judge": r["late_judge"]})
+                    "value": r["lateness"] if definition == "late" else r["difficulty"], "cpu_s": r["cpu_s"]})
     return out

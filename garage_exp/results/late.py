@@ -5,9 +5,10 @@ camera and the target's centre: the critical distance. The perception stack *con
 that completes k hits (composite confidence >= the threshold) within the last n frames, as a tracker's k-of-n
 confirmation does. A trajectory (a variant of one replicate, frames in order) is:
 
-- testable when a perfect detector could have confirmed the target in time: k of n consecutive frames farther
-  than the critical distance show it fairly visible (`fair_mask`). A target hidden behind a wall until it is
-  too late, or one that peeks out for a single frame, is untestable, not a detector's failure;
+- testable when the detectors confirmed the target in time, or a perfect detector could have: k of n
+  consecutive frames farther than the critical distance show it fairly visible (`fair_mask`). A target hidden
+  behind a wall until it is too late, or one that peeks out for a single frame, is untestable, not a detector's
+  failure;
 - late when it is testable and the target was not confirmed before the distance fell to the critical distance
   (confirmed inside it, or never).
 
@@ -108,7 +109,9 @@ def judge(distance: Sequence[float], time: Sequence[float], hit: Sequence[bool],
     i = confirmed_at(list(hit), int(ego.k), int(ego.n))
     det = float(d[i]) if i is not None else math.nan
     ttc = time_to_collision(d, t, i) if i is not None else math.nan
-    if confirmed_at(list(before), int(ego.k), int(ego.n)) is None:  # not even a perfect detector could
+    in_time = i is not None and det > critical
+    # untestable: not confirmed in time, and not even a perfect detector could have been
+    if not in_time and confirmed_at(list(before), int(ego.k), int(ego.n)) is None:
         return Trajectory(False, False, math.nan, det, ttc, first_fair, math.nan if i is None else float(i))
     # A confirmation farther than the first fair frame (a partly hidden target found early) counts as in time.
     if i is None or det <= critical:

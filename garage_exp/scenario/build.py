@@ -59,7 +59,8 @@ def _check_motion(case) -> None:
             raise GarageError(f"key {along.key!r} is not a placement value ({' | '.join(MOVABLE)})", where + ".key")
         if float(along.speed) < 0:
             raise GarageError(f"{along.speed} m/s is negative", where + ".speed")
-        if along.at is not None and case.motion.start is not None and case.motion.end is not None:
+        if along.at is not None and not along.get("values") and case.motion.start is not None \
+                and case.motion.end is not None:
             lo, hi = sorted((float(case.motion.start), float(case.motion.end)))
             if not lo <= float(along.at) <= hi:
                 raise GarageError(f"{along.at} is outside the motion's {lo:g}..{hi:g}", where + ".at")
@@ -76,8 +77,12 @@ def frame_times(values: list[float], speed_kmh: float) -> list[float]:
     return [abs(x - values[0]) / v if v > 0 else 0.0 for x in values]
 
 
-def along_value(along, t: float, t_at: float) -> float:
-    """An along-moving actor's value at time t: from start towards end at its speed, from t_at on."""
+def along_value(along, t: float, t_at: float, frame: int = 0) -> float:
+    """An along-moving actor's value at time t (frame `frame`): its listed values, else from start towards end
+    at its speed, from t_at on."""
+    listed = along.get("values")  # (a DictConfig's `.values` is its method, not the key)
+    if listed:
+        return float(listed[min(frame, len(listed) - 1)])
     start, end = float(along.start), float(along.end)
     moved = float(along.speed) * max(0.0, t - t_at)
     return min(start + moved, end) if end >= start else max(start - moved, end)
@@ -232,12 +237,12 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
         times = frame_times(values, float(cfg.ego.speed)) if mover == EGO else [0.0] * len(values)
         alongs = [(n, a, frame_times([values[0], float(a.at)], float(cfg.ego.speed))[1] if a.at is not None else 0.)
                   for n, a in (case.motion.get("along") or {}).items() if n in actors]
-        for value, time in zip(values, times):
+        for frame, (value, time) in enumerate(zip(values, times)):
             placed = dict(actors)
             if mover:
                 placed[mover] = replace(actors[mover], **{case.motion.key: value})
             for name, along, t_at in alongs:
-                placed[name] = replace(placed[name], **{along.key: along_value(along, time, t_at)})
+                placed[name] = replace(placed[name], **{along.key: along_value(along, time, t_at, frame)})
             poses = resolve(placed, made, site, bays)
             check_overlaps(poses, made, variant.label, value)
             shot_poses = {n: poses.get(n) for n in made if n != EGO}

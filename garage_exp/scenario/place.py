@@ -123,15 +123,18 @@ def pose_in_bay(site: Site, actor, length: float, bays: dict, where: str) -> Pos
 
 
 def pose_between(site: Site, actor, bays: dict, where: str) -> Pose:
-    """In the gap between two neighbouring bays, `out` metres past the bay line into the lane, facing it."""
+    """In the gap between two neighbouring bays, `out` metres past the bay line into the lane, facing it, and
+    `offset` metres to the left of that heading (where in the gap a person stands)."""
     if len(actor.between) != 2:
         raise GarageError(f"between names two bays, got {list(actor.between)}", where + ".between")
     a, b = (site_bay(site, ref, bays, where + ".between") for ref in actor.between)
     u = a.facing
     mx, my = (a.bay.x + b.bay.x) / 2, (a.bay.y + b.bay.y) / 2
     reach = a.bay.depth / 2 + float(actor.out)
+    side = float(actor.offset)
     yaw = math.degrees(math.atan2(u[1], u[0])) % 360.0
-    return Pose(mx + u[0] * reach, my + u[1] * reach, 0.0, (yaw + float(actor.yaw)) % 360.0)
+    return Pose(mx + u[0] * reach - u[1] * side, my + u[1] * reach + u[0] * side, 0.0,
+                (yaw + float(actor.yaw)) % 360.0)
 
 
 def pose_relative(ref: Pose, ref_axis: tuple[float, float], actor) -> Pose:

@@ -50,7 +50,9 @@ def jitter(spec, rng: np.random.Generator, cfg, library):
                 out[name] = replace(actor, offset=actor.offset + scale * spec.ego_offset * offset)
             elif name in targets:
                 offset, yaw, model = draw(name, actor, True)
-                out[name] = replace(actor, offset=actor.offset + scale * spec.offset * offset,
+                # A person in a gap keeps its offset: replicates before the gap took one left them where they were.
+                side = 0.0 if actor.between else scale * spec.offset * offset
+                out[name] = replace(actor, offset=actor.offset + side,
                                     yaw=actor.yaw + scale * spec.yaw * yaw, model=model or actor.model)
         return out
 
