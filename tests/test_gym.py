@@ -270,3 +270,152 @@ def test_bench_records_for_the_falsification_benchmark(env):
                 "case.actors.child.offset"} <= set(r["params"])
         assert 1 <= r["full_frames"] <= 11 and r["cheap_frames"] == 0 and r["cpu_s"] > 0
         assert isinstance(r["failure"], bool) and r["state"] == "COMPLETE"
+
+
+# -- a car pulling out of its bay (case=pullout, garage_exp/PullOut-v0) ---------------------------------------------
+
+PULLOUT_LENGTH = 4.7727  # the case's car, tcamryblue
+
+
+def pullout_scene(*overrides):
+    """case=pullout built as a job builds it (scenario/build.py): (classified plan, scene, shot list)."""
+    from conftest import compose_cfg
+
+    from garage_exp.assets.vehicles import VehicleLibrary
+    from garage_exp.core.paths import PLANS_DIR
+    from garage_exp.plan import classify, load_plan
+    from garage_exp.scenario.assemble import build_scene
+
+    cfg = compose_cfg("case=pullout", *overrides)
+    classified = classify(load_plan(PLANS_DIR / f"{cfg.plan.name}.yaml"))
+    return (cfg, classified, *build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed)))
+
+
+def past_bay_line(site, bays, pose, length):
+    """How far the front bumper of an actor `length` long at `pose` stands past its bay's line into the lane, and
+    how far its centre is off the bay's axis."""
+    from garage_exp.scenario.place import site_bay
+
+    sb = site_bay(site, "bay", bays, "case.actors.car.bay")
+    u, b = sb.facing, sb.bay
+    along = (pose.x - b.x) * u[0] + (pose.y - b.y) * u[1]
+    across = -(pose.x - b.x) * u[1] + (pose.y - b.y) * u[0]
+    return along + length / 2 - b.depth / 2, across
+
+
+def test_a_negative_gap_pulls_a_car_out_of_its_bay():
+    """`gap` below 0: the front bumper that far past the bay line, straight out along the bay's axis, up to the
+    car's whole length; a parked gap places as it always did; past the limit, one line naming the key."""
+    require("vehicles")
+    from dataclasses import replace
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.core.schema import ActorConf
+    from garage_exp.scenario.place import pose_in_bay, site_bay
+    from garage_exp.scenario.sites import find_site
+
+    cfg, classified, _, _ = pullout_scene()
+    site = find_site("straight_run", classified, cfg.garage)
+    bays = {str(k): str(v) for k, v in cfg.case.bays.items()}
+    car = ActorConf(bay="bay", gap=0.3)
+    sb = site_bay(site, "bay", bays, "")
+    parked = pose_in_bay(site, car, PULLOUT_LENGTH, bays, "case.actors.car")
+    inset = sb.bay.depth / 2 - PULLOUT_LENGTH / 2 - 0.3  # the formula of every gap a bay held before
+    assert (parked.x, parked.y) == (sb.bay.x + sb.facing[0] * inset, sb.bay.y + sb.facing[1] * inset)
+    for gap in (0.3, 0.0, -0.5, -1.8, -PULLOUT_LENGTH):
+        pose = pose_in_bay(site, replace(car, gap=gap), PULLOUT_LENGTH, bays, "case.actors.car")
+        past, across = past_bay_line(site, bays, pose, PULLOUT_LENGTH)
+        assert past == pytest.approx(-gap) and across == pytest.approx(0.0) and pose.yaw == parked.yaw
+    with pytest.raises(GarageError) as refused:
+        pose_in_bay(site, replace(car, gap=-5.5), PULLOUT_LENGTH, bays, "case.actors.car")
+    message = str(refused.value)
+    assert "\n" not in message and message.startswith("case.actors.car.gap: gap -5.5 m does not fit"), message
+    assert "-4.77 m (pulled out into the lane by its whole length)" in message
+    # A job's error names the case file and the co-motion's key that drove the car past its limit.
+    with pytest.raises(GarageError) as refused:
+        pullout_scene("case.motion.along.car.end=-6", "case.motion.along.car.at=20", "case.motion.along.car.speed=2")
+    message = str(refused.value)
+    assert "\n" not in message, message
+    assert "pullout.yaml: case.motion.along.car.end: car's gap reaches -4.84 (frame 14): gap -4.84 m does not fit" \
+        in message, message
+
+
+def test_a_car_straight_out_of_its_bay_overlaps_only_what_is_in_the_lane():
+    """A car pulled out by its whole length stays between its neighbours' sides: not refused for them; the ego
+    driving past its tail still is (two cars overlapping)."""
+    require("vehicles")
+    from garage_exp.core.errors import GarageError
+
+    out = ["case.motion.along.car.start=-4.77", "case.motion.along.car.end=-4.77"]
+    _, _, _, setup = pullout_scene(*out, "case.motion.end=6")
+    assert {round(s.poses["car"].y, 6) for s in setup.shots} == {round(setup.shots[0].poses["car"].y, 6)}
+    with pytest.raises(GarageError, match=r"actors (ego and car|car and ego) overlap"):
+        pullout_scene(*out, "case.motion.end=3")
+
+
+def test_a_car_pulls_out_no_faster_than_a_car_may():
+    """A vehicle's gap moves at most 2 m/s, speeding up at most 2 m/s^2; faster is refused naming the key."""
+    from garage_exp.core.errors import GarageError
+    from garage_exp.core.schema import ActorConf
+    from garage_exp.gym.limits import advance, resolve_movers
+    from garage_exp.gym.schema import MoverConf
+
+    actors = {"ego": ActorConf(role="ego"), "car": ActorConf(bay="bay", gap=0.2)}
+    (m,) = resolve_movers([MoverConf("car", "gap", -1.8, 0.2)], actors, ("gap",))
+    assert (m.rate, m.accel, m.start) == (2.0, 2.0, 0.2)
+    value, velocity = m.start, 0.0
+    for _ in range(20):
+        before = velocity
+        value, velocity = advance(m, value, velocity, -1.0, 0.18)
+        assert abs(velocity) <= 2.0 and abs(velocity - before) <= 2.0 * 0.18 + 1e-9 or velocity == 0.0
+    assert value == -1.8
+    with pytest.raises(GarageError, match=r"gym.movers.0.rate: 2.5 m/s is outside 0-2 m/s, what a vehicle can do"):
+        resolve_movers([MoverConf("car", "gap", -1.8, 0.2, rate=2.5)], actors, ("gap",))
+    with pytest.raises(GarageError, match=r"gym.movers.0.accel"):
+        resolve_movers([MoverConf("car", "gap", -1.8, 0.2, accel=3.0)], actors, ("gap",))
+
+
+def test_pull_out_bounds_are_checked_before_an_episode(store):
+    """A mover's bound past the car's pull-out limit, or one that drives the car into the ego's path while the
+    ego passes: refused when the environment is made, one line naming the mover."""
+    require("vehicles", "models")
+    from garage_exp.core.errors import GarageError
+    from garage_exp.gym.env import PullOutEnv
+
+    base = [*FAST, f"tracking.uri={store[1]}"]
+    with pytest.raises(GarageError) as beyond:
+        PullOutEnv(overrides=[*base, "gym.movers=[{actor: car, key: gap, low: -6, high: 0.2}]"])
+    assert str(beyond.value).startswith("gym.movers.0.low: car.gap cannot be -6 (case.actors.car.gap: gap -6 m")
+    with pytest.raises(GarageError, match=r"^gym.movers.0: car moving its gap between -3 and 0.2 runs into ego"):
+        PullOutEnv(overrides=[*base, "gym.movers=[{actor: car, key: gap, low: -3, high: 0.2}]"])
+
+
+@pytest.mark.slow
+def test_pullout_env_checker_passes_and_the_car_pulls_out_within_its_limits(store):
+    """garage_exp/PullOut-v0 passes the checker; an episode of full throttle out (action -1) puts the car's
+    nose past the bay line at the first step, along the bay's axis, never faster than 2 m/s nor speeding up
+    faster than 2 m/s^2, and stops at its bound, 1.8 m into the lane (a bound is a hard stop, as a person's)."""
+    require("vulkan", "vehicles", "models")
+    import gymnasium
+    from gymnasium.utils.env_checker import check_env
+
+    from garage_exp.gym import PULLOUT_ID
+
+    assert PULLOUT_ID in gymnasium.registry
+    env = gymnasium.make(PULLOUT_ID, overrides=[*FAST, f"tracking.uri={store[1]}", "gym.stop_when_decided=false"])
+    env = env.unwrapped
+    assert env.live.target == "car" and env.action_space.shape == (1,)
+    assert [(m.name, m.low, m.high, m.start, m.rate, m.accel) for m in env.movers] == [
+        ("car.gap", -1.8, 0.2, 0.2, 2.0, 2.0)]
+    check_env(env, skip_render_check=True)
+    _, info = episode(env, [-1.0])
+    verdict = info["episode_verdict"]
+    gaps = [0.2, *verdict["values"]["car.gap"]]
+    assert verdict["renders"] == 11 and gaps[1] < 0 and gaps[-1] == pytest.approx(-1.8)
+    speeds = np.diff(gaps) / env.dt
+    assert np.all(speeds <= 1e-9) and np.all(np.abs(speeds) <= 2.0 + 1e-9)
+    inside = int(np.argmax(np.isclose(gaps[1:], -1.8)))  # the steps before the car reaches its bound (and stops)
+    assert inside >= 2 and np.all(np.abs(np.diff([0.0, *speeds[:inside]])) <= 2.0 * env.dt + 1e-9)
+    _, poses = env._poses(env.drive[-1])  # the episode's last frame: the car's nose 1.8 m into the lane
+    past, across = past_bay_line(env.live.site, env.live.bays, poses["car"], env.live.made["car"].extent[0])
+    assert past == pytest.approx(1.8) and across == pytest.approx(0.0)

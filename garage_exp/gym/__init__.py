@@ -2,8 +2,9 @@
 
 `garage_exp/StepOut-v0` (env.py) is a Gymnasium environment: the ego drives a case's path and an adversary moves
 a person within physical limits (limits.py) so that the detectors confirm it too late to stop (reward.py, on
-garage_exp/results/late.py). A stable-baselines3 PPO agent learns it (train.py); a trained adversary's episodes
-export as scenario YAMLs and a graded suite (export.py); `falsify` runs it for the falsification benchmark.
+garage_exp/results/late.py); `garage_exp/PullOut-v0` times a car pulling out of its bay instead (case=pullout).
+A stable-baselines3 PPO agent learns it (train.py); a trained adversary's episodes export as scenario YAMLs and a
+graded suite (export.py); `falsify` runs it for the falsification benchmark.
 """
 
 from __future__ import annotations
@@ -11,9 +12,12 @@ from __future__ import annotations
 import gymnasium
 
 ENV_ID = "garage_exp/StepOut-v0"
+PULLOUT_ID = "garage_exp/PullOut-v0"  # a car pulling out of its bay (case=pullout, the car's gap moved)
 
 if ENV_ID not in gymnasium.registry:
     gymnasium.register(id=ENV_ID, entry_point="garage_exp.gym.env:StepOutEnv")
+if PULLOUT_ID not in gymnasium.registry:
+    gymnasium.register(id=PULLOUT_ID, entry_point="garage_exp.gym.env:PullOutEnv")
 
 
 def falsify(cfg, seed: int, episodes: int) -> list[dict]:
@@ -30,4 +34,4 @@ def bench_records(overrides: list[str], definition: str, seed: int, episodes: in
     return run(overrides, definition, seed, episodes)
 
 
-__all__ = ["ENV_ID", "bench_records", "falsify"]
+__all__ = ["ENV_ID", "PULLOUT_ID", "bench_records", "falsify"]

@@ -62,7 +62,11 @@ def remove_untouched(out: Path) -> None:
         pass
 
 
-def learning_curve(rows: list[dict], before: float, after: float, path: Path) -> Path:
+TITLES = {"stepout": "PPO adversary: a child stepping out between parked cars",
+          "pullout": "PPO adversary: a car pulling out of its bay"}
+
+
+def learning_curve(rows: list[dict], before: float, after: float, path: Path, case: str = "stepout") -> Path:
     """Each training episode's return and the late rate over a moving window, with the late rate of the
     untrained and the trained policy's evaluation episodes."""
     import matplotlib
@@ -86,7 +90,7 @@ def learning_curve(rows: list[dict], before: float, after: float, path: Path) ->
     ax.set_ylabel("return / late rate")
     ax.set_ylim(-0.05, max(1.05, float(ret.max()) + 0.1) if len(ret) else 1.05)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, fontsize=8, frameon=False)
-    ax.set_title("PPO adversary: a child stepping out between parked cars")
+    ax.set_title(TITLES.get(case, f"PPO adversary on case {case}"))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -121,7 +125,7 @@ def run_train(cfg: DictConfig, env, out: Path) -> dict:
         files = export.write_suite(env.job, result["after_full"], suite_root, env.movers,
                                    float(cfg.ego.speed) / 3.6, int(g.per_band),
                                    slides=env.live.slides_between)
-        figure = learning_curve(result["train"], before, after, out / "learning_curve.png")
+        figure = learning_curve(result["train"], before, after, out / "learning_curve.png", str(cfg.case.name))
         for path in (out / "episodes.csv", out / "policy.zip", figure):
             run.log_artifact(path)
         for path in files:

@@ -1,5 +1,7 @@
 """The Gymnasium environment `garage_exp/StepOut-v0`: the ego drives the case's path at `ego.speed` while an
 adversary moves a person (how fast, when, where in the gap) so that the detectors confirm it too late to stop.
+`garage_exp/PullOut-v0` (PullOutEnv) is the same on case=pullout with a car's `gap` moved: when and how fast it
+pulls out of its bay towards the ego's path. Any actor's placement value can be a mover (`gym.movers`).
 
 Each step is one frame: time advances by the ego's step over its speed, the adversary's action moves its values
 within physical limits (limits.py), the ego's front camera renders the scene and the detectors score the target,
@@ -87,7 +89,8 @@ class StepOutEnv(gymnasium.Env):
         case = job.case
         if str(case.motion.actor) != EGO:
             raise GarageError(f"the environment drives the ego by the case's motion; case {case.name!r} moves "
-                              f"{case.motion.actor or 'nothing'!r} (use case=stepout)", "case.motion.actor")
+                              f"{case.motion.actor or 'nothing'!r} (use case=stepout or case=pullout)",
+                              "case.motion.actor")
         prepared = preflight(job, check_space=False)
         self.scene, self.setup = prepared.scene, prepared.setup
         self.live = LiveScenario(job, prepared.classified, self.setup, int(self.cfg.gym.variant))
@@ -100,6 +103,7 @@ class StepOutEnv(gymnasium.Env):
         self.dt = self.step_m / (float(job.ego.speed) / 3.6)
         self.drive_key = str(case.motion.key)
         self.movers = limits.resolve_movers(self.cfg.gym.movers, self.live.actors, MOVABLE)
+        self._check_reach()
         self.critical = reward.critical(job.ego)
         self.objective = str(self.cfg.gym.objective)
         if self.objective not in reward.OBJECTIVES:
@@ -194,13 +198,47 @@ class StepOutEnv(gymnasium.Env):
         self.last = row
         return self._observation(), float(r), bool(terminated), False, info
 
-    def _poses(self, drive: float):
+    def _poses(self, drive: float, moved: dict[str, float] | None = None):
+        """(the ego's pose, the others') with the ego at `drive` and the movers at `moved` (default: this step's)."""
         from garage_exp.scenario.build import EGO
 
+        moved = self.values if moved is None else moved
         values: dict[str, dict[str, float]] = {EGO: {self.drive_key: drive}}
         for m in self.movers:
-            values.setdefault(m.actor, {})[m.key] = self.values[m.name]
+            values.setdefault(m.actor, {})[m.key] = moved[m.name]
         return self.live.poses(values)
+
+    def _check_reach(self) -> None:
+        """Each mover's bounds, before any episode: its actor can stand at both (a car's `gap` within its pull-out
+        limit, scenario/place.py), else GarageError naming `gym.movers.K.low` or `.high`. A moved vehicle, driving
+        straight from one bound to the other (the hull of its two footprints), must not run into another actor in
+        any frame of the drive: two cars overlapping is an error as in a job (a person squeezing between two cars'
+        noses is not checked: their footprints are boxes)."""
+        from garage_exp.scenario.build import EGO
+        from garage_exp.scenario.place import footprint, hull, overlap
+
+        start = {m.name: m.start for m in self.movers}
+        made = self.live.made
+        for k, m in enumerate(self.movers):
+            for bound in ("low", "high"):
+                try:
+                    self._poses(self.drive[0], {**start, m.name: getattr(m, bound)})
+                except GarageError as exc:
+                    raise GarageError(f"{m.name} cannot be {getattr(m, bound):g} ({exc})",
+                                      f"gym.movers.{k}.{bound}") from None
+            if limits.physical(self.live.actors[m.actor]) != "vehicle" or m.key not in limits.METRES:
+                continue
+            for drive in self.drive:
+                ends = [self._poses(drive, {**start, m.name: v}) for v in (m.low, m.high)]
+                swept = hull(np.vstack([footprint(others[m.actor], made[m.actor].extent) for _, others in ends]))
+                for ego, others in ends:
+                    for name, pose in {EGO: ego, **others}.items():
+                        if name == m.actor or pose is None:
+                            continue
+                        if overlap(swept, footprint(pose, made[name].extent)):
+                            raise GarageError(
+                                f"{m.actor} moving its {m.key} between {m.low:g} and {m.high:g} runs into {name} "
+                                f"(the ego's {self.drive_key} {drive:g}); narrow the bounds", f"gym.movers.{k}")
 
     def _range(self, ego_pose, poses) -> float:
         """Camera to the target's centre (m), from the poses alone (ground truth's `distance`, also unrendered)."""
@@ -275,3 +313,19 @@ class StepOutEnv(gymnasium.Env):
     def close(self) -> None:
         # The renderer and the detector child belong to the process (core.state.STATE): later envs and jobs reuse them.
         self.renderer = self.detector = None
+
+
+# `garage_exp/PullOut-v0`: case=pullout with the car's `gap` as the adversary's one mover, from parked (0.2 m behind
+# the bay line, the case's own) to 1.8 m into the lane (short of the ego's path on every shipped plan), at a car's
+# pull-out limits (limits.py: 2 m/s, 2 m/s^2). The same from the command line:
+#   python -m garage_exp.gym case=pullout 'gym.movers=[{actor: car, key: gap, low: -1.8, high: 0.2}]'
+PULLOUT = ("case=pullout", "gym.movers=[{actor: car, key: gap, low: -1.8, high: 0.2}]")
+
+
+class PullOutEnv(StepOutEnv):
+    """The adversary times a car pulling out of its bay nose first (case=pullout): each step's action is the
+    car's `gap` velocity (-1: out at the top speed, towards the ego's path; +1: back into the bay). `overrides` come
+    after the preset (PULLOUT); a `cfg` is taken as it is (compose(PULLOUT + ...) makes one)."""
+
+    def __init__(self, cfg: DictConfig | None = None, overrides: list[str] | tuple[str, ...] = ()):
+        super().__init__(cfg if cfg is not None else compose([*PULLOUT, *overrides]))

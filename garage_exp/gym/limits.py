@@ -3,8 +3,11 @@ the actor could physically do. The limits are the action space's bounds, so no a
 20 km/h: an action is a velocity in [-1, 1] x the top speed, reached no faster than the top acceleration.
 
 Top speeds of people (m/s) are running speeds: a young child about 3 m/s, an adult about 3.5 m/s in a
-garage's few metres (sprinters' 10 m/s needs a run-up no gap between parked cars gives). A car pulling out of a
-bay creeps at walking pace. The accelerations are a running start's.
+garage's few metres (sprinters' 10 m/s needs a run-up no gap between parked cars gives). The accelerations are a
+running start's. A vehicle's row is a car pulling out of its bay (`gap`, garage_exp/PullOut-v0): at most 2 m/s
+(7 km/h, a brisk walk: a driver leaving a bay in a garage creeps), reached no faster than 2 m/s^2 (a moderate
+start from standstill, not a launch); a car drives no further out than its whole length
+(scenario/place.py's pull-out limit, checked with the mover's bounds when the environment is made).
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from dataclasses import dataclass
 
 from garage_exp.core.errors import GarageError, check_range
 
-TOP_SPEED = {"child": 3.0, "adult": 3.5, "vehicle": 2.0}  # m/s
+TOP_SPEED = {"child": 3.0, "adult": 3.5, "vehicle": 2.0}  # m/s (vehicle: pulling out of a bay)
 TOP_ACCEL = {"child": 3.0, "adult": 3.0, "vehicle": 2.0}  # m/s^2
 METRES = ("distance", "offset", "out", "gap")  # keys in metres: their speed is the actor's own
 DEGREES_PER_S = 180.0  # `yaw`: a person turning round in a second

@@ -243,7 +243,10 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
                 placed[mover] = replace(actors[mover], **{case.motion.key: value})
             for name, along, t_at in alongs:
                 placed[name] = replace(placed[name], **{along.key: along_value(along, time, t_at, frame)})
-            poses = resolve(placed, made, site, bays)
+            try:
+                poses = resolve(placed, made, site, bays)
+            except GarageError as exc:
+                raise along_error(exc, alongs, placed, made, frame) from None
             check_overlaps(poses, made, variant.label, value)
             shot_poses = {n: poses.get(n) for n in made if n != EGO}
             shots.append(Shot(len(shots), variant.label, value, poses[EGO], shot_poses, variant.target,
@@ -257,6 +260,20 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
     used = sorted({b for m in made.values() for b in m.bays} | taken)
     return CaseSetup([m.entity for m in made.values()], shots, occluder=site.pillar, used_bays=used,
                      position_label=case.position_label or "position (m)")
+
+
+def along_error(exc: GarageError, alongs: list, placed: dict, made: dict, frame: int) -> GarageError:
+    """A placement refused for a value an along-moving actor reached (a car pulled out past its whole length):
+    named by the co-motion's key that asked for it (its `start` when the first frame fails, else its `end`, or
+    its `values`); any other refusal as it was."""
+    for name, along, _ in alongs:
+        if exc.where == f"{made[name].source}.{along.key}":
+            value = float(getattr(placed[name], along.key))
+            which = "values" if along.get("values") else "start" if frame == 0 else "end"
+            reason = str(exc)[len(exc.where) + 2:]
+            return GarageError(f"{name}'s {along.key} reaches {value:g} (frame {frame}): {reason}",
+                               f"case.motion.along.{name}.{which}")
+    return exc
 
 
 def _longest(made: dict, source: str) -> float:

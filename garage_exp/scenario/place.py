@@ -107,19 +107,27 @@ def pose_on_path(site: Site, actor, length: float, bays: dict, where: str) -> Po
 
 def pose_in_bay(site: Site, actor, length: float, bays: dict, where: str) -> Pose:
     """In a bay, nose to the lane, centred, or with the front bumper `gap` metres behind the bay line; `offset`
-    metres to the left of its heading."""
+    metres to the left of its heading. A negative `gap` is a car pulling out: its nose that far past the bay line
+    into the lane, straight out along the bay's axis, at most its whole length (its rear bumper on the line)."""
     sb = actor.bay if isinstance(actor.bay, SiteBay) else site_bay(site, actor.bay, bays, where + ".bay")
     bay, u = sb.bay, sb.facing
     inset = 0.0
     if actor.gap is not None:
         gap = float(actor.gap)
-        if not 0.0 <= gap <= bay.depth - length:
-            raise GarageError(f"gap {gap} m does not fit a {length:.1f} m actor in a {bay.depth:.1f} m bay",
-                              where + ".gap")
+        lo, hi = pull_out_limit(length), bay.depth - length
+        if not (math.isfinite(gap) and lo - 1e-9 <= gap <= hi + 1e-9):
+            raise GarageError(f"gap {gap:g} m does not fit a {length:.2f} m actor in a {bay.depth:.2f} m bay: a gap "
+                              f"is from {lo:.2f} m (pulled out into the lane by its whole length) to {hi:.2f} m (at "
+                              "the back of the bay)", where + ".gap")
         inset = bay.depth / 2 - length / 2 - gap
     side = float(actor.offset)
     return Pose(bay.x + u[0] * inset - u[1] * side, bay.y + u[1] * inset + u[0] * side, 0.0,
                 (bay.yaw + float(actor.yaw)) % 360.0)
+
+
+def pull_out_limit(length: float) -> float:
+    """The most negative `gap` of an actor `length` long: pulled out of its bay by its whole length."""
+    return -float(length)
 
 
 def pose_between(site: Site, actor, bays: dict, where: str) -> Pose:
@@ -150,6 +158,29 @@ def footprint(pose: Pose, extent: tuple[float, float, float]) -> np.ndarray:
     hl, hw = extent[0] / 2, extent[1] / 2
     local = np.array([[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]])
     return local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
+
+
+def hull(points: np.ndarray) -> np.ndarray:
+    """The convex hull of points (x, y), counter-clockwise: the ground an actor sweeps moving straight from one
+    footprint to another (the hull of the two)."""
+    pts = sorted({(round(float(x), 9), round(float(y), 9)) for x, y in points})
+    if len(pts) < 3:
+        return np.array(pts, dtype=float)
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list = []
+    upper: list = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1], dtype=float)
 
 
 def overlap(a: np.ndarray, b: np.ndarray, tolerance: float = 0.02) -> bool:
