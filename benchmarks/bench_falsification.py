@@ -203,8 +203,11 @@ def per_arm(arm: dict, radius: float) -> dict:
 
 
 def fmt(ci: tuple[float, float, float], digits: int = 1) -> str:
+    """A mean or ratio with its interval; a count's rate is never below 0 (a t interval over few seeds can be)."""
     m, lo, hi = ci
-    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    if not math.isfinite(m):
+        return "- (random found none)"
+    return f"{m:.{digits}f} [{max(lo, 0.0):.{digits}f}, {hi:.{digits}f}]"
 
 
 def tables(arms: list[dict], radius: float) -> list[str]:
@@ -226,7 +229,7 @@ def tables(arms: list[dict], radius: float) -> list[str]:
             for method, rows in by.items():
                 cpu = [r["per_cpu_hour"] for r in rows]
                 ratio = ratio_ci(cpu, base) if base and method != "random" else None
-                if ratio and (best is None or ratio[0] > best[1][0]):
+                if ratio and math.isfinite(ratio[0]) and (best is None or ratio[0] > best[1][0]):
                     best = (method, ratio)
                 trials = sum(r["trials"] for r in rows)
                 lines.append(f"| {method} | {len(rows)} | {trials} | {sum(r['screened'] for r in rows)} / "
