@@ -78,7 +78,7 @@ def search(argv: list[str]) -> None:
     try:
         app.cli(["-m", "hydra/sweeper=search", *argv, "hydra/job_logging=disabled", "hydra/hydra_logging=disabled"])
     except SystemExit as exc:
-        if exc.code:
+        if exc.code not in (0, 1, None):  # 1: some trials failed; the study holds them (a cost, no failure)
             raise
 
 
