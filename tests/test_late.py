@@ -88,7 +88,10 @@ def test_a_target_that_peeks_out_for_one_frame_is_untestable():
     # test the detectors passed
     hits = [False, True, True] + [False] * 8
     v = late.judge(*approach(hits, [False, False, True] + [False] * 8), EGO)
-    assert v.testable and not v.late and v.detection_distance == 10.0
+    assert v.testable and not v.late and v.detection_distance == 10.0 and v.lateness == 0.0
+    # confirmed in time and never fairly visible before the critical distance: in time, lateness 0 (not NaN)
+    v = late.judge(*approach(hits, [False] * 11), EGO)
+    assert v.testable and not v.late and v.lateness == 0.0
 
 
 def test_a_single_hit_is_not_a_confirmation():

@@ -116,7 +116,7 @@ def judge(distance: Sequence[float], time: Sequence[float], hit: Sequence[bool],
     # A confirmation farther than the first fair frame (a partly hidden target found early) counts as in time.
     if i is None or det <= critical:
         lateness = 1.0
-    elif first_fair <= critical + 1e-9:
+    elif not before.any() or first_fair <= critical + 1e-9:  # confirmed in time, before any fair frame
         lateness = 0.0
     else:
         lateness = float(np.clip((first_fair - det) / (first_fair - critical), 0.0, 1.0))
