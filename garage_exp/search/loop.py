@@ -55,10 +55,11 @@ def outcome(result, objective: str) -> Outcome:
     if "late_testable" in result:
         attrs.update({k: _num(result.get(k)) for k in LATE_ATTRS})
     if objective == "late":  # untestable: the target was never fairly visible before the critical distance
-        if not result.get("late_testable"):
+        lateness = _num(result.get("lateness"))
+        if not result.get("late_testable") or lateness is None:
             attrs["infeasible"] = True
             return Outcome(TrialState.PRUNED, None, attrs)
-        return Outcome(TrialState.COMPLETE, [float(result["lateness"])], attrs)
+        return Outcome(TrialState.COMPLETE, [lateness], attrs)
     if attrs["fair_frames"] == 0 or difficulty is None or math.isnan(difficulty):
         attrs["infeasible"] = True
         return Outcome(TrialState.PRUNED, None, attrs)
