@@ -185,7 +185,9 @@ def ratio_ci(a: list[float], b: list[float], draws: int = 5000, seed: int = 0) -
     rb = b[rng.integers(0, len(b), (draws, len(b)))].mean(1)
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.where(rb > 0, ra / np.where(rb > 0, rb, 1), np.inf)
-    return float(point), float(np.percentile(r, 2.5)), float(np.percentile(r, 97.5))
+    # no interpolation: a resample in which random found nothing is an infinite ratio, not a NaN
+    return (float(point), float(np.percentile(r, 2.5, method="inverted_cdf")),
+            float(np.percentile(r, 97.5, method="inverted_cdf")))
 
 
 def per_arm(arm: dict, radius: float) -> dict:
