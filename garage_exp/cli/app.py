@@ -18,6 +18,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.overrides import quote_numeric_choices  # noqa: F401 - app.quote_numeric_choices
 from garage_exp.cli import callbacks
 from garage_exp.core import schema
 from garage_exp.core.exits import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
@@ -32,19 +33,6 @@ log = logging.getLogger("garage_exp")
 if not OmegaConf.has_resolver("garage_root"):
     OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
 schema.register()
-
-
-def quote_numeric_choices(argv: list[str]) -> list[str]:
-    """Hydra parses `case=1` as an int and rejects it as a group choice; the research names its cases
-    1, 2, 3, so quote bare integer choices of config groups (`case=1,2` -> `case='1','2'`)."""
-    groups = {p.name for p in (PROJECT_ROOT / "conf").iterdir() if p.is_dir()}
-    out = []
-    for arg in argv:
-        key, eq, value = arg.partition("=")
-        if eq and key.lstrip("+~") in groups and any(v.strip().isdigit() for v in value.split(",")):
-            arg = key + "=" + ",".join(f"'{v.strip()}'" if v.strip().isdigit() else v for v in value.split(","))
-        out.append(arg)
-    return out
 
 
 @hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="config")

@@ -207,7 +207,7 @@ def cli(argv: list[str] | None = None) -> None:
     1 a crash (traceback)."""
     import signal
 
-    from garage_exp.gym.overrides import quote_numeric_choices
+    from garage_exp.core.overrides import quote_numeric_choices
     from garage_exp.core.exits import on_sigterm
     from garage_exp.core.state import STATE
 

@@ -49,7 +49,7 @@ def compose(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
-    from garage_exp.gym.overrides import quote_numeric_choices
+    from garage_exp.core.overrides import quote_numeric_choices
     from garage_exp.core.paths import PROJECT_ROOT
     from garage_exp.gym import schema
 

@@ -1,4 +1,4 @@
-"""The command line's overrides as `python -m garage_exp` reads them (gym sits below cli, so it has its own)."""
+"""The command line's overrides as the entry points read them (`python -m garage_exp`, `garage_exp.gym`)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from garage_exp.core.paths import PROJECT_ROOT
 
 
 def quote_numeric_choices(argv: list[str]) -> list[str]:
-    """Hydra parses `case=1` as an int and rejects it as a group choice: quote bare integer choices of config
-    groups (`case=1` -> `case='1'`), as garage_exp.cli.app does."""
+    """Hydra parses `case=1` as an int and rejects it as a group choice; the research names its cases
+    1, 2, 3, so quote bare integer choices of config groups (`case=1,2` -> `case='1','2'`)."""
     groups = {p.name for p in (PROJECT_ROOT / "conf").iterdir() if p.is_dir()}
     out = []
     for arg in argv:
