@@ -17,6 +17,7 @@ setup: system python data
 system:
 	@bash scripts/setup_vulkan.sh
 	@bash scripts/setup_browser.sh
+	@bash scripts/setup_postgres.sh
 
 python: $(STAMP)
 

@@ -28,7 +28,7 @@ prepare_offline()
 # device check then fails the suite instead of silently skipping it. CI is read before prepare_offline() above
 # may set it for openvino's sake.
 NEEDS = {"render": ("vulkan",), "detect": ("models",), "slow": ("vulkan", "vehicles", "models"),
-         "browser": ("browser",)}
+         "browser": ("browser",), "cluster": ("cluster",)}
 CHROMIUM = ("chromium", "chromium-browser")  # Debian's package (scripts/setup_browser.sh), Ubuntu's name
 _have: dict[str, str | None] = {}
 
@@ -46,6 +46,10 @@ def missing(capability: str) -> str | None:
                 problem = device_problem()
             elif capability == "browser":
                 problem = browser_problem()
+            elif capability == "cluster":
+                from cluster import cluster_problem
+
+                problem = cluster_problem()
             elif capability == "vehicles":
                 from garage_exp.assets.locate import vehicles_dir
 
@@ -80,7 +84,7 @@ def browser_problem() -> str | None:
 
 
 def require(*capabilities: str) -> None:
-    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models", "browser"; under CI=true or
+    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models", "browser", "cluster"; under CI=true or
     `make test` (STRICT_CI) fail instead, whatever the test's markers."""
     for capability in capabilities:
         problem = missing(capability)

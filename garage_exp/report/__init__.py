@@ -11,6 +11,7 @@ Runs at the end of a multirun (Hydra callback) and, for any past sweep, from the
 from __future__ import annotations
 
 import argparse
+import re
 import tempfile
 from pathlib import Path
 
@@ -129,7 +130,8 @@ def write_report(mlc, parent_run_id: str, runs: pd.DataFrame, out: Path) -> None
     text += "\n## Figures\n\n" + "\n".join(f"![{p}]({p})" for p in figures) + "\n"
     (out / "report.md").write_text(text)
     for _, row in effects.iterrows():
-        key = f"effect.{row.factor}.{row.level}".replace("/", "_")
+        # MLflow takes letters, digits and _-. :/ in a name: a list level ([black]) becomes _black_
+        key = re.sub(r"[^\w\-. :]", "_", f"effect.{row.factor}.{row.level}")
         tracking.retry(lambda k=key, v=row.confidence_mean: mlc.log_metric(parent_run_id, k, float(v)))
     tracking.retry(lambda: mlc.log_metric(parent_run_id, "runs_failed", float((runs.status != "FINISHED").sum())))
     tracking.retry(lambda: mlc.log_metric(parent_run_id, "runs_skipped", float(runs.skipped.sum())))

@@ -6,8 +6,8 @@ lean job (`search.trial` set): no plan map, glTF or plot (the study's parent run
 hardest fairly visible frame.
 
 Several workers (processes, machines) share a study through its storage: each asks for trials until the study
-holds `search.trials` of them. On a local sqlite store a file lock makes that count exact; on a shared
-database (PostgreSQL) two workers finishing together may add one trial more.
+holds `search.trials` of them. A lock shared by the workers makes that count exact (a file lock beside a sqlite
+store, an advisory lock on PostgreSQL: garage_exp.search.storage).
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import os
+import socket
 import threading
 from dataclasses import dataclass
 
@@ -26,6 +28,7 @@ from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 
 log = logging.getLogger("garage_exp")
+WORKER = f"{socket.gethostname()}:{os.getpid()}"
 LATE_ATTRS = ("late", "lateness", "detection_distance", "ttc_at_detection", "fair_difficulty")
 COUNTED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL, TrialState.RUNNING)
 
@@ -123,6 +126,7 @@ class SearchLoop:
                 break
             overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
             trial.set_user_attr("overrides", overrides)
+            trial.set_user_attr("worker", WORKER)  # which process (which node) ran it: a cluster's trials spread
             if self.screened(trial, overrides):
                 continue
             with heartbeat(self.study, trial):

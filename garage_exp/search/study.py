@@ -13,6 +13,7 @@ import optuna
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
+from garage_exp.search import storage
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid")
 # late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
@@ -37,17 +38,9 @@ def default_storage() -> str:
 
 
 def storage_lock(url: str):
-    """A file lock beside a sqlite store: creating its tables, and counting a study's trials then asking for
-    one, are each one step for the workers of one machine (two first workers would both create the tables)."""
-    import contextlib
-    from pathlib import Path
-    from urllib.parse import urlparse
-
-    if not url.startswith("sqlite:///"):
-        return contextlib.nullcontext()
-    from filelock import FileLock
-
-    return FileLock(str(Path(urlparse(url).path)) + ".lock")
+    """Counting a study's trials then asking for one, or creating its tables, as one step for all workers
+    (garage_exp.search.storage)."""
+    return storage.storage_lock(url)
 
 
 def storage_url(search) -> str:
@@ -180,13 +173,14 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
         Path(urlparse(url).path).parent.mkdir(parents=True, exist_ok=True)
     directions = ["maximize"] * len(OBJECTIVES[search.objective])
     with storage_lock(url):
-        storage = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S,
-                                             engine_kwargs={"connect_args": {"timeout": 60}}
-                                             if url.startswith("sqlite") else {})
         if url.startswith("sqlite"):
-            _write_ahead(storage)
+            store = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S,
+                                               engine_kwargs={"connect_args": {"timeout": 60}})
+            _write_ahead(store)
+        else:  # a database server: patient while it restarts
+            store = storage.open_storage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S)
         try:
-            study = optuna.create_study(storage=storage, study_name=name, directions=directions,
+            study = optuna.create_study(storage=store, study_name=name, directions=directions,
                                         sampler=sampler(search, seed, params), load_if_exists=True)
         except ValueError as exc:
             raise GarageError(f"study {name!r} in {url}: {exc}", "search.study") from None

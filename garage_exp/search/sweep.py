@@ -138,6 +138,15 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     return {"study": study, "name": name, "ran": ran, "space": space}
 
 
+def collect(config: DictConfig, loader, ran: list[int]) -> dict:
+    """What `run` returns, for a study that other workers (Ray tasks, garage_exp.cluster) filled."""
+    search = config.search
+    space = check(config, loader)
+    name = study_name_of(config)
+    study = study_mod.open_study(search, name, seed_of(search, config), space.params)
+    return {"study": study, "name": name, "ran": ran, "space": space}
+
+
 def _suite_full(search, stop):
     """A suite's search stops early once every band holds its K scenarios."""
     from garage_exp.search.suite import bands_full
@@ -194,7 +203,7 @@ def summary(result: dict, out_dir: Path) -> str:
     counts = ", ".join(f"{n} {s.lower().replace('pruned', 'infeasible').replace('_', ' ')}"
                        for s, n in sorted(states.items()))
     lines = [f"garage_exp: study {result['name']!r}: {sum(states.values())} trials ({counts}); "
-             f"this worker ran {len(result['ran'])}"]
+             f"{result.get('who', 'this worker')} ran {len(result['ran'])}"]
     best = ranked(study)
     if best:
         top = best[0]

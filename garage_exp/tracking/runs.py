@@ -49,10 +49,15 @@ def client(uri: str | None = None):
 TRANSIENT = ("database is locked", "database table is locked")
 
 
-# A tracking server that does not answer: refused or reset connections, timeouts, a proxy's 502-504.
+# A tracking server that does not answer: refused or reset connections, timeouts, a proxy's 502-504; or a
+# server whose PostgreSQL store restarts (it answers 503, or 500 with the driver's text, until the database is
+# back).
 UNREACHABLE = ("max retries exceeded", "connection refused", "connection aborted", "connection reset",
                "read timed out", "connecttimeout", "remotedisconnected", "failed to establish a new connection",
-               "error code 429", "error code 502", "error code 503", "error code 504")
+               "error code 429", "error code 502", "error code 503", "error code 504",
+               "server closed the connection unexpectedly", "terminating connection due to administrator command",
+               "the database system is shutting down", "the database system is starting up",
+               "the database system is in recovery mode", "could not connect to server", "connection to server at")
 
 
 class TrackingAway(Exception):

@@ -53,7 +53,10 @@ class SearchSweeper(Sweeper):
         OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
         loader = self.hydra_context.config_loader
         launch = self.launch_function()
-        result = sweep.run(self.config, loader, launch)
+        if hasattr(self.launcher, "search"):  # hydra/launcher=ray: its workers run the trial loops
+            result = self.launcher.search()
+        else:
+            result = sweep.run(self.config, loader, launch)
         paths = sweep.finish(self.config, result, sweep_dir / "search", loader, launch)
         parent = tracking.read_parent(sweep_dir)
         if parent:

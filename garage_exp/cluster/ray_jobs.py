@@ -1,0 +1,170 @@
+"""A sweep's jobs as Ray tasks (`hydra/launcher=ray`; the Hydra shell is hydra_plugins/garage_ray).
+
+Each job is composed here, in the driver, and run in a Ray worker by Hydra's own `run_job`, so its dir, its
+HydraConfig, its logging and its return value are what the local launcher gives. Ray keeps a worker process
+for the next task of the same resources, and the renderer and detector worker a job starts stay in that process
+(garage_exp.core.state), so a node's later jobs skip the shader compilation and the model loading.
+
+A job whose node or worker process dies (not the job's own error: that is its return value, as locally) is
+submitted again, on whatever node is left, as a resumed job (`resume=true`): a run it finished before it died is
+counted, not rerun, and a run it left RUNNING is superseded (soft-deleted), so nothing counts twice. Once
+`retries` are spent the job is left to `resume=true`: its run is closed as FAILED at the sweep's end.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+log = logging.getLogger("garage_exp")
+GB = 1024**3
+
+
+@dataclass
+class RaySettings:
+    """`hydra.launcher.*` (conf/hydra/launcher/ray.yaml)."""
+
+    address: str | None = "auto"  # auto: the cluster this machine joined (`ray start`); null: a local Ray
+    num_cpus: float = 1.0  # per job (per search worker)
+    num_gpus: float = 0.0
+    memory_gb: float | None = None  # Ray's scheduling reservation, not a limit
+    retries: int = 2  # a job whose node or worker died is run again this many times
+    workers: int = 2  # a search's trial loops at once, each a Ray task sharing the study's storage
+    env: dict[str, str] = field(default_factory=dict)  # environment of the workers (Ray's runtime_env)
+
+    def options(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"num_cpus": self.num_cpus, "num_gpus": self.num_gpus, "max_retries": 0}
+        if self.memory_gb:
+            out["memory"] = int(self.memory_gb * GB)
+        return out
+
+
+def settings(launcher_cfg) -> RaySettings:
+    values = OmegaConf.to_container(launcher_cfg, resolve=True) if isinstance(launcher_cfg, DictConfig) \
+        else dict(launcher_cfg)
+    values = {k: v for k, v in values.items() if not k.startswith("_")}
+    return RaySettings(**values)
+
+
+def connect(conf: RaySettings) -> None:
+    """Join the cluster (or start a local Ray) once per process; the workers inherit `env` and the tracking
+    URI the driver uses (a job's run must land where its sweep's parent is)."""
+    import ray
+
+    if ray.is_initialized():
+        return
+    env = {str(k): str(v) for k, v in conf.env.items()}
+    for name in ("MLFLOW_TRACKING_URI", "YOLO_OFFLINE", "GARAGE_EXP_TRACKING_WAIT", "GARAGE_EXP_STORAGE_WAIT"):
+        if os.environ.get(name) and name not in env:
+            env[name] = os.environ[name]
+    ray.init(address=conf.address, runtime_env={"env_vars": env} if env else None, log_to_driver=True,
+             logging_level=logging.WARNING, include_dashboard=False if conf.address is None else None)
+
+
+def lost(exc: BaseException) -> bool:
+    """The task's node or worker process died (the job did not fail by itself)."""
+    import ray.exceptions as rx
+
+    if isinstance(exc, rx.RayTaskError):
+        return False
+    return isinstance(exc, (rx.WorkerCrashedError, rx.NodeDiedError, rx.LocalRayletDiedError, rx.ObjectLostError,
+                            rx.OwnerDiedError, rx.RaySystemError, rx.ActorDiedError, rx.TaskUnschedulableError))
+
+
+def _prepare_worker(singleton_state, cwd: str) -> None:
+    from hydra.core.singleton import Singleton
+    from hydra.core.utils import setup_globals
+
+    from garage_exp.core.state import STATE
+
+    setup_globals()
+    Singleton.set_state(singleton_state)
+    STATE.begin()  # this job's counts and outages; the process's warm renderer and detector stay
+    if os.path.isdir(cwd):
+        os.chdir(cwd)
+
+
+def run_one(hydra_context, task_function, cfg: DictConfig, singleton_state, cwd: str):
+    """In a Ray worker: one job, as Hydra's launchers run it."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.core.utils import run_job
+
+    _prepare_worker(singleton_state, cwd)
+    HydraConfig.instance().set_config(cfg)
+    return run_job(hydra_context=hydra_context, task_function=task_function, config=cfg,
+                   job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
+
+
+def job_config(hydra_context, config: DictConfig, overrides: list[str], idx: int) -> DictConfig:
+    cfg = hydra_context.config_loader.load_sweep_config(config, list(overrides))
+    with open_dict(cfg):
+        cfg.hydra.job.id = f"ray_{idx}"
+        cfg.hydra.job.num = idx
+        cfg.hydra.sweep.dir = str(config.hydra.sweep.dir)  # ${now:} resolved once, by the driver
+    return cfg
+
+
+def as_resumed(cfg: DictConfig) -> DictConfig:
+    cfg = copy.deepcopy(cfg)
+    with open_dict(cfg):
+        cfg.resume = True
+    return cfg
+
+
+def lost_return(cfg: DictConfig, exc: BaseException):
+    """What a job lost for good returns: the sweep counts its run (closed FAILED at the end) as failed."""
+    from hydra.core.utils import JobReturn, JobStatus
+
+    error = f"its Ray node or worker died ({type(exc).__name__})"
+    value = {"error": error} if OmegaConf.select(cfg, "search.trial") is not None else math.nan
+    return JobReturn(overrides=list(cfg.hydra.overrides.task), cfg=cfg, status=JobStatus.COMPLETED,
+                     _return_value=value, working_dir=os.getcwd(), task_name=cfg.hydra.job.name)
+
+
+def launch(conf: RaySettings, hydra_context, task_function, config: DictConfig, job_overrides, initial_job_idx: int):
+    """Run the batch on the cluster; the JobReturns in the batch's order."""
+    import ray
+    from hydra.core.singleton import Singleton
+    from hydra.core.utils import configure_log, setup_globals
+
+    setup_globals()
+    configure_log(config.hydra.hydra_logging, config.hydra.verbose)
+    Path(str(config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
+    connect(conf)
+    remote = ray.remote(run_one).options(**conf.options())
+    state, cwd = Singleton.get_state(), os.getcwd()
+    pending: dict[Any, tuple[int, DictConfig, int]] = {}
+
+    def submit(k: int, cfg: DictConfig, attempt: int) -> None:
+        pending[remote.remote(hydra_context, task_function, cfg, state, cwd)] = (k, cfg, attempt)
+
+    for k, overrides in enumerate(job_overrides):
+        idx = initial_job_idx + k
+        log.info(f"\t#{idx} : {' '.join(overrides)}")
+        submit(k, job_config(hydra_context, config, overrides, idx), 0)
+    results: list[Any] = [None] * len(job_overrides)
+    while pending:
+        done, _ = ray.wait(list(pending), num_returns=1)
+        k, cfg, attempt = pending.pop(done[0])
+        try:
+            results[k] = ray.get(done[0])
+        except Exception as exc:  # noqa: BLE001 - sorted below: a lost node is retried, anything else raised
+            if not lost(exc):
+                raise getattr(exc, "cause", None) or exc
+            name = " ".join(cfg.hydra.overrides.task)
+            if attempt < conf.retries:
+                print(f"garage_exp: job {cfg.hydra.job.num} ({name}) lost its Ray worker ({type(exc).__name__}); "
+                      f"running it again as resumed (retry {attempt + 1} of {conf.retries})", flush=True)
+                submit(k, as_resumed(cfg), attempt + 1)
+            else:
+                print(f"garage_exp: job {cfg.hydra.job.num} ({name}) lost its Ray worker {attempt + 1} times; "
+                      "left for resume=true", flush=True)
+                results[k] = lost_return(cfg, exc)
+    return results
