@@ -96,6 +96,12 @@ def test_run_names_leave_out_where_runs_are_logged():
     assert tracking.run_name(["tracking.experiment=x"]) == ""
 
 
+def test_a_long_run_name_fits_the_database_column():
+    """PostgreSQL refuses a run name over 250 characters (sqlite does not check): found on a search's parent."""
+    name = tracking.run_name([f"case.actors.target.distance=interval(3.0,8.0{k})" for k in range(20)])
+    assert len(name) == tracking.NAME_MAX and name.endswith("...") and name.startswith("case.actors.target")
+
+
 def test_report_page_inlines_its_figures_and_nothing_else(tmp_path):
     (tmp_path / "heatmap.png").write_bytes(PNG)
     (tmp_path.parent / "outside.png").write_bytes(PNG)

@@ -171,7 +171,8 @@ class MlflowSweepCallback(Callback):
                 tracking.retry(lambda k=k, v=v: mlc.set_tag(self.parent_run_id, k, v))
             print(f"garage_exp: continuing sweep {self.parent_run_id} ({overrides})")
         else:
-            tags[MLFLOW_RUN_NAME] = f"{'search' if self.search else 'sweep'} {tracking.run_name(task)}".strip()
+            name = f"{'search' if self.search else 'sweep'} {tracking.run_name(task)}".strip()
+            tags[MLFLOW_RUN_NAME] = tracking.fit_name(name)
             run = tracking.retry(lambda: mlc.create_run(exp_id, tags=tags))
             self.parent_run_id = run.info.run_id
         tracking.write_parent(config.hydra.sweep.dir, self.parent_run_id)

@@ -270,9 +270,17 @@ def describes_run(override: str) -> bool:
     return key != "resume" and not key.startswith("tracking.") and key != "tracking"
 
 
+NAME_MAX = 250  # MLflow's runs.name column: sqlite ignores the length, PostgreSQL refuses a longer name
+
+
+def fit_name(name: str) -> str:
+    """A run name MLflow's database takes: cut to NAME_MAX characters (its params keep every override)."""
+    return name if len(name) <= NAME_MAX else name[:NAME_MAX - 3] + "..."
+
+
 def run_name(task_overrides: list[str]) -> str:
     """A run's name: the overrides that change what runs (a store's path in every name hides the factors)."""
-    return " ".join(o for o in task_overrides if describes_run(o))
+    return fit_name(" ".join(o for o in task_overrides if describes_run(o)))
 
 
 def sweep_key(task_overrides: list[str]) -> str:
