@@ -276,7 +276,7 @@ class SlotLinesConf:
     line_width: tuple[float, float] = (0.08, 0.25)  # painted line widths it looks for
     min_contrast: float = 20.0  # paint at least this much brighter than the floor beside it (0-255 grey levels)
     min_line: float = 1.0  # the shortest painted run kept as a separating line
-    max_gap: float = 0.5  # gaps in worn paint bridged along a line
+    max_gap: float = 0.8  # gaps in worn paint bridged along a line
     bay_width: tuple[float, float] = (2.2, 3.2)  # entrance width: two marking points this far apart open a slot
     depth: tuple[float, float] = (4.5, 6.0)  # a slot's depth; the middle when the back of the bay is not seen
     junction: float = 0.3  # a separating line ending this near an entrance line meets it (a T or an L)

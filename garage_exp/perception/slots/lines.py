@@ -80,12 +80,39 @@ def paint_mask(image: np.ndarray, mpp: float, p) -> tuple[np.ndarray, np.ndarray
     return paint, seen
 
 
+def thin(mask: np.ndarray, iterations: int) -> np.ndarray:
+    """Zhang-Suen thinning (1984), at most `iterations` passes: painted lines down to their centre lines (Hough
+    segments on a thick line also run diagonally across it)."""
+    img = np.pad((mask > 0).astype(np.uint8), 1)
+    for _ in range(iterations):
+        changed = False
+        for step in (0, 1):
+            p2, p3, p4, p5 = img[:-2, 1:-1], img[:-2, 2:], img[1:-1, 2:], img[2:, 2:]
+            p6, p7, p8, p9 = img[2:, 1:-1], img[2:, :-2], img[1:-1, :-2], img[:-2, :-2]
+            ring = [p2, p3, p4, p5, p6, p7, p8, p9, p2]
+            neighbours = sum(ring[:8])
+            rises = sum(((ring[k] == 0) & (ring[k + 1] == 1)).astype(np.uint8) for k in range(8))
+            if step == 0:
+                clear = ((p2 & p4 & p6) == 0) & ((p4 & p6 & p8) == 0)
+            else:
+                clear = ((p2 & p4 & p8) == 0) & ((p2 & p6 & p8) == 0)
+            centre = img[1:-1, 1:-1]
+            drop = (centre == 1) & (neighbours >= 2) & (neighbours <= 6) & (rises == 1) & clear
+            if drop.any():
+                changed = True
+                centre[drop] = 0
+        if not changed:
+            break
+    return img[1:-1, 1:-1] * 255
+
+
 def segments(paint: np.ndarray, mpp: float, p) -> np.ndarray:
-    """Hough segments (n, 4): x1, y1, x2, y2."""
+    """Hough segments (n, 4) on the paint's centre lines: x1, y1, x2, y2."""
     import cv2
 
+    skeleton = thin(paint, int(float(p.line_width[1]) / mpp / 2) + 3)
     min_len = max(5, int(0.4 / mpp))
-    found = cv2.HoughLinesP(paint, 1, math.pi / 360, threshold=max(5, min_len // 2), minLineLength=min_len,
+    found = cv2.HoughLinesP(skeleton, 1, math.pi / 360, threshold=max(5, min_len // 2), minLineLength=min_len,
                             maxLineGap=max(1, int(float(p.max_gap) / mpp)))
     return np.zeros((0, 4), np.float32) if found is None else found.reshape(-1, 4).astype(np.float32)
 
@@ -99,7 +126,7 @@ def merge(segs: np.ndarray, mpp: float, p) -> list[Line]:
     d = b - a
     length = np.linalg.norm(d, axis=1)
     u = d / np.maximum(length, 1e-9)[:, None]
-    width = float(p.line_width[1]) / mpp + 2
+    width = float(p.line_width[1]) / mpp / 2 + 2
     gap = float(p.max_gap) / mpp + 2
     cos_merge = math.cos(math.radians(MERGE_DEG))
     parent = list(range(n))
@@ -187,7 +214,20 @@ def _is_cut(point: np.ndarray, seen: np.ndarray, margin: int) -> bool:
     return not seen[max(0, y - margin):y + margin + 1, max(0, x - margin):x + margin + 1].all()
 
 
-def marking_points(lines: list[Line], roles: list[bool], seen: np.ndarray, mpp: float,
+def _extend(end: np.ndarray, outward: np.ndarray, paint: np.ndarray, reach: float) -> np.ndarray:
+    """The centre line's end pushed out to where the paint ends (thinning stops about half a width short)."""
+    h, w = paint.shape
+    last = end
+    for step in np.arange(0.5, reach, 0.5):
+        x, y = end + step * outward
+        col, row = int(x), int(y)
+        if not (0 <= col < w and 0 <= row < h) or not paint[row, col]:
+            break
+        last = end + step * outward
+    return last
+
+
+def marking_points(lines: list[Line], roles: list[bool], paint: np.ndarray, seen: np.ndarray, mpp: float,
                    p) -> tuple[list[MarkingPoint], list[Line]]:
     """One marking point per separating line (where it meets its entrance), and that line (ends ordered
     entrance first)."""
@@ -221,6 +261,8 @@ def marking_points(lines: list[Line], roles: list[bool], seen: np.ndarray, mpp: 
                                else (line.b, line.a, -1.0))
             if _is_cut(near, seen, margin):
                 continue
+            near = _extend(near, (near - far) / max(float(np.linalg.norm(near - far)), 1e-9), paint,
+                           float(p.line_width[1]) / mpp)
             best = (0.0, near, sign * u, "L", Line(near, far, line.coverage))
         _, at, direction, shape, owner = best
         points.append(MarkingPoint(float(at[0]), float(at[1]), math.atan2(float(direction[1]), float(direction[0])),
@@ -308,7 +350,7 @@ def detect(image: np.ndarray, mpp: float, p) -> SlotFrame:
     image = np.ascontiguousarray(image[..., :3])
     paint, seen = paint_mask(image, mpp, p)
     lines = merge(segments(paint, mpp, p), mpp, p)
-    points, owners = marking_points(lines, separating(lines, mpp, p), seen, mpp, p)
+    points, owners = marking_points(lines, separating(lines, mpp, p), paint, seen, mpp, p)
     margin = max(1, int(round(float(p.border) / mpp)))
     depths = [None if _is_cut(ln.b, seen, margin) else ln.length for ln in owners]
     slots = pair_points(points, mpp, p, depths)
