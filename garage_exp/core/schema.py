@@ -279,10 +279,10 @@ class SlotLinesConf:
     max_gap: float = 0.8  # gaps in worn paint bridged along a line
     bay_width: tuple[float, float] = (2.2, 3.2)  # entrance width: two marking points this far apart open a slot
     depth: tuple[float, float] = (4.5, 6.0)  # a slot's depth; the middle when the back of the bay is not seen
-    junction: float = 0.3  # a separating line ending this near an entrance line meets it (a T or an L)
+    junction: float = 0.6  # a separating line ending this near an entrance line meets it (a T or an L; worn ends)
     parallel_deg: float = 10.0  # lines within this angle are parallel
     border: float = 0.2  # a line end this near the image edge or unseen (black) pixels is cut, not an end
-    occupied_delta: float = 40.0  # a pixel this far (RGB distance) from the floor's colour is not floor
+    occupied_delta: float = 0.35  # a pixel this far from the floor's colour (RGB distance / the colour's length) is not floor
     occupied_fraction: float = 0.3  # a slot is occupied when this share of its inner part is not floor
 
 

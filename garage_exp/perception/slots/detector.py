@@ -40,7 +40,7 @@ def check_slot_detector(conf: Any) -> None:
     for key in ("min_line", "max_gap", "junction", "border"):
         check_range(getattr(p, key), 0.0, 20.0, f"slot_detector.lines.{key}")
     check_range(p.parallel_deg, 0.1, 45, "slot_detector.lines.parallel_deg")
-    check_range(p.occupied_delta, 1, 442, "slot_detector.lines.occupied_delta")
+    check_range(p.occupied_delta, 0.01, 2.0, "slot_detector.lines.occupied_delta")
     check_range(p.occupied_fraction, 0.0, 1.0, "slot_detector.lines.occupied_fraction")
     m = conf.metrics
     if not float(m.point_tolerance_m) > 0:

@@ -1,7 +1,7 @@
 """The baseline slot detector: classical OpenCV on a bird's-eye view, no weights.
 
 1. Paint: white paint is bright in every colour channel (yellow lane paint is not), so the image's smallest
-   channel is top-hat filtered (a kernel 3x the widest line: what is left is thin and brighter than the floor
+   channel is top-hat filtered (a kernel 2x the widest line: what is left is thin and brighter than the floor
    around it) and thresholded at `min_contrast` or four robust noise deviations, whichever is higher. A strip
    of floor between a dark car and the dark lane passes that too, so paint must also lie in the upper half
    between the floor under it and the brightest pixel within a bay width (the next line, usually). Specks
@@ -20,8 +20,8 @@
    (both separating lines' far ends seen and within `depth`), else by the middle of `depth`.
 6. Occupancy: the slot's inner part (its quad shrunk by 20%) against the floor's colour, measured beside the
    painted lines (0.1-0.3 m off them, where parked cars leave the floor bare): occupied when at least
-   `occupied_fraction` of it is more than `occupied_delta` away from that colour (RGB distance); undecided when
-   less than half of it was seen.
+   `occupied_fraction` of it is further from that colour than `occupied_delta` times the colour's own length
+   (RGB distances, so dim light decides alike); undecided when less than half of it was seen.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def paint_mask(image: np.ndarray, mpp: float, p) -> tuple[np.ndarray, np.ndarray
 
     seen = image.max(axis=2) > 2
     white = image.min(axis=2)
-    k = max(3, int(round(3 * float(p.line_width[1]) / mpp)) | 1)
+    k = max(3, int(round(2 * float(p.line_width[1]) / mpp)) | 1)  # wider bright patches (a windscreen) are not paint
     tophat = cv2.morphologyEx(white, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
     values = tophat[seen].astype(np.float32)
     if values.size == 0:
@@ -342,7 +342,9 @@ def occupancy(image: np.ndarray, seen: np.ndarray, corners, floor: np.ndarray, p
     if area == 0 or inside.sum() < 0.5 * area:
         return None
     dist = np.linalg.norm(image[inside].astype(np.float32) - floor.astype(np.float32), axis=1)
-    return bool((dist > float(p.occupied_delta)).mean() >= float(p.occupied_fraction))
+    # relative to the floor's own brightness, so that dim light (every difference smaller) decides alike
+    far = dist > float(p.occupied_delta) * max(float(np.linalg.norm(floor)), 10.0)
+    return bool(far.mean() >= float(p.occupied_fraction))
 
 
 def detect(image: np.ndarray, mpp: float, p) -> SlotFrame:

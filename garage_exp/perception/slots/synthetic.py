@@ -25,8 +25,11 @@ PIECE = 0.25  # metres: worn paint goes in pieces this long
 
 def bev_row(seed: int, *, mpp: float = 0.02, size: int = 640, bays: int = 4, bay_width: float = 2.5,
             depth: float = 5.3, line_width: float = 0.15, entrance_line: bool = False,
-            occupied: tuple[int, ...] = (1,), wear: float = 0.0, noise: float = 6.0) -> tuple[np.ndarray, SlotFrame]:
-    """(RGB uint8 image size x size, truth): a row of `bays` bays; the bays numbered in `occupied` hold a car."""
+            occupied: tuple[int, ...] = (1,), wear: float = 0.0, noise: float = 6.0,
+            gain: float = 1.0) -> tuple[np.ndarray, SlotFrame]:
+    """(RGB uint8 image size x size, truth): a row of `bays` bays; the bays numbered in `occupied` hold a car.
+    gain scales the light before the noise is added (0.35: a dim garage, the same noise on a third of the
+    signal)."""
     import cv2
 
     rng = np.random.default_rng(seed)
@@ -74,7 +77,7 @@ def bev_row(seed: int, *, mpp: float = 0.02, size: int = 640, bays: int = 4, bay
         fill(image, rect(cx - 0.9, cy - 2.2, cx + 0.9, cy + 2.2), body)
         fill(image, rect(cx - 0.75, cy - 1.3, cx + 0.75, cy - 0.6), body + 70)  # windscreen
     gradient = np.linspace(0.85, 1.1, size)[None, :, None] * np.linspace(1.05, 0.9, size)[:, None, None]
-    image = image * gradient + rng.normal(0, noise, image.shape)
+    image = image * gradient * gain + rng.normal(0, noise, image.shape)
     fill(image, rect(-2.4, -0.95, 2.4, 0.95), (0, 0, 0))  # the ego: no camera sees under it
     image = np.clip(image, 0, 255).astype(np.uint8)
     return image, truth_row(xs, entrance, depth, occupied, px, theta, size, mpp)
