@@ -67,18 +67,32 @@ def main() -> None:
                   f"| {p['occupancy_accuracy']:.2f} of {int(p['occupancy_n'])} | {p['point_error_m']:.3f} "
                   f"| {1000 * spent / args.frames:.0f} |")
     if args.png:
-        import cv2
+        save_png(args.png, detect)
 
-        from garage_exp.perception.slots.draw import TRUTH, draw_slots
 
-        image, truth = bev_row(1, wear=0.7)
-        found = detect(image, truth.meters_per_pixel)
-        fresh, fresh_truth = bev_row(1)
-        panels = [draw_slots(draw_slots(img, t, TRUTH), detect(img, t.meters_per_pixel))
-                  for img, t in ((fresh, fresh_truth), (image, truth))]
-        cv2.imwrite(args.png, np.concatenate(panels, axis=1)[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
-        print(f"wrote {args.png}: {score(truth, found, None, conf.metrics)}")
+def save_png(path: str, detect) -> None:
+    """Frame 1 fresh and worn, the truth (green) and the detections (magenta) drawn, each cropped to the half of
+    the image that holds the bays and shrunk to 80 %."""
+    import cv2
 
+    from garage_exp.perception.slots.draw import TRUTH, draw_slots
+
+    panels = []
+    for label, settings in (("fresh", {}), ("worn 0.7", {"wear": 0.7})):
+        image, truth = bev_row(1, **settings)
+        drawn = draw_slots(draw_slots(image, truth, TRUTH), detect(image, truth.meters_per_pixel))
+        centre = np.mean([c for s in truth.slots for c in s.corners], axis=0)
+        h, w = image.shape[:2]
+        if abs(centre[0] - w / 2) > abs(centre[1] - h / 2):  # the bays lie left or right: keep that half
+            drawn = drawn[:, : w // 2] if centre[0] < w / 2 else drawn[:, w // 2:]
+        else:
+            drawn = drawn[: h // 2] if centre[1] < h / 2 else drawn[h // 2:]
+        drawn = np.ascontiguousarray(drawn)
+        cv2.putText(drawn, label, (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.9, (255, 255, 255), 2, cv2.LINE_AA)
+        panels.append(drawn)
+    out = cv2.resize(np.concatenate(panels, axis=1), None, fx=0.8, fy=0.8, interpolation=cv2.INTER_AREA)
+    cv2.imwrite(path, out[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    print(f"wrote {path}")
 
 if __name__ == "__main__":
     main()

@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.schema import SlotDetectorConf, SlotLinesConf, SlotMetricsConf
-from garage_exp.perception.slots.detector import check_slot_detector, from_pose, load
+from garage_exp.perception.slots.detector import check_slot_detector, check_slot_weights, from_pose, load
 from garage_exp.perception.slots.marks import SlotFrame
 from garage_exp.perception.slots.synthetic import bev_row
 from garage_exp.results.slots import pool, score
@@ -98,12 +98,10 @@ def test_the_callable_kind_loads_the_users_function(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("keys, message", [
     ({"kind": "cnn"}, "slot_detector.kind: unknown kind 'cnn'"),
-    ({"kind": "callable"}, "slot_detector.target: kind callable needs target"),
+    ({"kind": "callable", "target": ""}, "slot_detector.target: kind callable needs target"),
     ({"kind": "callable", "target": "my_slots:"}, "is not \"package.module:function\""),
     ({"kind": "callable", "target": "os:system"}, "'os.system' is not a slot detector"),
     ({"kind": "callable", "target": "garage_exp.nowhere:detect"}, "cannot import a slot detector"),
-    ({"kind": "pose"}, "slot_detector.model: '' is not an ultralytics pose model file"),
-    ({"kind": "pose", "model": "/nonexistent/slots.pt"}, "not an ultralytics pose model file"),
     ({"kind": "pose", "model": "x.pt", "keypoints": "edges"}, "slot_detector.keypoints: unknown keypoints 'edges'"),
     ({"lines": {"bay_width": [3.2, 2.2]}}, "slot_detector.lines.bay_width: .* is not a range"),
     ({"lines": {"occupied_fraction": 1.5}}, "slot_detector.lines.occupied_fraction: 1.5 is outside"),
@@ -115,14 +113,26 @@ def test_bad_config_is_one_garage_error(keys, message):
         check_slot_detector(node(**keys))
 
 
+@pytest.mark.parametrize("model", ["", "/nonexistent/slots.pt", "slots.onnx"])
+def test_a_pose_model_that_is_not_there_fails_before_loading(model, tmp_path):
+    (tmp_path / "slots.onnx").write_bytes(b"x")
+    conf = node(kind="pose", model=str(tmp_path / model) if model.endswith("onnx") else model)
+    check_slot_detector(conf)  # values are fine: a dry run passes
+    with pytest.raises(GarageError, match="slot_detector.model: .* is not an ultralytics pose model file"):
+        check_slot_weights(conf)
+    with pytest.raises(GarageError, match="is not an ultralytics pose model file"):
+        load(conf)
+
+
 def test_the_composed_config_has_the_lines_baseline_and_its_levels_check():
     cfg = compose_cfg()
     assert cfg.slot_detector.kind == "lines" and list(cfg.slot_detector.lines.bay_width) == [2.2, 3.2]
     for key, schema in (("lines", SlotLinesConf), ("metrics", SlotMetricsConf)):  # the YAML says what the schema does
         assert OmegaConf.to_container(cfg.slot_detector[key]) == OmegaConf.to_container(OmegaConf.structured(schema))
     check_slot_detector(cfg.slot_detector)
-    with pytest.raises(GarageError, match="needs target"):
-        check_slot_detector(compose_cfg("slot_detector=callable").slot_detector)
+    example = compose_cfg("slot_detector=callable").slot_detector  # the shipped example: the baseline, called
+    image, truth = bev_row(0)
+    assert load(example)(image, truth.meters_per_pixel) == load(cfg.slot_detector)(image, truth.meters_per_pixel)
 
 
 class Tensor:

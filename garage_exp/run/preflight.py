@@ -126,8 +126,11 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
         from garage_exp.perception.detect.detector import model_format, resolve_model
         from garage_exp.scenario.assemble import build_scene
 
+        from garage_exp.perception.slots.detector import check_slot_weights
+
         for entry in cfg.detector.models:
             model_format(resolve_model(entry, cfg.detector.registry))  # missing weights fail here (nothing downloaded)
+        check_slot_weights(cfg.slot_detector)
         prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
                                                      np.random.default_rng(int(cfg.seed)))
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)

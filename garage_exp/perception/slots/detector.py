@@ -25,7 +25,8 @@ Detect = Callable[[np.ndarray, float], SlotFrame]
 
 
 def check_slot_detector(conf: Any) -> None:
-    """The `slot_detector` group's values; a callable's module is imported here, a pose model's file looked for."""
+    """The `slot_detector` group's values; a callable's module is imported here (a pose model's file is looked
+    for by check_slot_weights)."""
     kind = str(conf.kind)
     if kind not in KINDS:
         raise GarageError(f"unknown kind {kind!r}{did_you_mean(kind, KINDS)}", "slot_detector.kind")
@@ -56,9 +57,15 @@ def check_slot_detector(conf: Any) -> None:
                               "slot_detector.keypoints")
         check_range(conf.conf, 0.0, 1.0, "slot_detector.conf")
         check_range(conf.imgsz, 32, 4096, "slot_detector.imgsz")
-        path = Path(str(conf.model)).expanduser()
-        if not str(conf.model) or path.suffix != ".pt" or not path.is_file():
-            raise GarageError(f"{str(conf.model)!r} is not an ultralytics pose model file (.pt)", "slot_detector.model")
+
+
+def check_slot_weights(conf: Any) -> None:
+    """A pose detector's model file is there (a real job's preflight, beside the object detector's weights)."""
+    if str(conf.kind) != "pose":
+        return
+    path = Path(str(conf.model)).expanduser()
+    if not str(conf.model) or path.suffix != ".pt" or not path.is_file():
+        raise GarageError(f"{str(conf.model)!r} is not an ultralytics pose model file (.pt)", "slot_detector.model")
 
 
 def user_function(target: str) -> Detect:
@@ -80,6 +87,7 @@ def user_function(target: str) -> Detect:
 def load(conf: Any) -> Detect:
     """The detector the `slot_detector` node describes (checked first)."""
     check_slot_detector(conf)
+    check_slot_weights(conf)
     kind = str(conf.kind)
     if kind == "lines":
         from garage_exp.perception.slots.lines import detect as detect_lines

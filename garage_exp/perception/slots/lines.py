@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from garage_exp.core.schema import SlotLinesConf
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 
 INSET = 0.2  # the occupancy test skips this share of the quad at its edges (the lines, a neighbour's overhang)
@@ -359,3 +360,9 @@ def detect(image: np.ndarray, mpp: float, p) -> SlotFrame:
     floor = floor_colour(image, paint, seen, mpp)
     slots = [Slot(s.p1, s.p2, s.corners, occupancy(image, seen, s.corners, floor, p), s.score) for s in slots]
     return SlotFrame(points, slots, float(mpp), (int(image.shape[1]), int(image.shape[0])))
+
+
+def baseline(image: np.ndarray, mpp: float) -> SlotFrame:
+    """The baseline with its default settings, as a user's function is called (`slot_detector=callable`'s
+    example target)."""
+    return detect(image, mpp, SlotLinesConf())
