@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.errors import GarageError, check_range, did_you_mean
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
@@ -92,7 +93,7 @@ def load(conf: Any) -> Detect:
     if kind == "lines":
         from garage_exp.perception.slots.lines import detect as detect_lines
 
-        params = conf.lines
+        params = OmegaConf.to_object(conf.lines) if isinstance(conf.lines, DictConfig) else conf.lines  # plain reads
         return lambda image, mpp: detect_lines(image, float(mpp), params)
     if kind == "callable":
         target = str(conf.target)

@@ -14,7 +14,7 @@
    their centre lines ("T" when the entrance line goes on past it, else "L"); with no entrance line painted
    (the project's garage paints none), the separating line's end nearer the image centre, where the ego is,
    unless that end is cut by the image edge or by pixels no camera saw. The direction points along the line,
-   away from that end.
+   away from that end. Its score is the share of the line's first metre from it that is paint.
 5. Slots: neighbouring marking points with parallel directions whose distance is a bay width, each point
    paired at most once on either side, nearest first; the quad is the entrance pushed back by the depth seen
    (both separating lines' far ends seen and within `depth`), else by the middle of `depth`.
@@ -36,6 +36,7 @@ from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 
 INSET = 0.2  # the occupancy test skips this share of the quad at its edges (the lines, a neighbour's overhang)
 MERGE_DEG = 5.0  # Hough segments within this angle may be one painted line
+SUPPORT = 1.0  # metres of its line from the point that a marking point's score is measured over
 
 
 @dataclass
@@ -228,6 +229,22 @@ def _extend(end: np.ndarray, outward: np.ndarray, paint: np.ndarray, reach: floa
     return last
 
 
+def support(paint: np.ndarray, at: np.ndarray, direction: np.ndarray, reach: float) -> float:
+    """A marking point's score: the share of its separating line's first `reach` pixels (from the point, along
+    its direction) that is paint, within a pixel of the centre line. Worn paint near the entrance scores low."""
+    import cv2
+
+    near = cv2.dilate(paint, np.ones((3, 3), np.uint8)) > 0
+    h, w = near.shape
+    steps = np.arange(0.0, reach, 1.0)
+    xs = np.round(at[0] + steps * direction[0]).astype(int)
+    ys = np.round(at[1] + steps * direction[1]).astype(int)
+    inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+    if not inside.any():
+        return 0.0
+    return round(float(near[ys[inside], xs[inside]].mean()), 4)
+
+
 def marking_points(lines: list[Line], roles: list[bool], paint: np.ndarray, seen: np.ndarray, mpp: float,
                    p) -> tuple[list[MarkingPoint], list[Line]]:
     """One marking point per separating line (where it meets its entrance), and that line (ends ordered
@@ -267,7 +284,7 @@ def marking_points(lines: list[Line], roles: list[bool], paint: np.ndarray, seen
             best = (0.0, near, sign * u, "L", Line(near, far, line.coverage))
         _, at, direction, shape, owner = best
         points.append(MarkingPoint(float(at[0]), float(at[1]), math.atan2(float(direction[1]), float(direction[0])),
-                                   shape, score=round(float(line.coverage), 4)))
+                                   shape, score=support(paint, at, direction, SUPPORT / mpp)))
         owners.append(owner)
     return points, owners
 
