@@ -282,7 +282,7 @@ class SlotLinesConf:
     junction: float = 0.6  # a separating line ending this near an entrance line meets it (a T or an L; worn ends)
     parallel_deg: float = 10.0  # lines within this angle are parallel
     border: float = 0.2  # a line end this near the image edge or unseen (black) pixels is cut, not an end
-    occupied_delta: float = 0.35  # a pixel this far from the floor's colour (RGB distance / the colour's length) is not floor
+    occupied_delta: float = 0.35  # not floor: this far from the floor's colour (RGB distance / the colour's length)
     occupied_fraction: float = 0.3  # a slot is occupied when this share of its inner part is not floor
 
 

@@ -32,7 +32,7 @@ def _angle_deg(a: float, b: float) -> float:
 
 
 def _greedy(pairs: list[tuple[float, float, int, int]]) -> dict[int, int]:
-    """found -> truth, one-to-one, taking (−score, distance)-sorted candidates in order."""
+    """found -> truth, one-to-one, taking the candidates by score (highest first), then distance."""
     taken_f, taken_t, out = set(), set(), {}
     for _, _, f, t in sorted(pairs):
         if f not in taken_f and t not in taken_t:
@@ -104,7 +104,8 @@ def score(truth: SlotFrame, found: SlotFrame, fair: list[bool] | None, conf) -> 
         a, b = np.array(s.corners[0]) * scale, np.array(s.corners[1]) * scale
         for t, ts in enumerate(truth.slots):
             ta, tb = np.array(ts.corners[0]), np.array(ts.corners[1])
-            d = min(max(np.linalg.norm(a - ta), np.linalg.norm(b - tb)), max(np.linalg.norm(a - tb), np.linalg.norm(b - ta)))
+            d = min(max(np.linalg.norm(a - ta), np.linalg.norm(b - tb)),
+                    max(np.linalg.norm(a - tb), np.linalg.norm(b - ta)))  # the entrance in either order
             if d <= tol and _same_side(np.array(s.corners) * scale, np.array(ts.corners)):
                 spairs.append((-s.score, float(d), f, t))
     smatched = _greedy(spairs)

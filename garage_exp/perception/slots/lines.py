@@ -275,8 +275,8 @@ def marking_points(lines: list[Line], roles: list[bool], paint: np.ndarray, seen
                 if best is None or dist < best[0]:
                     best = (dist, x, sign * u, shape, Line(x, other, line.coverage))
         if best is None:  # no entrance line: the end nearer the ego, if it is a real end
-            near, far, sign = ((line.a, line.b, 1.0) if np.linalg.norm(line.a - centre) <= np.linalg.norm(line.b - centre)
-                               else (line.b, line.a, -1.0))
+            a_first = np.linalg.norm(line.a - centre) <= np.linalg.norm(line.b - centre)
+            near, far, sign = (line.a, line.b, 1.0) if a_first else (line.b, line.a, -1.0)
             if _is_cut(near, seen, margin):
                 continue
             near = _extend(near, (near - far) / max(float(np.linalg.norm(near - far)), 1e-9), paint,
