@@ -59,6 +59,8 @@ def test_lines_finds_the_marking_points_and_the_occupied_bay(fresh, entrance_lin
                 < 0.17 / truth.meters_per_pixel]
         assert [s.occupied for s in hits] == [True]
     assert pooled["occupancy_accuracy"] == 1.0 and pooled["occupancy_n"] >= 0.9 * 3 * len(SEEDS)
+    truth, found = frames[0]
+    assert sorted(q.shape for q in found.points) == sorted(q.shape for q in truth.points) == ["L", "L", "T", "T", "T"]
 
 
 def test_worn_lines_lower_recall(fresh):

@@ -14,7 +14,8 @@
    their centre lines ("T" when the entrance line goes on past it, else "L"); with no entrance line painted
    (the project's garage paints none), the separating line's end nearer the image centre, where the ego is,
    unless that end is cut by the image edge or by pixels no camera saw. The direction points along the line,
-   away from that end. Its score is the share of the line's first metre from it that is paint.
+   away from that end. Its score is the share of the line's first metre from it that is paint. Without an
+   entrance line, its shape follows its slots: "T" between two, else "L".
 5. Slots: neighbouring marking points with parallel directions whose distance is a bay width, each point
    paired at most once on either side, nearest first; the quad is the entrance pushed back by the depth seen
    (both separating lines' far ends seen and within `depth`), else by the middle of `depth`.
@@ -229,12 +230,9 @@ def _extend(end: np.ndarray, outward: np.ndarray, paint: np.ndarray, reach: floa
     return last
 
 
-def support(paint: np.ndarray, at: np.ndarray, direction: np.ndarray, reach: float) -> float:
+def support(near: np.ndarray, at: np.ndarray, direction: np.ndarray, reach: float) -> float:
     """A marking point's score: the share of its separating line's first `reach` pixels (from the point, along
-    its direction) that is paint, within a pixel of the centre line. Worn paint near the entrance scores low."""
-    import cv2
-
-    near = cv2.dilate(paint, np.ones((3, 3), np.uint8)) > 0
+    its direction) that is paint (`near`: the paint grown by a pixel). Worn paint near the entrance scores low."""
     h, w = near.shape
     steps = np.arange(0.0, reach, 1.0)
     xs = np.round(at[0] + steps * direction[0]).astype(int)
@@ -248,7 +246,10 @@ def support(paint: np.ndarray, at: np.ndarray, direction: np.ndarray, reach: flo
 def marking_points(lines: list[Line], roles: list[bool], paint: np.ndarray, seen: np.ndarray, mpp: float,
                    p) -> tuple[list[MarkingPoint], list[Line]]:
     """One marking point per separating line (where it meets its entrance), and that line (ends ordered
-    entrance first)."""
+    entrance first). A point with no entrance line is "L" until pairing tells (`shapes_by_pairing`)."""
+    import cv2
+
+    near_paint = cv2.dilate(paint, np.ones((3, 3), np.uint8)) > 0
     h, w = seen.shape
     centre = np.array([w / 2, h / 2])
     junction = float(p.junction) / mpp
@@ -281,10 +282,10 @@ def marking_points(lines: list[Line], roles: list[bool], paint: np.ndarray, seen
                 continue
             near = _extend(near, (near - far) / max(float(np.linalg.norm(near - far)), 1e-9), paint,
                            float(p.line_width[1]) / mpp)
-            best = (0.0, near, sign * u, "L", Line(near, far, line.coverage))
+            best = (0.0, near, sign * u, "", Line(near, far, line.coverage))
         _, at, direction, shape, owner = best
         points.append(MarkingPoint(float(at[0]), float(at[1]), math.atan2(float(direction[1]), float(direction[0])),
-                                   shape, score=support(paint, at, direction, SUPPORT / mpp)))
+                                   shape, score=support(near_paint, at, direction, SUPPORT / mpp)))
         owners.append(owner)
     return points, owners
 
@@ -327,6 +328,16 @@ def pair_points(points: list[MarkingPoint], mpp: float, p, depths: list[float | 
         score = min(points[i].score, points[j].score)
         slots.append(Slot(p1, p2, corners, score=score))
     return slots
+
+
+def shapes_by_pairing(points: list[MarkingPoint], slots: list[Slot]) -> list[MarkingPoint]:
+    """Points found without an entrance line (shape "") take it from their slots: "T" between two, else "L"."""
+    uses = [0] * len(points)
+    for s in slots:
+        uses[s.p1] += 1
+        uses[s.p2] += 1
+    return [q if q.shape else MarkingPoint(q.x, q.y, q.direction, "T" if n >= 2 else "L", q.score)
+            for q, n in zip(points, uses)]
 
 
 def floor_colour(image: np.ndarray, paint: np.ndarray, seen: np.ndarray, mpp: float) -> np.ndarray:
@@ -374,6 +385,7 @@ def detect(image: np.ndarray, mpp: float, p) -> SlotFrame:
     margin = max(1, int(round(float(p.border) / mpp)))
     depths = [None if _is_cut(ln.b, seen, margin) else ln.length for ln in owners]
     slots = pair_points(points, mpp, p, depths)
+    points = shapes_by_pairing(points, slots)
     floor = floor_colour(image, paint, seen, mpp)
     slots = [Slot(s.p1, s.p2, s.corners, occupancy(image, seen, s.corners, floor, p), s.score) for s in slots]
     return SlotFrame(points, slots, float(mpp), (int(image.shape[1]), int(image.shape[0])))
