@@ -185,3 +185,20 @@ def test_pose_with_too_few_keypoints_or_none_found():
         from_pose(results([[(1, 2), (3, 4)]], [0.5], [0], {}), "corners", 0.02, (50, 50), SlotLinesConf())
     empty = from_pose(results(np.zeros((0, 4, 2)), [], [], {}), "corners", 0.02, (50, 50), SlotLinesConf())
     assert empty.points == [] and empty.slots == []
+
+
+def test_a_line_end_at_unseen_pixels_gives_no_point_and_an_unseen_slot_no_occupancy():
+    image, truth = bev_row(0)
+    hidden = truth.points[2]
+    x, y = int(hidden.x), int(hidden.y)
+    image[y - 40:y + 40, x - 40:x + 40] = 0  # no camera saw the floor around this entrance (0.8 m square)
+    found = load(node())(image, truth.meters_per_pixel)
+    m = score(truth, found, None, SlotMetricsConf())
+    assert (m["point_tp"], m["point_fp"], m["point_fn"]) == (4, 0, 1)  # not a point at the black edge instead
+    from garage_exp.perception.slots.lines import occupancy
+
+    seen = np.ones(image.shape[:2], bool)
+    corners = truth.slots[0].corners
+    assert occupancy(image, seen, corners, np.array([118.0, 114.0, 104.0]), SlotLinesConf()) is not None
+    seen[:] = False
+    assert occupancy(image, seen, corners, np.array([118.0, 114.0, 104.0]), SlotLinesConf()) is None
