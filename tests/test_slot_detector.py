@@ -202,3 +202,18 @@ def test_a_line_end_at_unseen_pixels_gives_no_point_and_an_unseen_slot_no_occupa
     assert occupancy(image, seen, corners, np.array([118.0, 114.0, 104.0]), SlotLinesConf()) is not None
     seen[:] = False
     assert occupancy(image, seen, corners, np.array([118.0, 114.0, 104.0]), SlotLinesConf()) is None
+
+
+def test_the_pose_kind_runs_a_real_ultralytics_pose_model(tmp_path):
+    """An untrained yolov8n-pose (built from the YAML ultralytics ships: no download) saved as a .pt: its real
+    Results go through from_pose; a detection model is refused in one line."""
+    from ultralytics import YOLO
+
+    YOLO("yolov8n-pose.yaml").save(tmp_path / "slots.pt")
+    YOLO("yolov8n.yaml").save(tmp_path / "boxes.pt")
+    image, truth = bev_row(0, size=320)
+    detect = load(node(kind="pose", model=str(tmp_path / "slots.pt"), conf=0.0, imgsz=160))
+    found = detect(image, truth.meters_per_pixel)  # untrained: whatever it says, as marking points and slots
+    assert found.size == (320, 320) and found.slots and all(0 <= s.p1 < len(found.points) for s in found.slots)
+    with pytest.raises(GarageError, match="boxes.pt: a detect model, not a pose"):
+        load(node(kind="pose", model=str(tmp_path / "boxes.pt")))
