@@ -93,7 +93,11 @@ def load(conf: Any) -> Detect:
     if kind == "lines":
         from garage_exp.perception.slots.lines import detect as detect_lines
 
-        params = OmegaConf.to_object(conf.lines) if isinstance(conf.lines, DictConfig) else conf.lines  # plain reads
+        from garage_exp.core.schema import SlotLinesConf
+
+        # plain attribute reads in the detector's loops (a config node's are slow); missing keys take the defaults
+        params = SlotLinesConf(**OmegaConf.to_container(conf.lines, resolve=True)) \
+            if isinstance(conf.lines, DictConfig) else conf.lines
         return lambda image, mpp: detect_lines(image, float(mpp), params)
     if kind == "callable":
         target = str(conf.target)
