@@ -74,6 +74,7 @@ def check_config(cfg: DictConfig) -> None:
     """Every group's values, by its owner's check (the schema already checked the types); no plan or assets
     needed."""
     from garage_exp.perception.detect.detector import check_detector
+    from garage_exp.perception.slots.detector import check_slot_detector
     from garage_exp.render import check_renderer
     from garage_exp.results.late import check_ego
     from garage_exp.scenario import check_case
@@ -98,6 +99,7 @@ def check_config(cfg: DictConfig) -> None:
     check_case(cfg)
     check_ego(cfg.ego, moving=moves_ego(cfg.case))
     check_detector(cfg.detector)
+    check_slot_detector(cfg.slot_detector)
     check_renderer(cfg.renderer)
     build(cfg.sensor, "a sensor model", "sensor._target_")  # the sensor model checks its own parameters
     check_modifiers(cfg.get("modifiers") or {})
@@ -124,8 +126,11 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
         from garage_exp.perception.detect.detector import model_format, resolve_model
         from garage_exp.scenario.assemble import build_scene
 
+        from garage_exp.perception.slots.detector import check_slot_weights
+
         for entry in cfg.detector.models:
             model_format(resolve_model(entry, cfg.detector.registry))  # missing weights fail here (nothing downloaded)
+        check_slot_weights(cfg.slot_detector)
         prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
                                                      np.random.default_rng(int(cfg.seed)))
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)

@@ -1,0 +1,194 @@
+"""The slot detector a job runs on its bird's-eye views, from the `slot_detector` config group.
+
+`load(conf)` returns `detect(image, meters_per_pixel) -> SlotFrame` (image: BEV RGB uint8 (H, W, 3)):
+- `lines`: the classical baseline (garage_exp/perception/slots/lines.py), no weights;
+- `callable`: the user's function `target` ("package.module:function", or dotted), built the project's one way
+  (core.plugins: the module must lie under garage_exp. or a prefix in $GARAGE_EXP_MODIFIER_MODULES);
+- `pose`: an ultralytics pose model (`model`, a .pt) whose keypoints are mapped by `from_pose` below.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from garage_exp.core.errors import GarageError, check_range, did_you_mean
+from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
+
+KINDS = ("lines", "callable", "pose")
+KEYPOINTS = ("corners", "points")
+Detect = Callable[[np.ndarray, float], SlotFrame]
+
+
+def check_slot_detector(conf: Any) -> None:
+    """The `slot_detector` group's values; a callable's module is imported here (a pose model's file is looked
+    for by check_slot_weights)."""
+    kind = str(conf.kind)
+    if kind not in KINDS:
+        raise GarageError(f"unknown kind {kind!r}{did_you_mean(kind, KINDS)}", "slot_detector.kind")
+    p = conf.lines
+    for key in ("line_width", "bay_width", "depth"):
+        lo, hi = (float(v) for v in getattr(p, key))
+        if not 0 < lo <= hi:
+            raise GarageError(f"[{lo:g}, {hi:g}] is not a range of positive metres (low <= high)",
+                              f"slot_detector.lines.{key}")
+    check_range(p.line_width[1], 0.01, 1.0, "slot_detector.lines.line_width")
+    check_range(p.min_contrast, 1, 255, "slot_detector.lines.min_contrast")
+    for key in ("min_line", "max_gap", "junction", "border"):
+        check_range(getattr(p, key), 0.0, 20.0, f"slot_detector.lines.{key}")
+    check_range(p.parallel_deg, 0.1, 45, "slot_detector.lines.parallel_deg")
+    check_range(p.occupied_delta, 0.01, 2.0, "slot_detector.lines.occupied_delta")
+    check_range(p.occupied_fraction, 0.0, 1.0, "slot_detector.lines.occupied_fraction")
+    m = conf.metrics
+    if not float(m.point_tolerance_m) > 0:
+        raise GarageError(f"{m.point_tolerance_m} is not a positive distance (metres)",
+                          "slot_detector.metrics.point_tolerance_m")
+    check_range(m.angle_tolerance_deg, 0.0, 180.0, "slot_detector.metrics.angle_tolerance_deg")
+    check_range(m.min_score, 0.0, 1.0, "slot_detector.metrics.min_score")
+    if kind == "callable":
+        user_function(str(conf.target))
+    elif kind == "pose":
+        if str(conf.keypoints) not in KEYPOINTS:
+            raise GarageError(f"unknown keypoints {conf.keypoints!r}{did_you_mean(str(conf.keypoints), KEYPOINTS)}",
+                              "slot_detector.keypoints")
+        check_range(conf.conf, 0.0, 1.0, "slot_detector.conf")
+        check_range(conf.imgsz, 32, 4096, "slot_detector.imgsz")
+
+
+def check_slot_weights(conf: Any) -> None:
+    """A pose detector's model file is there (a real job's preflight, beside the object detector's weights)."""
+    if str(conf.kind) != "pose":
+        return
+    path = Path(str(conf.model)).expanduser()
+    if not str(conf.model) or path.suffix != ".pt" or not path.is_file():
+        raise GarageError(f"{str(conf.model)!r} is not an ultralytics pose model file (.pt)", "slot_detector.model")
+
+
+def user_function(target: str) -> Detect:
+    """The function "package.module:function" names, through the plugin allow-list."""
+    from garage_exp.core.plugins import resolve
+
+    if not target:
+        raise GarageError("kind callable needs target: \"package.module:function\"", "slot_detector.target")
+    module, sep, name = target.partition(":")
+    dotted = f"{module}.{name}" if sep else target
+    if not module or (sep and not name) or "." not in dotted:
+        raise GarageError(f"{target!r} is not \"package.module:function\"", "slot_detector.target")
+    function = resolve(dotted, "a slot detector", "slot_detector.target")
+    if not callable(function):
+        raise GarageError(f"{target!r} is not a function", "slot_detector.target")
+    return function
+
+
+def load(conf: Any) -> Detect:
+    """The detector the `slot_detector` node describes (checked first)."""
+    check_slot_detector(conf)
+    check_slot_weights(conf)
+    kind = str(conf.kind)
+    if kind == "lines":
+        from garage_exp.perception.slots.lines import detect as detect_lines
+
+        from garage_exp.core.schema import SlotLinesConf
+
+        # plain attribute reads in the detector's loops (a config node's are slow); missing keys take the defaults
+        params = SlotLinesConf(**OmegaConf.to_container(conf.lines, resolve=True)) \
+            if isinstance(conf.lines, DictConfig) else conf.lines
+        return lambda image, mpp: detect_lines(image, float(mpp), params)
+    if kind == "callable":
+        target = str(conf.target)
+        function = user_function(target)
+
+        def detect_user(image: np.ndarray, mpp: float) -> SlotFrame:
+            out = function(image, float(mpp))
+            if not isinstance(out, SlotFrame):
+                raise GarageError(f"returned {type(out).__name__}, not a SlotFrame", f"slot_detector.target {target}")
+            return out
+
+        return detect_user
+    return pose_detector(conf)
+
+
+def pose_detector(conf: Any) -> Detect:
+    """An ultralytics pose model, its keypoints mapped by `from_pose`."""
+    from ultralytics import YOLO
+
+    path = str(Path(str(conf.model)).expanduser())
+    try:
+        model = YOLO(path)
+    except Exception as exc:  # ultralytics and torch raise many types; one line naming the file
+        raise GarageError(f"not a model ultralytics can load ({type(exc).__name__}: {str(exc)[:200]})",
+                          f"slot_detector.model {path}") from None
+    if getattr(model, "task", None) != "pose":
+        raise GarageError(f"a {getattr(model, 'task', '?')} model, not a pose (keypoint) model",
+                          f"slot_detector.model {path}")
+    keypoints, lines, threshold, imgsz = str(conf.keypoints), conf.lines, float(conf.conf), int(conf.imgsz)
+
+    def detect_pose(image: np.ndarray, mpp: float) -> SlotFrame:
+        result = model.predict(np.ascontiguousarray(image[..., ::-1]), conf=threshold, imgsz=imgsz, verbose=False)[0]
+        return from_pose(result, keypoints, float(mpp), (int(image.shape[1]), int(image.shape[0])), lines)
+
+    return detect_pose
+
+
+def _numpy(x: Any) -> np.ndarray:
+    """A torch tensor or an array as a numpy array."""
+    if hasattr(x, "cpu"):
+        x = x.cpu()
+    return np.asarray(x.numpy() if hasattr(x, "numpy") else x, dtype=np.float64)
+
+
+def _occupied(names: dict, cls: float) -> bool | None:
+    name = str(names.get(int(cls), "")).lower()
+    return True if name in ("occupied", "taken", "full") else False if name in ("free", "empty", "vacant") else None
+
+
+def from_pose(result: Any, keypoints: str, mpp: float, size: tuple[int, int], lines: Any) -> SlotFrame:
+    """An ultralytics pose `Results` (keypoints.xy (N, K, 2), boxes.conf and .cls, names) as a SlotFrame.
+    corners: each object a slot, K >= 4 keypoints: entrance p1, entrance p2, back of p2, back of p1; its entrance
+    points become marking points (one per place: points within a quarter bay width are one), pointing from the
+    entrance to the back; classes named free/occupied give its occupancy.
+    points: each object a marking point, K >= 2: the point and a point along its direction; a class named T or L
+    gives its shape; slots are paired as the lines baseline pairs them (lines.bay_width, lines.depth)."""
+    from garage_exp.perception.slots.lines import pair_points
+
+    xy = _numpy(result.keypoints.xy) if result.keypoints is not None else np.zeros((0, 0, 2))
+    n = len(xy)
+    scores = _numpy(result.boxes.conf) if n else np.zeros(0)
+    classes = _numpy(result.boxes.cls) if n else np.zeros(0)
+    names = dict(getattr(result, "names", {}) or {})
+    need = 4 if keypoints == "corners" else 2
+    if n and xy.shape[1] < need:
+        raise GarageError(f"the model gives {xy.shape[1]} keypoints per object; keypoints={keypoints} needs {need}",
+                          "slot_detector.keypoints")
+    points: list[MarkingPoint] = []
+    if keypoints == "points":
+        for k in range(n):
+            (x, y), (x2, y2) = xy[k, 0], xy[k, 1]
+            shape = str(names.get(int(classes[k]), "T"))
+            points.append(MarkingPoint(float(x), float(y), math.atan2(y2 - y, x2 - x),
+                                       shape if shape in ("T", "L") else "T", float(scores[k])))
+        return SlotFrame(points, pair_points(points, mpp, lines), mpp, size)
+    merge = 0.25 * float(lines.bay_width[0]) / mpp
+    slots: list[Slot] = []
+
+    def point(at: np.ndarray, towards: np.ndarray, score: float) -> int:
+        for k, q in enumerate(points):
+            if math.hypot(q.x - at[0], q.y - at[1]) <= merge:
+                if score > q.score:
+                    points[k] = MarkingPoint(q.x, q.y, q.direction, q.shape, score)
+                return k
+        d = towards - at
+        points.append(MarkingPoint(float(at[0]), float(at[1]), math.atan2(d[1], d[0]), "T", score))
+        return len(points) - 1
+
+    for k in range(n):
+        c = xy[k, :4]
+        score = float(scores[k])
+        p1, p2 = point(c[0], c[3], score), point(c[1], c[2], score)
+        slots.append(Slot(p1, p2, tuple((float(x), float(y)) for x, y in c), _occupied(names, classes[k]), score))
+    return SlotFrame(points, slots, mpp, size)
