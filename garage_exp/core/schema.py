@@ -71,6 +71,16 @@ class CameraConf:
 
 
 @dataclass
+class BevConf:
+    """A bird's-eye view stitched from the rig's fisheyes (garage_exp/render/bev.py): `length` metres along the
+    ego's forward axis, `width` across, centred on the ego, at `meters_per_pixel`."""
+
+    length: float = 10.0
+    width: float = 10.0
+    meters_per_pixel: float = 0.02
+
+
+@dataclass
 class CameraRigConf:
     """A rig of cameras. The top-level keys are factors a sweep or a search varies with plain overrides
     (`camera.mount=mirror camera.fovy=90`); None leaves the camera's own value. mount, fovy, pitch and z apply
@@ -86,6 +96,7 @@ class CameraRigConf:
     width: Optional[int] = None
     height: Optional[int] = None
     view: str = "raw"  # fisheye frames go to the detector raw, or undistorted: perspective | cylindrical
+    bev: Optional[BevConf] = None  # a bird's-eye view from the rig's fisheyes, written beside the frames
 
 
 @dataclass
@@ -206,6 +217,7 @@ class CaseConf:
     motion: MotionConf = field(default_factory=MotionConf)
     variants: list[VariantConf] = field(default_factory=list)
     target: str = ""  # the actor scored when a variant does not say; empty: the actor with role target
+    slots: bool = False  # score parking-slot finding on a bird's-eye view (camera.bev, else BevConf's default)
 
 
 @dataclass

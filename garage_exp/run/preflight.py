@@ -104,6 +104,22 @@ def check_config(cfg: DictConfig) -> None:
     check_look(cfg.look)
     check_materials(cfg.materials)
     check_clutter(cfg.clutter)
+    check_slots(cfg)
+
+
+def check_slots(cfg: DictConfig) -> None:
+    """A bird's-eye view (`camera.bev`, or a case with `slots: true`) needs fisheye cameras and a sane extent."""
+    from garage_exp.core.schema import BevConf
+    from garage_exp.render.bev import check_bev
+
+    bev = cfg.camera.get("bev")
+    if bev is None and not cfg.case.get("slots", False):
+        return
+    check_bev(bev if bev is not None else BevConf())
+    if not any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras):
+        where = "camera.bev" if bev is not None else "case.slots"
+        raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {cfg.camera.name} has none "
+                          "(camera=fisheye4)", where)
 
 
 def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
