@@ -73,11 +73,12 @@ class CameraConf:
 @dataclass
 class BevConf:
     """A bird's-eye view stitched from the rig's fisheyes (garage_exp/render/bev.py): `length` metres along the
-    ego's forward axis, `width` across, centred on the ego, at `meters_per_pixel`."""
+    ego's forward axis, `width` across, centred on the ego, at `meters_per_pixel`. 18 m across holds the 5 m deep
+    bays on both sides of a 6 m lane whole (their back corners 8 m from the lane's centre)."""
 
-    length: float = 10.0
-    width: float = 10.0
-    meters_per_pixel: float = 0.02
+    length: float = 12.0
+    width: float = 18.0
+    meters_per_pixel: float = 0.03
 
 
 @dataclass

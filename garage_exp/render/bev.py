@@ -40,9 +40,9 @@ class BevSpec:
     """The BEV's extent: `length` metres along the ego's forward axis (image rows), `width` across (columns),
     centred on the ego, `meters_per_pixel` square pixels."""
 
-    length: float = 10.0
-    width: float = 10.0
-    meters_per_pixel: float = 0.02
+    length: float = 12.0
+    width: float = 18.0
+    meters_per_pixel: float = 0.03
 
     @property
     def size(self) -> tuple[int, int]:
