@@ -116,6 +116,9 @@ def check_slots(cfg: DictConfig) -> None:
     if bev is None and not cfg.case.get("slots", False):
         return
     check_bev(bev if bev is not None else BevConf())
+    if cfg.camera.get("view", "raw") != "raw":
+        raise GarageError(f"a bird's-eye view is stitched from the raw fisheye pictures, not {cfg.camera.view} views "
+                          "(camera.view=raw)", "camera.view")
     if not any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras):
         where = "camera.bev" if bev is not None else "case.slots"
         raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {cfg.camera.name} has none "
