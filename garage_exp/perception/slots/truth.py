@@ -32,7 +32,7 @@ from garage_exp.render.bev import BevMaps, BevSpec
 from garage_exp.render.fisheye import lens_of
 from garage_exp.scene.bays import BAY_TYPES, Bay, bays, layout
 from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
-from garage_exp.scene.description import CameraSpec, Pose, Scene
+from garage_exp.scene.description import Box, CameraSpec, Pose, Scene
 from garage_exp.scene.markings import _drawn_by_neighbour, unit_hash
 
 WORN = 0.25  # paint with less than this share of its fresh contrast left counts as worn away
@@ -207,9 +207,12 @@ def obstacles(scene: Scene, poses: dict[str, Pose | None] | None = None) -> list
         kind = e.kind or "vehicle"
         out.append(Obstacle(e.name, kind, pose, (e.extent[0] / 2, e.extent[1] / 2), float(e.extent[2])))
     for e in scene.entities:
-        if e.role == "structure" and e.name.startswith("pillar_") and e.shapes:
-            size = e.shapes[0].size
-            out.append(Obstacle(e.name, "pillar", e.pose, (size[0] / 2, size[1] / 2), float(size[2])))
+        boxes = [s for s in e.shapes if isinstance(s, Box)]
+        if e.role == "structure" and e.name.startswith("pillar_") and boxes:
+            # its widest part (a wrap, a base) and its top: a pillar is drawn as several boxes about its axis
+            half = (max(b.size[0] for b in boxes) / 2, max(b.size[1] for b in boxes) / 2)
+            top = max(b.offset.z + b.size[2] / 2 for b in boxes)
+            out.append(Obstacle(e.name, "pillar", e.pose, half, float(top)))
     return out
 
 
