@@ -76,6 +76,7 @@ class BevConf:
     ego's forward axis, `width` across, centred on the ego, at `meters_per_pixel`. 18 m across holds the 5 m deep
     bays on both sides of a 6 m lane whole (their back corners 8 m from the lane's centre)."""
 
+    enabled: bool = False  # write the BEV on any fisheye rig; a case with `slots: true` turns it on by itself
     length: float = 12.0
     width: float = 18.0
     meters_per_pixel: float = 0.03
@@ -97,7 +98,7 @@ class CameraRigConf:
     width: Optional[int] = None
     height: Optional[int] = None
     view: str = "raw"  # fisheye frames go to the detector raw, or undistorted: perspective | cylindrical
-    bev: Optional[BevConf] = None  # a bird's-eye view from the rig's fisheyes, written beside the frames
+    bev: BevConf = field(default_factory=BevConf)  # a bird's-eye view from the rig's fisheyes (render/bev.py)
 
 
 @dataclass
@@ -218,7 +219,7 @@ class CaseConf:
     motion: MotionConf = field(default_factory=MotionConf)
     variants: list[VariantConf] = field(default_factory=list)
     target: str = ""  # the actor scored when a variant does not say; empty: the actor with role target
-    slots: bool = False  # score parking-slot finding on a bird's-eye view (camera.bev, else BevConf's default)
+    slots: bool = False  # score parking-slot finding on a bird's-eye view of the fisheye rig (camera.bev)
 
 
 @dataclass

@@ -108,21 +108,22 @@ def check_config(cfg: DictConfig) -> None:
 
 
 def check_slots(cfg: DictConfig) -> None:
-    """A bird's-eye view (`camera.bev`, or a case with `slots: true`) needs fisheye cameras and a sane extent."""
-    from garage_exp.core.schema import BevConf
+    """A bird's-eye view (`camera.bev.enabled`, or a case with `slots: true` on a fisheye rig) is stitched from
+    raw fisheye pictures over a sane extent. A slot case on a rig without fisheyes runs as an object case
+    (run/slots.py)."""
     from garage_exp.render.bev import check_bev
 
-    bev = cfg.camera.get("bev")
-    if bev is None and not cfg.case.get("slots", False):
+    enabled = bool(cfg.camera.bev.enabled)
+    fisheye = any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras)
+    if not enabled and not (cfg.case.get("slots", False) and fisheye):
         return
-    check_bev(bev if bev is not None else BevConf())
+    check_bev(cfg.camera.bev)
+    if not fisheye:
+        raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {cfg.camera.name} has none "
+                          "(camera=fisheye4)", "camera.bev.enabled")
     if cfg.camera.get("view", "raw") != "raw":
         raise GarageError(f"a bird's-eye view is stitched from the raw fisheye pictures, not {cfg.camera.view} views "
                           "(camera.view=raw)", "camera.view")
-    if not any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras):
-        where = "camera.bev" if bev is not None else "case.slots"
-        raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {cfg.camera.name} has none "
-                          "(camera=fisheye4)", where)
 
 
 def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:

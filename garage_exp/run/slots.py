@@ -1,6 +1,6 @@
 """A job's slot frames: the bird's-eye view of each shot, its slot ground truth, exports, detection and score.
 
-Active when the case asks for slots (`case.slots`) or the rig sets `camera.bev`. Each shot's four fisheye
+Active when the case asks for slots (`case.slots`) on a rig with fisheyes, or `camera.bev.enabled`. Each shot's four fisheye
 pictures (what the detectors get: after the sensor model) are stitched into the BEV (render/bev.py); the slot
 ground truth for the ego's pose there (perception/slots/truth.py) is exported (exports/slots.py: slots/ under
 the job's dir, logged), and when the config has a `slot_detector` its detector runs on the BEV and is scored
@@ -25,14 +25,23 @@ METRICS = {"point_recall": "slot_point_recall", "point_precision": "slot_point_p
 
 
 def wanted(cfg: DictConfig) -> bool:
-    return cfg.camera.get("bev") is not None or bool(cfg.case.get("slots", False))
+    """A BEV is set on the rig, or the case asks for slots and the rig has fisheyes to stitch (a slot case on
+    a pinhole rig runs as an object case, and says so)."""
+    if cfg.camera.bev.enabled:
+        return True
+    if not cfg.case.get("slots", False):
+        return False
+    if any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras):
+        return True
+    print(f"garage_exp: case {cfg.case.name} scores slots on a bird's-eye view of fisheye cameras; rig "
+          f"{cfg.camera.name} has none, so no slot frames (camera=fisheye4)")
+    return False
 
 
 def bev_spec(cfg: DictConfig):
-    from garage_exp.core.schema import BevConf
     from garage_exp.render.bev import spec_of
 
-    return spec_of(cfg.camera.bev if cfg.camera.get("bev") is not None else BevConf())
+    return spec_of(cfg.camera.bev)
 
 
 def finder(cfg: DictConfig):
