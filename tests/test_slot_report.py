@@ -49,3 +49,28 @@ def test_no_scored_slots_no_section():
     assert section(pd.DataFrame(), markdown_table) == []
     unscored = slot_units(runs, pd.DataFrame([frame("a", 0, 0, 0)]), ["factor.light"])
     assert math.isnan(unscored.slot_recall.iloc[0]) and hardest(slot_effects(unscored, ["factor.light"])) is None
+
+
+def test_the_slots_search_objective_ranks_by_missed_fair_slots():
+    from optuna.trial import TrialState
+
+    from garage_exp.search.loop import outcome
+
+    summary = {"fair_frames": 0.0, "fair_difficulty": float("nan"), "frames": 4.0, "run_id": "r", "output_dir": "/x",
+               "slot_recall": 0.25, "slot_precision": 0.5, "slot_truth_fair": 3.0}
+    out = outcome(summary, "slots")  # the object target's visibility does not matter to the slot objective
+    assert out.state == TrialState.COMPLETE and out.values == [0.75] and out.attrs["slot_precision"] == 0.5
+    none_fair = outcome({**summary, "slot_recall": float("nan"), "slot_truth_fair": 0.0}, "slots")
+    assert none_fair.state == TrialState.PRUNED and none_fair.attrs["infeasible"] is True
+
+
+def test_the_slots_objective_needs_a_slot_case_on_fisheye_cameras():
+    from conftest import compose_cfg
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.search.sweep import _check_objective
+
+    cfg = compose_cfg("case=slots", "camera=fisheye4", "search.objective=slots")
+    _check_objective(cfg.search, cfg)
+    with pytest.raises(GarageError, match="slot case on a fisheye rig"):
+        _check_objective(cfg.search, compose_cfg("case=slots", "search.objective=slots"))

@@ -343,7 +343,8 @@ class SearchConf:
     mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
     trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
     sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
-    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness)
+    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness) |
+    # slots (1 - recall of the fair slots on the BEV: case=slots camera=fisheye4, docs/slots.md)
     seed: Optional[int] = None  # the sampler's seed; None: the config's seed
     startup: int = 10  # tpe, gp, cmaes: random trials before the model guides (Optuna's n_startup_trials)
     study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)

@@ -60,6 +60,13 @@ def outcome(result, objective: str) -> Outcome:
             attrs["infeasible"] = True
             return Outcome(TrialState.PRUNED, None, attrs)
         return Outcome(TrialState.COMPLETE, [lateness], attrs)
+    if objective == "slots":  # the hardest fair slot scenarios: most fair slots missed; none fair: untestable
+        recall, fair = _num(result.get("slot_recall")), _num(result.get("slot_truth_fair"))
+        attrs.update({"slot_recall": recall, "slot_fair": fair, "slot_precision": _num(result.get("slot_precision"))})
+        if recall is None or not fair:
+            attrs["infeasible"] = True
+            return Outcome(TrialState.PRUNED, None, attrs)
+        return Outcome(TrialState.COMPLETE, [1.0 - recall], attrs)
     if attrs["fair_frames"] == 0 or difficulty is None or math.isnan(difficulty):
         attrs["infeasible"] = True
         return Outcome(TrialState.PRUNED, None, attrs)
