@@ -54,7 +54,7 @@ def test_no_scored_slots_no_section():
 def test_the_slots_search_objective_ranks_by_missed_fair_slots():
     from optuna.trial import TrialState
 
-    from garage_exp.search.loop import outcome
+    from garage_exp.search.loop import line, outcome
 
     summary = {"fair_frames": 0.0, "fair_difficulty": float("nan"), "frames": 4.0, "run_id": "r", "output_dir": "/x",
                "slot_recall": 0.25, "slot_precision": 0.5, "slot_truth_fair": 3.0}
@@ -62,6 +62,8 @@ def test_the_slots_search_objective_ranks_by_missed_fair_slots():
     assert out.state == TrialState.COMPLETE and out.values == [0.75] and out.attrs["slot_precision"] == 0.5
     none_fair = outcome({**summary, "slot_recall": float("nan"), "slot_truth_fair": 0.0}, "slots")
     assert none_fair.state == TrialState.PRUNED and none_fair.attrs["infeasible"] is True
+    assert "slot_miss 0.750 (slot recall 0.250, 3.0 fair slots a frame)" in line(0, out, 4)
+    assert "no fair slot" in line(1, none_fair, 4)
 
 
 def test_the_slots_objective_needs_a_slot_case_on_fisheye_cameras():
