@@ -10,7 +10,7 @@ import pytest
 from conftest import compose_cfg
 
 from garage_exp.perception.slots.truth import (Obstacle, WorldBay, obstacles, paint_left, slot_truth,
-                                                world_bays)
+                                                texture_left, world_bays)
 from garage_exp.render.bev import bev_maps, spec_of
 from garage_exp.core.schema import BevConf
 from garage_exp.scene.description import Pose
@@ -70,6 +70,16 @@ def test_wear_takes_the_pieces_the_markings_remove_and_fades_the_rest():
     assert gone and kept
     assert all(paint_left(*k, 0.6) == 0.0 for k in gone)
     assert all(paint_left(*k, 0.6) == pytest.approx(0.4) for k in kept)
+    # the real look's paint texture wears patches through: little at the worn materials' 0.35, half at 0.8
+    assert texture_left(0.0) == 1.0 and 0.9 < texture_left(0.35) < 1.0 and 0.4 < texture_left(0.8) < 0.6
+
+
+def test_the_worn_level_leaves_every_bay_line_worn_and_the_fresh_one_none(job):
+    cfg, prepared = job
+    fresh = world_bays(prepared.classified, cfg.garage, 0.0, 0.35)  # look=real: materials=worn's own paint wear
+    worn = world_bays(prepared.classified, cfg.garage, 0.7, 0.805)  # wear=worn on top of it
+    assert min(p for b in fresh for p in b.paint) > 0.9
+    assert max(p for b in worn for p in b.paint) < 0.25  # WORN: every corner's paint counts as worn
 
 
 def test_slot_truth_in_the_bev(job):

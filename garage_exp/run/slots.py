@@ -77,11 +77,16 @@ class SlotFrames:
         from garage_exp.render.bev import bev_maps
         from garage_exp.scenario.assemble import marking_wear
 
+        from garage_exp.scene.look import dress_for
+
         scene = prepared.scene
         ego = next(v for v in scene.vehicles() if v.role == "ego")
         spec = bev_spec(cfg)
+        wear = marking_wear(cfg)
+        # the paint texture of the materials' draw (replicate 0's: a replicate's own draw is close to it)
+        texture = dress_for(cfg.materials, int(cfg.seed), wear).paint_wear if str(cfg.materials.level) != "none" else 0.0
         return cls(cfg, scene, out, spec, bev_maps(scene.cameras, spec, ego.extent),
-                   world_bays(prepared.classified, cfg.garage, marking_wear(cfg)), SlotExports(out / "slots"),
+                   world_bays(prepared.classified, cfg.garage, wear, texture), SlotExports(out / "slots"),
                    finder(cfg))
 
     def add(self, shot, camera: str, rgb: np.ndarray) -> None:

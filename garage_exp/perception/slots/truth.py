@@ -12,7 +12,9 @@ Per corner, what a camera could see of it in the BEV (`Visibility`):
 - "hidden": the ray from the BEV's camera for that pixel to the corner meets a parked car, a person, a box
   or a pillar first (their boxes: a car's footprint times its height, a pillar's section to the ceiling);
 - "worn": the line's paint there is gone (the `wear` factor removes a deterministic share of the pieces,
-  `scene/markings.unit_hash`) or faded past `WORN` of its contrast;
+  `scene/markings.unit_hash`) or has less than `WORN` of its contrast left: the factor fades the rest to
+  1 - wear, and the real look's paint texture (`materials`, scene/textures._paint) wears patches through to the
+  floor, on average the share `texture_left` says;
 - "visible" otherwise.
 A slot is fair when a detector could have seen where it is: its entrance corners (its marking points, what
 PS2.0's slots are made of) are neither outside nor hidden, and its back corners lie in the view (they may be
@@ -22,6 +24,7 @@ Worn paint is what makes a slot hard, not unfair.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -132,9 +135,23 @@ def paint_left(cell_i: int, cell_j: int, piece: int, wear: float) -> float:
     return 1.0 - wear
 
 
-def world_bays(classified, garage, wear: float = 0.0) -> list[WorldBay]:
-    """Every bay of the plan (scene/bays.bays) with its corners on the painted lines."""
+@functools.lru_cache(maxsize=32)
+def texture_left(paint_wear: float) -> float:
+    """The mean share of a line's paint the real look's texture leaves at this wear (its patches of worn-through
+    paint, scene/textures._paint, averaged over a tile of its noise): 1.00 fresh, 0.96 at 0.3, 0.50 at 0.79."""
+    from garage_exp.scene.textures import fbm
+
+    if paint_wear <= 0.0:
+        return 1.0
+    noise = fbm(128, np.random.default_rng(0), octaves=5, base=8)
+    return float((1.0 - np.clip((noise + 1.2 * paint_wear - 0.85) * 5.0, 0.0, 1.0)).mean())
+
+
+def world_bays(classified, garage, wear: float = 0.0, texture_wear: float = 0.0) -> list[WorldBay]:
+    """Every bay of the plan (scene/bays.bays) with its corners on the painted lines. `wear`: the `wear` factor's;
+    `texture_wear`: the paint texture's (the `materials` dress's paint wear; 0 without materials)."""
     width = float(garage.marking_width)
+    texture = texture_left(round(float(texture_wear), 4))
     h = width / 2
     present = {(b.i, b.j, b.index) for b in bays(classified, garage)}
     out = []
@@ -149,9 +166,9 @@ def world_bays(classified, garage, wear: float = 0.0) -> list[WorldBay]:
             """The painted line m's lateral position and its paint."""
             if m == last and shared:  # the neighbour's first line: moved into the neighbour
                 ni, nj = (bay.i, bay.j + 1) if lay.along_x else (bay.i - 1, bay.j)
-                return lines[m] + h, paint_left(ni, nj, 0, wear)
+                return lines[m] + h, paint_left(ni, nj, 0, wear) * texture
             p = lines[m] + h if m == 0 else lines[m] - h if m == last else lines[m]
-            return p, paint_left(bay.i, bay.j, m, wear)
+            return p, paint_left(bay.i, bay.j, m, wear) * texture
 
         def neighbour_bay(m: int) -> bool:
             """Whether a bay lies on the far side of line m (a T) or the row ends there (an L)."""
