@@ -129,20 +129,6 @@ class BevMaps:
             out[take] = sampled[take]
         return out
 
-    def stitch_nearest(self, pictures: dict[str, np.ndarray], fill=0) -> np.ndarray:
-        """The BEV of per-pixel labels (segmentation ids): each BEV pixel reads its owner's nearest pixel."""
-        first = next(iter(pictures.values()))
-        out = np.full(self.owner.shape, fill, dtype=first.dtype)
-        for k, name in enumerate(self.cameras):
-            take = self.owner == k
-            if not take.any() or name not in pictures:
-                continue
-            pic = pictures[name]
-            col = np.clip(np.floor(self.map_x[k][take] + 0.5).astype(int), 0, pic.shape[1] - 1)
-            row = np.clip(np.floor(self.map_y[k][take] + 0.5).astype(int), 0, pic.shape[0] - 1)
-            out[take] = pic[row, col]
-        return out
-
 
 def bev_maps(cameras, spec: BevSpec, ego_extent=None) -> BevMaps:
     """The maps of a rig's fisheye cameras (CameraSpec, mounted on the ego) for a BEV; cached per (rig, spec,
@@ -170,7 +156,7 @@ def _maps(cameras: tuple[CameraSpec, ...], spec: BevSpec, extent) -> BevMaps:
         u, v = lens.project(local)
         theta = np.arctan2(np.hypot(local[:, 1], local[:, 2]), local[:, 0])
         ok = (theta <= lens.theta_max) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        ok &= pose[2, 3] > 0.0
+        ok &= pose[2, 3] > 0.0  # a camera at or under the floor sees none of it
         map_x[k].reshape(-1)[ok] = (u[ok] - 0.5).astype(np.float32)
         map_y[k].reshape(-1)[ok] = (v[ok] - 0.5).astype(np.float32)
         thetas[k].reshape(-1)[ok] = theta[ok]
