@@ -2,9 +2,9 @@
 [--shot 0] [--out docs/img/bev.png] [OVERRIDE ...]`.
 
 One shot of `camera=fisheye4 case=slots`, rendered: the four fisheye pictures (left, 2x2), the BEV stitched from
-them with the seams between cameras (magenta, middle), and the same BEV with the ground-truth slots (red occupied, green free; white dots:
-marking points, filled T, hollow L; a tick along the direction into the slot); where the config has a
-`slot_detector`, its slots in light blue. Prints each slot's visibility and fairness.
+them with the seams between cameras (magenta, middle), and the same BEV with the ground-truth slots (red
+occupied, green free; white dots: marking points, filled T, hollow L; a tick along the direction into the slot);
+where the config has a `slot_detector`, its slots in light blue. Prints each slot's visibility and fairness.
 """
 
 from __future__ import annotations

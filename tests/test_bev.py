@@ -104,8 +104,8 @@ def test_each_camera_owns_its_side_of_the_ego_and_the_seams_lie_between(rig):
     seams = maps.seams
     assert seams.any() and not seams[maps.owner == -1].any()
     o = maps.owner
-    pairs = {frozenset((names[a], names[b])) for a, b in zip(o[:, 1:][o[:, 1:] != o[:, :-1]], o[:, :-1][o[:, 1:] != o[:, :-1]])
-             if a >= 0 and b >= 0}
+    change = o[:, 1:] != o[:, :-1]
+    pairs = {frozenset((names[a], names[b])) for a, b in zip(o[:, 1:][change], o[:, :-1][change]) if a >= 0 and b >= 0}
     assert pairs == {frozenset(p) for p in (("front", "left"), ("front", "right"), ("rear", "left"), ("rear", "right"))}
 
 

@@ -1,7 +1,7 @@
 """A job's slot frames: the bird's-eye view of each shot, its slot ground truth, exports, detection and score.
 
-Active when the case asks for slots (`case.slots`) on a rig with fisheyes, or `camera.bev.enabled`. Each shot's four fisheye
-pictures (what the detectors get: after the sensor model) are stitched into the BEV (render/bev.py); the slot
+Active when the case asks for slots (`case.slots`) on a rig with fisheyes, or `camera.bev.enabled`. Each shot's
+fisheye pictures (what the detectors get: after the sensor model) are stitched into the BEV (render/bev.py); the slot
 ground truth for the ego's pose there (perception/slots/truth.py) is exported (exports/slots.py: slots/ under
 the job's dir, logged), and when the config has a `slot_detector` its detector runs on the BEV and is scored
 against the truth (results/slots.py), fair slots only. Per frame: `slots.csv` (a row per BEV frame); per job:
@@ -84,7 +84,8 @@ class SlotFrames:
         spec = bev_spec(cfg)
         wear = marking_wear(cfg)
         # the paint texture of the materials' draw (replicate 0's: a replicate's own draw is close to it)
-        texture = dress_for(cfg.materials, int(cfg.seed), wear).paint_wear if str(cfg.materials.level) != "none" else 0.0
+        texture = (dress_for(cfg.materials, int(cfg.seed), wear).paint_wear if str(cfg.materials.level) != "none"
+                   else 0.0)
         return cls(cfg, scene, out, spec, bev_maps(scene.cameras, spec, ego.extent),
                    world_bays(prepared.classified, cfg.garage, wear, texture), SlotExports(out / "slots"),
                    finder(cfg))

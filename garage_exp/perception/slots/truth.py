@@ -39,8 +39,7 @@ from garage_exp.scene.description import Box, CameraSpec, Pose, Scene
 from garage_exp.scene.markings import _drawn_by_neighbour, unit_hash
 
 WORN = 0.25  # paint with less than this share of its fresh contrast left counts as worn away
-VISIBILITY = ("visible", "worn", "hidden", "outside")
-OCCLUDER_KINDS = ("vehicle", "person", "box")
+VISIBILITY = ("visible", "worn", "hidden", "outside")  # a corner's, best first
 
 
 @dataclass(frozen=True)
@@ -73,11 +72,6 @@ class Obstacle:
     pose: Pose
     half: tuple[float, float]
     height: float
-
-    def covers(self, x: float, y: float) -> bool:
-        c, s = math.cos(math.radians(self.pose.yaw)), math.sin(math.radians(self.pose.yaw))
-        dx, dy = x - self.pose.x, y - self.pose.y
-        return abs(c * dx + s * dy) <= self.half[0] and abs(-s * dx + c * dy) <= self.half[1]
 
     def blocks(self, start: np.ndarray, end: np.ndarray) -> bool:
         """Whether the segment start -> end (world, 3D) passes through the box (slab test in its frame)."""
