@@ -71,6 +71,18 @@ class CameraConf:
 
 
 @dataclass
+class BevConf:
+    """A bird's-eye view stitched from the rig's fisheyes (garage_exp/render/bev.py): `length` metres along the
+    ego's forward axis, `width` across, centred on the ego, at `meters_per_pixel`. 18 m across holds the 5 m deep
+    bays on both sides of a 6 m lane whole (their back corners 8 m from the lane's centre)."""
+
+    enabled: bool = False  # write the BEV on any fisheye rig; a case with `slots: true` turns it on by itself
+    length: float = 12.0
+    width: float = 18.0
+    meters_per_pixel: float = 0.03
+
+
+@dataclass
 class CameraRigConf:
     """A rig of cameras. The top-level keys are factors a sweep or a search varies with plain overrides
     (`camera.mount=mirror camera.fovy=90`); None leaves the camera's own value. mount, fovy, pitch and z apply
@@ -86,6 +98,7 @@ class CameraRigConf:
     width: Optional[int] = None
     height: Optional[int] = None
     view: str = "raw"  # fisheye frames go to the detector raw, or undistorted: perspective | cylindrical
+    bev: BevConf = field(default_factory=BevConf)  # a bird's-eye view from the rig's fisheyes (render/bev.py)
 
 
 @dataclass
@@ -206,6 +219,7 @@ class CaseConf:
     motion: MotionConf = field(default_factory=MotionConf)
     variants: list[VariantConf] = field(default_factory=list)
     target: str = ""  # the actor scored when a variant does not say; empty: the actor with role target
+    slots: bool = False  # score parking-slot finding on a bird's-eye view of the fisheye rig (camera.bev)
 
 
 @dataclass
@@ -375,7 +389,8 @@ class SearchConf:
     mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
     trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
     sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
-    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness)
+    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness) |
+    # slots (1 - recall of the fair slots on the BEV: case=slots camera=fisheye4, docs/slots.md)
     seed: Optional[int] = None  # the sampler's seed; None: the config's seed
     startup: int = 10  # tpe, gp, cmaes: random trials before the model guides (Optuna's n_startup_trials)
     study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)

@@ -1,5 +1,7 @@
 """`python -m garage_exp.exports DATASET [IMAGE] -o out.png` draws one exported frame: its COCO boxes (green,
-visible part yellow) and its KITTI 3D boxes projected with the calib's P2 (red). Bad input: one line, exit 2."""
+visible part yellow) and its KITTI 3D boxes projected with the calib's P2 (red); given a job's `slots/` export
+(bird's-eye views, garage_exp/exports/slots.py), its slots read back from the COCO keypoints (red occupied, green
+free) and marking points. Bad input: one line, exit 2."""
 
 from __future__ import annotations
 
@@ -12,16 +14,17 @@ from garage_exp.core.errors import GarageError
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m garage_exp.exports", description=__doc__.splitlines()[0])
-    ap.add_argument("dataset", type=Path, help="a job's dataset directory (dataset=true)")
+    ap.add_argument("dataset", type=Path, help="a job's dataset directory (dataset=true), or its slots/ directory")
     ap.add_argument("image", nargs="?", help="an image's file name in coco.json (default: the first)")
     ap.add_argument("-o", "--output", type=Path, help="PNG to write (default: exports_IMAGE here)")
     args = ap.parse_args(argv)
     try:
         from PIL import Image
 
-        from garage_exp.exports.show import draw
+        from garage_exp.exports import show, slots
 
-        rgb, name = draw(args.dataset, args.image)
+        slot_export = (args.dataset / "coco_keypoints.json").exists()
+        rgb, name = (slots.draw if slot_export else show.draw)(args.dataset, args.image)
     except GarageError as exc:
         print(f"garage_exp.exports: {exc}", file=sys.stderr)
         return 2

@@ -19,7 +19,7 @@ import pandas as pd
 
 from garage_exp.results import stats
 from garage_exp.tracking import runs as tracking
-from garage_exp.report import plots, visibility
+from garage_exp.report import plots, slots, visibility
 from garage_exp.report.tables import (breakdown, by_camera, child_runs, factors_of, late_table, main_effects,
                                       markdown_table, number, pair_effects, parse_overrides, pivot, significance,
                                       summary, units)
@@ -34,7 +34,8 @@ BREAKDOWN_TITLES = {"label": "Per label: mean composite confidence (colour, plac
 def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs: pd.DataFrame,
              anova: pd.DataFrame, tables: dict[str, pd.DataFrame] | None = None,
              bins: pd.DataFrame | None = None, curves: pd.DataFrame | None = None,
-             cameras: tuple[pd.DataFrame, pd.DataFrame] | None = None) -> str:
+             cameras: tuple[pd.DataFrame, pd.DataFrame] | None = None,
+             slot_effects: pd.DataFrame | None = None) -> str:
     failed = runs[runs.status != "FINISHED"] if "status" in runs else runs.iloc[0:0]
     skipped = runs[runs.skipped] if "skipped" in runs else runs.iloc[0:0]
     per_cell = obs.groupby("run_id").size() if not obs.empty else pd.Series(dtype=int)
@@ -78,6 +79,8 @@ def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs
     if curves is not None and not curves.empty:
         text += ["## Visible fraction at which recall crosses 0.5 (logistic fit, 95 % CI)\n",
                  markdown_table(curves.drop(columns="fit"))]
+    if slot_effects is not None:
+        text += slots.section(slot_effects, markdown_table)
     if len(failed):
         text += ["## Failed runs\n", markdown_table(failed[["run_name", "status", "error"]])]
     if len(skipped):
@@ -114,17 +117,20 @@ def write_report(mlc, parent_run_id: str, runs: pd.DataFrame, out: Path) -> None
     tables = {BREAKDOWN_TITLES[w]: breakdown(frames, runs, factors, w) for w in BREAKDOWN_TITLES}
     bins, curves = visibility.by_bins(frames, runs), visibility.curves(frames, runs)
     cameras = by_camera(frames, runs, factors)
+    slot_obs = slots.slot_units(runs, slots.slot_tables(mlc, runs), factors)
+    slot_effects = slots.slot_effects(slot_obs, factors) if not slot_obs.empty else pd.DataFrame()
     for name, df in (("runs", runs), ("units", obs), ("main_effects", effects), ("pair_effects", pairs),
                      ("anova", anova), ("labels", tables[BREAKDOWN_TITLES["label"]]),
                      ("models", tables[BREAKDOWN_TITLES["model"]]), ("visibility_bins", bins),
                      ("visibility_curve", curves.drop(columns="fit") if not curves.empty else curves),
-                     ("cameras", cameras[0]), ("cameras_first", cameras[1])):
+                     ("cameras", cameras[0]), ("cameras_first", cameras[1]), ("slot_units", slot_obs),
+                     ("slot_effects", slot_effects)):
         df.to_csv(out / f"{name}.csv", index=False)
     plots.heatmaps(obs, factors, out / "heatmap.png")
     plots.main_effects(effects, out / "main_effects.png")
     plots.interactions(pairs, out / "interactions.png")
     plots.visibility(visibility.in_view(frames, runs), curves, out / "visibility.png")
-    text = markdown(runs, obs, effects, pairs, anova, tables, bins, curves, cameras)
+    text = markdown(runs, obs, effects, pairs, anova, tables, bins, curves, cameras, slot_effects)
     figures = [p for p in ("main_effects.png", "interactions.png", "heatmap.png", "visibility.png")
                if (out / p).exists()]
     text += "\n## Figures\n\n" + "\n".join(f"![{p}]({p})" for p in figures) + "\n"

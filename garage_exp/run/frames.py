@@ -25,6 +25,8 @@ from garage_exp.results import table as frame_table
 from garage_exp.scenario import CaseSetup, Shot
 from garage_exp.scenario.assemble import HIDDEN
 from garage_exp.scenario.build import moves_ego
+from garage_exp.run.slots import SlotFrames, slot_line
+from garage_exp.run.slots import wanted as slot_frames_wanted
 from garage_exp.scene.description import Scene
 
 log = logging.getLogger("garage_exp")
@@ -154,6 +156,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     kinds = {e.name: e.kind or "vehicle" for e in scene.actors()} if scene.people() else {}
     table_path = out / "frames.csv"
     fisheye = any(cam.fisheye for cam in scene.cameras)
+    slots = SlotFrames.open(cfg, prepared, out) if slot_frames_wanted(cfg) else None
     frames = render_frames(cfg, scene, setup, renderer, sensor, sensor_rng)
     try:
         for item, dets in overlapped(frames, detector):
@@ -168,6 +171,8 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
                 dataset.add(f"{shot.index:04d}_{item.camera}", item.camera, item.rgb, item.truth, scene,
                             item.geometry)
             keep[(shot.index, item.camera)] = (item.rgb, target, dets)
+            if slots is not None:
+                slots.add(shot, item.camera, item.rgb)
             if cfg.renderer.save_frames == "all":
                 figures.save_frame(frames_dir / f"{shot.index:04d}_{item.camera}.png", item.rgb, target, dets,
                                    score)
@@ -190,6 +195,9 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     summary.update(frame_table.fair_summary(table, primary, search, cfg.detector.threshold))
     if moves_ego(cfg.case):  # seen in time to stop? (a static ego has no stopping distance)
         summary.update(late_verdict(cfg, table[table.camera == primary], setup, out, run))
+    if slots is not None:
+        summary.update(slots.finish(run))
+        print(slot_line(summary))
     run.log_metrics(summary)
     if len(scene.cameras) > 1:  # which camera saw the target first and best (frame_table.per_camera)
         cams = frame_table.per_camera(table, cfg.detector.threshold)

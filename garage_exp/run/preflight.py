@@ -106,6 +106,26 @@ def check_config(cfg: DictConfig) -> None:
     check_look(cfg.look)
     check_materials(cfg.materials)
     check_clutter(cfg.clutter)
+    check_slots(cfg)
+
+
+def check_slots(cfg: DictConfig) -> None:
+    """A bird's-eye view (`camera.bev.enabled`, or a case with `slots: true` on a fisheye rig) is stitched from
+    raw fisheye pictures over a sane extent. A slot case on a rig without fisheyes runs as an object case
+    (run/slots.py)."""
+    from garage_exp.render.bev import check_bev
+
+    enabled = bool(cfg.camera.bev.enabled)
+    fisheye = any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras)
+    if not enabled and not (cfg.case.get("slots", False) and fisheye):
+        return
+    check_bev(cfg.camera.bev)
+    if not fisheye:
+        raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {cfg.camera.name} has none "
+                          "(camera=fisheye4)", "camera.bev.enabled")
+    if cfg.camera.get("view", "raw") != "raw":
+        raise GarageError(f"a bird's-eye view is stitched from the raw fisheye pictures, not {cfg.camera.view} views "
+                          "(camera.view=raw)", "camera.view")
 
 
 def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:

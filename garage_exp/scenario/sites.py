@@ -180,8 +180,49 @@ def t_junction(classified: Classified, garage) -> Site:
 LEFT_OF = {"E": "N", "N": "W", "W": "S", "S": "E"}  # the compass side to the left of a heading
 
 
+def lane_bays(classified: Classified, garage) -> Site:
+    """A lane to cruise past bays (the slot-finding case): the longest straight lane where the plan has one of
+    3+ cells, else the lane into the corner nearest the entrance, driven towards the corner. `lane`: its centre
+    line in driving order; bays 0, 1, ...: every bay whose entrance opens on the lane, in driving order;
+    `left:k`, `right:k`: the k-th on that side."""
+    try:
+        return _with_lane_bays(classified, garage, straight_run(classified, garage).paths["lane"], "lane_bays")
+    except GarageError:
+        pass
+    approach = corner(classified, garage).paths["approach"]
+    # driven towards the corner: distance 0 at the lane's far end, the corner cell's centre at its end
+    ax, ay = -approach.axis[0], -approach.axis[1]
+    far = approach.point(approach.hi)
+    lane = Path(far, (ax, ay), compass_yaw((ax, ay)), 0.0, approach.hi, approach.cell)
+    return _with_lane_bays(classified, garage, lane, "lane_bays")
+
+
+def compass_yaw(axis: tuple[float, float]) -> float:
+    return next(YAW[d] for d, u in UNIT.items() if abs(u[0] - axis[0]) < 1e-9 and abs(u[1] - axis[1]) < 1e-9)
+
+
+def _with_lane_bays(classified: Classified, garage, lane: Path, name: str) -> Site:
+    plan = classified.plan
+    steps = max(2, int(math.ceil((lane.hi - lane.lo) / 0.25)))
+    cells = {plan.cell_at(*lane.point(lane.lo + (lane.hi - lane.lo) * k / steps)) for k in range(steps + 1)}
+    cells.discard(None)
+    sides: dict[str, list[SiteBay]] = {"left": [], "right": []}
+    found = []
+    for bay in bays(classified, garage):
+        sb = site_bay(bay)
+        front = (bay.x + sb.facing[0] * (bay.depth / 2 + 0.5), bay.y + sb.facing[1] * (bay.depth / 2 + 0.5))
+        if plan.cell_at(*front) not in cells:
+            continue
+        cross = lane.axis[0] * (bay.y - lane.origin[1]) - lane.axis[1] * (bay.x - lane.origin[0])
+        found.append((lane.along(bay.x, bay.y), "left" if cross > 0 else "right", sb))
+    found.sort(key=lambda t: t[0])
+    for _, side, sb in found:
+        sides[side].append(sb)
+    return Site(name, {"lane": lane}, [sb for *_, sb in found], sides=sides)
+
+
 SITES = {"corner": corner, "bay_beside_pillar": bay_beside_pillar, "straight_run": straight_run,
-         "t_junction": t_junction}
+         "t_junction": t_junction, "lane_bays": lane_bays}
 
 
 def find_site(name: str, classified: Classified, garage) -> Site:

@@ -63,6 +63,13 @@ def outcome(result, objective: str) -> Outcome:
             attrs["infeasible"] = True
             return Outcome(TrialState.PRUNED, None, attrs)
         return Outcome(TrialState.COMPLETE, [lateness], attrs)
+    if objective == "slots":  # the hardest fair slot scenarios: most fair slots missed; none fair: untestable
+        recall, fair = _num(result.get("slot_recall")), _num(result.get("slot_truth_fair"))
+        attrs.update({"slot_recall": recall, "slot_fair": fair, "slot_precision": _num(result.get("slot_precision"))})
+        if recall is None or not fair:
+            attrs["infeasible"] = True
+            return Outcome(TrialState.PRUNED, None, attrs)
+        return Outcome(TrialState.COMPLETE, [1.0 - recall], attrs)
     if attrs["fair_frames"] == 0 or difficulty is None or math.isnan(difficulty):
         attrs["infeasible"] = True
         return Outcome(TrialState.PRUNED, None, attrs)
@@ -190,11 +197,16 @@ def line(number: int, out: Outcome, budget: int) -> str:
     if out.state == TrialState.FAIL:
         return f"garage_exp: trial {number + 1}/{budget} failed: {out.attrs['error'].splitlines()[0]}"
     if out.state == TrialState.PRUNED:
+        if "slot_fair" in out.attrs:
+            return f"garage_exp: trial {number + 1}/{budget}: no fair slot in any BEV frame: infeasible"
         if "late" in out.attrs:
             return (f"garage_exp: trial {number + 1}/{budget}: never fairly visible before the critical distance: "
                     "infeasible")
         return (f"garage_exp: trial {number + 1}/{budget}: no fairly visible frame (visible fraction "
                 f"{out.attrs['visible_fraction']:.2f}): infeasible")
+    if "slot_fair" in out.attrs:
+        return (f"garage_exp: trial {number + 1}/{budget}: slot_miss {out.values[0]:.3f} (slot recall "
+                f"{out.attrs['slot_recall']:.3f}, {out.attrs['slot_fair']:.1f} fair slots a frame)")
     if "late" in out.attrs and out.attrs.get("lateness") == out.values[0]:
         distance = out.attrs.get("detection_distance")
         return (f"garage_exp: trial {number + 1}/{budget}: lateness {out.values[0]:.3f} (late "

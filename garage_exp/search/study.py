@@ -17,7 +17,8 @@ from garage_exp.search import storage
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid")
 # late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
-OBJECTIVES = {"difficulty": ["difficulty"], "pareto": ["difficulty", "visible_fraction"], "late": ["lateness"]}
+OBJECTIVES = {"difficulty": ["difficulty"], "pareto": ["difficulty", "visible_fraction"], "late": ["lateness"],
+              "slots": ["slot_miss"]}  # slots: 1 - recall of the fair slots (a slot case, docs/slots.md)
 MODES = ("search", "suite")
 # Trials a lost worker left RUNNING are failed once their heartbeat is this old (Optuna's heartbeat).
 HEARTBEAT_S, GRACE_S = 30, 120
@@ -72,8 +73,8 @@ def check_search(search) -> None:
     from garage_exp.search.prescreen import check_prescreen
 
     check_prescreen(search.prescreen)
-    if search.objective == "pareto" and search.prescreen.level != "none":
-        raise GarageError("the pre-screen serves one objective (difficulty or late), not pareto",
+    if search.objective in ("pareto", "slots") and search.prescreen.level != "none":
+        raise GarageError(f"the pre-screen serves one objective (difficulty or late), not {search.objective}",
                           "search.prescreen.level")
     if int(search.grid_levels) < 2:
         raise GarageError(f"{search.grid_levels} levels: a grid needs at least 2 (its ends)", "search.grid_levels")

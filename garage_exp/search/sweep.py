@@ -77,13 +77,18 @@ def check(config: DictConfig, loader) -> space_mod.Space:
 
 
 def _check_objective(search, job: DictConfig) -> None:
-    """The late objective needs an ego that drives: a static ego has no stopping distance to be late for."""
+    """The late objective needs an ego that drives: a static ego has no stopping distance to be late for; the
+    slots objective a slot case on a fisheye rig."""
     from garage_exp.scenario.build import moves_ego
 
     if search.objective == "late" and not moves_ego(job.case):
         raise GarageError(f"the late objective needs a case whose motion drives the ego; case {job.case.name} "
                           f"moves {job.case.motion.actor or 'nothing'!r} (try case=stepout or case=1)",
                           "search.objective")
+    fisheye = any(cam.get("model", "pinhole") == "fisheye" for cam in job.camera.cameras)
+    if search.objective == "slots" and not (job.case.get("slots", False) and fisheye):
+        raise GarageError(f"the slots objective needs a slot case on a fisheye rig (case=slots camera=fisheye4), "
+                          f"not case {job.case.name} on rig {job.camera.name}", "search.objective")
 
 
 def study_name_of(config: DictConfig) -> str:

@@ -1,0 +1,114 @@
+"""The sweep report's slot section (issue 25): how well slots were found on the bird's-eye view, per factor level,
+with 95 % intervals over units, and which factor makes slot finding hardest.
+
+A run of a slot case logs `slots.csv` (garage_exp/run/slots.py): one row per BEV frame with the slot detector's
+counts (results/slots.score: point_tp, point_fp, point_fn, slot_tp, slot_fp, slot_fn, occupancy_right,
+occupancy_n; fair truth slots only). A unit is a run's replicate, as for the object metrics: its frames' counts
+are pooled into rates (PS2.0's recall and precision over all its frames), and intervals are bootstrapped over
+units, never frames.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+from garage_exp.results import stats
+from garage_exp.tracking import runs as tracking
+
+# response -> (numerator count, the other count of its denominator)
+RATES = {"slot_recall": ("slot_tp", "slot_fn"), "slot_precision": ("slot_tp", "slot_fp"),
+         "slot_point_recall": ("point_tp", "point_fn"), "slot_point_precision": ("point_tp", "point_fp"),
+         "slot_occupancy_acc": ("occupancy_right", None)}
+RESPONSES = list(RATES)
+
+
+def slot_tables(mlc, runs: pd.DataFrame) -> pd.DataFrame:
+    """Every finished run's `slots.csv` with its run id; runs without one (object cases) are left out."""
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    parts = []
+    with tempfile.TemporaryDirectory(prefix="garage_slots_") as tmp:
+        for run_id in runs[runs.status == "FINISHED"].run_id:
+            names = {a.path for a in tracking.retry(lambda r=run_id: mlc.list_artifacts(r))}
+            if "slots.csv" not in names:
+                continue
+            dst = Path(tmp) / run_id
+            dst.mkdir()
+            path = tracking.retry(lambda r=run_id, d=dst: mlc.download_artifacts(r, "slots.csv", str(d)))
+            try:
+                table = pd.read_csv(path)
+            except pd.errors.EmptyDataError:
+                continue
+            if not table.empty:
+                parts.append(table.assign(run_id=run_id))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+def _rate(num: float, den: float) -> float:
+    return num / den if den else math.nan
+
+
+def slot_units(runs: pd.DataFrame, frames: pd.DataFrame, factors: list[str]) -> pd.DataFrame:
+    """One row per run's replicate: its factors and pooled slot rates; empty when no frame was scored."""
+    if frames.empty or "slot_tp" not in frames:
+        return pd.DataFrame()
+    f = frames.copy()
+    if "replicate" not in f:
+        f["replicate"] = 0
+    counts = [c for c in ("point_tp", "point_fp", "point_fn", "slot_tp", "slot_fp", "slot_fn", "occupancy_right",
+                          "occupancy_n") if c in f]
+    per = f.groupby(["run_id", "replicate"], sort=False)[counts].sum().reset_index()
+    for name, (num, other) in RATES.items():
+        if num not in per:
+            per[name] = math.nan
+            continue
+        den = per["occupancy_n"] if other is None else per[num] + per[other]
+        per[name] = [_rate(n, d) for n, d in zip(per[num], den)]
+    per["fair_slots"] = per.get("slot_tp", 0) + per.get("slot_fn", 0)
+    return runs[["run_id", *factors]].merge(per, on="run_id", sort=False)
+
+
+def slot_effects(obs: pd.DataFrame, factors: list[str]) -> pd.DataFrame:
+    """Per factor and level: units n and each slot rate's mean with its 95 % interval over units."""
+    parts = []
+    for f in factors:
+        g = stats.group_cis(obs, [f], RESPONSES)
+        g.insert(0, "factor", f.removeprefix("factor."))
+        parts.append(g.rename(columns={f: "level"}))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+def hardest(effects: pd.DataFrame, response: str = "slot_recall") -> tuple[str, str, float] | None:
+    """The factor whose levels spread `response` most, its worst level and the spread (best minus worst mean)."""
+    if effects.empty or effects[response].isna().all():
+        return None
+    best = None
+    for factor, g in effects.dropna(subset=[response]).groupby("factor", sort=False):
+        spread = float(g[response].max() - g[response].min())
+        if best is None or spread > best[2]:
+            best = (str(factor), str(g.loc[g[response].idxmin(), "level"]), spread)
+    return best
+
+
+def section(effects: pd.DataFrame, markdown_table) -> list[str]:
+    """The report's slot section (markdown lines); none when no run scored slots."""
+    if effects.empty:
+        return []
+    cells = effects.copy()
+    from garage_exp.report.tables import with_ci
+
+    for r in RESPONSES:
+        cells[r] = [with_ci(m, lo, hi) for m, lo, hi in zip(cells[r], cells[f"{r}_low"], cells[f"{r}_high"])]
+    table = cells[["factor", "level", "n", *RESPONSES]]
+    text = ["## Slot finding on the bird's-eye view (fair slots; PS2.0 metrics; docs/slots.md)\n",
+            "Per factor level, mean over the other factors; each unit is a run's replicate (its frames' counts "
+            "pooled), 95 % bootstrap intervals over units.\n", markdown_table(table)]
+    worst = hardest(effects)
+    if worst is not None:
+        text.append(f"Hardest factor for slot recall: **{worst[0]}** (recall spread {worst[2]:.3f} across its "
+                    f"levels; lowest at {worst[0]}={worst[1]}).\n")
+    return text
