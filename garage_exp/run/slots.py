@@ -45,10 +45,8 @@ def bev_spec(cfg: DictConfig):
 
 
 def finder(cfg: DictConfig):
-    """(detect, score, pool, metrics conf) from the `slot_detector` group, or None when the config has none."""
-    conf = cfg.get("slot_detector")
-    if conf is None:
-        return None
+    """(detect, score, pool, metrics conf) from the `slot_detector` group (`lines` unless another is chosen)."""
+    conf = cfg.slot_detector
     from garage_exp.perception.slots.detector import load
     from garage_exp.results.slots import pool, score
 
