@@ -1,8 +1,51 @@
 #!/usr/bin/env bash
-# Bring the machine to a Vulkan device SAPIEN 3 accepts. On CPU-only Debian 12 that is
-# Mesa >= 25 lavapipe from bookworm-backports (Mesa 22.3 lacks descriptorBindingPartiallyBound).
-# Idempotent: does nothing when a suitable lavapipe (or any GPU ICD) is already installed.
+# Bring the machine to a Vulkan device SAPIEN 3 accepts (docs/gpu.md).
+# - With an NVIDIA GPU (/dev/nvidia0 and the driver's Vulkan ICD, nvidia_icd.json): the Vulkan loader
+#   (libvulkan1), and the ICD where the loader looks. Container runtimes mount the driver's files, the ICD
+#   included, but images often lack the loader; some mount the ICD under /usr/local/nvidia/share/vulkan/icd.d,
+#   which the loader does not read, so it is linked into /etc/vulkan/icd.d. No Mesa is needed.
+# - Otherwise (CPU only, Debian 12): Mesa >= 25 lavapipe from bookworm-backports (Mesa 22.3 lacks
+#   descriptorBindingPartiallyBound).
+# Idempotent: does nothing when what the machine needs is already installed.
 set -euo pipefail
+
+STANDARD_ICD_DIRS="/usr/share/vulkan/icd.d /etc/vulkan/icd.d /usr/local/share/vulkan/icd.d"
+
+have_loader() {
+  ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1' || [ -e /usr/lib/x86_64-linux-gnu/libvulkan.so.1 ]
+}
+
+nvidia_icd() {
+  local d f
+  for d in $STANDARD_ICD_DIRS /usr/local/nvidia/share/vulkan/icd.d; do
+    for f in "$d"/nvidia*.json; do
+      [ -f "$f" ] && { echo "$f"; return 0; }
+    done
+  done
+  return 1
+}
+
+if ls /dev/nvidia[0-9]* >/dev/null 2>&1 && icd=$(nvidia_icd); then
+  case " $STANDARD_ICD_DIRS " in
+    *" $(dirname "$icd") "*) ;;
+    *) if [ "$(id -u)" = 0 ]; then
+         mkdir -p /etc/vulkan/icd.d && ln -sf "$icd" /etc/vulkan/icd.d/nvidia_icd.json
+       else
+         echo "garage_exp: NVIDIA's Vulkan ICD is at $icd, where the Vulkan loader does not look: export VK_ICD_FILENAMES=$icd" >&2
+       fi ;;
+  esac
+  if have_loader; then exit 0; fi
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    export DEBIAN_FRONTEND=noninteractive
+    # Bounded: a machine without a package mirror fails here in seconds, not after apt's retries.
+    timeout 60 apt-get -o Acquire::Retries=0 -o Acquire::http::Timeout=15 update -qq >/dev/null 2>&1 || true
+    timeout 300 apt-get install -y -qq libvulkan1 >/dev/null 2>&1 || true
+    ldconfig 2>/dev/null || true
+    if have_loader; then exit 0; fi
+  fi
+  echo "garage_exp: an NVIDIA GPU is here ($icd) but not the Vulkan loader (libvulkan.so.1): install libvulkan1, then rerun." >&2
+  exit 1
+fi
 
 have_mesa_ge_25() {
   local v
@@ -11,9 +54,6 @@ have_mesa_ge_25() {
 }
 
 if have_mesa_ge_25; then exit 0; fi
-if ls /usr/share/vulkan/icd.d/nvidia_icd.json /etc/vulkan/icd.d/nvidia_icd.json >/dev/null 2>&1; then
-  exit 0  # a GPU driver is present; SAPIEN uses it
-fi
 
 if [ "$(id -u)" != 0 ] || ! command -v apt-get >/dev/null; then
   echo "garage_exp: SAPIEN needs a Vulkan device: install libvulkan1 and mesa-vulkan-drivers >= 25 (Debian 12: from bookworm-backports) or a GPU driver, then rerun." >&2

@@ -281,6 +281,9 @@ class DetectorConf:
     # The MLflow store that `models:/NAME/VERSION` entries are read from; None: $MLFLOW_TRACKING_URI, else
     # outputs/mlflow.db. By default the job's own store (tracking.uri), where `python -m garage_exp.train` registers.
     registry: Optional[str] = "${oc.select:tracking.uri,null}"
+    # auto: .pt models on the first CUDA GPU when torch sees one, else the CPU; OpenVINO exports always on the CPU.
+    # cpu | cuda (cuda without a CUDA GPU is refused). perception.detect.detector.pick_device.
+    device: str = "auto"
 
 
 @dataclass
@@ -339,6 +342,7 @@ class RendererConf:
     max_lights: int = 8
     shadows: bool = False
     save_frames: str = "key"  # all | key | none
+    device: str = "auto"  # the Vulkan device: auto (a GPU when present, else lavapipe) | cpu | cuda (render.device)
 
 
 @dataclass

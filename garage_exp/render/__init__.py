@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.render.base import BLANK_GREY, Frame, Renderer
+from garage_exp.render.device import check_available
 from garage_exp.core.plugins import build, check_target
 
 SAVE_FRAMES = ("all", "key", "none")
@@ -16,11 +17,13 @@ SAVE_FRAMES = ("all", "key", "none")
 
 def check_renderer(conf) -> None:
     """The `renderer` group: an allowed factory, a light pool SAPIEN's default shader can compile (1-10),
-    a known save_frames."""
+    a known save_frames and device (auto | cpu | cuda)."""
     check_target(str(conf._target_), "a renderer", "renderer._target_")
     check_range(conf.max_lights, 1, 10, "renderer.max_lights")
     if conf.save_frames not in SAVE_FRAMES:
         raise GarageError(f"unknown save_frames {conf.save_frames!r} (all | key | none)", "renderer.save_frames")
+    # File globs only: whether Vulkan really finds the device shows when the first scene loads (ensure_device).
+    check_available(conf.device)
 
 
 def open_renderer(conf) -> Renderer:

@@ -1,8 +1,13 @@
-"""Pick the Vulkan device SAPIEN renders on: a GPU when the machine has one, else Mesa's lavapipe (CPU).
+"""Pick the Vulkan device SAPIEN renders on (`renderer.device`): auto, cpu or cuda.
+
+- auto: a GPU when the machine has one, else Mesa's lavapipe (CPU);
+- cpu: lavapipe, even on a machine with a GPU;
+- cuda: NVIDIA's Vulkan driver (its ICD, nvidia_icd.json); a GarageError when the machine has none.
 
 The Vulkan loader reads VK_ICD_FILENAMES once, when SAPIEN creates its instance (the first sapien.Scene()), so
-`ensure_device()` must run before that. On a CPU-only machine Mesa's GPU drivers (intel, radeon) are installed
-beside lavapipe but find no hardware; pointing the loader at lavapipe alone skips probing them.
+`ensure_device()` must run before that, and a process renders on one device for its whole life. On a CPU-only
+machine Mesa's GPU drivers (intel, radeon) are installed beside lavapipe but find no hardware; pointing the
+loader at lavapipe alone skips probing them.
 """
 
 from __future__ import annotations
@@ -14,12 +19,16 @@ import os
 from garage_exp.core.errors import GarageError
 
 ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d")
+# Where container runtimes mount NVIDIA's driver files when the image has no ICD of its own.
+NVIDIA_ICD_DIRS = (*ICD_DIRS, "/usr/local/nvidia/share/vulkan/icd.d")
+DEVICES = ("auto", "cpu", "cuda")
 ICD_VARS = ("VK_ICD_FILENAMES", "VK_DRIVER_FILES")
 log = logging.getLogger(__name__)
 INSTALL_HINT = ("run `make setup` or install libvulkan1 and mesa-vulkan-drivers >= 25 "
                 "(Debian 12: from bookworm-backports) or a GPU driver")
 
 _checked: str | None = None  # the device summary once a device was found
+_kind: str | None = None  # what _checked is: "cpu" (lavapipe), "cuda" (NVIDIA) or "gpu" (another GPU)
 # SAPIEN drops its Vulkan context (and every compiled pipeline) when the last scene, material and shape die,
 # so a job that replaces its scene would pay the 3-6 s shader compilation again. Holding the engine keeps it.
 _engine: object | None = None
@@ -32,6 +41,22 @@ def gpu_present() -> bool:
     return bool(glob.glob("/dev/dri/renderD*"))
 
 
+def nvidia_icd() -> str | None:
+    """NVIDIA's Vulkan ICD file when the machine has an NVIDIA device node and the driver's ICD, else None."""
+    if not glob.glob("/dev/nvidia[0-9]*"):
+        return None
+    for d in NVIDIA_ICD_DIRS:
+        found = sorted(glob.glob(f"{d}/nvidia*.json"))
+        if found:
+            return found[0]
+    return None
+
+
+def check_device(device: object, where: str) -> None:
+    if device not in DEVICES:
+        raise GarageError(f"unknown device {device!r} (auto | cpu | cuda)", where)
+
+
 def lavapipe_icd() -> str | None:
     for d in ICD_DIRS:
         found = sorted(glob.glob(f"{d}/lvp_icd*.json"))
@@ -40,26 +65,71 @@ def lavapipe_icd() -> str | None:
     return None
 
 
-def choose_icd() -> str | None:
-    """Set VK_ICD_FILENAMES to lavapipe when no GPU is present and the user set no ICD; returns what it set."""
-    if any(os.environ.get(v) for v in ICD_VARS) or gpu_present():
-        return None
-    icd = lavapipe_icd()
+def check_available(device: str) -> None:
+    """GarageError (one line) when `device` is not auto|cpu|cuda, or asks for an ICD this machine lacks.
+    Cheap (file globs, no Vulkan): the preflight runs it."""
+    check_device(device, "renderer.device")
+    if device == "cpu" and lavapipe_icd() is None:
+        raise GarageError(f"cpu needs Mesa's lavapipe, which is not installed: {INSTALL_HINT}",
+                          "renderer.device")
+    if device == "cuda" and nvidia_icd() is None:
+        why = ("no NVIDIA device (/dev/nvidia0)" if not glob.glob("/dev/nvidia[0-9]*")
+               else "no NVIDIA Vulkan ICD (nvidia_icd.json)")
+        raise GarageError(f"cuda needs an NVIDIA GPU, and this machine has {why}; use auto or cpu, or run "
+                          "scripts/setup_vulkan.sh on a machine with an NVIDIA driver", "renderer.device")
+
+
+def choose_icd(device: str = "auto") -> str | None:
+    """Point the Vulkan loader at the ICD `device` asks for; returns the ICD file it set, None when it set none.
+
+    auto: lavapipe when no GPU is present and the user set no ICD, else the loader's own choice (unchanged).
+    cpu: lavapipe; cuda: NVIDIA's ICD. Each replaces an ICD the user set, and is a GarageError when absent.
+    """
+    check_available(device)
+    if device == "auto":
+        if any(os.environ.get(v) for v in ICD_VARS):
+            return None
+        nvidia = nvidia_icd()
+        if nvidia is not None and os.path.dirname(nvidia) not in ICD_DIRS:
+            icd = nvidia  # mounted with the driver where the loader does not look (/usr/local/nvidia)
+        elif gpu_present():
+            return None
+        else:
+            icd = lavapipe_icd()
+    else:
+        icd = lavapipe_icd() if device == "cpu" else nvidia_icd()
     if icd is not None:
+        # VK_DRIVER_FILES wins over VK_ICD_FILENAMES in newer loaders: one variable, so the choice holds.
+        os.environ.pop("VK_DRIVER_FILES", None)
         os.environ["VK_ICD_FILENAMES"] = icd
     return icd
 
 
-def ensure_device() -> str:
-    """Make sure SAPIEN has a Vulkan device to render on; returns SAPIEN's one-line device summary.
+def device_kind(name: str) -> str:
+    """"cpu" for Mesa's lavapipe (llvmpipe), "cuda" for an NVIDIA GPU, else "gpu"."""
+    lowered = name.lower()
+    if "llvmpipe" in lowered or "lavapipe" in lowered:
+        return "cpu"
+    return "cuda" if "nvidia" in lowered else "gpu"
 
-    Raises GarageError (one line, naming what to install) when there is none. Idempotent and cheap after the
-    first call.
+
+def ensure_device(device: str = "auto") -> str:
+    """Make sure SAPIEN has a Vulkan device to render on (`device`: auto | cpu | cuda); returns SAPIEN's one-line
+    device summary.
+
+    Raises GarageError (one line, naming what to install) when there is none, or when this process already
+    renders on another device than `device` asks for (the loader reads its ICD once). Idempotent and cheap after
+    the first call.
     """
-    global _checked, _engine
+    global _checked, _engine, _kind
     if _checked is not None:
+        check_available(device)
+        if device != "auto" and device != _kind:
+            raise GarageError(f"{device} asked, but this process already renders on {_checked} "
+                              "(a process keeps its first Vulkan device); run it in a new process",
+                              "renderer.device")
         return _checked
-    choose_icd()
+    choose_icd(device)
     try:
         import sapien.render
 
@@ -72,8 +142,10 @@ def ensure_device() -> str:
         icds = os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES") or "default ICDs"
         raise GarageError(f"SAPIEN found no Vulkan device it can render on (ICD: {icds}): {INSTALL_HINT}",
                           "renderer")
-    _checked = devices[0]
-    log.info("SAPIEN renders on %s", _checked)
+    if device != "auto" and device_kind(devices[0]) != device:
+        raise GarageError(f"{device} asked, but SAPIEN found only {devices[0]}", "renderer.device")
+    _checked, _kind = devices[0], device_kind(devices[0])
+    log.info("renderer device %s -> %s (Vulkan)", device, _checked.split(": ", 1)[-1])
     return _checked
 
 

@@ -95,7 +95,9 @@ def _sapien_pose(pose: Pose):
 class SapienRenderer:
     """Renders `Scene` descriptions with SAPIEN. Reuse one instance (see `get_renderer`)."""
 
-    def __init__(self, max_lights: int = 8, shadows: bool = False, batch_static: bool = True, cull: bool = True):
+    def __init__(self, max_lights: int = 8, shadows: bool = False, batch_static: bool = True, cull: bool = True,
+                 device: str = "auto"):
+        self.device = device  # renderer.device: auto | cpu | cuda (device.ensure_device)
         self.max_lights = max_lights
         self.shadows = shadows
         self.batch_static = batch_static
@@ -137,7 +139,7 @@ class SapienRenderer:
         """(Re)build the SAPIEN scene from a description; cameras, lights and ids are replaced. When the static
         structure, lamps and settings are those already loaded (the trials of a search, which change only the
         actors), only the actors and cameras are replaced: the merged static bodies stay."""
-        ensure_device()
+        ensure_device(self.device)
         import sapien
 
         static = self._static_key(scene)
@@ -724,20 +726,21 @@ def _overlap(a: Sequence[float], b: Sequence[float]) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-def get_renderer(max_lights: int = 8, shadows: bool = False) -> SapienRenderer:
+def get_renderer(max_lights: int = 8, shadows: bool = False, device: str = "auto") -> SapienRenderer:
     """The process's renderer (created on first call, then reused so shaders compile once per process);
-    settings apply from the next `load()`. max_lights: 1-10 (SAPIEN's default shader; render.check_renderer)."""
+    settings apply from the next `load()`. max_lights: 1-10 (SAPIEN's default shader; render.check_renderer).
+    device: auto | cpu | cuda (device.ensure_device; a process keeps the device it first rendered on)."""
     renderer = STATE.renderer
     if not isinstance(renderer, SapienRenderer):
-        renderer = STATE.renderer = SapienRenderer(max_lights=max_lights, shadows=shadows)
+        renderer = STATE.renderer = SapienRenderer(max_lights=max_lights, shadows=shadows, device=device)
     else:
-        renderer.max_lights, renderer.shadows = max_lights, shadows
+        renderer.max_lights, renderer.shadows, renderer.device = max_lights, shadows, device
     return renderer
 
 
-def make(*, max_lights: int = 8, shadows: bool = False, save_frames: str = "key", name: str = "sapien"
-         ) -> SapienRenderer:
+def make(*, max_lights: int = 8, shadows: bool = False, save_frames: str = "key", name: str = "sapien",
+         device: str = "auto") -> SapienRenderer:
     """The factory `conf/renderer/sapien.yaml` names (`_target_`), called with the `renderer` group's keys:
-    the process's renderer with its light pool and shadows. save_frames and name are the frame loop's and
-    the level's, not the renderer's."""
-    return get_renderer(max_lights=int(max_lights), shadows=bool(shadows))
+    the process's renderer with its light pool, shadows and Vulkan device. save_frames and name are the frame
+    loop's and the level's, not the renderer's."""
+    return get_renderer(max_lights=int(max_lights), shadows=bool(shadows), device=str(device))

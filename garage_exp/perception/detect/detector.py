@@ -26,7 +26,9 @@ from garage_exp.core.offline import prepare_offline
 
 log = logging.getLogger("garage_exp")
 OPENVINO_SUFFIX = "_openvino_model"
-_LOADED: dict[tuple[Path, int], Any] = {}  # (resolved path, threads) -> warmed-up YOLO: a process loads once
+DEVICES = ("auto", "cpu", "cuda")
+_LOADED: dict[tuple[Path, int, str], Any] = {}  # (resolved path, threads, device) -> warmed-up YOLO: loaded once
+_SAID: set[str] = set()  # device picks already logged by this process
 
 
 @dataclass
@@ -92,6 +94,55 @@ def resolve_model(entry: str | Path, registry: str | None = None) -> Path:
     return found
 
 
+def cuda_available() -> bool:
+    """Whether torch sees a CUDA GPU (False when torch cannot even be imported)."""
+    try:
+        import torch
+
+        return bool(torch.cuda.is_available())
+    except Exception:  # noqa: BLE001 - a broken CUDA install means: no CUDA
+        return False
+
+
+def check_device(device: object) -> None:
+    """`detector.device`: auto | cpu | cuda, and cuda only where torch sees a CUDA GPU."""
+    if device not in DEVICES:
+        raise GarageError(f"unknown device {device!r} (auto | cpu | cuda)", "detector.device")
+    if device == "cuda" and not cuda_available():
+        raise GarageError("cuda asked, but torch sees no CUDA GPU (torch.cuda.is_available() is False); "
+                          "use auto or cpu", "detector.device")
+
+
+def pick_device(device: str, kind: str) -> str:
+    """The torch device string one model runs on: `device` (auto | cpu | cuda) for a model of format `kind`.
+
+    OpenVINO exports (the INT8 COCO models) run on OpenVINO's CPU plugin whatever is asked: ultralytics runs
+    OpenVINO on the CPU. A .pt model runs on "cuda:0" for cuda, and for auto when torch sees a CUDA GPU.
+    """
+    check_device(device)
+    if device == "cpu" or kind == "openvino":
+        return "cpu"
+    if device == "cuda":
+        return "cuda:0"
+    return "cuda:0" if cuda_available() else "cpu"
+
+
+def device_line(device: str, labels: Sequence[str], kinds: Sequence[str], picks: Sequence[str]) -> str:
+    """One log line saying where each model runs and why, e.g.
+    "detector device auto -> cpu for yolo11n_int8 (OpenVINO export: CPU only); cuda:0 for yolo11n"."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for label, kind, pick in zip(labels, kinds, picks):
+        if kind == "openvino" and device != "cpu":
+            why = " (OpenVINO export: CPU only)"
+        elif pick == "cpu" and device == "auto":
+            why = " (torch sees no CUDA GPU)"
+        else:
+            why = ""
+        groups.setdefault((pick, why), []).append(label)
+    return f"detector device {device} -> " + "; ".join(
+        f"{pick} for {', '.join(names)}{why}" for (pick, why), names in groups.items())
+
+
 def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int = 0) -> Any:
     """The ultralytics model for a path, loaded and warmed up once per process.
 
@@ -100,7 +151,7 @@ def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int =
     cores (benchmarks/RESULTS.md). Ignored for .pt weights.
     """
     path = path.resolve()
-    key = (path, threads)
+    key = (path, threads, device)
     if key in _LOADED:
         return _LOADED[key]
     kind = model_format(path)
@@ -168,19 +219,20 @@ class Detector:
 
     models: OpenVINO folders or .pt files (must exist). classes: the vehicle classes a vehicle target may be
     matched with; person_classes: those of a person target. conf: lowest confidence kept (low, so that a weak
-    hit scores its confidence instead of 0). imgsz: network input size in pixels. device: torch/ultralytics
-    device string. threads: OpenVINO inference threads (0: its default).
+    hit scores its confidence instead of 0). imgsz: network input size in pixels. device: auto | cpu | cuda
+    (`pick_device`, per model; `devices` holds the picks). threads: OpenVINO inference threads (0: its default).
     """
 
     models: Sequence[str | Path]
     classes: Sequence[str] = ("car", "truck", "bus")
     conf: float = 0.05
     imgsz: int = 640
-    device: str = "cpu"
+    device: str = "auto"
     threads: int = 0
     person_classes: Sequence[str] = ("person",)
     names: list[str] = field(init=False)
     paths: list[Path] = field(init=False)
+    devices: list[str] = field(init=False)
     _models: list[Any] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -189,12 +241,16 @@ class Detector:
         if not 0.0 <= self.conf < 1.0:
             raise GarageError(f"conf {self.conf} is outside [0, 1)", "detector.conf")
         self.paths = [Path(m).expanduser() for m in self.models]
-        for path in self.paths:
-            model_format(path)  # fail on a bad path before spending seconds loading the others
+        kinds = [model_format(p) for p in self.paths]  # fail on a bad path before spending seconds loading
+        self.devices = [pick_device(self.device, kind) for kind in kinds]
         self.classes = tuple(self.classes)
         self.person_classes = tuple(self.person_classes)
         self.names = _unique([model_label(p) for p in self.paths])
-        self._models = [load_model(p, self.imgsz, self.device, self.threads) for p in self.paths]
+        line = device_line(self.device, self.names, kinds, self.devices)
+        if line not in _SAID:  # once per process and choice, not once per job
+            _SAID.add(line)
+            log.info("%s", line)
+        self._models = [load_model(p, self.imgsz, d, self.threads) for p, d in zip(self.paths, self.devices)]
         for path, model in zip(self.paths, self._models):
             for key, wanted in (("classes", self.classes), ("person_classes", self.person_classes)):
                 unknown = set(wanted) - set(model.names.values())
@@ -217,9 +273,9 @@ class Detector:
         out = []
         # Preprocessing (letterbox, scaling) is repeated per model, but it is ~2-3 ms of a 20-45 ms call:
         # sharing it would mean driving ultralytics' predictor internals, not worth the fragility.
-        for name, model in zip(self.names, self._models):
+        for name, model, device in zip(self.names, self._models, self.devices):
             start = time.perf_counter()
-            result = model.predict(bgr, conf=self.conf, imgsz=self.imgsz, device=self.device, verbose=False)[0]
+            result = model.predict(bgr, conf=self.conf, imgsz=self.imgsz, device=device, verbose=False)[0]
             ms = (time.perf_counter() - start) * 1000.0
             boxes = result.boxes
             out.append(ModelDetections(
@@ -244,11 +300,12 @@ def check_detector(conf: Any) -> None:
         raise GarageError(f"conf {conf.conf} is outside [0, 1)", "detector.conf")
     check_range(conf.imgsz, 32, 4096, "detector.imgsz")
     check_match(conf.match, conf.iou, conf.threshold)
+    check_device(conf.device)
 
 
 def detector_spec(*, models: Sequence[str], classes: Sequence[str] = ("car", "truck", "bus"),
                   person_classes: Sequence[str] = ("person",), conf: float = 0.05, imgsz: int = 640,
-                  device: str = "cpu", name: str = "", iou: float = 0.5, match: str = "full",
+                  device: str = "auto", name: str = "", iou: float = 0.5, match: str = "full",
                   threshold: float = 0.5, registry: str | None = None) -> dict[str, Any]:
     """The default `detector._target_`, called with the `detector` group's keys: the `Detector` arguments as
     plain picklable values (the detector's child process builds it from them), model entries resolved against
