@@ -2,8 +2,11 @@
 stores (docs/scaling.md).
 
 On one machine it starts what a cluster runs (tests/cluster.py): a throw-away PostgreSQL, an MLflow server on it,
-a Ray head and, for the 2-node row, a second Ray node, each node with one CPU. Then:
-1. the same search (tiny plan, 4-frame trials) with the local trial loop (no Ray), on 1 Ray node with 1 worker
+a Ray head and, for the 2-node row, a second Ray node, each node pinned to one core of its own (taskset: a
+worker renders and detects with every core it is given, so unpinned nodes on one machine share its cores and
+two of them would measure nothing). Then:
+1. the same search (tiny plan, 4-frame trials) with the local trial loop (no Ray, pinned to core 0 too), on 1
+   Ray node with 1 worker
    and on 2 Ray nodes with 2 workers: steady trials per hour from the study's trial times, each worker's first
    trial (shader compilation, model loading) left out;
 2. a dry-run sweep of 2 and of 10 jobs with the basic launcher and with `hydra/launcher=ray`: the marginal
@@ -66,9 +69,39 @@ def commit_rate(pg, seconds: float = 3.0) -> float:
     return n / seconds
 
 
-def run(args: list[str], cwd: Path, env: dict | None = None) -> float:
+def ask_seconds(url: str, n: int) -> float:
+    """Seconds the study's lock is held for one trial once the study holds n trials: what search.loop does
+    under the lock (fail stale trials, count, TPE's ask) on the PostgreSQL study, median of 5."""
+    import statistics
+
+    import optuna
+    from optuna.distributions import FloatDistribution
+
+    from garage_exp.search import storage as store
+
+    space = {k: FloatDistribution(0.0, 1.0) for k in ("a", "b", "c")}
+    storage = store.open_storage(url, heartbeat_interval=30, grace_period=120)
+    study = optuna.create_study(storage=storage, study_name=f"ask-{n}", direction="maximize",
+                                sampler=optuna.samplers.TPESampler(multivariate=True, seed=0))
+    rng = __import__("random").Random(0)
+    study.add_trials([optuna.trial.create_trial(params={k: rng.random() for k in space}, distributions=space,
+                                                value=rng.random()) for _ in range(n)])
+    times = []
+    for _ in range(5):
+        t = time.monotonic()
+        with store.storage_lock(url):
+            optuna.storages.fail_stale_trials(study)
+            len(study.get_trials(deepcopy=False))
+            trial = study.ask(fixed_distributions=space)
+        times.append(time.monotonic() - t)
+        study.tell(trial, rng.random())
+    return statistics.median(times)
+
+
+def run(args: list[str], cwd: Path, env: dict | None = None, core: int | None = None) -> float:
     t = time.monotonic()
-    r = subprocess.run([PYTHON, "-m", "garage_exp", *args], cwd=cwd, capture_output=True, text=True,
+    pin = ["taskset", "-c", str(core)] if core is not None else []
+    r = subprocess.run([*pin, PYTHON, "-m", "garage_exp", *args], cwd=cwd, capture_output=True, text=True,
                        env={**os.environ, **(env or {})}, timeout=1800)
     if r.returncode != 0:
         raise SystemExit(f"failed: {' '.join(args)}\n{(r.stdout + r.stderr)[-3000:]}")
@@ -98,29 +131,36 @@ def search(c, tmp: Path, tag: str, trials: int, ray: str | None, workers: int) -
         if ray else []
     wall = run(["-m", "hydra/sweeper=search", *launcher, f"search.storage={url}", f"search.trials={trials}",
                 f"search.study=bench-{tag}", f"tracking.uri={c['uri']}", "light.intensity=interval(0.2,1.0)",
-                "case.actors.target.distance=interval(3.0,8.0)", *SMALL, f"hydra.sweep.dir={tmp}/{tag}"], tmp)
+                "case.actors.target.distance=interval(3.0,8.0)", *SMALL, f"hydra.sweep.dir={tmp}/{tag}"], tmp,
+               core=None if ray else 0)
     name = (set(optuna.get_all_study_names(url)) - before).pop()
     rate, n = steady_rate(url, name)
     return rate, wall, n
 
 
 def sweep_overhead(c, tmp: Path, ray: str | None) -> float:
-    """Seconds one more dry-run job adds: (wall of 10 jobs - wall of 2 jobs) / 8."""
+    """Seconds one more dry-run job adds: (wall of 10 jobs - wall of 2 jobs) / 8, on one core (the basic
+    launcher pinned to core 0, Ray's one node pinned there)."""
     launcher = ["hydra/launcher=ray", f"hydra.launcher.address={ray}"] if ray else []
     walls = []
     for n in (2, 10):
         levels = ",".join(f"{0.1 + 0.08 * k:.2f}" for k in range(n))
         walls.append(run(["-m", *launcher, "dry_run=true", "plan=tiny", f"light.intensity={levels}",
-                          f"tracking.uri={c['uri']}", f"hydra.sweep.dir={tmp}/dry{n}{'ray' if ray else ''}"], tmp))
+                          f"tracking.uri={c['uri']}", f"hydra.sweep.dir={tmp}/dry{n}{'ray' if ray else ''}"], tmp,
+                         core=None if ray else 0))
     return (walls[1] - walls[0]) / 8
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--trials", type=int, default=12)
+    ap.add_argument("--trials", type=int, default=16)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "scaling_run.txt"))
     a = ap.parse_args()
     from cluster import Postgres, mlflow_server, ray_node, ray_nodes_up
+
+    from garage_exp.search.study import quiet_optuna
+
+    quiet_optuna()
 
     tmp = Path(tempfile.mkdtemp(prefix="scaling"))
     ray_root = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))
@@ -138,17 +178,18 @@ def main() -> None:
         per_trial_commits = (commits(pg) - commits0) / a.trials
         per_trial_server = (cpu_seconds(server.pids()) - cpu0) / a.trials
 
-        head, address = ray_node(ray_root, "head")
+        head, address = ray_node(ray_root, "head", core=0)
         procs.append(head)
         ray_nodes_up(address, 1)
         one, one_wall, n_one = search(c, tmp, "ray1", a.trials, address, 1)
-        second, _ = ray_node(ray_root, "second", address)
+        basic_job, ray_job = sweep_overhead(c, tmp, None), sweep_overhead(c, tmp, address)  # one core each
+        second, _ = ray_node(ray_root, "second", address, core=1)
         procs.append(second)
         ray_nodes_up(address, 2)
         two, two_wall, n_two = search(c, tmp, "ray2", a.trials, address, 2)
 
-        basic_job, ray_job = sweep_overhead(c, tmp, None), sweep_overhead(c, tmp, address)
         rate = commit_rate(pg)
+        asks = {n: ask_seconds(pg.url("optuna"), n) for n in (100, 1000, 3000)}
 
         lines += [
             f"search of {a.trials} trials (tiny plan, 4 frames of 320x240 a trial), PostgreSQL study, MLflow server on "
@@ -166,6 +207,8 @@ def main() -> None:
             f"PostgreSQL small-commit rate, one connection: {rate:.0f}/s",
             f"bounds: PostgreSQL at one connection's rate {3600 * rate / per_trial_commits:.0f} trials/hour; "
             f"one MLflow server worker {3600 / max(per_trial_server, 1e-9):.0f} trials/hour",
+            "seconds the study's lock is held per trial (fail stale, count, TPE ask) at n trials: " +
+            ", ".join(f"n={n}: {t:.3f} s (bound {3600 / t:.0f} trials/hour)" for n, t in asks.items()),
             f"machine: {os.cpu_count()} cores; load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after; "
             f"date {time.strftime('%Y-%m-%d')}",
         ]

@@ -182,8 +182,9 @@ def mlflow_server(root: Path, backend: str, artifacts: Path) -> tuple[Process, s
     return proc, uri
 
 
-def ray_node(root: Path, name: str, head: str | None = None) -> tuple[Process, str]:
-    """A Ray node with one CPU, on 127.0.0.1: the head (head=None) or a node joining it."""
+def ray_node(root: Path, name: str, head: str | None = None, core: int | None = None) -> tuple[Process, str]:
+    """A Ray node with one CPU, on 127.0.0.1: the head (head=None) or a node joining it. `core`: pin the node
+    and every worker it starts to that core (taskset), so that a node is one core as a benchmark's node is."""
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
     common = ["--block", "--num-cpus", "1", "--node-ip-address", "127.0.0.1", "--disable-usage-stats"]
     if head is None:
@@ -193,6 +194,8 @@ def ray_node(root: Path, name: str, head: str | None = None) -> tuple[Process, s
         address = f"127.0.0.1:{port}"
     else:
         cmd, address = [str(BIN / "ray"), "start", "--address", head, *common], head
+    if core is not None:
+        cmd = ["taskset", "-c", str(core), *cmd]
     proc = Process(cmd, root.parent / f"ray_{name}.log", env=env)
     return proc, address
 

@@ -96,6 +96,12 @@ def test_a_sweep_loses_a_node_and_every_job_finishes_once(cluster, tmp_path):
     assert parent.info.status == "FINISHED"
     assert "report/report.md" in [a.path for a in mlc.list_artifacts(parent.info.run_id, "report")]
 
+    again = run_app(["-m", *on_cluster(cluster), *SMALL, "light=bright,dim", "palette.target_colours=[black],[white]",
+                     "resume=true"], tmp_path, process=True)
+    assert again.returncode == 0 and "4 jobs: 0 finished, 4 skipped (finished before)" in again.stdout, \
+        (again.stdout + again.stderr)[-3000:]
+    assert len(child_runs(cluster["uri"])) == 4
+
 
 def test_a_search_on_two_nodes_waits_out_a_database_restart(cluster, tmp_path):
     """2 workers (Ray tasks) share one PostgreSQL study of 6 trials; PostgreSQL is stopped for 5 s once the
