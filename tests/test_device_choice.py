@@ -13,7 +13,7 @@ from conftest import compose_cfg
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect import detector
 from garage_exp.render import check_renderer
-from garage_exp.render import device
+from garage_exp.render import device, icd
 
 LAVAPIPE = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json"
 NVIDIA = "/usr/share/vulkan/icd.d/nvidia_icd.json"
@@ -30,7 +30,7 @@ def machine(monkeypatch):
     monkeypatch.setattr(device, "_kind", None)
 
     def make(*files: str):
-        monkeypatch.setattr(device.glob, "glob", lambda pattern: sorted(f for f in files
+        monkeypatch.setattr(icd.glob, "glob", lambda pattern: sorted(f for f in files
                                                                         if fnmatch.fnmatch(f, pattern)))
     return make
 
