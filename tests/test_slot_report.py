@@ -8,7 +8,7 @@ import math
 import pandas as pd
 import pytest
 
-from garage_exp.report.slots import hardest, section, slot_effects, slot_units
+from garage_exp.report.slots import hardest, pictures, section, slot_effects, slot_units
 from garage_exp.report.tables import markdown_table
 
 
@@ -40,6 +40,38 @@ def test_slot_units_pool_frames_and_effects_name_the_hardest_factor():
     assert (factor, level) == ("wear", "worn") and spread > 0.5
     text = "\n".join(section(effects, markdown_table))
     assert "Hardest factor for slot recall: **wear**" in text and "light" in text
+
+
+class Store:
+    """The two calls `pictures` makes of an MLflow client, over runs whose frames are files in a folder."""
+
+    def __init__(self, root):
+        self.root = root
+
+    def list_artifacts(self, run_id, path):
+        from types import SimpleNamespace
+
+        return [SimpleNamespace(path=f"frames/{p.name}") for p in sorted((self.root / run_id).glob("*.png"))]
+
+    def download_artifacts(self, run_id, path, dst):
+        return str(self.root / run_id / path.split("/")[-1])
+
+
+def test_the_hardest_factor_is_shown_by_frames_of_its_best_and_worst_units(tmp_path):
+    runs = pd.DataFrame({"run_id": ["a", "b", "c", "d"], "factor.wear": ["fresh", "fresh", "worn", "worn"]})
+    rows = [frame("a", 0, 3, 1), frame("b", 0, 4, 0), frame("c", 0, 1, 3), frame("d", 0, 0, 4)]
+    obs = slot_units(runs, pd.DataFrame(rows), ["factor.wear"])
+    for run in "abcd":
+        (tmp_path / run).mkdir()
+        for shot in range(3):
+            (tmp_path / run / f"{shot:04d}_bev.png").write_bytes(f"{run}{shot}".encode())
+    out = tmp_path / "report"
+    out.mkdir()
+    text = "\n".join(pictures(Store(tmp_path), obs, slot_effects(obs, ["factor.wear"]), out))
+    assert "wear=fresh" in text and "wear=worn" in text
+    # the easiest fresh unit (b, recall 1) and the hardest worn one (d, recall 0), each its middle frame
+    assert (out / "slots_wear_fresh.png").read_bytes() == b"b1" and (out / "slots_wear_worn.png").read_bytes() == b"d1"
+    assert "](slots_wear_worn.png)" in text and "slot recall 0.00" in text
 
 
 def test_no_scored_slots_no_section():

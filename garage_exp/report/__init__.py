@@ -131,6 +131,8 @@ def write_report(mlc, parent_run_id: str, runs: pd.DataFrame, out: Path) -> None
     plots.interactions(pairs, out / "interactions.png")
     plots.visibility(visibility.in_view(frames, runs), curves, out / "visibility.png")
     text = markdown(runs, obs, effects, pairs, anova, tables, bins, curves, cameras, slot_effects)
+    if not slot_effects.empty:
+        text += "\n" + "\n".join(slots.pictures(mlc, slot_obs, slot_effects, out))
     figures = [p for p in ("main_effects.png", "interactions.png", "heatmap.png", "visibility.png")
                if (out / p).exists()]
     text += "\n## Figures\n\n" + "\n".join(f"![{p}]({p})" for p in figures) + "\n"

@@ -112,3 +112,35 @@ def section(effects: pd.DataFrame, markdown_table) -> list[str]:
         text.append(f"Hardest factor for slot recall: **{worst[0]}** (recall spread {worst[2]:.3f} across its "
                     f"levels; lowest at {worst[0]}={worst[1]}).\n")
     return text
+
+
+def pictures(mlc, units: pd.DataFrame, effects: pd.DataFrame, out: Path) -> list[str]:
+    """The hardest factor in frames: a BEV frame (truth green/red, detections blue) of its easiest unit at its
+    best level and of its hardest unit at its worst level, copied into the report; markdown lines."""
+    worst = hardest(effects)
+    if worst is None or units.empty:
+        return []
+    factor, low_level, _ = worst
+    column = next((c for c in units.columns if c.removeprefix("factor.") == factor), None)
+    rates = effects[effects.factor == factor].dropna(subset=["slot_recall"])
+    if column is None or rates.empty:
+        return []
+    high_level = str(rates.loc[rates.slot_recall.idxmax(), "level"])
+    lines = []
+    for level, pick in ((high_level, "idxmax"), (low_level, "idxmin")):
+        at = units[units[column].astype(str) == level].dropna(subset=["slot_recall"])
+        if at.empty:
+            continue
+        unit = at.loc[getattr(at.slot_recall, pick)()]
+        names = sorted(a.path for a in tracking.retry(lambda r=unit.run_id: mlc.list_artifacts(r, "frames"))
+                       if a.path.endswith("_bev.png"))
+        if not names:
+            continue
+        with tempfile.TemporaryDirectory(prefix="garage_slots_") as tmp:
+            path = tracking.retry(lambda r=unit.run_id, n=names[len(names) // 2]: mlc.download_artifacts(r, n, tmp))
+            name = f"slots_{factor}_{level}.png".replace("/", "_").replace(" ", "_")
+            (out / name).write_bytes(Path(path).read_bytes())
+        lines.append(f"![{factor}={level}: slot recall {unit.slot_recall:.2f}]({name})\n\n"
+                     f"*{factor}={level}, run {unit.run_id[:8]} (slot recall {unit.slot_recall:.2f}): its middle "
+                     "BEV frame; truth slots green (free) and red (occupied), detections blue.*\n")
+    return ["## Slot finding: the hardest factor in frames\n", *lines] if lines else []
