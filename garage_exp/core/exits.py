@@ -32,6 +32,15 @@ class SweepStopped(BaseException):
         return f"{self.what}{done}; {self.hint}"
 
 
+def wait_seconds(variable: str, default: float = 180.0) -> float:
+    """How long to wait for a server that went away: the environment variable's seconds (at least 0), else
+    `default` (also when it is not a number)."""
+    try:
+        return max(0.0, float(os.environ.get(variable, default)))
+    except ValueError:
+        return default
+
+
 def stopping() -> bool:
     """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry)."""
     return STATE.stopping

@@ -11,7 +11,6 @@ units, never frames.
 from __future__ import annotations
 
 import math
-import os
 import tempfile
 from pathlib import Path
 
@@ -29,23 +28,9 @@ RESPONSES = list(RATES)
 
 def slot_tables(mlc, runs: pd.DataFrame) -> pd.DataFrame:
     """Every finished run's `slots.csv` with its run id; runs without one (object cases) are left out."""
-    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
-    parts = []
-    with tempfile.TemporaryDirectory(prefix="garage_slots_") as tmp:
-        for run_id in runs[runs.status == "FINISHED"].run_id:
-            names = {a.path for a in tracking.retry(lambda r=run_id: mlc.list_artifacts(r))}
-            if "slots.csv" not in names:
-                continue
-            dst = Path(tmp) / run_id
-            dst.mkdir()
-            path = tracking.retry(lambda r=run_id, d=dst: mlc.download_artifacts(r, "slots.csv", str(d)))
-            try:
-                table = pd.read_csv(path)
-            except pd.errors.EmptyDataError:
-                continue
-            if not table.empty:
-                parts.append(table.assign(run_id=run_id))
-    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+    from garage_exp.report.visibility import run_tables
+
+    return run_tables(mlc, runs, "slots.csv")
 
 
 def _rate(num: float, den: float) -> float:

@@ -20,18 +20,27 @@ COMPOSITE = "composite"
 def frame_tables(mlc, runs: pd.DataFrame) -> pd.DataFrame:
     """Every finished run's frame table (its `frames.csv` artifact) with its run id; runs without one (dry runs)
     are left out."""
+    return run_tables(mlc, runs, "frames.csv")
+
+
+def run_tables(mlc, runs: pd.DataFrame, artifact: str) -> pd.DataFrame:
+    """Every finished run's CSV artifact `artifact`, concatenated with its run id; runs without one, or with an
+    empty one, are left out."""
     # One progress bar per downloaded table would bury the sweep's summary.
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     parts = []
-    with tempfile.TemporaryDirectory(prefix="garage_frames_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="garage_tables_") as tmp:
         for run_id in runs[runs.status == "FINISHED"].run_id:
             names = {a.path for a in tracking.retry(lambda r=run_id: mlc.list_artifacts(r))}
-            if "frames.csv" not in names:
+            if artifact not in names:
                 continue
             dst = Path(tmp) / run_id
             dst.mkdir()
-            path = tracking.retry(lambda r=run_id, d=dst: mlc.download_artifacts(r, "frames.csv", str(d)))
-            table = pd.read_csv(path)
+            path = tracking.retry(lambda r=run_id, d=dst: mlc.download_artifacts(r, artifact, str(d)))
+            try:
+                table = pd.read_csv(path)
+            except pd.errors.EmptyDataError:
+                continue
             if not table.empty:
                 parts.append(table.assign(run_id=run_id))
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()

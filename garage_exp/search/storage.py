@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import os
 import re
 import sys
 import threading
@@ -22,7 +21,7 @@ import time
 
 from optuna.storages import RDBStorage
 
-from garage_exp.core.exits import SweepStopped, stopping
+from garage_exp.core.exits import SweepStopped, stopping, wait_seconds
 
 # What psycopg and SQLAlchemy say while the server is down, restarting or cut the connection.
 DOWN = ("connection refused", "could not connect", "connection to server at", "server closed the connection",
@@ -34,10 +33,7 @@ _down_since: float | None = None
 
 def storage_wait() -> float:
     """How long a call waits for a database that went away ($GARAGE_EXP_STORAGE_WAIT, seconds)."""
-    try:
-        return max(0.0, float(os.environ.get("GARAGE_EXP_STORAGE_WAIT", "180")))
-    except ValueError:
-        return 180.0
+    return wait_seconds("GARAGE_EXP_STORAGE_WAIT")
 
 
 def hidden(url: str) -> str:

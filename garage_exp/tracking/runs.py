@@ -66,10 +66,9 @@ class TrackingAway(Exception):
 
 def tracking_wait() -> float:
     """How long a call waits for a tracking server that went away ($GARAGE_EXP_TRACKING_WAIT, seconds)."""
-    try:
-        return max(0.0, float(os.environ.get("GARAGE_EXP_TRACKING_WAIT", "180")))
-    except ValueError:
-        return 180.0
+    from garage_exp.core.exits import wait_seconds
+
+    return wait_seconds("GARAGE_EXP_TRACKING_WAIT")
 
 
 def _unreachable(exc: BaseException) -> bool:
