@@ -25,7 +25,10 @@ def machine(monkeypatch):
     """A fake machine: `machine(*files)` makes exactly these paths exist for device.py's globs; no ICD variable
     set; the process has not picked a device yet."""
     for var in device.ICD_VARS:
-        monkeypatch.delenv(var, raising=False)
+        # set, then deleted: monkeypatch records the variable's real state, so what choose_icd writes is undone
+        # (a fake ICD left in os.environ would blind every later render in this worker)
+        monkeypatch.setenv(var, "unset-by-test")
+        monkeypatch.delenv(var)
     monkeypatch.setattr(device, "_checked", None)
     monkeypatch.setattr(device, "_kind", None)
 
