@@ -13,7 +13,7 @@ from conftest import compose_cfg
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect import detector
 from garage_exp.render import check_renderer
-from garage_exp.render import device
+from garage_exp.render import device, icd
 
 LAVAPIPE = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json"
 NVIDIA = "/usr/share/vulkan/icd.d/nvidia_icd.json"
@@ -22,16 +22,16 @@ MOUNTED_NVIDIA = "/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json"
 
 @pytest.fixture
 def machine(monkeypatch):
-    """A fake machine: `machine(*files)` makes exactly these paths exist for device.py's globs; no ICD variable
+    """A fake machine: `machine(*files)` makes exactly these paths exist for icd.py's globs; no ICD variable
     set; the process has not picked a device yet."""
-    for var in device.ICD_VARS:
+    for var in icd.ICD_VARS:
         monkeypatch.delenv(var, raising=False)
     monkeypatch.setattr(device, "_checked", None)
     monkeypatch.setattr(device, "_kind", None)
 
     def make(*files: str):
-        monkeypatch.setattr(device.glob, "glob", lambda pattern: sorted(f for f in files
-                                                                        if fnmatch.fnmatch(f, pattern)))
+        monkeypatch.setattr(icd.glob, "glob", lambda pattern: sorted(f for f in files
+                                                                     if fnmatch.fnmatch(f, pattern)))
     return make
 
 

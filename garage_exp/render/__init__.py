@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.render.base import BLANK_GREY, Frame, Renderer
-from garage_exp.render.device import check_available
+from garage_exp.render.icd import check_available
 from garage_exp.core.plugins import build, check_target
 
 SAVE_FRAMES = ("all", "key", "none")
