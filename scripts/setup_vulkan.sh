@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Bring the machine to a Vulkan device SAPIEN 3 accepts (docs/gpu.md).
 # - With an NVIDIA GPU (/dev/nvidia0 and the driver's Vulkan ICD, nvidia_icd.json): the Vulkan loader
-#   (libvulkan1), and the ICD where the loader looks. Container runtimes mount the driver's files, the ICD
-#   included, but images often lack the loader; some mount the ICD under /usr/local/nvidia/share/vulkan/icd.d,
-#   which the loader does not read, so it is linked into /etc/vulkan/icd.d. No Mesa is needed.
+#   (libvulkan1) and the GL vendor-neutral dispatch libraries NVIDIA's Vulkan driver loads (libglvnd0, libglx0,
+#   libegl1: without libegl1 SAPIEN found no device on an H100 machine), and the ICD where the loader looks.
+#   Container runtimes mount the driver's files, the ICD included, but images often lack the rest; some mount
+#   the ICD under /usr/local/nvidia/share/vulkan/icd.d, which the loader does not read, so it is linked into
+#   /etc/vulkan/icd.d. No Mesa is needed.
 # - Otherwise (CPU only, Debian 12): Mesa >= 25 lavapipe from bookworm-backports (Mesa 22.3 lacks
 #   descriptorBindingPartiallyBound).
 # Idempotent: does nothing when what the machine needs is already installed.
@@ -11,8 +13,13 @@ set -euo pipefail
 
 STANDARD_ICD_DIRS="/usr/share/vulkan/icd.d /etc/vulkan/icd.d /usr/local/share/vulkan/icd.d"
 
-have_loader() {
-  ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1' || [ -e /usr/lib/x86_64-linux-gnu/libvulkan.so.1 ]
+has_lib() {
+  ldconfig -p 2>/dev/null | grep -q "$1" || [ -e "/usr/lib/x86_64-linux-gnu/$1" ]
+}
+
+# What NVIDIA's Vulkan driver needs besides itself (docs/gpu.md).
+have_nvidia_runtime() {
+  has_lib libvulkan.so.1 && has_lib libGLdispatch.so.0 && has_lib libGLX.so.0 && has_lib libEGL.so.1
 }
 
 nvidia_icd() {
@@ -34,16 +41,16 @@ if ls /dev/nvidia[0-9]* >/dev/null 2>&1 && icd=$(nvidia_icd); then
          echo "garage_exp: NVIDIA's Vulkan ICD is at $icd, where the Vulkan loader does not look: export VK_ICD_FILENAMES=$icd" >&2
        fi ;;
   esac
-  if have_loader; then exit 0; fi
+  if have_nvidia_runtime; then exit 0; fi
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     export DEBIAN_FRONTEND=noninteractive
     # Bounded: a machine without a package mirror fails here in seconds, not after apt's retries.
     timeout 60 apt-get -o Acquire::Retries=0 -o Acquire::http::Timeout=15 update -qq >/dev/null 2>&1 || true
-    timeout 300 apt-get install -y -qq libvulkan1 >/dev/null 2>&1 || true
+    timeout 300 apt-get install -y -qq libvulkan1 libglvnd0 libglx0 libegl1 >/dev/null 2>&1 || true
     ldconfig 2>/dev/null || true
-    if have_loader; then exit 0; fi
+    if have_nvidia_runtime; then exit 0; fi
   fi
-  echo "garage_exp: an NVIDIA GPU is here ($icd) but not the Vulkan loader (libvulkan.so.1): install libvulkan1, then rerun." >&2
+  echo "garage_exp: an NVIDIA GPU is here ($icd) but not the Vulkan loader and GL dispatch libraries its driver needs: install libvulkan1 libglvnd0 libglx0 libegl1, then rerun." >&2
   exit 1
 fi
 

@@ -22,11 +22,11 @@ MOUNTED_NVIDIA = "/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json"
 
 @pytest.fixture
 def machine(monkeypatch):
-    """A fake machine: `machine(*files)` makes exactly these paths exist for device.py's globs; no ICD variable
+    """A fake machine: `machine(*files)` makes exactly these paths exist for icd.py's globs; no ICD variable
     set; the process has not picked a device yet."""
-    for var in device.ICD_VARS:
+    for var in icd.ICD_VARS:
         # set, then deleted: monkeypatch records the variable's real state, so what choose_icd writes is undone
-        # (a fake ICD left in os.environ would blind every later render in this worker)
+        # (a fake ICD left in os.environ would blind every later render in this xdist worker)
         monkeypatch.setenv(var, "unset-by-test")
         monkeypatch.delenv(var)
     monkeypatch.setattr(device, "_checked", None)
@@ -34,7 +34,7 @@ def machine(monkeypatch):
 
     def make(*files: str):
         monkeypatch.setattr(icd.glob, "glob", lambda pattern: sorted(f for f in files
-                                                                        if fnmatch.fnmatch(f, pattern)))
+                                                                     if fnmatch.fnmatch(f, pattern)))
     return make
 
 

@@ -16,10 +16,8 @@ import logging
 import os
 
 from garage_exp.core.errors import GarageError
-from garage_exp.render.icd import (  # noqa: F401 - re-exported: tests and callers use render.device
-    DEVICES, ICD_DIRS, ICD_VARS, INSTALL_HINT, NVIDIA_ICD_DIRS, check_available, check_device, choose_icd,
-    device_kind, gpu_present, lavapipe_icd, nvidia_icd,
-)
+from garage_exp.render.icd import (ICD_DIRS, ICD_VARS, INSTALL_HINT, check_available, gpu_present, lavapipe_icd,
+                                   nvidia_icd)
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +26,40 @@ _kind: str | None = None  # what _checked is: "cpu" (lavapipe), "cuda" (NVIDIA) 
 # SAPIEN drops its Vulkan context (and every compiled pipeline) when the last scene, material and shape die,
 # so a job that replaces its scene would pay the 3-6 s shader compilation again. Holding the engine keeps it.
 _engine: object | None = None
+
+
+def choose_icd(device: str = "auto") -> str | None:
+    """Point the Vulkan loader at the ICD `device` asks for; returns the ICD file it set, None when it set none.
+
+    auto: lavapipe when no GPU is present and the user set no ICD, else the loader's own choice (unchanged).
+    cpu: lavapipe; cuda: NVIDIA's ICD. Each replaces an ICD the user set, and is a GarageError when absent.
+    """
+    check_available(device)
+    if device == "auto":
+        if any(os.environ.get(v) for v in ICD_VARS):
+            return None
+        nvidia = nvidia_icd()
+        if nvidia is not None and os.path.dirname(nvidia) not in ICD_DIRS:
+            icd = nvidia  # mounted with the driver where the loader does not look (/usr/local/nvidia)
+        elif gpu_present():
+            return None
+        else:
+            icd = lavapipe_icd()
+    else:
+        icd = lavapipe_icd() if device == "cpu" else nvidia_icd()
+    if icd is not None:
+        # VK_DRIVER_FILES wins over VK_ICD_FILENAMES in newer loaders: one variable, so the choice holds.
+        os.environ.pop("VK_DRIVER_FILES", None)
+        os.environ["VK_ICD_FILENAMES"] = icd
+    return icd
+
+
+def device_kind(name: str) -> str:
+    """"cpu" for Mesa's lavapipe (llvmpipe), "cuda" for an NVIDIA GPU, else "gpu"."""
+    lowered = name.lower()
+    if "llvmpipe" in lowered or "lavapipe" in lowered:
+        return "cpu"
+    return "cuda" if "nvidia" in lowered else "gpu"
 
 
 def ensure_device(device: str = "auto") -> str:

@@ -1,11 +1,12 @@
-"""Which Vulkan driver (ICD) the loader gets, from files alone (no SAPIEN, no Vulkan): `renderer.device`'s
-auto | cpu | cuda checked and applied. The preflight checks a config with it; render.device uses it before SAPIEN
-creates its instance."""
+"""Which Vulkan ICD files this machine has, and whether `renderer.device` (auto | cpu | cuda) can be had here.
+
+File globs only, no SAPIEN: the preflight checks a config with it (render.check_renderer), and device.py points
+the Vulkan loader with it.
+"""
 
 from __future__ import annotations
 
 import glob
-import os
 
 from garage_exp.core.errors import GarageError
 
@@ -16,6 +17,7 @@ DEVICES = ("auto", "cpu", "cuda")
 ICD_VARS = ("VK_ICD_FILENAMES", "VK_DRIVER_FILES")
 INSTALL_HINT = ("run `make setup` or install libvulkan1 and mesa-vulkan-drivers >= 25 "
                 "(Debian 12: from bookworm-backports) or a GPU driver")
+
 
 def gpu_present() -> bool:
     """True when a GPU device node exists: NVIDIA's (with its ICD) or a DRM render node (Mesa drivers)."""
@@ -60,37 +62,3 @@ def check_available(device: str) -> None:
                else "no NVIDIA Vulkan ICD (nvidia_icd.json)")
         raise GarageError(f"cuda needs an NVIDIA GPU, and this machine has {why}; use auto or cpu, or run "
                           "scripts/setup_vulkan.sh on a machine with an NVIDIA driver", "renderer.device")
-
-
-def choose_icd(device: str = "auto") -> str | None:
-    """Point the Vulkan loader at the ICD `device` asks for; returns the ICD file it set, None when it set none.
-
-    auto: lavapipe when no GPU is present and the user set no ICD, else the loader's own choice (unchanged).
-    cpu: lavapipe; cuda: NVIDIA's ICD. Each replaces an ICD the user set, and is a GarageError when absent.
-    """
-    check_available(device)
-    if device == "auto":
-        if any(os.environ.get(v) for v in ICD_VARS):
-            return None
-        nvidia = nvidia_icd()
-        if nvidia is not None and os.path.dirname(nvidia) not in ICD_DIRS:
-            icd = nvidia  # mounted with the driver where the loader does not look (/usr/local/nvidia)
-        elif gpu_present():
-            return None
-        else:
-            icd = lavapipe_icd()
-    else:
-        icd = lavapipe_icd() if device == "cpu" else nvidia_icd()
-    if icd is not None:
-        # VK_DRIVER_FILES wins over VK_ICD_FILENAMES in newer loaders: one variable, so the choice holds.
-        os.environ.pop("VK_DRIVER_FILES", None)
-        os.environ["VK_ICD_FILENAMES"] = icd
-    return icd
-
-
-def device_kind(name: str) -> str:
-    """"cpu" for Mesa's lavapipe (llvmpipe), "cuda" for an NVIDIA GPU, else "gpu"."""
-    lowered = name.lower()
-    if "llvmpipe" in lowered or "lavapipe" in lowered:
-        return "cpu"
-    return "cuda" if "nvidia" in lowered else "gpu"
