@@ -62,8 +62,9 @@ class Flat:
         return {}
 
 
-def make(*, name, max_lights, shadows, save_frames):
-    return Flat({"name": name, "max_lights": max_lights, "shadows": shadows, "save_frames": save_frames})
+def make(*, name, max_lights, shadows, save_frames, device):
+    return Flat({"name": name, "max_lights": max_lights, "shadows": shadows, "save_frames": save_frames,
+                 "device": device})
 '''
 
 
@@ -89,7 +90,8 @@ def test_a_second_renderer_is_one_module_named_by_target(tmp_path, monkeypatch):
     assert r.returncode == 0, r.stderr[-3000:]
     calls = [json.loads(line) for line in log.read_text().splitlines()]
     renders = [c for c in calls if c["call"] == "render"]
-    assert calls[:2] == [{"call": "make", "name": "flat", "max_lights": 3, "shadows": False, "save_frames": "none"},
+    assert calls[:2] == [{"call": "make", "name": "flat", "max_lights": 3, "shadows": False, "save_frames": "none",
+                          "device": "auto"},
                          {"call": "load", "cameras": ["front"]}]
     assert len(renders) == 2
     with open(tmp_path / "run" / "frames.csv") as fh:
