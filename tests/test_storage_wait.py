@@ -53,6 +53,30 @@ def test_the_wait_is_one_line_each_way_and_the_call_goes_through(monkeypatch, ca
     assert "secret" not in "".join(err) and err[1].startswith("garage_exp: optuna storage") and "answers again" in err[1]
 
 
+def test_a_wait_that_ended_in_another_error_does_not_shorten_the_next(monkeypatch, capsys):
+    """Found on the cluster: a first outage ended by a bad query left its start behind, and the next outage,
+    minutes later, stopped the sweep at once as "did not answer for 120 s"."""
+    monkeypatch.setattr(storage.time, "sleep", lambda s: None)
+    clock = iter([0.0, 500.0, 501.0, 502.0])
+    monkeypatch.setattr(storage.time, "monotonic", lambda: next(clock))
+    errors = iter([down(), ValueError("bad query")])
+
+    def first():
+        raise next(errors)
+
+    with pytest.raises(ValueError):
+        storage.call(first, "postgresql://db/optuna")
+    later = iter([down(), "ok"])
+
+    def second():
+        value = next(later)
+        if isinstance(value, Exception):
+            raise value
+        return value
+
+    assert storage.call(second, "postgresql://db/optuna") == "ok"  # waited from its own start, 500 s later
+
+
 def test_a_database_that_stays_away_stops_the_sweep(monkeypatch, capsys):
     monkeypatch.setenv("GARAGE_EXP_STORAGE_WAIT", "0")
 

@@ -28,7 +28,6 @@ DOWN = ("connection refused", "could not connect", "connection to server at", "s
         "terminating connection due to administrator command", "the database system is shutting down",
         "the database system is starting up", "the database system is in recovery mode", "connection is closed",
         "connection reset", "broken pipe", "ssl syscall error", "consuming input failed")
-_down_since: float | None = None
 
 
 def storage_wait() -> float:
@@ -52,9 +51,9 @@ def is_down(exc: BaseException) -> bool:
 
 
 def call(fn, url: str):
-    """fn(), waiting for the database at `url` while it does not answer."""
-    global _down_since
-    k = 0
+    """fn(), waiting for the database at `url` while it does not answer. Each call times its own wait: a wait
+    that ended in another error must not shorten the next one."""
+    since, k = None, 0
     while True:
         try:
             result = fn()
@@ -62,22 +61,20 @@ def call(fn, url: str):
             if not is_down(exc):
                 raise
             now = time.monotonic()
-            if _down_since is None:
-                _down_since = now
+            if since is None:
+                since = now
                 print(f"garage_exp: optuna storage {hidden(url)} not answering; retrying for up to "
                       f"{storage_wait():.0f} s (GARAGE_EXP_STORAGE_WAIT)", file=sys.stderr, flush=True)
-            waited = now - _down_since
+            waited = now - since
             if stopping() or waited >= storage_wait():
-                _down_since = None
                 raise SweepStopped(f"the optuna storage {hidden(url)} did not answer for {waited:.0f} s",
                                    "start the database, then run the same command with resume=true") from None
             time.sleep(min(5.0, 0.25 * 2.0 ** min(k, 5), storage_wait() - waited + 0.01))
             k += 1
             continue
-        if _down_since is not None:
-            print(f"garage_exp: optuna storage {hidden(url)} answers again after "
-                  f"{time.monotonic() - _down_since:.0f} s", file=sys.stderr, flush=True)
-            _down_since = None
+        if since is not None:
+            print(f"garage_exp: optuna storage {hidden(url)} answers again after {time.monotonic() - since:.0f} s",
+                  file=sys.stderr, flush=True)
         return result
 
 
