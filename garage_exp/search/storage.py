@@ -40,14 +40,20 @@ def hidden(url: str) -> str:
     return re.sub(r"(://[^:/@]+):[^@]*@", r"\1:***@", url)
 
 
-def is_down(exc: BaseException) -> bool:
-    """The database did not answer (not a bad query): looked for along the exception's causes."""
+def why_down(exc: BaseException) -> str | None:
+    """What says the database did not answer (not a bad query), looked for along the exception's causes: its
+    first line, or None."""
     seen = 0
     while exc is not None and seen < 8:
-        if any(t in f"{type(exc).__name__}: {exc}".lower() for t in DOWN):
-            return True
+        text = f"{type(exc).__name__}: {exc}"
+        if any(t in text.lower() for t in DOWN):
+            return text.strip().splitlines()[0][:160]
         exc, seen = exc.__cause__ or exc.__context__, seen + 1
-    return False
+    return None
+
+
+def is_down(exc: BaseException) -> bool:
+    return why_down(exc) is not None
 
 
 def call(fn, url: str):
@@ -58,7 +64,8 @@ def call(fn, url: str):
         try:
             result = fn()
         except Exception as exc:  # noqa: BLE001 - only a database that is away is waited for
-            if not is_down(exc):
+            why = why_down(exc)
+            if why is None:
                 raise
             now = time.monotonic()
             if since is None:
@@ -67,7 +74,7 @@ def call(fn, url: str):
                       f"{storage_wait():.0f} s (GARAGE_EXP_STORAGE_WAIT)", file=sys.stderr, flush=True)
             waited = now - since
             if stopping() or waited >= storage_wait():
-                raise SweepStopped(f"the optuna storage {hidden(url)} did not answer for {waited:.0f} s",
+                raise SweepStopped(f"the optuna storage {hidden(url)} did not answer for {waited:.0f} s ({why})",
                                    "start the database, then run the same command with resume=true") from None
             time.sleep(min(5.0, 0.25 * 2.0 ** min(k, 5), storage_wait() - waited + 0.01))
             k += 1
