@@ -23,6 +23,7 @@ class ProcessState:
     renderer: Any = None  # the warm renderer (shaders compile once per process)
     detector: Any = None  # the detector's child process (models load once per process)
     plans: dict = field(default_factory=dict)  # plan path -> ((mtime, size), classified plan): sweeps check many jobs
+    maps: dict = field(default_factory=dict)  # a plan's digest -> its map's PNG bytes: a sweep's jobs share one plan
 
     def begin(self) -> ProcessState:
         """A new command in this process: forget the last one's sweep, counts and outage, keep the warm parts."""

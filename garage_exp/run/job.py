@@ -38,6 +38,24 @@ def name_levels(cfg: DictConfig, plan_name: str) -> None:
             node.name = str(level)
 
 
+def plan_map(classified, path: Path) -> Path:
+    """The plan's map at `path`, drawn once per process and plan (matplotlib takes ~0.4 s; every job of a sweep
+    on one plan would draw the same picture)."""
+    import hashlib
+    import pickle
+
+    key = hashlib.sha1(pickle.dumps(classified)).hexdigest()  # the plan and all drawn from it (cells, pillars)
+    if key not in STATE.maps:
+        from garage_exp.plan.draw import draw_map  # matplotlib: not before the input is known to be good
+
+        draw_map(classified, path)
+        STATE.maps = {**dict(list(STATE.maps.items())[-7:]), key: path.read_bytes()}  # a few plans at most
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(STATE.maps[key])
+    return path
+
+
 def run_name(cfg: DictConfig) -> str:
     return (tracking.run_name(HydraConfig.get().overrides.task)
             or f"plan={cfg.plan.name} case={cfg.case.name} light={cfg.light.name}")
@@ -146,8 +164,6 @@ def _run_job(cfg: DictConfig) -> float | dict:
     run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
     run.pending = out / tracking.PENDING_FILE  # calls the tracking server cannot take wait there
     try:
-        from garage_exp.plan.draw import draw_map  # matplotlib: not before the input is known to be good
-
         if cfg.resume:  # the runs this one replaces (left RUNNING by a killed sweep, or failed)
             gone = tracking.supersede(run.mlc, tracking.experiment_id(run.mlc, cfg.tracking.experiment), digest,
                                       run.run_id)
@@ -156,7 +172,7 @@ def _run_job(cfg: DictConfig) -> float | dict:
         (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
         run.log_artifact(out / "config.yaml")
         if trial is None:  # a search trial's map is its study's: the parent holds it
-            run.log_artifact(draw_map(prepared.classified, out / "plan_map.png"))
+            run.log_artifact(plan_map(prepared.classified, out / "plan_map.png"))
         if cfg.dry_run:
             summary = {"difficulty": math.nan}
         else:
