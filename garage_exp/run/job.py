@@ -42,9 +42,10 @@ def plan_map(classified, path: Path) -> Path:
     """The plan's map at `path`, drawn once per process and plan (matplotlib takes ~0.4 s; every job of a sweep
     on one plan would draw the same picture)."""
     import hashlib
-    import pickle
 
-    key = hashlib.sha1(pickle.dumps(classified)).hexdigest()  # the plan and all drawn from it (cells, pillars)
+    plan = classified.plan  # the map shows the plan's cells and the pillars classified from it
+    key = hashlib.sha1(b"".join([plan.name.encode(), plan.S.tobytes(), plan.R.tobytes(), plan.C.tobytes(),
+                                 repr(classified.pillars).encode()])).hexdigest()
     if key not in STATE.maps:
         from garage_exp.plan.draw import draw_map  # matplotlib: not before the input is known to be good
 

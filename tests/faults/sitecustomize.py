@@ -7,7 +7,7 @@ does nothing unless $GARAGE_EXP_FAULT is set, to one of:
     map:wait:JOB          job JOB waits there until the file $GARAGE_EXP_FAULT_GO exists (the test acts meanwhile)
     frame:raise:JOB:N     job JOB raises RuntimeError on its frame N+1 (N frames done: a partial frame table)
     disk:fill:JOB         job JOB fills the filesystem of its output dir (a file `filler` in that dir, written
-                          until the kernel says ENOSPC), then draws its plan map there: a real full disk
+                          until the kernel says ENOSPC), then writes its plan map there: a real full disk
     disk:fill:JOB:N       the same when job JOB renders its frame N+1 (frames being written when the disk fills)
     disk:raise:JOB        job JOB's plan map write raises OSError ENOSPC (when no small filesystem can be mounted)
     detector:kill:JOB:N,M job JOB's detector process is killed (SIGKILL) right after frames N, M, ... (0-based)
@@ -60,28 +60,29 @@ def _install(spec: str) -> None:
     where, action, job, *rest = spec.split(":")
     job = int(job)
     if where == "map":
-        import garage_exp.plan.draw as draw
+        def patch(module):
+            real = module.plan_map  # where a job writes its plan map (drawn, or copied once drawn)
 
-        real = draw.draw_map
+            def plan_map(classified, path, *args, **kwargs):
+                if _job_num() == job:
+                    if action == "hang":
+                        import time
 
-        def draw_map(classified, path, *args, **kwargs):
-            if _job_num() == job:
-                if action == "hang":
-                    import time
+                        print(f"FAULT: job {job} hangs", flush=True)
+                        time.sleep(3600)
+                    if action == "wait":
+                        import time
 
-                    print(f"FAULT: job {job} hangs", flush=True)
-                    time.sleep(3600)
-                if action == "wait":
-                    import time
+                        print(f"FAULT: job {job} waits", flush=True)
+                        while not os.path.exists(os.environ["GARAGE_EXP_FAULT_GO"]):
+                            time.sleep(0.1)
+                        return real(classified, path, *args, **kwargs)
+                    raise RuntimeError(f"injected fault in job {job}")
+                return real(classified, path, *args, **kwargs)
 
-                    print(f"FAULT: job {job} waits", flush=True)
-                    while not os.path.exists(os.environ["GARAGE_EXP_FAULT_GO"]):
-                        time.sleep(0.1)
-                    return real(classified, path, *args, **kwargs)
-                raise RuntimeError(f"injected fault in job {job}")
-            return real(classified, path, *args, **kwargs)
+            module.plan_map = plan_map
 
-        draw.draw_map = draw_map
+        after_import("garage_exp.run.job", patch)
     elif where == "frame":
         after = int(rest[0])
 
@@ -103,18 +104,19 @@ def _install(spec: str) -> None:
     elif where == "disk":
         import errno
 
-        import garage_exp.plan.draw as draw
+        def patch(module):
+            real_map = module.plan_map  # where a job writes its plan map (drawn, or copied once drawn)
 
-        real_draw = draw.draw_map
+            def plan_map(classified, path, *args, **kwargs):
+                if _job_num() == job:
+                    if action == "raise":
+                        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+                    _fill(os.path.join(os.path.dirname(path), "filler"))
+                return real_map(classified, path, *args, **kwargs)
 
-        def draw_map(classified, path, *args, **kwargs):
-            if _job_num() == job:
-                if action == "raise":
-                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-                _fill(os.path.join(os.path.dirname(path), "filler"))
-            return real_draw(classified, path, *args, **kwargs)
+            module.plan_map = plan_map
 
-        draw.draw_map = draw_map
+        after_import("garage_exp.run.job", patch)
     elif where == "detector":
         kills = {int(n) for n in rest[0].split(",")}
         sent = [0]
