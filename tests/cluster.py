@@ -122,6 +122,8 @@ class Postgres:
         self.pid = None
 
     def kill(self) -> None:
+        if self.pid is None and (self.data / "postmaster.pid").exists():  # started, its start not seen through
+            self.pid = int((self.data / "postmaster.pid").read_text().split()[0])
         if self.pid is not None:
             try:
                 os.kill(self.pid, signal.SIGQUIT)  # the postmaster's immediate shutdown: its children go too

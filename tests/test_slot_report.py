@@ -74,6 +74,16 @@ def test_the_hardest_factor_is_shown_by_frames_of_its_best_and_worst_units(tmp_p
     assert "](slots_wear_worn.png)" in text and "slot recall 0.00" in text
 
 
+def test_levels_that_find_slots_alike_name_no_hardest_factor_and_show_no_frames(tmp_path):
+    """Seen on a tiny-plan sweep where both wear levels found nothing: no factor is named, no frame shown twice."""
+    runs = pd.DataFrame({"run_id": ["a", "b"], "factor.wear": ["fresh", "worn"]})
+    obs = slot_units(runs, pd.DataFrame([frame("a", 0, 0, 4), frame("b", 0, 0, 4)]), ["factor.wear"])
+    effects = slot_effects(obs, ["factor.wear"])
+    assert hardest(effects) is None
+    assert pictures(Store(tmp_path), obs, effects, tmp_path) == []
+    assert "Hardest factor" not in "\n".join(section(effects, markdown_table))
+
+
 def test_no_scored_slots_no_section():
     runs = pd.DataFrame({"run_id": ["a"], "factor.light": ["dim"]})
     truth_only = pd.DataFrame([{"run_id": "a", "shot": 0, "slots": 5, "fair": 3}])  # no detector: no counts

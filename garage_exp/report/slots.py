@@ -68,15 +68,16 @@ def slot_effects(obs: pd.DataFrame, factors: list[str]) -> pd.DataFrame:
 
 
 def hardest(effects: pd.DataFrame, response: str = "slot_recall") -> tuple[str, str, float] | None:
-    """The factor whose levels spread `response` most, its worst level and the spread (best minus worst mean)."""
+    """The factor whose levels spread `response` most, its worst level and the spread (best minus worst mean);
+    None when no factor spreads it."""
     if effects.empty or effects[response].isna().all():
         return None
     best = None
     for factor, g in effects.dropna(subset=[response]).groupby("factor", sort=False):
         spread = float(g[response].max() - g[response].min())
-        if best is None or spread > best[2]:
+        if spread > 0 and (best is None or spread > best[2]):
             best = (str(factor), str(g.loc[g[response].idxmin(), "level"]), spread)
-    return best
+    return best  # None too when no factor's levels differ
 
 
 def section(effects: pd.DataFrame, markdown_table) -> list[str]:
