@@ -3,8 +3,8 @@
 Active when the case asks for slots (`case.slots`) on a rig with fisheyes, or `camera.bev.enabled`. Each shot's
 fisheye pictures (what the detectors get: after the sensor model) are stitched into the BEV (render/bev.py); the slot
 ground truth for the ego's pose there (perception/slots/truth.py) is exported (exports/slots.py: slots/ under
-the job's dir, logged), and when the config has a `slot_detector` its detector runs on the BEV and is scored
-against the truth (results/slots.py), fair slots only. Per frame: `slots.csv` (a row per BEV frame); per job:
+the job's dir, logged), and the `slot_detector` group's detector runs on the BEV and is scored against the truth
+(results/slots.py), fair slots only. Per frame: `slots.csv` (a row per BEV frame); per job:
 the pooled metrics `slot_point_recall`, `slot_point_precision`, `slot_recall`, `slot_precision`,
 `slot_occupancy_acc` and the truth's counts (`slot_truth_*`), logged with the job's other metrics.
 """
@@ -110,19 +110,21 @@ class SlotFrames:
                "occupied": int(sum(bool(s.occupied) for s in truth.frame.slots)),
                "hidden_corners": sum(v == "hidden" for vis in truth.visibility for v in vis),
                "worn_corners": sum(v == "worn" for vis in truth.visibility for v in vis)}
-        picture = draw_frame(bev, truth.frame)
+        found = None
         if self.found_by is not None:
             detect, score, _, metrics = self.found_by
             found = detect(bev, self.spec.meters_per_pixel)
             scored = score(truth.frame, found, fair, metrics)
             self.scores.append(scored)
             row.update({k: float(v) for k, v in scored.items()})
-            picture = draw_frame(picture, found, colour=(80, 200, 255), thickness=1)
             self._write_found(stem, found)
         self.rows.append(row)
-        if str(self.cfg.renderer.save_frames) != "none":
+        if str(self.cfg.renderer.save_frames) != "none":  # drawn only to be saved
             from PIL import Image
 
+            picture = draw_frame(bev, truth.frame)
+            if found is not None:
+                picture = draw_frame(picture, found, colour=(80, 200, 255), thickness=1)
             path = self.out / "frames" / f"{stem}.png"
             path.parent.mkdir(exist_ok=True)
             Image.fromarray(picture).save(path)
