@@ -278,3 +278,36 @@ def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
     assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
     with pytest.raises(GarageError, match="epochs=8"):
         Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
+
+
+def test_training_data_leaves_the_inputs_untouched(tmp_path):
+    """ultralytics writes labels.cache beside the labels it reads: the lists name links under the run's data/
+    folder, so the cache lands there and the input suites stay as they were (issue 31, item 12)."""
+    from omegaconf import OmegaConf
+    from ultralytics.data.dataset import YOLODataset
+
+    from garage_exp.core.offline import prepare_offline
+    from garage_exp.train.data import plan_data, write_data
+
+    prepare_offline()
+    sets = [str(write_dataset(tmp_path / "inputs" / f"scenario{k}")) for k in range(2)]
+    before = sorted(p for p in (tmp_path / "inputs").rglob("*"))
+    cfg = OmegaConf.create({"data": sets, "val": [], "val_fraction": 0.5, "replay": [], "replay_fraction": 0.0,
+                            "seed": 0})
+    data_yaml = write_data(plan_data(cfg), tmp_path / "out")
+    spec = yaml.safe_load(data_yaml.read_text())
+    for split in ("train", "val"):
+        dataset = YOLODataset(img_path=str(tmp_path / "out" / spec[split]), imgsz=64, augment=False,
+                              data={"names": spec["names"], "channels": 3})
+        assert len(dataset.labels) == 1 and dataset.labels[0]["cls"].tolist() == [[2.0]]
+    assert sorted(p for p in (tmp_path / "inputs").rglob("*")) == before
+    assert len(list((tmp_path / "out").rglob("labels.cache"))) == 2
+
+
+def test_an_unknown_base_is_named_once(tmp_path):
+    from garage_exp.core.errors import GarageError
+    from garage_exp.train.base import load_base
+
+    with pytest.raises(GarageError) as caught:
+        load_base(str(tmp_path / "weights.txt"), None)
+    assert str(caught.value).startswith("base: ") and "base: base:" not in str(caught.value)
