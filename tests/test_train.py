@@ -276,8 +276,53 @@ def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
     loop = Loop(OmegaConf.create({"dir": str(tmp_path)}))
     assert loop.reuse("arm", ["train", "epochs=6"], done=False) is False  # not done: run it
     assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
-    with pytest.raises(GarageError, match="epochs=8"):
+    with pytest.raises(GarageError, match="epochs=6 -> 8"):
         Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
+
+
+def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch, capsys):
+    """Issue 31, item 7: a study begun with 4 trials is not resumed with 5, and a training whose data list now
+    holds another split is not reused, finished or not; the refusal is one line and runs nothing."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop import steps
+    from garage_exp.loop.app import Loop
+
+    ran = []
+
+    def fake_run(cmd, log):
+        ran.append(cmd)
+        if "garage_exp.train" in cmd:
+            out = Path(next(a for a in cmd if a.startswith("hydra.run.dir="))[len("hydra.run.dir="):])
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "result.json").write_text("{}")
+
+    monkeypatch.setattr(steps, "run", fake_run)
+    monkeypatch.setattr(steps, "trials", lambda cfg, study: [])
+    monkeypatch.setattr(steps, "study_done", lambda cfg, study, n: False)  # interrupted: 4 of 4 never finished
+    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "loop.yaml")
+    cfg = OmegaConf.merge(cfg, {"dir": str(tmp_path), "tracking": {"uri": "sqlite:///x.db"}})
+    study = ("base", ["research"], 4, "qmc", 0)
+    loop = Loop(cfg)
+    loop.step("base data", lambda: loop.study(*study))
+    loop.step("base data", lambda: loop.study(*study))  # the same inputs: resumed
+    assert len(ran) == 2
+    with pytest.raises(GarageError, match=r"'base' made from other inputs \(search.trials=4 -> 5\)"):
+        fresh = Loop(cfg)
+        fresh.step("base data", lambda: fresh.study("base", ["research"], 5, "qmc", 0))
+    data = tmp_path / "data" / "base_train.yaml"
+    data.parent.mkdir()
+    data.write_text("train: [a]\n")
+    kw = {"data": [data], "val": [data], "base": "yolov8n.yaml", "epochs": 1, "seed": 0, "lr0": 0.01}
+    loop.step("D0", lambda: loop.train("D0", **kw))
+    loop.step("D0", lambda: loop.train("D0", **kw))  # finished, same inputs: reused
+    assert len(ran) == 3
+    data.write_text("train: [b]\n")  # another split (val_fraction=...) under the same path
+    capsys.readouterr()
+    with pytest.raises(GarageError, match=r"base_train.yaml changed\); give this run another dir"):
+        Loop(cfg).train("D0", **kw)
+    assert len(ran) == 3 and capsys.readouterr().out == ""
 
 
 def test_training_data_leaves_the_inputs_untouched(tmp_path):
