@@ -224,8 +224,8 @@ class SapienRenderer:
         """Remove every entity with its own id and every camera, add the new scene's; the merged statics and
         the light pool stay (shown again in full: the last frame may have culled some)."""
         for node in self._entities.values():
+            self._decal_ids.discard(int(node.per_scene_id))  # before the removal, which sets the id to 0
             self._scene.remove_entity(node)
-            self._decal_ids.discard(int(node.per_scene_id))
         for cam in self._cameras.values():
             for _, pinhole in cam.faces or [(None, cam)]:  # a fisheye's cube faces are cameras of their own
                 self._scene.remove_entity(pinhole.component.entity)
