@@ -37,9 +37,9 @@ def _not_visible(attrs: dict) -> str:
 
 
 def _late(values: list[float], attrs: dict) -> str:
-    distance = attrs.get("detection_distance")
-    return (f"lateness {values[0]:.3f} (late {attrs['late']:.2f}, confirmed at "
-            f"{'never' if distance is None else f'{distance:.1f} m'})")
+    from garage_exp.results.late import confirmed_text
+
+    return f"lateness {values[0]:.3f} (late {attrs['late']:.2f}, {confirmed_text(attrs.get('detection_distance'))})"
 
 
 def _slots(values: list[float], attrs: dict) -> str:
