@@ -242,3 +242,15 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
             hydras = OmegaConf.to_container(loader.load_sweep_config(master, trial))
             assert ours == hydras
         assert len(launch.cache) == 2  # light=dim twice: one composition
+
+
+def test_a_suite_scenario_of_a_late_search_says_lateness():
+    """A scenario file's header names the objective's value (issue 31, item 5): lateness, not difficulty."""
+    from optuna.trial import create_trial
+
+    from garage_exp.search.suite import scenario_yaml
+
+    job = compose_cfg("case=stepout", "search.objective=late", hydra=True)
+    trial = create_trial(values=[0.6], user_attrs={"fair_frames": 3, "visible_fraction": 0.8})
+    head = scenario_yaml(job, "hard_1", trial).splitlines()[1]
+    assert "lateness 0.600 over 3 fair frame(s)" in head and "difficulty" not in head
