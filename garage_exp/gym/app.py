@@ -186,7 +186,7 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
 
     from garage_exp.gym import export
     from garage_exp.gym.train import late_count, rollouts
-    from garage_exp.results.stats import wilson
+    from garage_exp.results.stats import rate_text, wilson
 
     model = PPO.load(str(Path(str(cfg.gym.policy)).expanduser()), env=env, device="cpu")
     rows, full = rollouts(model, env, int(cfg.gym.eval_episodes), int(cfg.gym.seed) + 10_000, "export")
@@ -195,6 +195,7 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
                        slides=env.live.slides_between)
     k, n = late_count(rows)
     low, high = wilson(k, n)
+    print(f"garage_exp.gym: the policy's episodes: late rate {rate_text(k, n)}")
     return {"late_rate": k / n if n else math.nan, "late_rate_low": low, "late_rate_high": high, "suite": str(root)}
 
 
