@@ -52,6 +52,11 @@ def objective_names(study: optuna.Study) -> list[str]:
         f"objective_{k}" for k in range(2, len(study.directions))]
 
 
+def untestable(study: optuna.Study) -> str:
+    """Why the study's objective prunes a trial as infeasible, as the search stored it."""
+    return str(study.user_attrs.get("untestable") or "no fairly visible frame")
+
+
 def overrides(trial: FrozenTrial) -> list[str]:
     """The trial's override list as the sweeper stored it; its parameters as overrides when it stored none."""
     return list(trial.user_attrs.get("overrides") or [f"{k}={v}" for k, v in trial.params.items()])
@@ -89,7 +94,7 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
         row.update(t.params)
         row["overrides"] = " ".join(overrides(t))
         row["why"] = ("screened as easy by the pre-screen" if t.user_attrs.get("screened") == "easy"
-                      else "infeasible: no fairly visible frame" if t.user_attrs.get("infeasible")
+                      else f"infeasible: {untestable(study)}" if t.user_attrs.get("infeasible")
                       else str(t.user_attrs.get("error", "")))
         row["run_id"] = t.user_attrs.get("run_id", "")
         row["frame"] = t.user_attrs.get("frame", "")
@@ -289,7 +294,7 @@ def summary(study: optuna.Study, table: pd.DataFrame, names: list[str]) -> list[
     objectives = ", ".join(f"{n} ({d.name.lower()})" for n, d in zip(names, study.directions))
     return [f"# Search report: {study.study_name}", "",
             f"{len(table)} trials: {count['COMPLETE']} complete, {count['PRUNED']} pruned as infeasible "
-            f"(no fairly visible frame), {count['FAIL']} failed"
+            f"({untestable(study)}), {count['FAIL']} failed"
             + (f", {count['RUNNING']} running" if count["RUNNING"] else "")
             + (f", {count['WAITING']} waiting" if count["WAITING"] else "")
             + f". Objectives: {objectives}. Only complete trials are ranked.", ""]

@@ -12,28 +12,31 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+NOT_VISIBLE = "no fairly visible frame"
+
 
 @dataclass(frozen=True)
 class Objective:
     name: str  # `search.objective`
     metrics: tuple[str, ...]  # each of the study's values, in order: trials.csv's columns, best_<metrics[0]>
     directions: tuple[str, ...]  # Optuna's "maximize" | "minimize" for each value (the harder end)
-    about: str  # what the first value measures, for the docs and `check_search`'s message
     scored: Callable[[list[float], dict], str]  # a complete trial's words, from its values and attributes
-    infeasible: Callable[[dict], str]  # a pruned (untestable) trial's words
+    untestable: str  # why a trial is pruned as infeasible (stored in the study for its report)
 
     @property
     def metric(self) -> str:
         return self.metrics[0]
 
+    def infeasible(self, attrs: dict) -> str:
+        """A pruned (untestable) trial's words."""
+        if self.untestable == NOT_VISIBLE:
+            return f"{NOT_VISIBLE} (visible fraction {attrs.get('visible_fraction', 0.0):.2f}): infeasible"
+        return f"{self.untestable}: infeasible"
+
 
 def _difficulty(values: list[float], attrs: dict) -> str:
     return (f"difficulty {values[0]:.3f} over {attrs['fair_frames']} fair frame(s), visible fraction "
             f"{attrs['visible_fraction']:.2f}")
-
-
-def _not_visible(attrs: dict) -> str:
-    return f"no fairly visible frame (visible fraction {attrs.get('visible_fraction', 0.0):.2f}): infeasible"
 
 
 def _late(values: list[float], attrs: dict) -> str:
@@ -48,17 +51,14 @@ def _slots(values: list[float], attrs: dict) -> str:
 
 
 OBJECTIVES: dict[str, Objective] = {o.name: o for o in (
-    Objective("difficulty", ("difficulty",), ("maximize",),
-              "1 - the mean composite confidence over the fairly visible frames", _difficulty, _not_visible),
-    Objective("pareto", ("difficulty", "visible_fraction"), ("maximize", "maximize"),
-              "difficulty against the target's visible fraction, both maximised", _difficulty, _not_visible),
+    # difficulty: 1 - the mean composite confidence over the fairly visible frames (results/table.py)
+    Objective("difficulty", ("difficulty",), ("maximize",), _difficulty, NOT_VISIBLE),
+    # pareto: the difficulty against the target's visible fraction, both maximised
+    Objective("pareto", ("difficulty", "visible_fraction"), ("maximize", "maximize"), _difficulty, NOT_VISIBLE),
     # late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
-    Objective("late", ("lateness",), ("maximize",),
-              "the share of the fairly visible approach gone by before the target was confirmed", _late,
-              lambda attrs: "never fairly visible before the critical distance: infeasible"),
+    Objective("late", ("lateness",), ("maximize",), _late, "never fairly visible before the critical distance"),
     # slots: 1 - recall of the fair slots (a slot case, docs/slots.md)
-    Objective("slots", ("slot_miss",), ("maximize",), "1 - the recall of the fairly visible parking slots", _slots,
-              lambda attrs: "no fair slot in any BEV frame: infeasible"),
+    Objective("slots", ("slot_miss",), ("maximize",), _slots, "no fair slot in any BEV frame"),
 )}
 
 

@@ -190,5 +190,6 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
         raise GarageError(f"study {name!r} was made for another objective ({made}, not {', '.join(goal.metrics)}); "
                           "give another search.study", "search.objective")
     study.set_user_attr("direction_names", list(goal.metrics))  # the analysis names its columns from these
+    study.set_user_attr("untestable", goal.untestable)  # and says why a pruned trial was infeasible
     study.set_metric_names(list(goal.metrics))  # optuna-dashboard's axis labels
     return study
