@@ -49,13 +49,13 @@ def measure(plan: str, palette: str, frames: int, repeat: int) -> dict:
             start = time.perf_counter()
             for _item in job.frames(n):
                 if cull:
-                    hidden.append(renderer.culled / max(1, int(renderer._base.sum())))
+                    hidden.append(renderer.culled / max(1, int(renderer.bodies.base.sum())))
             times[cull].append((time.perf_counter() - start) / n)
     renderer.cull = True
     t1 = time.perf_counter()
     renderer.load(job.scene)
     load = time.perf_counter() - t1
-    return {"plan": plan, "palette": palette, "frames": n, "bodies": len(renderer._all),
+    return {"plan": plan, "palette": palette, "frames": n, "bodies": len(renderer.bodies.all),
             "entities": len(job.scene.entities), "hidden": statistics.mean(hidden), "culled": times[True],
             "unculled": times[False], "build": build, "load": load,
             "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}

@@ -102,10 +102,10 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
                 for shot in setup.shots:  # re-render each shot culled to see what it hid
                     renderer.set_pose("ego", shot.ego)
                     renderer.render(scene.cameras[0].name)
-                    rows = np.flatnonzero(renderer._base & ~renderer._shown)
+                    rows = np.flatnonzero(renderer.bodies.base & ~renderer.bodies.shown)
                     # the boxes as they stood then: an actor (and its shadow decal) moves on in later frames
                     hidden.append((renderer.camera_pose(scene.cameras[0].name), rows,
-                                   renderer._lo[rows].copy(), renderer._hi[rows].copy()))
+                                   renderer.bodies.lo[rows].copy(), renderer.bodies.hi[rows].copy()))
     finally:
         renderer.cull = True
     assert len(frames[True]) == 3
