@@ -61,7 +61,7 @@ mutation: python
 
 ui: python
 	@$(BIN)/python -m garage_exp.tracking.store $(CURDIR)/outputs/mlflow.db
-	@$(BIN)/python -m garage_exp.tracking.runs --uri sqlite:///$(CURDIR)/outputs/mlflow.db
+	@$(BIN)/python -m garage_exp.tracking.ui --uri sqlite:///$(CURDIR)/outputs/mlflow.db
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
 
 # optuna-dashboard over a search's study (issue 10): the same storage the sweeper writes, local only.
