@@ -7,7 +7,8 @@ resolved value) that reruns to the trial's frame table:
 
 with a manifest (manifest.csv: band, difficulty, visible fraction, overrides) and, with `dataset=true`, the
 suite's frames as a dataset: each scenario is rerun with dataset=true into dataset/<scenario>/ (YOLO, COCO,
-KITTI), with one YOLO data.yaml and one COCO file over all of them.
+KITTI), with one YOLO data.yaml and one COCO file over all of them; with `export.openscenario=true`, each
+scenario as OpenSCENARIO and OpenDRIVE too (openscenario/<scenario>/scenario.xosc, garage.xodr).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from optuna.trial import TrialState
 from garage_exp.core.paths import OUTPUTS_DIR
 
 # Keys a scenario file leaves out: how and where a run is tracked is the rerunning user's, not the scenario's.
-NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset")
+NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset", "export")
 
 
 DEFAULT_BANDS = {"easy": [0.7, 1.01], "moderate": [0.4, 0.7], "hard": [0.0, 0.4]}
@@ -99,12 +100,18 @@ def write_suite(config: DictConfig, study, loader, launch=None, name: str = "") 
             path = root / "scenario" / f"{scenario}.yaml"
             path.write_text(scenario_yaml(job, scenario, trial))
             paths.append(path)
+            if config.export.openscenario:  # the scenario as OpenSCENARIO + OpenDRIVE, beside its YAML
+                from garage_exp.run.openscenario import export
+
+                export(job, root / "openscenario" / scenario)
             rows.append({"scenario": scenario, "band": band, "difficulty": round(trial.values[0], 6),
                          "confidence": round(1.0 - trial.values[0], 6),
                          "visible_fraction": round(trial.user_attrs.get("visible_fraction", 0.0), 6),
                          "fair_frames": trial.user_attrs.get("fair_frames"), "trial": trial.number,
                          "run_id": trial.user_attrs.get("run_id"), "overrides": " ".join(overrides)})
             reruns.append((scenario, [*overrides, f"search.trial={trial.number}"], trial.user_attrs.get("output_dir")))
+    if config.export.openscenario and rows:
+        paths.append(root / "openscenario")  # a folder: logged as one
     manifest = root / "manifest.csv"
     pd.DataFrame(rows, columns=["scenario", "band", "difficulty", "confidence", "visible_fraction", "fair_frames",
                                 "trial", "run_id", "overrides"]).to_csv(manifest, index=False)

@@ -1,0 +1,297 @@
+"""A job's scenario as ASAM OpenSCENARIO 1.2 (`scenario.xosc`) with the garage's driving lanes as ASAM OpenDRIVE
+(`garage.xodr`), written with `scenariogeneration`, for the tools test engineers replay scenarios in (esmini,
+CARLA's ScenarioRunner, commercial simulators, HIL rigs).
+
+What is written (docs/openscenario.md has the mapping):
+- entities: every actor of the variant as a Vehicle (category car/van/bus/truck from its model), a Pedestrian or a
+  MiscObject (a box: an obstacle), with its bounding box (our extent; the reference point is the footprint's
+  centre on the ground) and Properties saying what garage_exp made it from (role, kind, model, age, height);
+- initial positions: TeleportAction to a WorldPosition (x, y in the plan's world frame, which is the .xodr's
+  inertial frame; heading in radians, counter-clockwise from +x, as our yaw);
+- motion: each moving actor gets a route (AssignRouteAction, its start and end as waypoints) and speed actions:
+  the ego drives at `ego.speed` from the start; an actor moving along with it (`case.motion.along`) starts when
+  the ego has travelled to `at` (TraveledDistanceCondition on the ego) at its own speed; any other mover starts
+  at the simulation time of its first move (SimulationTimeCondition). Each stops (speed 0) when it has
+  travelled its route (TraveledDistanceCondition on itself);
+- the storyboard stops at the last frame's time plus one second.
+
+One file per variant of the case (replicate 0): `scenario.xosc` for the first, `scenario_2.xosc`, ... for the
+others. A case whose ego stands still sweeps a placement value frame by frame rather than in time; it is written
+as the moved actor travelling through its placements at a nominal speed (1.4 m/s for people, `ego.speed` for
+others), and the FileHeader's description says so.
+
+The lanes: one OpenDRIVE road per maximal straight run of driveable cells along a row or a column, through the
+cells' centres from edge to edge, with one driving lane each side (half the cell's width each). Junctions are
+not modelled: roads overlap at corners and junction cells (positions are world positions throughout, so the
+scenario does not depend on them).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from garage_exp.scenario.build import along_value, frame_times, moves_ego
+from garage_exp.scenario.shots import CaseSetup, Shot
+from garage_exp.scene.description import Entity, Pose
+
+OSC_MINOR = 2
+PERSON_SPEED = 1.4  # m/s: a static case's moved person walks through its placements at this pace
+AUTHOR = "garage_exp"
+PREFIX = "garage_exp."  # Properties keys carrying what an entity was made from (read back by the importer)
+CATEGORIES = {"car": "car", "suv": "car", "pickup": "van", "van": "van", "bus": "bus", "truck": "truck"}
+
+
+@dataclass
+class Track:
+    """One actor in one variant: where it starts and, if it moves, where it ends, how fast and from when."""
+
+    name: str
+    entity: Entity
+    start: Pose
+    end: Pose | None = None  # None: it stands still
+    speed: float = 0.0  # m/s
+    trigger: tuple[str, float] = ("time", 0.0)  # ("time", s) | ("ego_travel", m travelled by the ego)
+
+    @property
+    def length(self) -> float:
+        return math.hypot(self.end.x - self.start.x, self.end.y - self.start.y) if self.end else 0.0
+
+
+def variants_of(setup: CaseSetup) -> list[tuple[str, list[Shot]]]:
+    """Each variant's shots of replicate 0, in the order the job runs them."""
+    out: dict[str, list[Shot]] = {}
+    for shot in setup.shots:
+        if shot.replicate == 0:
+            out.setdefault(shot.label, []).append(shot)
+    return list(out.items())
+
+
+def _same(a: Pose, b: Pose) -> bool:
+    return math.hypot(a.x - b.x, a.y - b.y) < 1e-6 and abs(((a.yaw - b.yaw) + 180) % 360 - 180) < 1e-6
+
+
+def _extended(first: Pose, last: Pose, v0: float, v1: float, end: float) -> Pose:
+    """The pose at placement value `end`, from two poses at values v0 and v1: placements move an actor in a
+    straight line, value for value (distance, offset, out, gap are metres)."""
+    if abs(v1 - v0) < 1e-9:
+        return last
+    k = (end - v0) / (v1 - v0)
+    return Pose(first.x + k * (last.x - first.x), first.y + k * (last.y - first.y), 0.0, last.yaw)
+
+
+def tracks(cfg, setup: CaseSetup, shots: list[Shot]) -> tuple[list[Track], list[str]]:
+    """Every actor of the variant as a Track; and notes on what the file cannot say (for its description)."""
+    entities = {e.name: e for e in setup.vehicles}
+    ego_speed = float(cfg.ego.speed) / 3.6
+    driving = moves_ego(cfg.case)
+    times = [s.time for s in shots]
+    notes: list[str] = []
+    out = [Track("ego", entities["ego"], shots[0].ego)]
+    if driving and not _same(shots[0].ego, shots[-1].ego):
+        out[0].end, out[0].speed = shots[-1].ego, ego_speed
+    alongs = dict(cfg.case.motion.get("along") or {}) if driving else {}
+    values = [s.position for s in shots]
+    for name, entity in entities.items():
+        poses = [s.poses.get(name) for s in shots]
+        if name == "ego" or poses[0] is None:
+            continue
+        track = Track(name, entity, poses[0])
+        out.append(track)
+        moved = [k for k in range(1, len(poses)) if poses[k] is not None and not _same(poses[k], poses[k - 1])]
+        if not moved:
+            continue
+        along = alongs.get(name)
+        if along is not None and not along.get("values"):
+            t_at = frame_times([values[0], float(along.at)], float(cfg.ego.speed))[1] if along.at is not None else 0.0
+            reached = [along_value(along, t, t_at) for t in times]
+            track.end = _extended(poses[0], poses[moved[-1]], reached[0], reached[moved[-1]], float(along.end))
+            track.speed = float(along.speed)
+            track.trigger = ("ego_travel", abs(float(along.at) - values[0])) if along.at is not None else ("time", 0.0)
+            continue
+        first, last = moved[0] - 1, moved[-1]
+        track.end = poses[last]
+        if driving and times[last] > times[first]:
+            track.speed = track.length / (times[last] - times[first])
+            track.trigger = ("time", times[first])
+        else:
+            track.speed = PERSON_SPEED if entity.kind == "person" else ego_speed
+            notes.append(f"{name}: a sweep of placements frame by frame, written as a move at {track.speed:.2f} m/s")
+        if any(not _same(poses[k], poses[k - 1]) and abs(((poses[k].yaw - poses[k - 1].yaw) + 180) % 360 - 180) > 1e-6
+               for k in moved):
+            notes.append(f"{name}: its turning on the spot (yaw) is left out")
+    return out, notes
+
+
+def lane_runs(classified) -> list[tuple[tuple[float, float], float, float, float]]:
+    """Maximal straight runs of driveable cells along rows (heading E) and columns (heading N): (start point,
+    heading in radians, length, width across)."""
+    plan = classified.plan
+    m, n = plan.shape
+    runs = []
+
+    def connected(a, b, d) -> bool:
+        return a.driveable and b.driveable and d in a.lanes
+
+    for i in range(m):
+        j = 0
+        while j < n:
+            cell = classified.cell(i, j)
+            if not (cell.driveable and ({"E", "W"} & set(cell.lanes))):
+                j += 1
+                continue
+            k = j
+            while k + 1 < n and connected(classified.cell(i, k), classified.cell(i, k + 1), "E"):
+                k += 1
+            y = plan.cell_center(i, j)[1]
+            runs.append(((float(plan.x_edges[j]), y), 0.0, float(plan.x_edges[k + 1] - plan.x_edges[j]),
+                         float(plan.R[i])))
+            j = k + 1
+    for j in range(n):
+        i = m - 1
+        while i >= 0:  # from the bottom row up: heading N
+            cell = classified.cell(i, j)
+            if not (cell.driveable and ({"N", "S"} & set(cell.lanes))):
+                i -= 1
+                continue
+            k = i
+            while k - 1 >= 0 and connected(classified.cell(k, j), classified.cell(k - 1, j), "N"):
+                k -= 1
+            x = plan.cell_center(i, j)[0]
+            runs.append(((x, float(plan.y_edges[i + 1])), math.pi / 2, float(plan.y_edges[k] - plan.y_edges[i + 1]),
+                         float(plan.C[j])))
+            i = k - 1
+    return runs
+
+
+def write_xodr(classified, path: Path) -> Path:
+    """The plan's driving lanes as OpenDRIVE roads (lane_runs), in the world frame of the plan."""
+    from scenariogeneration import xodr
+
+    odr = xodr.OpenDrive(f"garage {classified.plan.name}", revMinor="7")
+    for k, (start, heading, length, width) in enumerate(lane_runs(classified), start=1):
+        road = xodr.create_road(xodr.Line(length), id=k, left_lanes=1, right_lanes=1, lane_width=width / 2)
+        road.planview.set_start_point(start[0], start[1], heading)
+        odr.add_road(road)
+    odr.adjust_roads_and_lanes()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    odr.write_xml(str(path))
+    return path
+
+
+def _entity_object(track: Track):
+    from scenariogeneration import xosc
+
+    e = track.entity
+    length, width, height = e.extent
+    box = xosc.BoundingBox(width, length, height, 0.0, 0.0, height / 2)
+    props = {"role": e.role, "kind": e.kind or "vehicle", "model": e.model or ""}
+    if e.kind == "person":
+        props.update(age=e.size_class or "adult", height=f"{height:.3f}")
+        obj = xosc.Pedestrian(track.name, 20.0 if e.size_class == "child" else 70.0, xosc.PedestrianCategory.pedestrian,
+                              box, model=e.model or "pedestrian")
+    elif e.kind == "box":
+        obj = xosc.MiscObject(track.name, 100.0, xosc.MiscObjectCategory.obstacle, box)
+    else:
+        from garage_exp.scene.kinds import kind_of
+
+        body = kind_of(e.model or "")
+        props["body"] = body
+        props["size"] = e.size_class or ""
+        wheel = 0.65 if body in ("car", "suv") else 0.8
+        axle = length / 2 - 0.9  # wheels ~0.9 m in from either bumper
+        obj = xosc.Vehicle(track.name, getattr(xosc.VehicleCategory, CATEGORIES.get(body, "car")), box,
+                           xosc.Axle(0.6, wheel, width * 0.85, axle, wheel / 2),
+                           xosc.Axle(0.0, wheel, width * 0.85, -axle, wheel / 2), 30.0, 3.0, 8.0)
+    for key, value in props.items():
+        obj.add_property(PREFIX + key, str(value))
+    return obj
+
+
+def _position(pose: Pose):
+    from scenariogeneration import xosc
+
+    return xosc.WorldPosition(round(pose.x, 6), round(pose.y, 6), 0.0, round(math.radians(pose.yaw % 360.0), 9))
+
+
+def _speed(value: float):
+    from scenariogeneration import xosc
+
+    return xosc.AbsoluteSpeedAction(round(value, 6), xosc.TransitionDynamics(
+        xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0))
+
+
+def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str) -> Path:
+    from scenariogeneration import xosc
+
+    entities = xosc.Entities()
+    init = xosc.Init()
+    for t in moving:
+        entities.add_scenario_object(t.name, _entity_object(t))
+        init.add_init_action(t.name, xosc.TeleportAction(_position(t.start)))
+        if t.end is not None:
+            route = xosc.Route(f"{t.name}_route")
+            route.add_waypoint(_position(t.start), xosc.RouteStrategy.shortest)
+            route.add_waypoint(_position(t.end), xosc.RouteStrategy.shortest)
+            init.add_init_action(t.name, xosc.AssignRouteAction(route))
+            if t.trigger == ("time", 0.0):
+                init.add_init_action(t.name, _speed(t.speed))
+    act = xosc.Act("motion", xosc.ValueTrigger("start", 0, xosc.ConditionEdge.none,
+                                               xosc.SimulationTimeCondition(0, xosc.Rule.greaterOrEqual)))
+    end_time = 0.0
+    for t in moving:
+        if t.end is None:
+            continue
+        maneuver = xosc.Maneuver(f"{t.name}_moves")
+        if t.trigger != ("time", 0.0):
+            kind, value = t.trigger
+            go = xosc.Event(f"{t.name}_starts", xosc.Priority.override)
+            go.add_action(f"{t.name}_speed", _speed(t.speed))
+            go.add_trigger(xosc.EntityTrigger(f"ego_travelled_{value:.2f}", 0, xosc.ConditionEdge.rising,
+                                              xosc.TraveledDistanceCondition(round(value, 6)), "ego")
+                           if kind == "ego_travel" else
+                           xosc.ValueTrigger(f"time_{value:.2f}", 0, xosc.ConditionEdge.rising,
+                                             xosc.SimulationTimeCondition(round(value, 6), xosc.Rule.greaterOrEqual)))
+            maneuver.add_event(go)
+        stop = xosc.Event(f"{t.name}_stops", xosc.Priority.override)
+        stop.add_action(f"{t.name}_stop", _speed(0.0))
+        stop.add_trigger(xosc.EntityTrigger(f"{t.name}_travelled_{t.length:.2f}", 0, xosc.ConditionEdge.rising,
+                                            xosc.TraveledDistanceCondition(round(t.length, 6)), t.name))
+        maneuver.add_event(stop)
+        group = xosc.ManeuverGroup(f"{t.name}_group")
+        group.add_actor(t.name)
+        group.add_maneuver(maneuver)
+        act.add_maneuver_group(group)
+        start = t.trigger[1] if t.trigger[0] == "time" else 0.0
+        end_time = max(end_time, start + (t.length / t.speed if t.speed > 0 else 0.0))
+    story = xosc.Story("garage_exp")
+    if not act.maneuvergroup:
+        group = xosc.ManeuverGroup("ego_group")  # a Story needs an Act, an Act a ManeuverGroup
+        group.add_actor("ego")
+        act.add_maneuver_group(group)
+    story.add_act(act)
+    stop = xosc.ValueTrigger("end", 0, xosc.ConditionEdge.rising,
+                             xosc.SimulationTimeCondition(round(end_time + 1.0, 3), xosc.Rule.greaterThan), "stop")
+    board = xosc.StoryBoard(init, stop)
+    board.add_story(story)
+    case = cfg.case
+    description = (f"garage_exp case={case.name} variant={label!r} plan={cfg.plan.name} site={case.site} "
+                   f"light={cfg.light.name} ego.speed={float(cfg.ego.speed):g} km/h"
+                   + "".join(f"; {n}" for n in notes))
+    scenario = xosc.Scenario(description, AUTHOR, xosc.ParameterDeclarations(), entities, board,
+                             xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=OSC_MINOR)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    scenario.write_xml(str(path))
+    return path
+
+
+def write(cfg, classified, setup: CaseSetup, out: Path) -> list[Path]:
+    """`out`/garage.xodr and one .xosc per variant (`scenario.xosc`, `scenario_2.xosc`, ...); the paths."""
+    xodr_path = write_xodr(classified, out / "garage.xodr")
+    paths = [xodr_path]
+    for k, (label, shots) in enumerate(variants_of(setup), start=1):
+        moving, notes = tracks(cfg, setup, shots)
+        name = "scenario.xosc" if k == 1 else f"scenario_{k}.xosc"
+        paths.append(write_xosc(cfg, moving, label, notes, out / name, xodr_path.name))
+    return paths
