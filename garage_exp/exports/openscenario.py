@@ -34,6 +34,7 @@ from pathlib import Path
 
 from garage_exp.scenario.build import along_value, frame_times, moves_ego
 from garage_exp.scenario.shots import CaseSetup, Shot
+from garage_exp.scenario.timing import start_time
 from garage_exp.scene.description import Entity, Pose
 
 OSC_MINOR = 2
@@ -53,6 +54,7 @@ class Track:
     end: Pose | None = None  # None: it stands still
     speed: float = 0.0  # m/s
     trigger: tuple[str, float] = ("time", 0.0)  # ("time", s) | ("ego_travel", m travelled by the ego)
+    accelerate: float = 0.0  # metres from standstill to `speed` at a constant acceleration (0: a step)
 
     @property
     def length(self) -> float:
@@ -104,11 +106,15 @@ def tracks(cfg, setup: CaseSetup, shots: list[Shot]) -> tuple[list[Track], list[
             continue
         along = alongs.get(name)
         if along is not None and not along.get("values"):
-            t_at = frame_times([values[0], float(along.at)], float(cfg.ego.speed))[1] if along.at is not None else 0.0
+            # when it sets off: at the ego's `at`, or timed to `meet` it (scenario/timing.py); as the ego's travel
+            t_at = start_time(along, lambda x: frame_times([values[0], x], float(cfg.ego.speed))[1])
             reached = [along_value(along, t, t_at) for t in times]
             track.end = _extended(poses[0], poses[moved[-1]], reached[0], reached[moved[-1]], float(along.end))
             track.speed = float(along.speed)
-            track.trigger = ("ego_travel", abs(float(along.at) - values[0])) if along.at is not None else ("time", 0.0)
+            track.accelerate = float(along.get("accelerate") or 0.0)
+            track.trigger = ("ego_travel", round(t_at * ego_speed, 6)) if t_at > 0 else ("time", 0.0)
+            if t_at < 0:
+                notes.append(f"{name}: already on its way at the first frame; written as setting off there")
             continue
         first, last = moved[0] - 1, moved[-1]
         track.end = poses[last]
@@ -215,9 +221,14 @@ def _position(pose: Pose):
     return xosc.WorldPosition(round(pose.x, 6), round(pose.y, 6), 0.0, round(math.radians(pose.yaw % 360.0), 9))
 
 
-def _speed(value: float):
+def _speed(value: float, accelerate: float = 0.0):
+    """Reach `value` m/s at once, or (accelerate > 0) at the constant acceleration that reaches it after
+    `accelerate` metres from standstill (a `rate` of v^2 / 2a m/s^2)."""
     from scenariogeneration import xosc
 
+    if accelerate > 0 and value > 0:
+        return xosc.AbsoluteSpeedAction(round(value, 6), xosc.TransitionDynamics(
+            xosc.DynamicsShapes.linear, xosc.DynamicsDimension.rate, round(value * value / (2 * accelerate), 6)))
     return xosc.AbsoluteSpeedAction(round(value, 6), xosc.TransitionDynamics(
         xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0))
 
@@ -236,7 +247,7 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
             route.add_waypoint(_position(t.end), xosc.RouteStrategy.shortest)
             init.add_init_action(t.name, xosc.AssignRouteAction(route))
             if t.trigger == ("time", 0.0):
-                init.add_init_action(t.name, _speed(t.speed))
+                init.add_init_action(t.name, _speed(t.speed, t.accelerate))
     act = xosc.Act("motion", xosc.ValueTrigger("start", 0, xosc.ConditionEdge.none,
                                                xosc.SimulationTimeCondition(0, xosc.Rule.greaterOrEqual)))
     end_time = 0.0
@@ -247,7 +258,7 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         if t.trigger != ("time", 0.0):
             kind, value = t.trigger
             go = xosc.Event(f"{t.name}_starts", xosc.Priority.override)
-            go.add_action(f"{t.name}_speed", _speed(t.speed))
+            go.add_action(f"{t.name}_speed", _speed(t.speed, t.accelerate))
             go.add_trigger(xosc.EntityTrigger(f"ego_travelled_{value:.2f}", 0, xosc.ConditionEdge.rising,
                                               xosc.TraveledDistanceCondition(round(value, 6)), "ego")
                            if kind == "ego_travel" else
@@ -264,7 +275,7 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         group.add_maneuver(maneuver)
         act.add_maneuver_group(group)
         start = t.trigger[1] if t.trigger[0] == "time" else 0.0
-        end_time = max(end_time, start + (t.length / t.speed if t.speed > 0 else 0.0))
+        end_time = max(end_time, start + (t.length + t.accelerate) / t.speed if t.speed > 0 else start)
     story = xosc.Story("garage_exp")
     if not act.maneuvergroup:
         group = xosc.ManeuverGroup("ego_group")  # a Story needs an Act, an Act a ManeuverGroup

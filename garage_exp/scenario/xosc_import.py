@@ -1,0 +1,277 @@
+"""`python -m garage_exp.scenario.import FILE.xosc`: an OpenSCENARIO file as a case YAML, for the subset a case
+can say, with one line per element it leaves out.
+
+Mapped: entities to our actors (a Vehicle by its garage_exp model, else by size class and body from its length
+and category; a Pedestrian to a person of its height; a MiscObject to a box), each placed on the site's `lane`
+(`before:` the site's first bay, `distance`, `offset`, `yaw`): where it starts; the ego's speed and route to the
+case's motion (the ego's `distance`, from its start to its route's end); another actor's speed, route or
+trajectory and what starts it (the ego's travelled distance, the simulation time, or a SynchronizeAction's
+arrival) to a co-motion (`case.motion.along`: `offset` across the lane or `distance` along it, `speed`,
+`accelerate`, `at` or `meet`).
+
+Where it stands: a file garage_exp wrote (its FileHeader says `garage_exp ... plan=NAME`) is in the plan's own
+world frame; any other file is moved as a whole so that its ego starts on the site's lane, heading along it, its
+rear 0.5 m past the lane's start (`--ego-distance` sets that distance). An actor that then stands outside the
+plan or in a wall needs a road the plan cannot place: one line naming the file and the element, exit 2, nothing
+written; so is a file that is not XML or fails the ASAM schema.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import yaml
+
+from garage_exp.core.errors import GarageError
+from garage_exp.scenario.xosc_read import Read, read
+
+STEP = 0.5  # m a frame of the ego's motion (the case's default)
+OWN = "garage_exp "
+
+
+def load_site(plan: str, site_name: str):
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.paths import PLANS_DIR, PROJECT_ROOT
+    from garage_exp.core.schema import GarageConf
+    from garage_exp.plan import classify, load_plan
+    from garage_exp.scenario.sites import find_site
+
+    path = Path(plan) if Path(plan).suffix else PLANS_DIR / f"{plan}.yaml"
+    if not path.is_file():
+        raise GarageError(f"no plan {plan!r} (a shipped plan's name or a plan file)", "--plan")
+    garage = OmegaConf.merge(OmegaConf.structured(GarageConf),
+                             OmegaConf.load(PROJECT_ROOT / "conf" / "garage" / "default.yaml"))
+    classified = classify(load_plan(path))
+    site = find_site(site_name, classified, garage)
+    if "lane" not in site.paths or not site.bays:
+        raise GarageError(f"the site {site_name} has no path `lane` with bays (straight_run, lane_bays)", "--site")
+    return classified, site
+
+
+def ego_of(r: Read) -> str:
+    by_role = [n for n, t in r.things.items() if t.properties.get("garage_exp.role") == "ego"]
+    named = [n for n in r.things if n.lower() in ("ego", "hero", "egovehicle")]
+    vehicles = [n for n, t in r.things.items() if t.type == "Vehicle"]
+    found = (by_role or named or vehicles)
+    if not found:
+        raise GarageError("no vehicle to be the ego", f"{r.path}: Entities")
+    return found[0]
+
+
+def own_plan(r: Read) -> str | None:
+    if not r.description.startswith(OWN):
+        return None
+    words = dict(w.split("=", 1) for w in r.description.split() if "=" in w)
+    return words.get("plan")
+
+
+def _actor(r: Read, name: str, role: str, moving: bool) -> dict:
+    t = r.things[name]
+    p = t.properties
+    length, width, height = t.extent
+    if t.type == "Pedestrian":
+        age = p.get("garage_exp.age") or ("child" if height < 1.4 else "adult")
+        return {"role": role, "kind": "person", "age": age, "height": round(float(p.get("garage_exp.height") or height), 3),
+                "pose": "walking" if moving else "standing"}
+    if t.type == "MiscObject":
+        return {"role": role, "kind": "box", "length": round(length, 3), "width": round(width, 3),
+                "height": round(height, 3)}
+    if p.get("garage_exp.model"):
+        return {"role": role, "model": p["garage_exp.model"]}
+    body = {"van": "van", "bus": "bus", "truck": "truck", "semitrailer": "truck", "trailer": "truck"}.get(t.category,
+                                                                                                        "car")
+    size = "small" if length < 4.2 else "medium" if length < 4.8 else "large"
+    return {"role": role, "size": size, "body": body}
+
+
+def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[dict, list[str]]:
+    """The case (a dict for its YAML) and the lines saying what it took and what it left out."""
+    lane = site.paths["lane"]
+    ax, ay = lane.axis
+    bay0 = site.bays[0].bay
+    t0 = lane.along(bay0.x, bay0.y)
+    ego = ego_of(r)
+    notes: list[str] = []
+    transform = _identity if own_plan(r) else _onto_lane(r, ego, lane, ego_distance)
+
+    def place(x, y, h):
+        x, y, h = transform(x, y, h)
+        cell = classified.plan.cell_at(x, y)
+        return x, y, h, cell
+
+    placed = {}
+    for n, start in r.start.items():
+        x, y, h, cell = place(*start)
+        if cell is None or classified.cell(*cell).kind == "obstacle":
+            where = "outside the plan" if cell is None else f"in the wall cell {cell}"
+            raise GarageError(f"needs a road the plan cannot place: {n} starts at ({x:.1f}, {y:.1f}) m, {where} "
+                              f"(plan {classified.plan.name}, site {site.name})", f"{r.path}: {r.tree.getpath(r.things[n].element)}")
+        placed[n] = (x, y, h)
+    for n in r.things:
+        if n not in placed:
+            notes.append(f"left out entity {n!r}: the file never places it")
+
+    def distance(x, y):
+        return round(t0 - (x * ax + y * ay), 4)
+
+    def offset(x, y):
+        return round((x - lane.origin[0]) * -ay + (y - lane.origin[1]) * ax, 4)
+
+    names = {n: ("ego" if n == ego else _key(n)) for n in placed}
+    movers = {n for n in placed if any(m.speed > 0 for m in r.moves.get(n, []))}
+    people = [n for n in placed if r.things[n].type == "Pedestrian" and n != ego]
+    target = next((n for n in placed if r.things[n].properties.get("garage_exp.role") == "target"), None) \
+        or (people[0] if people else next((n for n in placed if n != ego and n in movers), None))
+    actors = {}
+    for n, (x, y, h) in placed.items():
+        role = r.things[n].properties.get("garage_exp.role") or (
+            "ego" if n == ego else "target" if n == target else "moving" if n in movers else "parked")
+        actor = _actor(r, n, role, n in movers)
+        actor.update({"path": "lane", "before": "ref", "distance": distance(x, y), "offset": offset(x, y),
+                      "yaw": round((math.degrees(h) - lane.heading + 180) % 360 - 180, 4)})
+        actors[names[n]] = actor
+    case = {"name": name, "site": site.name, "position_label": "ego distance before the reference bay (m)",
+            "bays": {"ref": "0"}, "actors": actors}
+    ego_speed = next((m.speed for m in r.moves.get(ego, []) if m.speed > 0), 0.0)
+    motion: dict = {}
+    if ego_speed > 0:
+        d0 = actors["ego"]["distance"]
+        if r.routes.get(ego):
+            ex, ey, _ = transform(*r.routes[ego][-1], 0.0)
+            d1 = distance(ex, ey)
+        elif target:
+            d1 = actors[names[target]]["distance"] + 3.0
+            notes.append("ego: no route; it drives to 3 m before the target's distance")
+        else:
+            d1 = d0
+        motion = {"actor": "ego", "key": "distance", "start": d0, "end": round(d1, 4), "step": STEP}
+        notes.append(f"ego speed {ego_speed * 3.6:.4g} km/h: run the case with ego.speed={ego_speed * 3.6:.4g}")
+    along = {}
+    for n in sorted(movers - {ego}, key=list(placed).index):
+        spec = _along(r, n, placed[n], transform, distance, offset, actors, ego, ego_speed, notes)
+        if spec is None:
+            continue
+        if motion:
+            along[names[n]] = spec
+        elif not motion:  # a static ego: this actor's move is the case's motion, frame by frame
+            motion = {"actor": names[n], "key": spec["key"], "start": spec["start"], "end": spec["end"],
+                      "step": 0.25}
+            notes.append(f"{n}: the ego stands: its move is swept 0.25 m a frame (its speed is not a case's)")
+    if along:
+        motion["along"] = along
+    if motion:
+        case["motion"] = motion
+    if target:
+        case["target"] = names[target]
+    renamed = [f"{n} -> {k}" for n, k in names.items() if n != k]
+    if renamed:
+        notes.append("actors renamed: " + ", ".join(renamed))
+    return case, notes
+
+
+def _along(r: Read, n: str, start, transform, distance, offset, actors, ego, ego_speed, notes) -> dict | None:
+    moves = [m for m in r.moves[n] if m.speed > 0]
+    m = moves[0]
+    route = r.routes.get(n)
+    if not route or len(route) < 2:
+        notes.append(f"{n}: a speed without a route or trajectory: left standing")
+        return None
+    ex, ey, _ = transform(*route[-1], 0.0)
+    if m.meet is not None:  # arriving at its target point as the master reaches its own
+        ex, ey, _ = transform(*m.meet[2], 0.0)
+    sx, sy = start[0], start[1]
+    across = abs(offset(ex, ey) - offset(sx, sy)) >= abs(distance(ex, ey) - distance(sx, sy))
+    key, get = ("offset", offset) if across else ("distance", distance)
+    spec = {"key": key, "start": get(sx, sy), "end": get(ex, ey), "speed": round(m.speed, 4)}
+    length = math.hypot(ex - sx, ey - sy)
+    if m.rate > 0:
+        spec["accelerate"] = round(m.speed * m.speed / (2 * m.rate), 4)
+    if m.meet is not None:
+        master, (mx, my), _, steady = m.meet
+        if master != ego:
+            notes.append(f"{n}: synchronised with {master!r}, not the ego: left standing")
+            return None
+        cx = r.things[ego].centre_x
+        h = r.start[ego][2]
+        mx, my, _ = transform(mx + cx * math.cos(h), my + cx * math.sin(h), 0.0)
+        spec["meet"] = distance(mx, my)
+        if steady is not None:
+            spec["accelerate"] = round(max(0.0, length - steady), 4)
+        notes.append(f"{n}: SynchronizeAction with the ego -> meet {spec['meet']:g} (arrives at its target then stops)")
+    elif m.trigger[0] == "travel" and m.by == ego:
+        spec["at"] = round(actors["ego"]["distance"] - m.trigger[1], 4)
+    elif m.trigger[0] == "time" and m.trigger[1] > 0:
+        spec["at"] = round(actors["ego"]["distance"] - m.trigger[1] * ego_speed, 4)
+    elif m.trigger[0] == "travel":
+        notes.append(f"{n}: started by {m.by!r}'s travel, not the ego's: taken as starting at once")
+    return spec
+
+
+def _identity(x, y, h):
+    return x, y, h
+
+
+def _onto_lane(r: Read, ego: str, lane, ego_distance: float):
+    """The rigid move that puts the ego's start on the lane's centre line, heading along it, its rear
+    `ego_distance` m past the lane's start."""
+    x0, y0, h0 = r.start[ego]
+    length = r.things[ego].extent[0]
+    tx, ty = lane.point(lane.lo + length / 2 + ego_distance)
+    turn = math.radians(lane.heading) - h0
+    c, s = math.cos(turn), math.sin(turn)
+
+    def move(x, y, h):
+        dx, dy = x - x0, y - y0
+        return tx + c * dx - s * dy, ty + s * dx + c * dy, h + turn
+
+    return move
+
+
+def _key(name: str) -> str:
+    out = "".join(ch if ch.isalnum() else "_" for ch in name).strip("_").lower() or "actor"
+    return out if not out[0].isdigit() else f"a_{out}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.scenario.import", description=__doc__.splitlines()[0])
+    ap.add_argument("xosc", type=Path, help="an OpenSCENARIO 1.0-1.3 scenario file")
+    ap.add_argument("-o", "--output", type=Path, help="the case YAML to write (default: case/NAME.yaml here, "
+                    "so that `python -m garage_exp --config-dir . case=NAME` runs it)")
+    ap.add_argument("--name", help="the case's name (default: the file's stem)")
+    ap.add_argument("--plan", help="a shipped plan's name or a plan file (default: the file's own, else research)")
+    ap.add_argument("--site", default="straight_run", help="a site with a lane and bays (default straight_run)")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="set one of the file's parameters (repeatable), e.g. Ego_speed_kph=10")
+    ap.add_argument("--ego-distance", type=float, default=0.5,
+                    help="a foreign file's ego starts with its rear this far past the lane's start (m)")
+    args = ap.parse_args(argv)
+    try:
+        params = {}
+        for item in args.param:
+            key, sep, value = item.partition("=")
+            if not sep or not key:
+                raise GarageError(f"{item!r} is not NAME=VALUE", "--param")
+            params[key] = value
+        r = read(args.xosc, params)
+        name = _key(args.name or args.xosc.stem)
+        classified, site = load_site(args.plan or own_plan(r) or "research", args.site)
+        case, notes = to_case(r, classified, site, name, args.ego_distance)
+    except GarageError as exc:
+        print(f"garage_exp.scenario.import: {exc}", file=sys.stderr)
+        return 2
+    out = args.output or Path("case") / f"{name}.yaml"
+    lines = [*r.left_out, *notes]
+    head = [f"# Imported from {args.xosc} by python -m garage_exp.scenario.import"
+            + (f" ({', '.join(f'{k}={v}' for k, v in params.items())})" if params else ""),
+            *(f"# {line}" for line in lines)]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(head) + "\n" + yaml.safe_dump(case, sort_keys=False))
+    for line in lines:
+        print(line)
+    print(f"garage_exp.scenario.import: wrote {out} ({len(case['actors'])} actors; {len(r.left_out)} element(s) "
+          "left out)")
+    return 0

@@ -1,0 +1,155 @@
+"""OpenSCENARIO out and in (docs/openscenario.md): a job's scenario written as .xosc + .xodr that the ASAM schemas
+accept and that read back, a case imported from an .xosc, the cpnco round trip within 5 cm, and the importer's
+bad input (one line naming the file and element, exit 2, nothing written)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import ROOT, compose_cfg, require
+
+from garage_exp.core.paths import PLANS_DIR
+from garage_exp.plan import classify, load_plan
+
+
+@pytest.fixture(scope="module")
+def library():
+    require("vehicles")
+    from garage_exp.assets.vehicles import VehicleLibrary
+
+    return VehicleLibrary()
+
+
+def build(library, *overrides: str):
+    from garage_exp.scenario.assemble import build_scene
+
+    cfg = compose_cfg(*overrides)
+    classified = classify(load_plan(PLANS_DIR / f"{cfg.plan.name}.yaml"))
+    scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    return cfg, classified, setup
+
+
+@pytest.fixture(scope="module")
+def cpnco(library, tmp_path_factory):
+    from garage_exp.exports import openscenario
+
+    cfg, classified, setup = build(library, "case=cpnco")
+    out = tmp_path_factory.mktemp("osc")
+    return cfg, classified, setup, openscenario.write(cfg, classified, setup, out / "openscenario")
+
+
+def test_cpnco_exports_validate_against_the_asam_schemas_and_read_back(cpnco):
+    from scenariogeneration import xosc
+
+    from garage_exp.exports.openscenario import lane_runs
+    from garage_exp.scenario.xosc_read import read_roads
+
+    from garage_exp.scenario.asam import validate
+
+    cfg, classified, setup, paths = cpnco
+    assert [p.name for p in paths] == ["garage.xodr", "scenario.xosc"]
+    assert validate(paths[0]) == "opendrive_17_core.xsd" and validate(paths[1]) == "OpenSCENARIO_1_2.xsd"
+    scenario = xosc.ParseOpenScenario(str(paths[1]))  # scenariogeneration's own reader takes it back
+    assert {o.name for o in scenario.entities.scenario_objects} == {"ego", "child", "car_large", "car_small"}
+    roads, refused = read_roads(paths[0])  # the research plan's lanes: the ring's four sides, the two ramps' columns
+    assert not refused and len(roads) == len(lane_runs(classified)) >= 4
+    for road in roads.values():  # each road's centre line runs over driveable cells
+        for k in range(1, 10):
+            cell = classified.plan.cell_at(*road.point(road.length * k / 10, 0.0))
+            assert cell is not None and classified.cell(*cell).driveable
+    text = paths[1].read_text()
+    for needle in ("TraveledDistanceCondition", "AssignRouteAction", "AbsoluteTargetSpeed value=\"2.777778\"",
+                   "pedestrianCategory=\"pedestrian\"", "SimulationTimeCondition"):
+        assert needle in text
+
+
+def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tmp_path):
+    """Round trip: the imported case builds every frame's poses within 5 cm of the original's."""
+    from garage_exp.scenario.xosc_import import main
+
+    cfg, classified, setup, paths = cpnco
+    out = tmp_path / "conf" / "case" / "cpnco_rt.yaml"
+    assert main([str(paths[1]), "-o", str(out), "--name", "cpnco_rt"]) == 0
+    _, _, again = build(library, "case=cpnco_rt", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    assert len(again.shots) == len(setup.shots)
+    worst = 0.0
+    for a, b in zip(setup.shots, again.shots):
+        worst = max(worst, math.hypot(a.ego.x - b.ego.x, a.ego.y - b.ego.y))
+        for name, pose in a.poses.items():
+            other = b.poses[name]
+            worst = max(worst, math.hypot(pose.x - other.x, pose.y - other.y))
+            assert abs(((pose.yaw - other.yaw) + 180) % 360 - 180) < 0.5
+    assert worst < 0.05
+
+
+def test_a_stepout_job_with_export_openscenario_writes_both_files(tmp_path, mlflow_uri):
+    """A job (three frames) writes openscenario/scenario.xosc and garage.xodr beside its frames."""
+    from conftest import run_app
+
+    from garage_exp.scenario.asam import validate
+
+    out = tmp_path / "run"
+    result = run_app(["case=stepout", "export.openscenario=true", "case.motion.step=8.5", "camera.width=320",
+                      "camera.height=240", f"hydra.run.dir={out}", f"tracking.uri={mlflow_uri}"], tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert (out / "frames.csv").is_file()
+    assert validate(out / "openscenario" / "scenario.xosc").startswith("OpenSCENARIO_1_2")
+    assert validate(out / "openscenario" / "garage.xodr").startswith("opendrive")
+
+
+BAD_XOSC = {
+    "not_xml.xosc": ("<OpenSCENARIO><FileHeader", "not XML"),
+    "schema.xosc": ('<?xml version="1.0"?><OpenSCENARIO><FileHeader revMajor="1" revMinor="2" date="2026-01-01T00:00:00"'
+                    ' description="x" author="y"/><Bogus/></OpenSCENARIO>', "fails the schema OpenSCENARIO_1_2.xsd"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_XOSC))
+def test_a_bad_xosc_is_one_line_exit_2_and_nothing_written(name, tmp_path, capsys):
+    from garage_exp.scenario.xosc_import import main
+
+    text, says = BAD_XOSC[name]
+    path = tmp_path / name
+    path.write_text(text)
+    out = tmp_path / "case" / "x.yaml"
+    assert main([str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and says in err
+    assert not out.exists() and not out.parent.exists()
+
+
+def test_a_road_the_plan_cannot_place_is_refused(cpnco, tmp_path, capsys):
+    """A lane position on a road the road file lacks, and an actor moved outside the plan: one line naming the
+    element, exit 2."""
+    from garage_exp.scenario.xosc_import import main
+
+    text = cpnco[3][1].read_text()
+    lane = text.replace('<WorldPosition x="35.345" y="30.8" z="0.0" h="1.570796327"/>',
+                        '<LanePosition roadId="99" laneId="-1" s="3" offset="0"/>', 1)
+    assert lane != text
+    far = text.replace('x="30.4" y="30.3253"', 'x="300.4" y="30.3253"', 1)
+    assert far != text
+    for name, bad, says in (("lane.xosc", lane, "needs road 99"), ("far.xosc", far, "needs a road the plan")):
+        path = tmp_path / name
+        path.write_text(bad)
+        (tmp_path / "garage.xodr").write_text(cpnco[3][0].read_text())
+        out = tmp_path / "case" / "x.yaml"
+        assert main([str(path), "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and str(path) in err and says in err, err
+        assert "ScenarioObject" in err or "Position" in err
+        assert not out.exists()
+
+
+def test_python_m_garage_exp_scenario_import_runs(cpnco, tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import child_env
+
+    result = subprocess.run([sys.executable, "-m", "garage_exp.scenario.import", str(cpnco[3][1]), "--name", "rt"],
+                            cwd=tmp_path, capture_output=True, text=True, env=child_env({"PYTHONPATH": str(ROOT)}))
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "case" / "rt.yaml").is_file() and "left out" in result.stdout
