@@ -152,6 +152,19 @@ class Road:
         c, n = math.cos(self.hdg), math.sin(self.hdg)
         return self.x + s * c - t * n, self.y + s * n + t * c
 
+    def lane_at(self, t: float) -> int | None:
+        """The lane whose span holds t (None: off the road)."""
+        for sign in (1, -1):
+            edge = 0.0
+            for k in range(1, len(self.lanes) + 1):
+                width = self.lanes.get(sign * k)
+                if width is None:
+                    break
+                if edge <= sign * t <= edge + width:
+                    return sign * k
+                edge += width
+        return None
+
     def lane_centre(self, lane: int) -> float:
         """t of a lane's centre line (left lanes positive ids, right negative)."""
         sign = 1 if lane > 0 else -1
@@ -287,10 +300,10 @@ class Reader:
             if v.num(kind, "dLane", 0.0):
                 raise GarageError("a lane change (dLane) we cannot place", self.where(kind))
             x0, y0, h0 = self.start[ref]
-            ds, off = v.num(kind, "ds", 0.0), v.num(kind, "offset", 0.0)
-            road_h = next(iter(self.roads.values())).hdg if self.roads else h0
-            c, n = math.cos(road_h), math.sin(road_h)
-            return x0 + ds * c - off * n, y0 + ds * n + off * c, self.orientation(kind, h0)
+            road, s, t = self.on_road(x0, y0, kind)
+            lane = road.lane_at(t)  # `offset` is from the centre of the reference's lane, not from the reference
+            x, y = road.point(s + v.num(kind, "ds", 0.0), road.lane_centre(lane) + v.num(kind, "offset", 0.0))
+            return x, y, self.orientation(kind, h0)
         if kind.tag == "RelativeWorldPosition":
             ref = v.get(kind, "entityRef")
             if ref not in self.start:
@@ -299,6 +312,15 @@ class Reader:
             return x0 + v.num(kind, "dx", 0.0), y0 + v.num(kind, "dy", 0.0), self.orientation(kind, h0)
         raise GarageError(f"a {kind.tag} we cannot place (world, lane, road or relative positions)",
                           self.where(kind))
+
+    def on_road(self, x: float, y: float, element):
+        """The straight road under (x, y), and its s and t there."""
+        for road in self.roads.values():
+            c, n = math.cos(road.hdg), math.sin(road.hdg)
+            s, t = (x - road.x) * c + (y - road.y) * n, -(x - road.x) * n + (y - road.y) * c
+            if -1e-6 <= s <= road.length + 1e-6 and road.lane_at(t) is not None:
+                return road, s, t
+        raise GarageError("a lane position relative to an entity on no road the plan can place", self.where(element))
 
     def orientation(self, kind, base: float) -> float:
         o = kind.find("Orientation")
