@@ -33,11 +33,13 @@ def build(library, *overrides: str):
 
 @pytest.fixture(scope="module")
 def cpnco(library, tmp_path_factory):
-    from garage_exp.exports import openscenario
+    from garage_exp.run.openscenario import export
+    from garage_exp.run.preflight import PreparedJob
 
     cfg, classified, setup = build(library, "case=cpnco")
     out = tmp_path_factory.mktemp("osc")
-    return cfg, classified, setup, openscenario.write(cfg, classified, setup, out / "openscenario")
+    prepared = PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup)
+    return cfg, classified, setup, export(cfg, out / "openscenario", prepared)
 
 
 def test_cpnco_exports_validate_against_the_asam_schemas_and_read_back(cpnco):

@@ -87,7 +87,7 @@ def check_config(cfg: DictConfig) -> None:
     from garage_exp.scene.parking import check_palette
     from garage_exp.scene.structure import check_garage
     from garage_exp.core.plugins import build
-    from garage_exp.run.openscenario import check_export
+    from garage_exp.exports.openscenario import check_export
 
     for key in ("seed", "light.seed", "palette.seed", "materials.seed"):
         value = OmegaConf.select(cfg, key)
