@@ -155,3 +155,93 @@ def test_python_m_garage_exp_scenario_import_runs(cpnco, tmp_path):
                             cwd=tmp_path, capture_output=True, text=True, env=child_env({"PYTHONPATH": str(ROOT)}))
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "case" / "rt.yaml").is_file() and "left out" in result.stdout
+
+
+FOREIGN_XODR = """<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="7" name="straight"/>
+<road id="7" length="200" junction="-1"><planView><geometry s="0" x="100" y="-50" hdg="1.5707963267948966"
+length="200"><line/></geometry></planView><lanes><laneSection s="0">
+<left><lane id="1" type="driving" level="false"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></left>
+<center><lane id="0" type="none" level="false"/></center>
+<right><lane id="-1" type="driving" level="false"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right>
+</laneSection></lanes></road></OpenDRIVE>
+"""
+
+FOREIGN_XOSC = """<?xml version="1.0"?>
+<OpenSCENARIO><FileHeader revMajor="1" revMinor="2" date="2026-01-01T00:00:00" description="a crossing" author="t"/>
+<ParameterDeclarations>
+  <ParameterDeclaration name="EgoS" parameterType="double" value="20"/>
+  <ParameterDeclaration name="Ahead" parameterType="double" value="${$EgoS + 12}"/>
+</ParameterDeclarations>
+<CatalogLocations/><RoadNetwork><LogicFile filepath="road.xodr"/></RoadNetwork>
+<Entities>
+  <ScenarioObject name="Hero"><Vehicle name="car" vehicleCategory="car"><BoundingBox><Center x="1.4" y="0" z="0.7"/>
+    <Dimensions width="1.8" length="4.4" height="1.4"/></BoundingBox><Performance maxSpeed="50" maxAcceleration="5"
+    maxDeceleration="10"/><Axles><FrontAxle maxSteering="0.5" wheelDiameter="0.6" trackWidth="1.5" positionX="2.8"
+    positionZ="0.3"/><RearAxle maxSteering="0" wheelDiameter="0.6" trackWidth="1.5" positionX="0" positionZ="0.3"/>
+    </Axles><Properties/></Vehicle></ScenarioObject>
+  <ScenarioObject name="Kid"><Pedestrian name="kid" pedestrianCategory="pedestrian" mass="20"><BoundingBox>
+    <Center x="0" y="0" z="0.6"/><Dimensions width="0.3" length="0.5" height="1.2"/></BoundingBox><Properties/></Pedestrian>
+  </ScenarioObject>
+</Entities>
+<Storyboard><Init><Actions>
+  <Private entityRef="Hero">
+    <PrivateAction><TeleportAction><Position><LanePosition roadId="7" laneId="-1" s="$EgoS"/></Position>
+    </TeleportAction></PrivateAction>
+    <PrivateAction><LongitudinalAction><SpeedAction><SpeedActionDynamics dynamicsShape="step" value="0"
+      dynamicsDimension="time"/><SpeedActionTarget><AbsoluteTargetSpeed value="2.5"/></SpeedActionTarget>
+    </SpeedAction></LongitudinalAction></PrivateAction>
+  </Private>
+  <Private entityRef="Kid">
+    <PrivateAction><TeleportAction><Position><LanePosition roadId="7" laneId="-1" s="$Ahead" offset="-3">
+      <Orientation type="relative" h="1.5707963267948966"/></LanePosition></Position></TeleportAction></PrivateAction>
+    <PrivateAction><RoutingAction><AssignRouteAction><Route name="across" closed="false">
+      <Waypoint routeStrategy="shortest"><Position><LanePosition roadId="7" laneId="-1" s="$Ahead" offset="-3"/>
+      </Position></Waypoint>
+      <Waypoint routeStrategy="shortest"><Position><LanePosition roadId="7" laneId="-1" s="$Ahead" offset="0"/>
+      </Position></Waypoint></Route></AssignRouteAction></RoutingAction></PrivateAction>
+  </Private>
+</Actions></Init>
+<Story name="s"><Act name="a"><ManeuverGroup name="g" maximumExecutionCount="1"><Actors selectTriggeringEntities="false">
+  <EntityRef entityRef="Kid"/></Actors><Maneuver name="m"><Event name="go" priority="override">
+  <Action name="walk"><PrivateAction><LongitudinalAction><SpeedAction><SpeedActionDynamics dynamicsShape="linear"
+    value="1.0" dynamicsDimension="rate"/><SpeedActionTarget><AbsoluteTargetSpeed value="1.5"/></SpeedActionTarget>
+  </SpeedAction></LongitudinalAction></PrivateAction></Action>
+  <StartTrigger><ConditionGroup><Condition name="c" delay="0" conditionEdge="rising"><ByEntityCondition>
+    <TriggeringEntities triggeringEntitiesRule="any"><EntityRef entityRef="Hero"/></TriggeringEntities>
+    <EntityCondition><TraveledDistanceCondition value="4"/></EntityCondition></ByEntityCondition></Condition>
+  </ConditionGroup></StartTrigger></Event></Maneuver></ManeuverGroup>
+  <StartTrigger><ConditionGroup><Condition name="t" delay="0" conditionEdge="none"><ByValueCondition>
+    <SimulationTimeCondition value="0" rule="greaterThan"/></ByValueCondition></Condition></ConditionGroup>
+  </StartTrigger></Act></Story>
+<StopTrigger/></Storyboard></OpenSCENARIO>
+"""
+
+
+def test_a_foreign_file_maps_onto_the_sites_lane(tmp_path, capsys):
+    """Another tool's file (a lane position with a parameter expression on its own straight road, a rear-axle
+    reference point, a walk across started by the ego's travel, `--param`): its ego lands on the site's lane,
+    everything else where it stood relative to the ego, the walk as a co-motion across the lane."""
+    import yaml
+
+    from garage_exp.scenario.xosc_import import main
+
+    (tmp_path / "road.xodr").write_text(FOREIGN_XODR)
+    path = tmp_path / "crossing.xosc"
+    path.write_text(FOREIGN_XOSC)
+    out = tmp_path / "case" / "crossing.yaml"
+    assert main([str(path), "-o", str(out), "--param", "EgoS=30"]) == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    assert "ego.speed=9" in printed and "Hero -> ego" in printed
+    case = yaml.safe_load(out.read_text())
+    ego, kid = case["actors"]["ego"], case["actors"]["kid"]
+    assert ego["offset"] == pytest.approx(0.0) and ego["yaw"] == pytest.approx(0.0)
+    assert ego["size"] == "medium" and kid["kind"] == "person" and kid["age"] == "child"
+    # 12 m ahead of the ego's rear axle: 12 - 1.4 m ahead of its centre, 3 m to its right, facing left
+    assert ego["distance"] - kid["distance"] == pytest.approx(12 - 1.4, abs=1e-3)
+    assert kid["offset"] - ego["offset"] == pytest.approx(-3.0, abs=1e-3) and kid["yaw"] == pytest.approx(90.0)
+    along = case["motion"]["along"]["kid"]
+    assert along["key"] == "offset" and along["end"] - along["start"] == pytest.approx(3.0, abs=1e-3)
+    assert along["speed"] == 1.5 and along["accelerate"] == pytest.approx(1.125)  # v^2 / 2a
+    assert along["at"] == pytest.approx(ego["distance"] - 4.0)
+    assert case["motion"]["actor"] == "ego" and case["target"] == "kid"
