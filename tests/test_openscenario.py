@@ -6,29 +6,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
-from conftest import ROOT, compose_cfg, require
+from conftest import ROOT
+from test_cases import build, library  # noqa: F401  (the cases' scene builder and its module-scoped library)
 
 from garage_exp.core.paths import PLANS_DIR
-from garage_exp.plan import classify, load_plan
-
-
-@pytest.fixture(scope="module")
-def library():
-    require("vehicles")
-    from garage_exp.assets.vehicles import VehicleLibrary
-
-    return VehicleLibrary()
-
-
-def build(library, *overrides: str):
-    from garage_exp.scenario.assemble import build_scene
-
-    cfg = compose_cfg(*overrides)
-    classified = classify(load_plan(PLANS_DIR / f"{cfg.plan.name}.yaml"))
-    scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
-    return cfg, classified, setup
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +18,7 @@ def cpnco(library, tmp_path_factory):
     from garage_exp.run.openscenario import export
     from garage_exp.run.preflight import PreparedJob
 
-    cfg, classified, setup = build(library, "case=cpnco")
+    cfg, classified, _, setup = build(library, "case=cpnco")
     out = tmp_path_factory.mktemp("osc")
     prepared = PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup)
     return cfg, classified, setup, export(cfg, out / "openscenario", prepared)
@@ -74,7 +56,7 @@ def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tm
     cfg, classified, setup, paths = cpnco
     out = tmp_path / "conf" / "case" / "cpnco_rt.yaml"
     assert main([str(paths[1]), "-o", str(out), "--name", "cpnco_rt"]) == 0
-    _, _, again = build(library, "case=cpnco_rt", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    _, _, _, again = build(library, "case=cpnco_rt", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
     assert len(again.shots) == len(setup.shots)
     worst = 0.0
     for a, b in zip(setup.shots, again.shots):
