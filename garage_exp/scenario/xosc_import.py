@@ -157,7 +157,7 @@ def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[
             continue
         if motion:
             along[names[n]] = spec
-        elif not motion:  # a static ego: this actor's move is the case's motion, frame by frame
+        else:  # a static ego: this actor's move is the case's motion, frame by frame
             motion = {"actor": names[n], "key": spec["key"], "start": spec["start"], "end": spec["end"],
                       "step": 0.25}
             notes.append(f"{n}: the ego stands: its move is swept 0.25 m a frame (its speed is not a case's)")
