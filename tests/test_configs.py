@@ -24,7 +24,7 @@ def compose_cfg(*overrides: str):
 def test_every_group_has_levels_and_cases_and_experiments_exist():
     assert len(LEVELS) >= 2 * len(GROUPS) - 4  # garage, renderer, tracking have one level; the rest several
     assert {"1", "2", "3"} <= {lv for g, lv in LEVELS if g == "case"}
-    assert EXPERIMENTS == ["case3_table", "light_sensor", "light_table"]
+    assert EXPERIMENTS == ["case3_table", "cpnco", "cpra", "light_sensor", "light_table"]
 
 
 @pytest.mark.parametrize("group,level", LEVELS, ids=[f"{g}={lv}" for g, lv in LEVELS])
