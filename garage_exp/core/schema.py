@@ -129,7 +129,8 @@ class ActorConf:
     size: str = ""
     colour: str = ""
     body: str = ""
-    # person: age group, height (m, None: the group's usual), build, pose (standing | walking), clothing palette
+    # person: age group, height (m, None: the group's usual), build, pose (standing | walking | crouching),
+    # clothing palette
     age: str = "adult"
     height: Optional[float] = None
     build: str = "average"

@@ -24,6 +24,7 @@ from garage_exp.scenario.place import (check_overlaps, no_room, pose_between, po
                                        pose_relative, site_bay, site_path)
 from garage_exp.scenario.sites import Site, find_site
 from garage_exp.scenario.timing import start_time, travelled
+from garage_exp.scene.camera import scored_camera
 from garage_exp.scene.description import Pose
 
 EGO = "ego"
@@ -41,6 +42,7 @@ def check_case(cfg) -> None:
             raise GarageError(f"a range is >= 0, got {cfg.replicate[key]}", f"replicate.{key}")
     try:
         _check_motion(cfg.case)
+        scored_camera(cfg.camera, str(cfg.case.get("camera") or ""))
     except GarageError as exc:
         raise GarageError(str(exc), level_file(cfg, "case")) from None
 
