@@ -9,7 +9,7 @@ What is written (docs/openscenario.md has the mapping):
 - initial positions: TeleportAction to a WorldPosition (x, y in the plan's world frame, which is the .xodr's
   inertial frame; heading in radians, counter-clockwise from +x, as our yaw);
 - motion: each moving actor gets a route (AssignRouteAction, its start and end as waypoints) and speed actions:
-  the ego drives at `ego.speed` from the start; an actor moving along with it (`case.motion.along`) starts when
+  the ego drives at `ego.speed` from the start (a negative speed when it reverses, as in `cpra`); an actor moving along with it (`case.motion.along`) starts when
   the ego has travelled to `at` (TraveledDistanceCondition on the ego) at its own speed; any other mover starts
   at the simulation time of its first move (SimulationTimeCondition). Each stops (speed 0) when it has
   travelled its route (TraveledDistanceCondition on itself);
@@ -56,6 +56,15 @@ class Track:
     @property
     def length(self) -> float:
         return math.hypot(self.end.x - self.start.x, self.end.y - self.start.y) if self.end else 0.0
+
+    @property
+    def velocity(self) -> float:
+        """Its speed, negative when it moves against its heading (a reversing ego, as OpenSCENARIO says it)."""
+        if self.end is None:
+            return 0.0
+        h = math.radians(self.start.yaw)
+        ahead = (self.end.x - self.start.x) * math.cos(h) + (self.end.y - self.start.y) * math.sin(h)
+        return -self.speed if ahead < -1e-9 else self.speed
 
 
 def lane_runs(classified) -> list[tuple[tuple[float, float], float, float, float]]:
@@ -154,7 +163,7 @@ def _speed(value: float, accelerate: float = 0.0):
     `accelerate` metres from standstill (a `rate` of v^2 / 2a m/s^2)."""
     from scenariogeneration import xosc
 
-    if accelerate > 0 and value > 0:
+    if accelerate > 0 and value != 0:
         return xosc.AbsoluteSpeedAction(round(value, 6), xosc.TransitionDynamics(
             xosc.DynamicsShapes.linear, xosc.DynamicsDimension.rate, round(value * value / (2 * accelerate), 6)))
     return xosc.AbsoluteSpeedAction(round(value, 6), xosc.TransitionDynamics(
@@ -175,7 +184,7 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
             route.add_waypoint(_position(t.end), xosc.RouteStrategy.shortest)
             init.add_init_action(t.name, xosc.AssignRouteAction(route))
             if t.trigger == ("time", 0.0):
-                init.add_init_action(t.name, _speed(t.speed, t.accelerate))
+                init.add_init_action(t.name, _speed(t.velocity, t.accelerate))
     act = xosc.Act("motion", xosc.ValueTrigger("start", 0, xosc.ConditionEdge.none,
                                                xosc.SimulationTimeCondition(0, xosc.Rule.greaterOrEqual)))
     end_time = 0.0
@@ -186,7 +195,7 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         if t.trigger != ("time", 0.0):
             kind, value = t.trigger
             go = xosc.Event(f"{t.name}_starts", xosc.Priority.override)
-            go.add_action(f"{t.name}_speed", _speed(t.speed, t.accelerate))
+            go.add_action(f"{t.name}_speed", _speed(t.velocity, t.accelerate))
             go.add_trigger(xosc.EntityTrigger(f"ego_travelled_{value:.2f}", 0, xosc.ConditionEdge.rising,
                                               xosc.TraveledDistanceCondition(round(value, 6)), "ego")
                            if kind == "ego_travel" else

@@ -122,7 +122,7 @@ def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[
         return round((x - lane.origin[0]) * -ay + (y - lane.origin[1]) * ax, 4)
 
     names = {n: ("ego" if n == ego else _key(n)) for n in placed}
-    movers = {n for n in placed if any(m.speed > 0 for m in r.moves.get(n, []))}
+    movers = {n for n in placed if any(m.speed != 0 for m in r.moves.get(n, []))}
     people = [n for n in placed if r.things[n].type == "Pedestrian" and n != ego]
     target = next((n for n in placed if r.things[n].properties.get("garage_exp.role") == "target"), None) \
         or (people[0] if people else next((n for n in placed if n != ego and n in movers), None))
@@ -136,7 +136,7 @@ def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[
         actors[names[n]] = actor
     case = {"name": name, "site": site.name, "position_label": "ego distance before the reference bay (m)",
             "bays": {"ref": "0"}, "actors": actors}
-    ego_speed = next((m.speed for m in r.moves.get(ego, []) if m.speed > 0), 0.0)
+    ego_speed = next((abs(m.speed) for m in r.moves.get(ego, []) if m.speed != 0), 0.0)  # < 0: reversing
     motion: dict = {}
     if ego_speed > 0:
         d0 = actors["ego"]["distance"]
@@ -174,8 +174,7 @@ def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[
 
 
 def _along(r: Read, n: str, start, transform, distance, offset, actors, ego, ego_speed, notes) -> dict | None:
-    moves = [m for m in r.moves[n] if m.speed > 0]
-    m = moves[0]
+    m = next(m for m in r.moves[n] if m.speed != 0)
     route = r.routes.get(n)
     if not route or len(route) < 2:
         notes.append(f"{n}: a speed without a route or trajectory: left standing")
@@ -186,7 +185,7 @@ def _along(r: Read, n: str, start, transform, distance, offset, actors, ego, ego
     sx, sy = start[0], start[1]
     across = abs(offset(ex, ey) - offset(sx, sy)) >= abs(distance(ex, ey) - distance(sx, sy))
     key, get = ("offset", offset) if across else ("distance", distance)
-    spec = {"key": key, "start": get(sx, sy), "end": get(ex, ey), "speed": round(m.speed, 4)}
+    spec = {"key": key, "start": get(sx, sy), "end": get(ex, ey), "speed": round(abs(m.speed), 4)}
     length = math.hypot(ex - sx, ey - sy)
     if m.rate > 0:
         spec["accelerate"] = round(m.speed * m.speed / (2 * m.rate), 4)
