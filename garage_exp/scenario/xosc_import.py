@@ -10,8 +10,8 @@ arrival) to a co-motion (`case.motion.along`: `offset` across the lane or `dista
 `accelerate`, `at` or `meet`).
 
 Where it stands: a file garage_exp wrote (its FileHeader says `garage_exp ... plan=NAME`) is in the plan's own
-world frame; any other file is moved as a whole so that its ego starts on the site's lane, heading along it, its
-rear 0.5 m past the lane's start (`--ego-distance` sets that distance). An actor that then stands outside the
+world frame; any other file is moved as a whole so that its ego starts on the site's lane, heading along it, with
+its rearmost actor's back 0.5 m past the lane's start (`--margin`). An actor that then stands outside the
 plan or in a wall needs a road the plan cannot place: one line naming the file and the element, exit 2, nothing
 written; so is a file that is not XML or fails the ASAM schema.
 """
@@ -88,7 +88,7 @@ def _actor(r: Read, name: str, role: str, moving: bool) -> dict:
     return {"role": role, "size": size, "body": body}
 
 
-def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[dict, list[str]]:
+def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, list[str]]:
     """The case (a dict for its YAML) and the lines saying what it took and what it left out."""
     lane = site.paths["lane"]
     ax, ay = lane.axis
@@ -96,7 +96,7 @@ def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[
     t0 = lane.along(bay0.x, bay0.y)
     ego = ego_of(r)
     notes: list[str] = []
-    transform = _identity if own_plan(r) else _onto_lane(r, ego, lane, ego_distance)
+    transform = _identity if own_plan(r) else _onto_lane(r, ego, lane, margin)
 
     def place(x, y, h):
         x, y, h = transform(x, y, h)
@@ -143,6 +143,10 @@ def to_case(r: Read, classified, site, name: str, ego_distance: float) -> tuple[
         if r.routes.get(ego):
             ex, ey, _ = transform(*r.routes[ego][-1], 0.0)
             d1 = distance(ex, ey)
+            lo, hi = sorted(distance(*lane.point(s)) for s in lane.room(r.things[ego].extent[0]))
+            if not lo <= d1 <= hi:  # a test track's run-out is longer than a garage's lane
+                notes.append(f"ego: its route runs {abs(d1 - d0):.1f} m, past the lane: cut at the lane's end")
+                d1 = min(max(d1, lo), hi)
         elif target:
             d1 = actors[names[target]]["distance"] + 3.0
             notes.append("ego: no route; it drives to 3 m before the target's distance")
@@ -214,12 +218,13 @@ def _identity(x, y, h):
     return x, y, h
 
 
-def _onto_lane(r: Read, ego: str, lane, ego_distance: float):
-    """The rigid move that puts the ego's start on the lane's centre line, heading along it, its rear
-    `ego_distance` m past the lane's start."""
+def _onto_lane(r: Read, ego: str, lane, margin: float):
+    """The rigid move that puts the ego's start on the lane's centre line, heading along it, with the rearmost
+    actor's back (the ego's, or a person's behind a reversing ego) `margin` m past the lane's start."""
     x0, y0, h0 = r.start[ego]
-    length = r.things[ego].extent[0]
-    tx, ty = lane.point(lane.lo + length / 2 + ego_distance)
+    c0, s0 = math.cos(h0), math.sin(h0)
+    rear = min((x - x0) * c0 + (y - y0) * s0 - max(r.things[n].extent[:2]) / 2 for n, (x, y, _) in r.start.items())
+    tx, ty = lane.point(lane.lo + margin - rear)
     turn = math.radians(lane.heading) - h0
     c, s = math.cos(turn), math.sin(turn)
 
@@ -245,8 +250,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--site", default="straight_run", help="a site with a lane and bays (default straight_run)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="set one of the file's parameters (repeatable), e.g. Ego_speed_kph=10")
-    ap.add_argument("--ego-distance", type=float, default=0.5,
-                    help="a foreign file's ego starts with its rear this far past the lane's start (m)")
+    ap.add_argument("--margin", type=float, default=0.5,
+                    help="a foreign file is placed with its rearmost actor's back this far past the lane's start (m)")
     args = ap.parse_args(argv)
     try:
         params = {}
@@ -258,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
         r = read(args.xosc, params)
         name = _key(args.name or args.xosc.stem)
         classified, site = load_site(args.plan or own_plan(r) or "research", args.site)
-        case, notes = to_case(r, classified, site, name, args.ego_distance)
+        case, notes = to_case(r, classified, site, name, args.margin)
     except GarageError as exc:
         print(f"garage_exp.scenario.import: {exc}", file=sys.stderr)
         return 2

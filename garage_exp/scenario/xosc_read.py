@@ -310,8 +310,28 @@ class Reader:
                 raise GarageError(f"relative to {ref!r}, placed after it or not at all", self.where(kind))
             x0, y0, h0 = self.start[ref]
             return x0 + v.num(kind, "dx", 0.0), y0 + v.num(kind, "dy", 0.0), self.orientation(kind, h0)
-        raise GarageError(f"a {kind.tag} we cannot place (world, lane, road or relative positions)",
+        if kind.tag == "TrajectoryPosition":  # s metres along a polyline trajectory
+            pts = self.trajectory(kind.find("TrajectoryRef"))
+            x, y = along_polyline(pts, v.num(kind, "s"))
+            (x0, y0), (x1, y1) = pts[0], pts[-1]
+            return x, y, math.atan2(y1 - y0, x1 - x0)
+        raise GarageError(f"a {kind.tag} we cannot place (world, lane, road, relative or trajectory positions)",
                           self.where(kind))
+
+    def trajectory(self, holder) -> list[tuple[float, float]]:
+        """The vertices (x, y) of the polyline trajectory an element holds (inline, or from a catalog)."""
+        ref = holder.find("CatalogReference") if holder is not None else None
+        element = self.catalog_entry(ref) if ref is not None else (
+            holder.find("Trajectory") if holder is not None else None)
+        try:
+            vertices = element.findall("Shape/Polyline/Vertex") if element is not None else []
+            if not vertices:
+                raise GarageError("a trajectory other than a polyline (clothoid, NURBS) we cannot place",
+                                  self.where(holder))
+            return [self.position(vx.find("Position"))[:2] for vx in vertices]
+        finally:
+            if ref is not None:
+                self.values.scopes.pop()
 
     def on_road(self, x: float, y: float, element):
         """The straight road under (x, y), and its s and t there."""
@@ -340,6 +360,17 @@ class Reader:
         """The entity's bounding-box centre (our actors' reference) from its reference point."""
         cx = self.things[name].centre_x if name in self.things else 0.0
         return x + cx * math.cos(h), y + cx * math.sin(h), h
+
+
+def along_polyline(pts: list[tuple[float, float]], s: float) -> tuple[float, float]:
+    """The point s metres along a polyline (beyond its ends: on its first or last piece, extended)."""
+    for (x0, y0), (x1, y1) in zip(pts, pts[1:]):
+        piece = math.hypot(x1 - x0, y1 - y0)
+        if s <= piece or (x1, y1) == pts[-1]:
+            k = s / (piece or 1.0)
+            return x0 + k * (x1 - x0), y0 + k * (y1 - y0)
+        s -= piece
+    return pts[0]
 
 
 def read(path: Path, params: dict[str, str] | None = None) -> Read:
@@ -414,19 +445,16 @@ def _private_action(r: Reader, name: str, action, trigger, moves, routes) -> Non
     elif route is not None:
         routes[name] = [r.position(w.find("Position"))[:2] for w in route.findall("Waypoint")]
     elif trajectory is not None:
-        ref = trajectory.find("TrajectoryRef/CatalogReference")
-        element = r.catalog_entry(ref) if ref is not None else trajectory.find("TrajectoryRef/Trajectory")
-        if element is None:
-            element = trajectory.find("Trajectory")
-        vertices = element.findall("Shape/Polyline/Vertex") if element is not None else []
-        if not vertices:
+        holder = trajectory.find("TrajectoryRef")
+        try:
+            pts = r.trajectory(holder if holder is not None else trajectory)
+        except GarageError:
             r.leave(trajectory, "a trajectory other than a polyline (clothoid, NURBS)")
-        else:
-            routes[name] = [r.position(vx.find("Position"))[:2] for vx in vertices]
-            if name not in r.start:  # a trajectory in the Init places its entity at its first vertex
-                r.start[name] = r.position(vertices[0].find("Position"))
-        if ref is not None:
-            r.values.scopes.pop()
+            return
+        routes[name] = pts
+        if name not in r.start:  # a trajectory in the Init places its entity at its first vertex, heading along it
+            (x0, y0), (x1, y1) = pts[0], pts[1]
+            r.start[name] = (x0, y0, math.atan2(y1 - y0, x1 - x0))
     elif sync is not None:
         _synchronize(r, name, sync, trigger, moves)
     else:
@@ -442,20 +470,7 @@ def _synchronize(r: Reader, name: str, sync, trigger, moves) -> None:
         r.leave(sync, "a synchronisation without an absolute final speed")
         return
     master_at = r.position(sync.find("TargetPositionMaster"))
-    own = sync.find("TargetPosition")
-    traj_pos = own.find("TrajectoryPosition")
-    if traj_pos is not None:  # s along the entity's trajectory (its route, read from the Init)
-        ref = traj_pos.find("TrajectoryRef/CatalogReference")
-        element = r.catalog_entry(ref) if ref is not None else traj_pos.find("TrajectoryRef/Trajectory")
-        pts = [r.position(vx.find("Position"))[:2] for vx in element.findall("Shape/Polyline/Vertex")]
-        if ref is not None:
-            r.values.scopes.pop()
-        s = v.num(traj_pos, "s")
-        (x0, y0), (x1, y1) = pts[0], pts[-1]
-        k = s / (math.hypot(x1 - x0, y1 - y0) or 1.0)
-        target = (x0 + k * (x1 - x0), y0 + k * (y1 - y0))
-    else:
-        target = r.position(own)[:2]
+    target = r.position(sync.find("TargetPosition"))[:2]
     steady = final.find("TargetDistanceSteadyState")
     moves[name].append(Move(v.num(final, "value"), 0.0, *trigger, meet=(
         master, master_at[:2], target, v.num(steady, "distance") if steady is not None else None)))
