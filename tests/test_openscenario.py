@@ -28,7 +28,7 @@ def test_cpnco_exports_validate_against_the_asam_schemas_and_read_back(cpnco):
     from scenariogeneration import xosc
 
     from garage_exp.exports.openscenario import lane_runs
-    from garage_exp.scenario.xosc_read import read_roads
+    from garage_exp.scenario.xodr_read import read_roads
 
     from garage_exp.scenario.asam import validate
 

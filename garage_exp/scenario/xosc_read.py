@@ -8,13 +8,13 @@ place (no such road, a curved one, no road file) is a GarageError naming the fil
 
 from __future__ import annotations
 
-import ast
 import math
-import operator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from garage_exp.core.errors import GarageError
+from garage_exp.scenario.xodr_read import read_roads
+from garage_exp.scenario.xosc_params import Values
 
 
 @dataclass
@@ -51,149 +51,6 @@ class Read:
     routes: dict[str, list[tuple[float, float]]]  # name -> waypoints (a route or a trajectory's vertices)
     left_out: list[str]
     tree: object = None
-
-
-# ---- parameters and expressions ---------------------------------------------------------------------------
-
-_OPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
-        ast.Mod: operator.mod, ast.Pow: operator.pow, ast.USub: operator.neg, ast.UAdd: operator.pos}
-_FUNCS = {"sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "tan": math.tan, "abs": abs, "min": min,
-          "max": max, "round": round, "floor": math.floor, "ceil": math.ceil, "pow": pow}
-
-
-def _evaluate(text: str, params: dict) -> float:
-    """An OpenSCENARIO expression (`${$a*2 + pi}`) over the parameters; ValueError when it is not one."""
-
-    def ev(node):
-        if isinstance(node, ast.Expression):
-            return ev(node.body)
-        if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)):
-            return node.value
-        if isinstance(node, ast.Name):
-            if node.id == "pi":
-                return math.pi
-            if node.id.startswith("P_") and node.id[2:] in params:
-                return float(params[node.id[2:]])
-            raise ValueError(f"unknown name {node.id.removeprefix('P_')}")
-        if isinstance(node, ast.BinOp) and type(node.op) in _OPS:
-            return _OPS[type(node.op)](ev(node.left), ev(node.right))
-        if isinstance(node, ast.UnaryOp) and type(node.op) in _OPS:
-            return _OPS[type(node.op)](ev(node.operand))
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _FUNCS:
-            return _FUNCS[node.func.id](*[ev(a) for a in node.args])
-        raise ValueError("not an arithmetic expression")
-
-    return float(ev(ast.parse(text.replace("$", "P_"), mode="eval")))
-
-
-class Values:
-    """Attribute values with `$name` and `${expression}` resolved against the parameters in scope."""
-
-    def __init__(self, path: Path, tree):
-        self.path, self.tree = path, tree
-        self.scopes: list[dict] = [{}]
-
-    def where(self, element) -> str:
-        return f"{self.path}: {self.tree.getpath(element)}" if element is not None else str(self.path)
-
-    def declare(self, block, assigned: dict | None = None) -> dict:
-        """A ParameterDeclarations block's values (later ones may use earlier ones), with `assigned` winning."""
-        scope = dict(self.scopes[-1])
-        assigned = assigned or {}
-        for decl in (block.findall("ParameterDeclaration") if block is not None else []):
-            name = decl.get("name")
-            scope[name] = assigned[name] if name in assigned else self._resolve(decl.get("value"), scope, decl)
-        for name, value in assigned.items():
-            scope.setdefault(name, value)
-        return scope
-
-    def _resolve(self, raw, scope: dict, element):
-        if raw is None:
-            return None
-        text = raw.strip()
-        try:
-            if text.startswith("${") and text.endswith("}"):
-                return _evaluate(text[2:-1], scope)
-            if text.startswith("$"):
-                return scope[text[1:]]
-        except KeyError:
-            raise GarageError(f"no parameter {text[1:]!r}", self.where(element)) from None
-        except (ValueError, ZeroDivisionError, SyntaxError, TypeError) as exc:
-            raise GarageError(f"cannot evaluate {text!r}: {exc}", self.where(element)) from None
-        return text
-
-    def get(self, element, attr: str, default=None):
-        value = self._resolve(element.get(attr), self.scopes[-1], element)
-        return default if value is None else value
-
-    def num(self, element, attr: str, default: float | None = None) -> float:
-        value = self.get(element, attr)
-        if value is None:
-            if default is None:
-                raise GarageError(f"no {attr}", self.where(element))
-            return default
-        try:
-            return float(value)
-        except ValueError:
-            raise GarageError(f"{attr}={value!r} is not a number", self.where(element)) from None
-
-
-# ---- roads ---------------------------------------------------------------------------------------------------
-
-@dataclass
-class Road:
-    x: float
-    y: float
-    hdg: float
-    length: float
-    lanes: dict[int, float]  # lane id -> width (its first section, at s = 0)
-
-    def point(self, s: float, t: float) -> tuple[float, float]:
-        c, n = math.cos(self.hdg), math.sin(self.hdg)
-        return self.x + s * c - t * n, self.y + s * n + t * c
-
-    def lane_at(self, t: float) -> int | None:
-        """The lane whose span holds t (None: off the road)."""
-        for sign in (1, -1):
-            edge = 0.0
-            for k in range(1, len(self.lanes) + 1):
-                width = self.lanes.get(sign * k)
-                if width is None:
-                    break
-                if edge <= sign * t <= edge + width:
-                    return sign * k
-                edge += width
-        return None
-
-    def lane_centre(self, lane: int) -> float:
-        """t of a lane's centre line (left lanes positive ids, right negative)."""
-        sign = 1 if lane > 0 else -1
-        inner = sum(self.lanes.get(sign * k, 0.0) for k in range(1, abs(lane)))
-        return sign * (inner + self.lanes.get(lane, 0.0) / 2)
-
-
-def read_roads(xodr: Path) -> tuple[dict[str, Road], dict[str, str]]:
-    """The OpenDRIVE file's straight roads by id; and each other road's reason it cannot be placed."""
-    from garage_exp.scenario.asam import parse
-
-    roads, refused = {}, {}
-    for road in parse(xodr).getroot().iter("road"):
-        rid = road.get("id")
-        geometries = road.findall("planView/geometry")
-        kinds = {child.tag for g in geometries for child in g}
-        if len(geometries) != 1 or kinds != {"line"}:
-            refused[rid] = f"its plan view is {', '.join(sorted(kinds)) or 'empty'} ({len(geometries)} pieces), " \
-                           "not one straight line"
-            continue
-        g = geometries[0]
-        lanes = {}
-        section = road.find("lanes/laneSection")
-        for lane in (section.iter("lane") if section is not None else []):
-            width = lane.find("width")
-            if width is not None and lane.get("id") != "0":
-                lanes[int(lane.get("id"))] = float(width.get("a", 0))
-        roads[rid] = Road(float(g.get("x")), float(g.get("y")), float(g.get("hdg")), float(g.get("length")), lanes)
-    return roads, refused
 
 
 # ---- the file --------------------------------------------------------------------------------------------------
