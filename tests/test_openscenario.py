@@ -251,3 +251,41 @@ def test_a_foreign_file_maps_onto_the_sites_lane(tmp_path, capsys):
     assert along["speed"] == 1.5 and along["accelerate"] == pytest.approx(1.125)  # v^2 / 2a
     assert along["at"] == pytest.approx(ego["distance"] - 4.0)
     assert case["motion"]["actor"] == "ego" and case["target"] == "kid"
+
+
+SYNCHRONISED = """<Action name="walk"><PrivateAction><SynchronizeAction masterEntityRef="Hero">
+  <TargetPositionMaster><LanePosition roadId="7" laneId="-1" s="${$Ahead - 2.2 - 0.15}"/></TargetPositionMaster>
+  <TargetPosition><LanePosition roadId="7" laneId="-1" s="$Ahead" offset="0"/></TargetPosition>
+  <FinalSpeed><AbsoluteSpeed value="1.5"><TargetDistanceSteadyState distance="2"/></AbsoluteSpeed></FinalSpeed>
+  </SynchronizeAction></PrivateAction></Action>"""
+
+
+def test_a_synchronised_walk_becomes_meet_and_the_ego_stops_short(tmp_path, capsys):
+    """A SynchronizeAction (Euro NCAP's way to time a pedestrian to the ego): `meet` at the ego's master position
+    (its rear axle there, our centre 1.4 m ahead), `accelerate` over the walk less its steady-state distance, and
+    the ego's frames end 0.5 m short of the meeting instead of driving into the person."""
+    import re
+
+    import yaml
+
+    from garage_exp.scenario.xosc_import import main
+
+    (tmp_path / "road.xodr").write_text(FOREIGN_XODR)
+    text = re.sub(r'<Action name="walk">.*?</Action>', SYNCHRONISED, FOREIGN_XOSC, flags=re.S)
+    route = ('<PrivateAction><RoutingAction><AssignRouteAction><Route name="on" closed="false">'
+             '<Waypoint routeStrategy="shortest"><Position><LanePosition roadId="7" laneId="-1" s="$EgoS"/></Position>'
+             '</Waypoint><Waypoint routeStrategy="shortest"><Position><LanePosition roadId="7" laneId="-1" s="150"/>'
+             '</Position></Waypoint></Route></AssignRouteAction></RoutingAction></PrivateAction>\n  </Private>')
+    text = text.replace("</Private>", route, 1)  # the ego's route runs on past the person and the lane's end
+    path = tmp_path / "sync.xosc"
+    path.write_text(text)
+    out = tmp_path / "case" / "sync.yaml"
+    assert main([str(path), "-o", str(out)]) == 0, capsys.readouterr().err
+    case = yaml.safe_load(out.read_text())
+    ego, along = case["actors"]["ego"], case["motion"]["along"]["kid"]
+    # the master position: the ego's rear axle 2.35 m before the kid's line; its centre 1.4 m further on
+    assert along["meet"] == pytest.approx(case["actors"]["kid"]["distance"] + 2.35 - 1.4, abs=1e-3)
+    assert along["accelerate"] == pytest.approx(3.0 - 2.0) and along["end"] == pytest.approx(ego["offset"])
+    assert "at" not in along
+    assert case["motion"]["end"] == pytest.approx(along["meet"] + 0.5)  # 0.5 m short of the meeting
+    assert "stops 0.5 m short" in capsys.readouterr().out

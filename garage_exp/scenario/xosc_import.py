@@ -29,6 +29,7 @@ from garage_exp.core.errors import GarageError
 from garage_exp.scenario.xosc_read import Read, read
 
 STEP = 0.5  # m a frame of the ego's motion (the case's default)
+SHORT = 0.5  # m: an imported ego stops this far before a synchronised meeting (a collision test's impact)
 OWN = "garage_exp "
 
 
@@ -167,6 +168,13 @@ def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, 
             notes.append(f"{n}: the ego stands: its move is swept 0.25 m a frame (its speed is not a case's)")
     if along:
         motion["along"] = along
+        meets = [spec["meet"] for spec in along.values() if "meet" in spec]
+        if meets and motion.get("actor") == "ego":  # a protocol's impact: the frames stop short of it
+            d0, d1 = motion["start"], motion["end"]
+            short = round(max(d1, min(meets) + SHORT) if d1 < d0 else min(d1, max(meets) - SHORT), 4)
+            if short != d1:
+                notes.append(f"ego: stops {SHORT:g} m short of the synchronised meeting (the file's impact)")
+                motion["end"] = short
     if motion:
         case["motion"] = motion
     if target:
