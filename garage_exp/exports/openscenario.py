@@ -132,6 +132,11 @@ def _entity_object(track: Track):
     props = {"role": e.role, "kind": e.kind or "vehicle", "model": e.model or ""}
     if e.kind == "person":
         props.update(age=e.size_class or "adult", height=f"{height:.3f}")
+        # the body's spec name (assets/people.py BodySpec.name: age-gender-build-pose-<height>cm) says what it was
+        # made from: the height asked for (a crouching body's box is lower), its pose, build and gender
+        parts = (e.model or "").split("-")
+        if len(parts) == 5 and parts[4].endswith("cm") and parts[4][:-2].isdigit():
+            props.update(gender=parts[1], build=parts[2], pose=parts[3], height=f"{int(parts[4][:-2]) / 100:.2f}")
         obj = xosc.Pedestrian(track.name, 20.0 if e.size_class == "child" else 70.0, xosc.PedestrianCategory.pedestrian,
                               box, model=e.model or "pedestrian")
     elif e.kind == "box":
@@ -170,7 +175,8 @@ def _speed(value: float, accelerate: float = 0.0):
         xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0))
 
 
-def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str) -> Path:
+def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str,
+               target: str = "", step: float | None = None) -> Path:
     from scenariogeneration import xosc
 
     entities = xosc.Entities()
@@ -225,7 +231,8 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
     board.add_story(story)
     case = cfg.case
     description = (f"garage_exp case={case.name} variant={label!r} plan={cfg.plan.name} site={case.site} "
-                   f"light={cfg.light.name} ego.speed={float(cfg.ego.speed):g} km/h"
+                   f"light={cfg.light.name} step={step or float(case.motion.step):g} target={target} "
+                   f"ego.speed={float(cfg.ego.speed):g} km/h"
                    + "".join(f"; {n}" for n in notes))
     scenario = xosc.Scenario(description, AUTHOR, xosc.ParameterDeclarations(), entities, board,
                              xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=OSC_MINOR)
@@ -241,12 +248,13 @@ def check_export(cfg) -> None:
                           "export.openscenario")
 
 
-def write(cfg, classified, variants: list[tuple[str, list[Track], list[str]]], out: Path) -> list[Path]:
-    """`out`/garage.xodr and one .xosc per variant (label, its actors' tracks, notes): `scenario.xosc`,
-    `scenario_2.xosc`, ...; the paths."""
+def write(cfg, classified, variants: list[tuple[str, str, float | None, list[Track], list[str]]], out: Path
+          ) -> list[Path]:
+    """`out`/garage.xodr and one .xosc per variant (label, its target, its frames' step, its actors' tracks,
+    notes): `scenario.xosc`, `scenario_2.xosc`, ...; the paths."""
     xodr_path = write_xodr(classified, out / "garage.xodr")
     paths = [xodr_path]
-    for k, (label, moving, notes) in enumerate(variants, start=1):
+    for k, (label, target, step, moving, notes) in enumerate(variants, start=1):
         name = "scenario.xosc" if k == 1 else f"scenario_{k}.xosc"
-        paths.append(write_xosc(cfg, moving, label, notes, out / name, xodr_path.name))
+        paths.append(write_xosc(cfg, moving, label, notes, out / name, xodr_path.name, target, step))
     return paths

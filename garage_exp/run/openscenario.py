@@ -28,8 +28,14 @@ def export(cfg: DictConfig, out: Path, prepared=None) -> list[Path]:
         from garage_exp.run.preflight import preflight
 
         prepared = preflight(cfg, check_space=False)
-    variants = [(label, *tracks(cfg, prepared.setup, shots)) for label, shots in variants_of(prepared.setup)]
+    variants = [(label, shots[0].target, frame_step(shots), *tracks(cfg, prepared.setup, shots))
+                for label, shots in variants_of(prepared.setup)]
     return openscenario.write(cfg, prepared.classified, variants, out)
+
+
+def frame_step(shots: list[Shot]) -> float | None:
+    """The motion's value from one frame to the next (listed values too); None for a single frame."""
+    return round(abs(shots[1].position - shots[0].position), 6) if len(shots) > 1 else None
 
 
 def variants_of(setup: CaseSetup) -> list[tuple[str, list[Shot]]]:

@@ -29,6 +29,7 @@ from garage_exp.core.errors import GarageError
 from garage_exp.scenario.xosc_read import Read, read
 
 STEP = 0.5  # m a frame of the ego's motion (the case's default)
+SWEEP = 0.25  # m a frame of a static case's sweep (the pedestrian case's)
 SHORT = 0.5  # m: an imported ego stops this far before a synchronised meeting (a collision test's impact)
 OWN = "garage_exp "
 
@@ -63,11 +64,16 @@ def ego_of(r: Read) -> str:
     return found[0]
 
 
-def own_plan(r: Read) -> str | None:
+def own(r: Read, key: str) -> str | None:
+    """A value a file garage_exp wrote says in its description (`plan=research step=0.5 ...`); None for others."""
     if not r.description.startswith(OWN):
         return None
     words = dict(w.split("=", 1) for w in r.description.split() if "=" in w)
-    return words.get("plan")
+    return words.get(key)
+
+
+def own_plan(r: Read) -> str | None:
+    return own(r, "plan")
 
 
 def _actor(r: Read, name: str, role: str, moving: bool) -> dict:
@@ -76,8 +82,11 @@ def _actor(r: Read, name: str, role: str, moving: bool) -> dict:
     length, width, height = t.extent
     if t.type == "Pedestrian":
         age = p.get("garage_exp.age") or ("child" if height < 1.4 else "adult")
-        return {"role": role, "kind": "person", "age": age, "height": round(float(p.get("garage_exp.height") or height), 3),
-                "pose": "walking" if moving else "standing"}
+        person = {"role": role, "kind": "person", "age": age,
+                  "height": round(float(p.get("garage_exp.height") or height), 3),
+                  "pose": p.get("garage_exp.pose") or ("walking" if moving else "standing")}
+        person.update({k: p[f"garage_exp.{k}"] for k in ("gender", "build") if p.get(f"garage_exp.{k}")})
+        return person
     if t.type == "MiscObject":
         return {"role": role, "kind": "box", "length": round(length, 3), "width": round(width, 3),
                 "height": round(height, 3)}
@@ -125,7 +134,8 @@ def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, 
     names = {n: ("ego" if n == ego else _key(n)) for n in placed}
     movers = {n for n in placed if any(m.speed != 0 for m in r.moves.get(n, []))}
     people = [n for n in placed if r.things[n].type == "Pedestrian" and n != ego]
-    target = next((n for n in placed if r.things[n].properties.get("garage_exp.role") == "target"), None) \
+    target = next((n for n in placed if n == own(r, "target")), None) \
+        or next((n for n in placed if r.things[n].properties.get("garage_exp.role") == "target"), None) \
         or (people[0] if people else next((n for n in placed if n != ego and n in movers), None))
     actors = {}
     for n, (x, y, h) in placed.items():
@@ -138,34 +148,41 @@ def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, 
     case = {"name": name, "site": site.name, "position_label": "ego distance before the reference bay (m)",
             "bays": {"ref": "0"}, "actors": actors}
     ego_speed = next((abs(m.speed) for m in r.moves.get(ego, []) if m.speed != 0), 0.0)  # < 0: reversing
+    step = float(own(r, "step") or STEP)
     motion: dict = {}
     if ego_speed > 0:
+        key, value = "distance", distance
         d0 = actors["ego"]["distance"]
         if r.routes.get(ego):
             ex, ey, _ = transform(*r.routes[ego][-1], 0.0)
-            d1 = distance(ex, ey)
-            lo, hi = sorted(distance(*lane.point(s)) for s in lane.room(r.things[ego].extent[0]))
-            if not lo <= d1 <= hi:  # a test track's run-out is longer than a garage's lane
-                notes.append(f"ego: its route runs {abs(d1 - d0):.1f} m, past the lane: cut at the lane's end")
-                d1 = min(max(d1, lo), hi)
+            if abs(offset(ex, ey) - actors["ego"]["offset"]) > abs(distance(ex, ey) - d0):
+                key, value = "offset", offset  # a route across the site's lane (another lane of the plan)
+                d0 = actors["ego"]["offset"]
+            d1 = value(ex, ey)
+            if key == "distance" and not own_plan(r):  # (a file of ours drove a lane of this plan)
+                lo, hi = sorted(distance(*lane.point(s)) for s in lane.room(r.things[ego].extent[0]))
+                if not lo <= d1 <= hi:  # a test track's run-out is longer than a garage's lane
+                    notes.append(f"ego: its route runs {abs(d1 - d0):.1f} m, past the lane: cut at the lane's end")
+                    d1 = min(max(d1, lo), hi)
         elif target:
             d1 = actors[names[target]]["distance"] + 3.0
             notes.append("ego: no route; it drives to 3 m before the target's distance")
         else:
             d1 = d0
-        motion = {"actor": "ego", "key": "distance", "start": d0, "end": round(d1, 4), "step": STEP}
+        motion = {"actor": "ego", "key": key, "start": d0, "end": round(d1, 4), "step": step}
         notes.append(f"ego speed {ego_speed * 3.6:.4g} km/h: run the case with ego.speed={ego_speed * 3.6:.4g}")
     along = {}
     for n in sorted(movers - {ego}, key=list(placed).index):
-        spec = _along(r, n, placed[n], transform, distance, offset, actors, ego, ego_speed, notes)
+        spec = _along(r, n, placed[n], transform, distance, offset, motion, ego, ego_speed, notes)
         if spec is None:
             continue
         if motion:
             along[names[n]] = spec
         else:  # a static ego: this actor's move is the case's motion, frame by frame
+            sweep = float(own(r, "step") or SWEEP)
             motion = {"actor": names[n], "key": spec["key"], "start": spec["start"], "end": spec["end"],
-                      "step": 0.25}
-            notes.append(f"{n}: the ego stands: its move is swept 0.25 m a frame (its speed is not a case's)")
+                      "step": sweep}
+            notes.append(f"{n}: the ego stands: its move is swept {sweep:g} m a frame (its speed is not a case's)")
     if along:
         motion["along"] = along
         meets = [spec["meet"] for spec in along.values() if "meet" in spec]
@@ -185,7 +202,11 @@ def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, 
     return case, notes
 
 
-def _along(r: Read, n: str, start, transform, distance, offset, actors, ego, ego_speed, notes) -> dict | None:
+def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego_speed, notes) -> dict | None:
+    """A moving actor's co-motion; its `at` and `meet` are values of the ego's motion (`motion`)."""
+    ego_value = offset if motion.get("key") == "offset" else distance
+    d0 = motion.get("start", 0.0)
+    ahead = -1.0 if motion.get("end", d0) < d0 else 1.0  # which way the ego's value runs as it drives
     m = next(m for m in r.moves[n] if m.speed != 0)
     route = r.routes.get(n)
     if not route or len(route) < 2:
@@ -209,14 +230,14 @@ def _along(r: Read, n: str, start, transform, distance, offset, actors, ego, ego
         cx = r.things[ego].centre_x
         h = r.start[ego][2]
         mx, my, _ = transform(mx + cx * math.cos(h), my + cx * math.sin(h), 0.0)
-        spec["meet"] = distance(mx, my)
+        spec["meet"] = ego_value(mx, my)
         if steady is not None:
             spec["accelerate"] = round(max(0.0, length - steady), 4)
         notes.append(f"{n}: SynchronizeAction with the ego -> meet {spec['meet']:g} (arrives at its target then stops)")
     elif m.trigger[0] == "travel" and m.by == ego:
-        spec["at"] = round(actors["ego"]["distance"] - m.trigger[1], 4)
+        spec["at"] = round(d0 + ahead * m.trigger[1], 4)
     elif m.trigger[0] == "time" and m.trigger[1] > 0:
-        spec["at"] = round(actors["ego"]["distance"] - m.trigger[1] * ego_speed, 4)
+        spec["at"] = round(d0 + ahead * m.trigger[1] * ego_speed, 4)
     elif m.trigger[0] == "travel":
         notes.append(f"{n}: started by {m.by!r}'s travel, not the ego's: taken as starting at once")
     return spec
