@@ -92,15 +92,20 @@ def test_a_reversing_ego_and_a_synchronised_walker_import_back(library, tmp_path
     assert_same_placements([s for s in setup.shots if s.label == "adult walking 50 %"], again.shots)
 
 
+@pytest.mark.render
+@pytest.mark.detect
+@pytest.mark.slow
 def test_a_stepout_job_with_export_openscenario_writes_both_files(tmp_path, mlflow_uri):
     """A job (three frames) writes openscenario/scenario.xosc and garage.xodr beside its frames."""
-    from conftest import run_app
+    from conftest import require, run_app
 
     from garage_exp.scenario.asam import validate
 
+    require("vulkan", "vehicles", "models")
     out = tmp_path / "run"
     result = run_app(["case=stepout", "export.openscenario=true", "case.motion.step=8.5", "camera.width=320",
-                      "camera.height=240", f"hydra.run.dir={out}", f"tracking.uri={mlflow_uri}"], tmp_path)
+                      "camera.height=240", "renderer.save_frames=none", f"hydra.run.dir={out}",
+                      f"tracking.uri={mlflow_uri}"], tmp_path)
     assert result.returncode == 0, result.stderr
     assert (out / "frames.csv").is_file()
     assert validate(out / "openscenario" / "scenario.xosc").startswith("OpenSCENARIO_1_2")
