@@ -217,7 +217,8 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         group.add_actor(t.name)
         group.add_maneuver(maneuver)
         act.add_maneuver_group(group)
-        start = t.trigger[1] if t.trigger[0] == "time" else 0.0
+        ego_speed = next((e.speed for e in moving if e.name == "ego"), 0.0)
+        start = t.trigger[1] if t.trigger[0] == "time" else t.trigger[1] / ego_speed if ego_speed > 0 else 0.0
         end_time = max(end_time, start + (t.length + t.accelerate) / t.speed if t.speed > 0 else start)
     story = xosc.Story("garage_exp")
     if not act.maneuvergroup:
