@@ -81,13 +81,13 @@ def test_cpnco_child_starts_4m_out_beyond_two_parked_cars_and_is_timed_to_meet_t
     first = shots[0]
     ego = first.ego
     cars = {n: first.poses[n] for n in ("car_large", "car_small")}
-    # nose to the lane in the right-hand (nearside) row, the larger one nearer the ego, about 1 m apart
-    assert all(lateral(p, ego) < -3.0 for p in cars.values())
+    # nose to the lane in the left row (the side the ego keeps to), the larger one nearer the ego, about 1 m apart
+    assert all(lateral(p, ego) > 3.0 for p in cars.values())
     assert along(cars["car_large"], ego) < along(cars["car_small"], ego) < along(first.poses["child"], ego)
     gap = along(cars["car_small"], ego) - along(cars["car_large"], ego) - (large.extent[1] + small.extent[1]) / 2
     assert 0.9 <= gap <= 1.2
-    # the child: 4 m right of the ego's path, its near side 1 m past the smaller car's side
-    assert lateral(first.poses["child"], ego) == pytest.approx(-4.0)
+    # the child: 4 m left of the ego's path, its near side 1 m past the smaller car's side
+    assert lateral(first.poses["child"], ego) == pytest.approx(4.0)
     beyond = along(first.poses["child"], ego) - child.extent[1] / 2 - (along(cars["car_small"], ego) + small.extent[1] / 2)
     assert beyond == pytest.approx(1.0, abs=0.05)
     # timed as the protocol synchronises it: 4 m in 2 x 1 m / v + 3 m / v, arriving as the ego's front does
@@ -95,14 +95,14 @@ def test_cpnco_child_starts_4m_out_beyond_two_parked_cars_and_is_timed_to_meet_t
     ego_v = speed / 3.6
     sets_off = 2.55 + ego_v * walk  # the ego's distance when the child starts
     for shot in shots:
-        moved = 4.0 + lateral(shot.poses["child"], shot.ego)
+        moved = 4.0 - lateral(shot.poses["child"], shot.ego)
         tau = (sets_off - shot.position) / ego_v
         expected = 0.0 if tau <= 0 else (V_CHILD * tau * tau / (2 * 2 / V_CHILD) if tau <= 2 / V_CHILD
                                          else 1.0 + V_CHILD * (tau - 2 / V_CHILD))
         assert moved == pytest.approx(min(expected, 4.0), abs=1e-3), shot.position  # (1.389 m/s in the file)
     last = shots[-1]
     assert last.position == 3.0  # 0.45 m before the meeting: the child is that long short of the ego's centre line
-    assert lateral(last.poses["child"], last.ego) == pytest.approx(-V_CHILD * 0.45 / ego_v, abs=1e-3)
+    assert lateral(last.poses["child"], last.ego) == pytest.approx(V_CHILD * 0.45 / ego_v, abs=1e-3)
     assert [s.time for s in shots[:2]] == pytest.approx([0.0, 0.5 / ego_v])
 
 
@@ -134,7 +134,7 @@ def test_cpra_ego_reverses_rear_first_toward_the_person_and_the_rear_camera_face
             # 25 % on the ego's left as its driver sees it, 75 % on its right
             assert lateral(target, a) == pytest.approx((0.5 - overlap) * ego_width, abs=0.01)
     walker = [s for s in shots if s.label == "adult walking 50 %"]
-    assert lateral(walker[0].poses["adult_walking"], walker[0].ego) == pytest.approx(4.0)  # 4 m out, on the right
+    assert lateral(walker[0].poses["adult_walking"], walker[0].ego) == pytest.approx(-4.0)  # 4 m out, on its right
     assert entity(job.scene, "child").extent[2] == pytest.approx(1.15, abs=0.03)
 
 
@@ -170,5 +170,5 @@ def test_crouch_person_is_a_crouching_adult_beside_the_parked_cars_front_corner(
     assert 0.8 < person.extent[2] < 1.1  # about 55 % of 1.78 m
     shot = job.setup.shots[0]
     p, c = shot.poses["person"], shot.poses["car"]
-    assert lateral(p, shot.ego) < -3.1  # behind the bay line, in the mouth of the free bay
+    assert lateral(p, shot.ego) > 3.1  # behind the bay line, in the mouth of the free bay
     assert 0 < along(p, shot.ego) - along(c, shot.ego) < 1.5  # beside the car's side
