@@ -138,12 +138,25 @@ def test_a_road_the_plan_cannot_place_is_refused(cpnco, tmp_path, capsys):
     element, exit 2."""
     from garage_exp.scenario.xosc_import import main
 
-    text = cpnco[3][1].read_text()
-    lane = text.replace('<WorldPosition x="35.345" y="30.8" z="0.0" h="1.570796327"/>',
-                        '<LanePosition roadId="99" laneId="-1" s="3" offset="0"/>', 1)
-    assert lane != text
-    far = text.replace('x="30.4" y="30.3253"', 'x="300.4" y="30.3253"', 1)
-    assert far != text
+    from lxml import etree
+
+    def changed(edit) -> str:
+        tree = etree.parse(str(cpnco[3][1]))
+        edit(tree)
+        return etree.tostring(tree, encoding="unicode")
+
+    def on_road_99(tree):  # the child's start as a lane position on a road the road file lacks
+        world = tree.find("Storyboard/Init/Actions/Private[@entityRef='child']/PrivateAction/TeleportAction"
+                          "/Position/WorldPosition")
+        world.getparent().replace(world, etree.Element("LanePosition", roadId="99", laneId="-1", s="3",
+                                                       offset="0"))
+
+    def far_away(tree):  # the large car 300 m east, outside the plan
+        world = tree.find("Storyboard/Init/Actions/Private[@entityRef='car_large']/PrivateAction/TeleportAction"
+                          "/Position/WorldPosition")
+        world.set("x", str(float(world.get("x")) + 300))
+
+    lane, far = changed(on_road_99), changed(far_away)
     for name, bad, says in (("lane.xosc", lane, "needs road 99"), ("far.xosc", far, "needs a road the plan")):
         path = tmp_path / name
         path.write_text(bad)
