@@ -1,9 +1,10 @@
 """The MLflow client of a store, and waiting out a store or tracking server that does not answer.
 
 One MLflow idiom: every call goes through an `MlflowClient` made for an explicit URI (`client(uri)`), never
-through MLflow's fluent API (active runs, a global URI); a job's run is logged by run id (jobrun.JobRun).
-The URI is still exported to the environment, as MLflow's own `set_tracking_uri` would: child processes (the
-sweep's workers) inherit the store this process writes to, and `tracking_uri(None)` names it from then on.
+through MLflow's fluent API (active runs, `mlflow.set_tracking_uri`); a job's run is logged by run id
+(jobrun.JobRun). The URI is exported to the environment as $MLFLOW_TRACKING_URI (what the fluent API's
+set_tracking_uri did here before): child processes (the sweep's workers) inherit the store this process writes
+to, and `tracking_uri(None)` and the outage messages name it from then on.
 """
 
 from __future__ import annotations
@@ -53,8 +54,7 @@ def client(uri: str | None = None):
         # 15 minutes on a stopped server; retry() below waits instead, for a bounded time, and says so.
         os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
         os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "30")
-    # The environment's copy, for child processes and for the outage messages below (see the module's doc).
-    mlflow.set_tracking_uri(uri)
+    os.environ["MLFLOW_TRACKING_URI"] = uri  # for child processes and the outage messages (the module's doc)
     # The client opens (and may create) the store: a write, made once under the store's lock.
     return open_store(uri, lambda: retry(lambda: mlflow.MlflowClient(uri)))
 
