@@ -75,7 +75,7 @@ map: python
 	@for p in plans/*.yaml plans/*.csv; do $(BIN)/python -m garage_exp.plan map $$p -o outputs/maps/$$(basename $${p%.*}).png; done
 
 # Benchmarks (benchmarks/README.md), each `python -m benchmarks.GROUP.NAME`: `make bench` runs the quick ones (about
-# 15 minutes on 2 cores), the others by name. Their numbers are in docs/performance.md and benchmarks/results/.
+# 20 minutes on 2 cores, estimated from the documented runs), the others by name. Their numbers are in docs/performance.md and benchmarks/results/.
 BENCH_QUICK := performance.scene performance.look performance.detect performance.rigs performance.pipeline studies.slot_detector
 BENCH_LONG := performance.sweep performance.garage_size performance.profile_job studies.search studies.falsification
 BENCH_CLUSTER := performance.ray_nodes
