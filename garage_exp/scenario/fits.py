@@ -12,7 +12,7 @@ FITS: dict[str, tuple[str, ...]] = {
     "research": CASES,
     "realistic": CASES,
     "obstacles": CASES,
-    "garage26x30": CASES,
+    "garage26x30": CASES[:-1],  # slots builds there; its fair frames were not measured (the render ran out)
     "tiny": (),  # a test fixture: only case 1 builds, and its target is never fair with the case's own motion
 }
 
