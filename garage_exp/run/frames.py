@@ -217,7 +217,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
                 run.log_artifact(path, "frames")
     if dataset is not None:
         run.log_artifact(dataset.finish())
-    print(frame_table.one_line(cfg, summary, [cam.name for cam in scene.cameras]))
+    print(frame_table.one_line(cfg, summary, [cam.name for cam in scene.cameras], primary))
     if not summary["fair_frames"] and not trial:
         print(no_fair_line(cfg, primary, len(scene.cameras) > 1))
     if "late_testable" in summary:
