@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import require
 
-from garage_exp.perception.detect import GTBox, ModelDetections, iou, model_format, score_target
+from garage_exp.perception.detect import Detections, GTBox, iou, model_format, score_target
 from garage_exp.perception.detect import detector as detector_module
 from garage_exp.core import offline
 from garage_exp.core.errors import GarageError
@@ -16,10 +16,10 @@ DEFAULT_MODELS = ("yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model", 
 BUS_BOX = (10.0, 230.0, 805.0, 760.0)  # the bus in ultralytics' bus.jpg (810x1080), by hand
 
 
-def dets(model: str, *rows: tuple) -> ModelDetections:
+def dets(model: str, *rows: tuple) -> Detections:
     """Synthetic detections: rows of (x1, y1, x2, y2, conf, class)."""
-    return ModelDetections(model, np.array([r[:4] for r in rows], np.float32).reshape(-1, 4),
-                           np.array([r[4] for r in rows], np.float32), [r[5] for r in rows])
+    return Detections(np.array([r[:4] for r in rows], np.float32).reshape(-1, 4),
+                      np.array([r[4] for r in rows], np.float32), [r[5] for r in rows], model)
 
 
 # --- IoU and matching, no model -------------------------------------------------------------------------------
