@@ -1,4 +1,6 @@
-"""A detector behind a model server: `http://HOST:PORT/v2/models/NAME[/versions/V]` in `detector.models`.
+"""A detector behind a model server: `http://HOST:PORT/v2/models/NAME[/versions/V][?timeout=S&batch=N]` in
+`detector.models` (timeout: seconds for connecting and for each answer, 30; batch: frames per request, 8, at
+most the model's max_batch_size).
 
 The server speaks the KServe v2 inference protocol (NVIDIA Triton's HTTP/REST API, also KServe's, Seldon's
 MLServer's and OpenVINO Model Server's), through `tritonclient.http` with the binary tensor extension.
@@ -24,14 +26,14 @@ import json
 import time
 from dataclasses import dataclass, field
 from typing import Any, Sequence
-from urllib.parse import urlparse
+from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect import tensors
+from garage_exp.perception.detect.base import WHERE, Detections, Entry, EntrySettings, Intrinsics, probe_frame
 
-SCHEMES = ("http://", "https://", "grpc://")
 DATATYPES = {"UINT8": np.uint8, "FP32": np.float32}
 RETRIES = 3  # a dropped connection is tried again this many times (0.5 s, 1 s, 2 s apart)
 
@@ -39,86 +41,102 @@ RETRIES = 3  # a dropped connection is tried again this many times (0.5 s, 1 s, 
 class ServerError(RuntimeError):
     """The server failed during a run (after the check passed): down for good, an error answer, bad tensors."""
 
-
-def is_server(entry: Any) -> bool:
-    return str(entry).startswith(SCHEMES)
+    def __init__(self, entry: str, reason: str):
+        super().__init__(f"model server {entry}: {reason}")
+        self.reason = reason
 
 
 @dataclass
 class Endpoint:
-    """A parsed entry: where the server is and which model (and version; "" for the server's choice)."""
+    """A parsed entry: where the server is, which model (and version; "" for the server's choice), how long to
+    wait and how many frames a request carries."""
 
     entry: str
     address: str  # host:port
     ssl: bool
     model: str
     version: str = ""
-
-
-def parse(entry: str, where: str = "detector.models") -> Endpoint:
-    """`http(s)://HOST:PORT/v2/models/NAME[/versions/V]`; GarageError for anything else (grpc:// included)."""
-    if entry.startswith("grpc://"):
-        raise GarageError(f"{entry}: grpc:// is not supported here (tritonclient's gRPC client needs protobuf < 7, "
-                          "older than MLflow's); use the server's HTTP port, http://HOST:PORT/v2/models/NAME", where)
-    url = urlparse(entry)
-    parts = url.path.strip("/").split("/")
-    ok = url.hostname and url.port and len(parts) in (3, 5) and parts[:2] == ["v2", "models"] and parts[2] and (
-        len(parts) == 3 or (parts[3] == "versions" and parts[4]))
-    if not ok:
-        raise GarageError(f"{entry}: a model server entry is http://HOST:PORT/v2/models/NAME[/versions/V]", where)
-    return Endpoint(entry, f"{url.hostname}:{url.port}", url.scheme == "https", parts[2],
-                    parts[4] if len(parts) == 5 else "")
-
-
-@dataclass
-class ServerModel:
-    """One model on a KServe v2 server. `check()` before use; `detect(frames)` sends the frames in batches of
-    at most `batch` (or the model's max_batch_size) and returns, per frame, (boxes x1 y1 x2 y2 in the frame's
-    pixels, scores, class names) with scores >= conf. `timeout`: seconds for connecting and for each answer."""
-
-    entry: str
-    conf: float = 0.05
     timeout: float = 30.0
     batch: int = 8
-    where: str = "detector.models"
-    endpoint: Endpoint = field(init=False)
-    names: list[str] = field(init=False, default_factory=list)  # the model's class names by index
-    layout: str = field(init=False, default="")
-    _input: dict = field(init=False, default_factory=dict)  # name, datatype, shape (with batch), nchw
-    _outputs: list[str] = field(init=False, default_factory=list)
-    _client: Any = field(init=False, default=None, repr=False)
 
-    def __post_init__(self) -> None:
+
+def parse(entry: str, where: str = WHERE) -> Endpoint:
+    """`http(s)://HOST:PORT/v2/models/NAME[/versions/V][?timeout=S&batch=N]`; GarageError for anything else
+    (grpc:// included)."""
+    if entry.startswith("grpc://"):
+        raise GarageError("grpc:// is not supported here (tritonclient's gRPC client needs protobuf < 7, older than "
+                          "MLflow's); use the server's HTTP port, http://HOST:PORT/v2/models/NAME", where)
+    url = urlparse(entry)
+    parts = url.path.strip("/").split("/")
+    try:
+        port = url.port
+    except ValueError:
+        port = None
+    ok = url.hostname and port and len(parts) in (3, 5) and parts[:2] == ["v2", "models"] and parts[2] and (
+        len(parts) == 3 or (parts[3] == "versions" and parts[4]))
+    if not ok:
+        raise GarageError("a model server entry is http://HOST:PORT/v2/models/NAME[/versions/V]", where)
+    query = parse_qs(url.query)
+    unknown = sorted(set(query) - {"timeout", "batch"})
+    if unknown:
+        raise GarageError(f"unknown option(s) {unknown} (timeout=SECONDS, batch=FRAMES)", where)
+    try:
+        timeout = float(query.get("timeout", ["30"])[-1])
+        batch = int(query.get("batch", ["8"])[-1])
+    except ValueError:
+        raise GarageError("timeout must be a number of seconds, batch a whole number of frames", where) from None
+    if not (0 < timeout <= 3600 and 1 <= batch <= 1024):
+        raise GarageError(f"timeout {timeout:g} s or batch {batch} out of range (0-3600 s, 1-1024 frames)", where)
+    return Endpoint(entry, f"{url.hostname}:{port}", url.scheme == "https", parts[2],
+                    parts[4] if len(parts) == 5 else "", timeout, batch)
+
+
+class ServerEntry(Entry):
+    """One model on a KServe v2 server (see the module's doc): `check()` before use; `detect(frames)` sends the
+    frames in batches and returns one Detections per frame, in the frame's pixels, scores >= detector.conf."""
+
+    kind = "server"
+
+    def __init__(self, entry: str, settings: EntrySettings):
+        super().__init__(entry, settings)
         self.endpoint = parse(self.entry, self.where)
-
-    @property
-    def label(self) -> str:
-        """The model's name in tables: NAME, or NAME_vV for a pinned version."""
         e = self.endpoint
-        return f"{e.model}_v{e.version}" if e.version else e.model
+        self.name = f"{e.model}_v{e.version}" if e.version else e.model
+        self.device = f"server {e.address}"
+        self.batch = e.batch
+        self.names: list[str] = []  # the model's class names by index
+        self.layout = ""
+        self._input: dict = {}  # name, datatype, shape (with batch), nchw
+        self._outputs: list[str] = []
+        self._client: Any = None
+        self._ready = False  # checked: the server answered the probe frame
 
     @property
-    def device(self) -> str:
-        return f"server {self.endpoint.address}"
+    def conf(self) -> float:
+        return self.settings.conf
+
+    def device_note(self) -> str:
+        return "a model server"
 
     # ----------------------------------------------------------------------------------------- the check
-    def check(self) -> None:
+    def check(self, intrinsics: Intrinsics | None = None) -> None:
         """Server live, model ready, metadata and config readable and of the contract's shape, one probe frame
         answered with tensors of the right shapes; GarageError naming the entry otherwise."""
         try:
-            self._check()
+            if not self._ready:
+                self._check(intrinsics)
         except GarageError:
             raise
         except Exception as exc:  # noqa: BLE001 - the client raises many types; one line naming the entry
-            raise GarageError(f"{self.entry}: {self._reason(exc)}", self.where) from None
+            raise GarageError(self._reason(exc), self.where) from None
 
-    def _check(self) -> None:
+    def _check(self, intrinsics: Intrinsics | None) -> None:
         client = self._connect()
         e = self.endpoint
         if not client.is_server_live():
-            raise GarageError(f"{self.entry}: the server is up but not live", self.where)
+            raise GarageError("the server is up but not live", self.where)
         if not client.is_model_ready(e.model, e.version):
-            raise GarageError(f"{self.entry}: the server has no ready model {e.model!r}"
+            raise GarageError(f"the server has no ready model {e.model!r}"
                               + (f" version {e.version}" if e.version else ""), self.where)
         meta = client.get_model_metadata(e.model, e.version)
         try:
@@ -126,34 +144,35 @@ class ServerModel:
         except Exception:  # noqa: BLE001 - the model config is Triton's extension; KServe servers may lack it
             config = {}
         self.names = class_names(config, meta)
+        self.classes = tuple(self.names)
         if not self.names:
-            raise GarageError(f"{self.entry}: the model gives no class names (a config parameter `names`)",
+            raise GarageError("the model gives no class names (a config parameter `names`)",
                               self.where)
-        self._input = input_of(meta, self.entry)
+        self._input = input_of(meta, self.where)
         shapes = {o["name"]: [int(d) for d in o["shape"]] for o in meta.get("outputs", [])}
         try:
             self.layout = tensors.layout_of(shapes, len(self.names))
         except ValueError as exc:
-            raise GarageError(f"{self.entry}: {exc}", self.where) from None
+            raise GarageError(str(exc), self.where) from None
         self._outputs = sorted(shapes)
         max_batch = int(config.get("max_batch_size", 0) or 0)
         if max_batch > 0:
             self.batch = min(self.batch, max_batch)
         if self._input["shape"][0] not in (-1,):  # a fixed batch dimension: send exactly that many
             self.batch = int(self._input["shape"][0])
-        probe = np.zeros((240, 320, 3), np.uint8)
         try:
-            self._infer([probe])
+            self._infer([probe_frame(intrinsics)])
         except ServerError as exc:
-            raise GarageError(f"{self.entry}: the probe frame failed: {exc}", self.where) from None
+            raise GarageError(f"the probe frame failed: {exc.reason}", self.where) from None
+        self._ready = True
 
     def _connect(self):
         if self._client is None:
             import tritonclient.http as httpclient
 
             self._client = httpclient.InferenceServerClient(
-                self.endpoint.address, ssl=self.endpoint.ssl, connection_timeout=self.timeout,
-                network_timeout=self.timeout)
+                self.endpoint.address, ssl=self.endpoint.ssl, connection_timeout=self.endpoint.timeout,
+                network_timeout=self.endpoint.timeout)
         return self._client
 
     def _reconnect(self) -> None:
@@ -174,14 +193,16 @@ class ServerModel:
         return text.splitlines()[0]
 
     # ------------------------------------------------------------------------------------------ detection
-    def detect(self, frames: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, list[str]]]:
-        """Per frame: boxes (K x 4 float32, the frame's pixels), scores (K,), class names (K)."""
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None] = ()
+               ) -> list[Detections]:
+        """One Detections per frame (boxes in the frame's pixels); ServerError when the server fails."""
+        self.check()
         out = []
         for start in range(0, len(frames), self.batch):
             out += self._infer(list(frames[start:start + self.batch]))
         return out
 
-    def _infer(self, frames: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, list[str]]]:
+    def _infer(self, frames: list[np.ndarray]) -> list[Detections]:
         batch, boxes_of = self._pack(frames)
         outputs = self._send(batch)
         try:
@@ -189,15 +210,15 @@ class ServerModel:
             if len(decoded) < len(frames):
                 raise ValueError(f"{len(decoded)} answers for {len(frames)} frames")
         except (ValueError, IndexError) as exc:
-            raise ServerError(f"{self.entry}: wrong tensors: {exc}") from None
+            raise ServerError(self.entry, f"wrong tensors: {exc}") from None
         result = []
         for frame, box_map, (boxes, scores, cls) in zip(frames, boxes_of, decoded):
             if len(cls) and (cls.min() < 0 or cls.max() >= len(self.names)):
-                raise ServerError(f"{self.entry}: class index {int(cls.max())} outside the model's "
+                raise ServerError(self.entry, f"class index {int(cls.max())} outside the model's "
                                   f"{len(self.names)} class names")
             h, w = frame.shape[:2]
-            result.append((box_map.unmap(boxes, w, h), scores.astype(np.float32),
-                           [self.names[int(k)] for k in cls]))
+            result.append(Detections(box_map.unmap(boxes, w, h), scores.astype(np.float32),
+                                     [self.names[int(k)] for k in cls]))
         return result
 
     def _pack(self, frames: list[np.ndarray]) -> tuple[np.ndarray, list[tensors.Letterbox]]:
@@ -237,12 +258,12 @@ class ServerModel:
                 answer = {n: result.as_numpy(n) for n in self._outputs}
                 missing = [n for n, a in answer.items() if a is None]
                 if missing:
-                    raise ServerError(f"{self.entry}: the answer lacks output(s) {missing}")
+                    raise ServerError(self.entry, f"the answer lacks output(s) {missing}")
                 return answer
             except InferenceServerException as exc:
                 reason = self._reason(exc)
                 if not _dropped(reason):
-                    raise ServerError(f"{self.entry}: the server answered with an error: {reason}") from None
+                    raise ServerError(self.entry, f"the server answered with an error: {reason}") from None
                 error = reason
             except (ConnectionError, OSError, EOFError) as exc:
                 error = self._reason(exc)
@@ -253,7 +274,7 @@ class ServerModel:
             if attempt < RETRIES:
                 time.sleep(0.5 * 2 ** attempt)
                 self._reconnect()
-        raise ServerError(f"{self.entry}: the connection failed {RETRIES + 1} times: {error}".splitlines()[0])
+        raise ServerError(self.entry, f"the connection failed {RETRIES + 1} times: {error}".splitlines()[0])
 
 
 def _dropped(reason: str) -> bool:
@@ -282,21 +303,19 @@ def class_names(config: dict, meta: dict) -> list[str]:
     return []
 
 
-def input_of(meta: dict, entry: str) -> dict:
+def input_of(meta: dict, where: str) -> dict:
     """The one image input: name, datatype (UINT8 | FP32), shape with the batch dimension, NCHW or NHWC."""
     inputs = meta.get("inputs") or []
     if len(inputs) != 1:
-        raise GarageError(f"{entry}: the model must take one image input, it takes {len(inputs)}", "detector.models")
+        raise GarageError(f"the model must take one image input, it takes {len(inputs)}", where)
     inp = inputs[0]
     shape = [int(d) for d in inp["shape"]]
     if inp["datatype"] not in DATATYPES:
-        raise GarageError(f"{entry}: input {inp['name']!r} is {inp['datatype']}; use UINT8 or FP32",
-                          "detector.models")
+        raise GarageError(f"input {inp['name']!r} is {inp['datatype']}; use UINT8 or FP32", where)
     if len(shape) == 4 and shape[3] == 3:
         nchw = False
     elif len(shape) == 4 and shape[1] == 3:
         nchw = True
     else:
-        raise GarageError(f"{entry}: input {inp['name']!r} has shape {shape}; use N x H x W x 3 or N x 3 x H x W",
-                          "detector.models")
+        raise GarageError(f"input {inp['name']!r} has shape {shape}; use N x H x W x 3 or N x 3 x H x W", where)
     return {"name": inp["name"], "datatype": inp["datatype"], "shape": shape, "nchw": nchw}
