@@ -39,11 +39,14 @@ def check_verify(cfg: DictConfig) -> None:
     check_detector(cfg.detector)
 
 
-def build_detector(cfg: DictConfig):
-    """The configured detector, loaded and checked (missing weights, an unreachable server: GarageError)."""
-    from garage_exp.perception.detect import Detector
+def load_detector(cfg: DictConfig):
+    """The configured detector through the one factory, every entry loaded and probed (missing weights, an
+    unreachable server, a class map that matches nothing: GarageError naming the entry)."""
+    from garage_exp.perception.detect import build_detector
 
-    return Detector.from_config(cfg.detector)
+    detector = build_detector(cfg.detector)
+    detector.check()
+    return detector
 
 
 def verify(cfg: DictConfig) -> dict:
@@ -54,7 +57,7 @@ def verify(cfg: DictConfig) -> dict:
     try:
         check_verify(cfg)
         data = read_set(str(cfg.data), dict(cfg.label_map), str(cfg.split), cfg.images)
-        detector = build_detector(cfg)
+        detector = load_detector(cfg)
     except GarageError:
         remove_untouched(out)
         raise
@@ -67,8 +70,9 @@ def verify(cfg: DictConfig) -> dict:
     run = tracking.start_job_run(cfg, name, {"kind": "verify", "data": str(data.source), "output_dir": str(out)},
                                  None)
     try:
-        scored = score(detector.detect, list(detector.names), data, tuple(d.classes), tuple(d.person_classes),
-                       float(d.iou), float(d.threshold))
+        groups = detector.scoring()  # the listed classes plus detector.class_map's
+        scored = score(lambda rgb: detector.detect([rgb])[0], list(detector.names), data, groups["classes"],
+                       groups["person_classes"], float(d.iou), float(d.threshold))
         metrics = summary(scored, float(d.threshold))
         report = out / "report"
         report.mkdir(parents=True, exist_ok=True)

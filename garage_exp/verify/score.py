@@ -76,7 +76,7 @@ def score(detect, models: list[str], data: LabelledSet, classes: Sequence[str], 
                        "false_positives": float(np.mean(fp.false_positives_per_model)),
                        **{f"fp/{m}": n for m, n in zip(models, fp.false_positives_per_model)}})
         for m, d in zip(models, dets):
-            for box, conf, cls in zip(d.boxes, d.confs, d.classes):
+            for box, conf, cls in zip(d.boxes, d.scores, d.classes):
                 kind = kind_of_class(cls, classes, person_classes)
                 if kind is not None:
                     x1, y1, x2, y2 = (float(v) for v in box)
