@@ -149,6 +149,7 @@ class Handler(BaseHTTPRequestHandler):
             outputs = model.run({model.inputs[0]["name"]: next(iter(feeds.values()))})
         except Exception as exc:  # noqa: BLE001 - the answer says what went wrong, as a real server's does
             return self._json(400, {"error": f"{type(exc).__name__}: {exc}"})
+        print(f"infer {parts[2]} batch={len(next(iter(feeds.values())))}", flush=True)  # the tests count requests
         if self.fault == "shapes":
             outputs = {k: v[..., :-1] for k, v in outputs.items()}
         return self._reply(outputs, wanted)
