@@ -49,6 +49,17 @@ def load_detector(cfg: DictConfig):
     return detector
 
 
+def check_scored(data, groups: dict) -> None:
+    """Some labelled object must be of a class the detector is scored on (after label_map)."""
+    scored = set(groups["classes"]) | set(groups["person_classes"])
+    labelled = sorted({c for im in data.images for c in im.classes})
+    if not scored & set(labelled):
+        shown = ", ".join(labelled[:8]) + (", ..." if len(labelled) > 8 else "")
+        raise GarageError(f"data: no labelled object of the scored classes ({', '.join(sorted(scored))}); its labels "
+                          f"are {shown}: rename them with label_map, e.g. '+label_map.{labelled[0]}=car'",
+                          str(data.source))
+
+
 def verify(cfg: DictConfig) -> dict:
     """Check, then score, log and report; returns what result.json holds."""
     from garage_exp.verify.data import read_set
@@ -58,6 +69,7 @@ def verify(cfg: DictConfig) -> dict:
         check_verify(cfg)
         data = read_set(str(cfg.data), dict(cfg.label_map), str(cfg.split), cfg.images)
         detector = load_detector(cfg)
+        check_scored(data, detector.scoring())
     except GarageError:
         remove_untouched(out)
         raise
