@@ -27,13 +27,10 @@ schema.register()
 
 def check_verify(cfg: DictConfig) -> None:
     """The config's values (the schema checked the types; unknown keys are refused here), then the detector's."""
-    from garage_exp.core.schema_check import unknown_keys
+    from garage_exp.core.schema_check import refuse_unknown_keys
     from garage_exp.perception.detect.detector import check_detector
 
-    for path, key, owner in unknown_keys(OmegaConf.to_container(cfg, resolve=False), schema.VerifyConf):
-        if path == () and key == "hydra":
-            continue
-        raise GarageError(f"unknown key {key!r} (not in {owner.__name__})", ".".join((*path, key)))
+    refuse_unknown_keys(cfg, schema.VerifyConf)
     if str(cfg.split) not in ("train", "val", "test"):
         raise GarageError(f"{cfg.split!r} is not one of train, val, test", "split")
     check_detector(cfg.detector)
