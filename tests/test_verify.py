@@ -150,3 +150,27 @@ def test_verify_on_a_rendered_dataset(tmp_path, mlflow_uri):
     yolo, coco = got["run"], got["coco.json"]
     assert yolo["images"] == coco["images"] == 3 and yolo["targets"] == coco["targets"] >= 3
     assert yolo["recall"] == pytest.approx(coco["recall"]) and yolo["map50"] == pytest.approx(coco["map50"], abs=0.02)
+
+
+def test_ap50_is_cocos_and_the_loop_uses_it(tmp_path):
+    """results.cocoeval.ap50 (shared by verify and the loop's held-out scoring): 1 when every object is found
+    above every false alarm; with a false alarm ranked above the one of two objects found, precision 0.5 up to
+    recall 0.5 and nothing past it: 51 of COCO's 101 recall points at 0.5; 0 without detections."""
+    from types import SimpleNamespace
+
+    from garage_exp.loop.evaluate import map50
+    from garage_exp.results.cocoeval import ap50
+
+    gt = {"images": [{"id": 1, "width": 100, "height": 100}],
+          "annotations": [{"id": 1, "image_id": 1, "category_id": 3, "bbox": [10, 10, 20, 20], "area": 400, "iscrowd": 0},
+                          {"id": 2, "image_id": 1, "category_id": 3, "bbox": [60, 60, 20, 20], "area": 400, "iscrowd": 0}],
+          "categories": [{"id": 3, "name": "car"}]}
+    hit = lambda box, score: {"image_id": 1, "category_id": 3, "bbox": box, "score": score}  # noqa: E731
+    assert ap50(gt, [hit([10, 10, 20, 20], 0.9), hit([60, 60, 20, 20], 0.8), hit([0, 80, 5, 5], 0.1)]) == \
+        pytest.approx(1.0)
+    assert ap50(gt, [hit([0, 80, 5, 5], 0.9), hit([10, 10, 20, 20], 0.8)]) == pytest.approx(51 * 0.5 / 101)
+    assert ap50(gt, []) == 0.0
+    (tmp_path / "coco.json").write_text(json.dumps({**gt, "images": [{**gt["images"][0], "file_name": "a.png"}]}))
+    trial = SimpleNamespace(number=0, dataset=tmp_path)
+    assert map50([trial], [(0, "a.png", 3, [10, 10, 20, 20], 0.9), (0, "a.png", 3, [60, 60, 20, 20], 0.8)]) == \
+        pytest.approx(1.0)
