@@ -174,3 +174,19 @@ def test_ap50_is_cocos_and_the_loop_uses_it(tmp_path):
     trial = SimpleNamespace(number=0, dataset=tmp_path)
     assert map50([trial], [(0, "a.png", 3, [10, 10, 20, 20], 0.9), (0, "a.png", 3, [60, 60, 20, 20], 0.8)]) == \
         pytest.approx(1.0)
+
+
+@pytest.mark.detect
+def test_verify_a_detector_behind_a_model_server(photos, tmp_path):
+    """Any configured detector: yolo11n served over KServe v2 scores as the local yolo11n did (recall 6/7, mAP50 1)."""
+    from garage_exp.assets.locate import models_dir
+    from kserve_server import Server
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    with Server({"yolo": models_dir() / YOLO}) as server:
+        r = run_verify([f"data={photos / 'data.yaml'}", "+label_map.pedestrian=person",
+                        f"detector.models=[{server.url('yolo')}]"], tmp_path, uri)
+    assert r.returncode == 0, (r.stdout[-2000:], r.stderr[-2000:])
+    m = json.loads((tmp_path / "verify_run" / "result.json").read_text())["metrics"]
+    assert m["recall"] == pytest.approx(6 / 7) and m["map50/yolo"] == pytest.approx(1.0)
+    assert m["fp_per_image/yolo"] == 0.5
