@@ -166,3 +166,29 @@ def test_unreachable_server_and_server_killed_mid_run(models, tmp_path, mlflow_u
     (run,) = mlc.search_runs([mlc.get_experiment_by_name("garage_exp").experiment_id])
     assert run.info.status == "FAILED"
     assert f"model server {dying.url('yolo')}: the connection failed" in run.data.tags["error"]
+
+
+def test_output_layouts_and_the_letterbox():
+    """The three layouts a served model may answer in, each decoded by hand; a layout that is none of them is a
+    sentence saying what was expected; a letterboxed box maps back onto the frame."""
+    from garage_exp.perception.detect import tensors
+
+    assert tensors.layout_of({"b": [-1, 5, 4], "scores": [-1, 5], "c": [-1, 5]}, 2) == "three"
+    assert tensors.layout_of({"out": [-1, 300, 6]}, 80) == "end2end"
+    assert tensors.layout_of({"out": [-1, 84, 8400]}, 80) == "raw"
+    for bad in ({"out": [-1, 85, 8400]}, {"a": [-1, 4], "b": [-1, 4]}, {"a": [-1, 5, 3], "b": [-1, 5], "c": [-1, 5]}):
+        with pytest.raises(ValueError, match="expected|must be"):
+            tensors.layout_of(bad, 80)
+    rows = np.array([[[10, 20, 30, 40, 0.9, 1], [0, 0, 0, 0, 0.0, 0]]], np.float32)
+    ((boxes, scores, cls),) = tensors.decode("end2end", {"out": rows}, 0.05, 2)
+    assert boxes.tolist() == [[10, 20, 30, 40]] and cls.tolist() == [1] and scores.tolist() == [pytest.approx(0.9)]
+    head = np.zeros((1, 4 + 2, 3), np.float32)  # three anchors: two overlapping "1"s and a lone "0"
+    head[0, :4] = [[50, 52, 200], [50, 50, 200], [20, 20, 10], [20, 20, 10]]
+    head[0, 4:] = [[0.1, 0.0, 0.7], [0.8, 0.6, 0.0]]
+    ((boxes, scores, cls),) = tensors.decode("raw", {"out": head}, 0.25, 2)
+    assert cls.tolist() == [1, 0] and scores.tolist() == pytest.approx([0.8, 0.7])  # NMS kept the better "1"
+    assert boxes.tolist() == [[40, 40, 60, 60], [195, 195, 205, 205]]
+    frame = np.zeros((480, 640, 3), np.uint8)
+    fitted, box_map = tensors.letterbox(frame, 640, 640)
+    assert fitted.shape == (640, 640, 3) and (box_map.left, box_map.top) == (0, 80) and fitted[0, 0, 0] == 114
+    assert box_map.unmap(np.array([[0, 80, 640, 560]]), 640, 480).tolist() == [[0, 0, 640, 480]]

@@ -32,7 +32,8 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect import tensors
-from garage_exp.perception.detect.base import WHERE, Detections, Entry, EntrySettings, Intrinsics, probe_frame
+from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, checked,
+                                               probe_frame)
 
 DATATYPES = {"UINT8": np.uint8, "FP32": np.float32}
 RETRIES = 3  # a dropped connection is tried again this many times (0.5 s, 1 s, 2 s apart)
@@ -217,8 +218,11 @@ class ServerEntry(Entry):
                 raise ServerError(self.entry, f"class index {int(cls.max())} outside the model's "
                                   f"{len(self.names)} class names")
             h, w = frame.shape[:2]
-            result.append(Detections(box_map.unmap(boxes, w, h), scores.astype(np.float32),
-                                     [self.names[int(k)] for k in cls]))
+            dets = Detections(box_map.unmap(boxes, w, h), scores.astype(np.float32), [self.names[int(k)] for k in cls])
+            try:  # the interface's contract: scores in [0, 1], boxes x1 <= x2 in the frame's pixels
+                result.append(checked(dets, frame, "the answer"))
+            except ValueError as exc:
+                raise ServerError(self.entry, f"wrong tensors: {exc}") from None
         return result
 
     def _pack(self, frames: list[np.ndarray]) -> tuple[np.ndarray, list[tensors.Letterbox]]:
