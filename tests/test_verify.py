@@ -84,6 +84,7 @@ def test_yolo11n_on_the_two_photos(photos, tmp_path):
     assert "Synthetic results are only meaningful for a detector that is good on real images of the same classes" \
         in report
     assert "tie 2" in report and "| yolo11n_int8 | 0.857 |" in report and "Good on these real images" in report
+    assert report.startswith("# Detector check on real images") and result["rendered"] is False
     client = mlflow.MlflowClient(tracking_uri=uri)
     (run,) = client.search_runs([client.get_experiment_by_name("garage_verify").experiment_id])
     assert run.info.status == "FINISHED" and run.data.metrics["recall"] == pytest.approx(6 / 7)
@@ -145,7 +146,11 @@ def test_verify_on_a_rendered_dataset(tmp_path, mlflow_uri):
     for data in (job, job / "dataset" / "coco.json"):
         v = run_verify([f"data={data}", f"detector.models=[{YOLO}]"], tmp_path, mlflow_uri)
         assert v.returncode == 0, (v.stdout[-2000:], v.stderr[-2000:])
-        got[data.name] = json.loads((tmp_path / "verify_run" / "result.json").read_text())["metrics"]
+        result = json.loads((tmp_path / "verify_run" / "result.json").read_text())
+        got[data.name] = result["metrics"]
+        report = (tmp_path / "verify_run" / "report" / "report.md").read_text()
+        assert result["rendered"] and report.startswith("# Detector check on rendered images")
+        assert "These are rendered images" in report and "only meaningful for a detector that is good" in report
         shutil.rmtree(tmp_path / "verify_run")
     yolo, coco = got["run"], got["coco.json"]
     assert yolo["images"] == coco["images"] == 3 and yolo["targets"] == coco["targets"] >= 3

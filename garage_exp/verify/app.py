@@ -76,8 +76,8 @@ def verify(cfg: DictConfig) -> dict:
 
     d = cfg.detector
     name = str(cfg.name) or f"{d.name} on {Path(str(data.source)).parent.name}/{Path(str(data.source)).name}"
-    run = tracking.start_job_run(cfg, name, {"kind": "verify", "data": str(data.source), "output_dir": str(out)},
-                                 None)
+    run = tracking.start_job_run(cfg, name, {"kind": "verify", "data": str(data.source), "output_dir": str(out),
+                                             "rendered": str(data.rendered).lower()}, None)
     try:
         groups = detector.scoring()  # the listed classes plus detector.class_map's
         scored = score(lambda rgb: detector.detect([rgb])[0], list(detector.names), data, groups["classes"],
@@ -95,11 +95,12 @@ def verify(cfg: DictConfig) -> dict:
         run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
         raise
     run.end("FINISHED")
-    summary_ = {"run_id": run.run_id, "report": str(report / "report.md"), "metrics": metrics}
+    summary_ = {"run_id": run.run_id, "report": str(report / "report.md"), "rendered": data.rendered,
+                "metrics": metrics}
     (out / "result.json").write_text(json.dumps(summary_, indent=1))
     print(f"garage_exp.verify: {len(data.images)} images, {len(scored.objects)} labelled objects: recall "
           f"{metrics['recall']:.3f}, mAP50 {metrics['map50']:.3f}, {metrics['fp_per_image']:.2f} false positives "
-          f"per image. {verdict(metrics)}")
+          f"per image. {verdict(metrics, data.rendered)}")
     print(f"garage_exp.verify: report {report / 'report.md'}")
     return summary_
 

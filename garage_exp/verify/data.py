@@ -19,6 +19,7 @@ from garage_exp.core.errors import GarageError
 from garage_exp.train.data import check_labels, data_yaml_of, images_of, label_of, read_names, Frame
 
 KINDS_HINT = "a COCO JSON file, a YOLO data.yaml, a dataset folder, a dataset=true job output or a suite"
+RENDERED = "garage_exp ground truth"  # the `info.description` of the COCO files this project writes
 
 
 @dataclass
@@ -37,6 +38,7 @@ class LabelledSet:
     source: Path  # the COCO JSON or the data.yaml read
     format: str  # "coco" | "yolo"
     images: list[Labelled] = field(default_factory=list)
+    rendered: bool = False  # written by this project (a dataset=true job, a suite): synthetic, not real images
 
     @property
     def objects(self) -> int:
@@ -80,7 +82,7 @@ def read_coco(path: Path, label_map: dict[str, str], images: str | None) -> Labe
         for ann in coco.get("annotations") or []:
             by_image.setdefault(int(ann["image_id"]), []).append(ann)
         roots = [Path(images).expanduser()] if images else [path.parent, path.parent / "images"]
-        out = LabelledSet(path, "coco")
+        out = LabelledSet(path, "coco", rendered=is_rendered(coco))
         for im in coco["images"]:
             file = next((r / im["file_name"] for r in roots if (r / im["file_name"]).is_file()), None)
             if file is None:
@@ -122,7 +124,12 @@ def read_yolo(data_yaml: Path, label_map: dict[str, str], split: str) -> Labelle
     for item in [entries] if isinstance(entries, str) else entries:
         p = Path(str(item))
         files.update(dict.fromkeys(images_of(p if p.is_absolute() else root / p, "data", data_yaml)))
-    out = LabelledSet(data_yaml, "yolo")
+    beside = data_yaml.parent / "coco.json"  # the project's datasets write one beside their data.yaml
+    try:
+        rendered = beside.is_file() and is_rendered(json.loads(beside.read_text()))
+    except (OSError, ValueError):
+        rendered = False
+    out = LabelledSet(data_yaml, "yolo", rendered=rendered)
     for image in files:
         if not image.is_file():
             raise GarageError("data: image listed but missing", str(image))
@@ -136,3 +143,8 @@ def read_yolo(data_yaml: Path, label_map: dict[str, str], split: str) -> Labelle
         classes = [label_map.get(names[int(c)], names[int(c)]) for c, *_ in rows]
         out.images.append(Labelled(image, width, height, np.asarray(boxes, dtype=float).reshape(-1, 4), classes))
     return out
+
+
+def is_rendered(coco: dict) -> bool:
+    info = coco.get("info") if isinstance(coco, dict) else None
+    return isinstance(info, dict) and info.get("description") == RENDERED

@@ -13,8 +13,11 @@ CAVEAT = ("Synthetic results are only meaningful for a detector that is good on 
           "reasons, and no factor's effect can be read from its scores.")
 
 
-def verdict(metrics: dict[str, float]) -> str:
+def verdict(metrics: dict[str, float], rendered: bool = False) -> str:
     recall, ap = metrics["recall"], metrics["map50"]
+    if rendered:
+        return (f"These are rendered images (recall {recall:.2f}, mAP50 {ap:.2f}): simulation results, not a check "
+                "on real images. Score the detector on a labelled set of real photos too.")
     if recall >= GOOD and ap >= GOOD:
         return (f"Good on these real images (recall {recall:.2f}, mAP50 {ap:.2f}, both >= {GOOD}): its simulated "
                 "results can be read as the effect of the garage, for these classes.")
@@ -27,11 +30,12 @@ def write_report(path: Path, data: LabelledSet, detector_name: str, scored: Scor
     obj = scored.objects
     kinds = ", ".join(f"{k} {int(metrics['targets/' + k])}" for k in ("vehicle", "person") if "targets/" + k in metrics)
     ignored = ", ".join(f"{k} {n}" for k, n in sorted(scored.ignored.items()))
-    lines = [f"# Detector check on real images: {detector_name}", "",
+    what = "rendered" if data.rendered else "real"
+    lines = [f"# Detector check on {what} images: {detector_name}", "",
              f"Data: `{data.source}` ({data.format.upper()}), {len(data.images)} images, {len(obj)} labelled objects "
              f"of the scored classes ({kinds})." + (f" Not scored (classes the project does not score): {ignored}."
                                                      if ignored else ""),
-             "", f"**{verdict(metrics)}**", "", CAVEAT, "",
+             "", f"**{verdict(metrics, data.rendered)}**", "", CAVEAT, "",
              f"A labelled object is found when a detection of its kind overlaps it with IoU >= {iou}; its confidence "
              f"is the models' mean (0 when missed), recall the share reaching {threshold}. False positives per image: "
              "confident detections (>= 0.25) matching no labelled object of their kind, or of another class, as in "

@@ -117,7 +117,7 @@ class ServerEntry(Entry):
         return self.settings.conf
 
     def device_note(self) -> str:
-        return "a model server"
+        return "the server picks its own device"
 
     # ----------------------------------------------------------------------------------------- the check
     def check(self, intrinsics: Intrinsics | None = None) -> None:
