@@ -112,7 +112,7 @@ def test_bad_entries_are_one_line_naming_the_entry(server):
 @pytest.mark.parametrize("fault, said", [("error", "answered with an error: model crashed"),
                                          ("shapes", "the probe frame failed: wrong tensors")])
 def test_a_server_that_answers_wrong_is_refused_before_the_run(models, tmp_path, fault, said):
-    with Server(models, fault=fault) as bad:
+    with Server({"bright": models["bright"]}, fault=fault) as bad:
         with pytest.raises(GarageError) as err:
             make([bad.url("bright")], classes=["car"]).check()
         assert said in str(err.value) and bad.url("bright") in str(err.value)
@@ -120,7 +120,7 @@ def test_a_server_that_answers_wrong_is_refused_before_the_run(models, tmp_path,
 
 
 def test_a_dropped_connection_is_retried(models):
-    with Server(models, fault="drop=2") as flaky:
+    with Server({"bright": models["bright"]}, fault="drop=2") as flaky:
         detector = make([flaky.url("bright")], classes=["car"])
         detector.check()  # the probe's request is dropped twice, then answered
         (dets,), = detector.detect([np.full((40, 40, 3), 255, np.uint8)])
@@ -155,7 +155,7 @@ def test_unreachable_server_and_server_killed_mid_run(models, tmp_path, mlflow_u
     assert down.returncode == 2 and "Traceback" not in down.stderr, down.stderr[-2000:]
     assert "http://127.0.0.1:9/v2/models/yolo: the server is not reachable" in down.stderr
     assert not (tmp_path / "down" / "run").exists()
-    with Server(models, fault="die-after=2") as dying:
+    with Server({"yolo": models["yolo"]}, fault="die-after=2") as dying:
         r = run_app([*FRAMES, f"detector.models=[{dying.url('yolo')}]", f"tracking.uri={mlflow_uri}"],
                     tmp_path / "killed")
         assert dying.proc.wait(timeout=30) == -9  # it died by SIGKILL, mid-run
