@@ -104,6 +104,15 @@ def test_yolo_data_yaml_reads_as_the_coco_file(photos, tmp_path):
     for a, b in zip(coco.images, yolo.images):
         assert a.classes == b.classes and (abs(a.boxes - b.boxes) < 0.01).all()
     assert yolo.images[0].classes == ["bus", "person", "person", "person", "person"]
+    elsewhere = tmp_path / "labels_only" / "val.json"  # a COCO file away from its images: `images` says where
+    elsewhere.parent.mkdir()
+    shutil.copyfile(photos / "coco.json", elsewhere)
+    assert [im.image for im in read_set(str(elsewhere), {}, images=str(photos / "images")).images] == \
+        [photos / "images" / "bus.jpg", photos / "images" / "zidane.jpg"]
+    from garage_exp.core.errors import GarageError
+
+    with pytest.raises(GarageError, match="image 'bus.jpg' not found in"):
+        read_set(str(elsewhere), {})
 
 
 def test_bad_data_is_one_line_and_writes_nothing(tmp_path):
