@@ -106,13 +106,14 @@ def test_split_is_by_scenario(trained):
 
 @pytest.mark.slow
 def test_registered_weights_load_and_score_a_job(trained):
-    from garage_exp.perception.detect import Detector, resolve_model
+    from garage_exp.perception.detect import Detector, resolve
 
     tmp, uri, jobs, _ = trained
-    path = resolve_model(f"models:/{NAME}/1", uri)
+    path = Path(resolve(f"models:/{NAME}/1", uri))
     assert path.name == f"{NAME}_v1.pt"
     detector = Detector(models=[path], imgsz=128)
-    assert {"car", "truck", "bus", "person"} <= set(detector._models[0].names.values())
+    detector.check()
+    assert {"car", "truck", "bus", "person"} <= set(detector.entries[0].classes)
     (tmp / "score").mkdir()
     r = run_app([f"detector.models=[models:/{NAME}/latest]", "detector.imgsz=128", *FRAMES,
                  f"tracking.uri={uri}"], tmp / "score")

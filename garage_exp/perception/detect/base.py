@@ -142,6 +142,12 @@ class Entry(ABC):
         return ""
 
 
+def message_of(exc: GarageError) -> str:
+    """A GarageError's message without its place."""
+    text = str(exc)
+    return text[len(f"{exc.where}: "):] if exc.where and text.startswith(f"{exc.where}: ") else text
+
+
 def as_batch(frames: Any) -> list[np.ndarray]:
     """A batch of frames as a list of HxWx3 uint8 RGB arrays; ValueError for anything else (a single frame too:
     wrap it in a list)."""

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from garage_exp.core.errors import GarageError
-from garage_exp.perception.detect.base import (Detections, Entry, EntrySettings, Intrinsics, checked,
+from garage_exp.perception.detect.base import (Detections, Entry, EntrySettings, Intrinsics, checked, message_of,
                                                probe_frame)
 
 PREFIX = "callable:"
@@ -55,7 +55,7 @@ class CallableEntry(Entry):
             self.detect([probe_frame(intrinsics)], [intrinsics or Intrinsics.default()])
         except GarageError as exc:
             self._function = None
-            raise GarageError(f"on a probe frame: {exc.args[0].split(': ', 1)[-1]}", self.where) from None
+            raise GarageError(f"on a probe frame: {message_of(exc)}", self.where) from None
 
     def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
         try:

@@ -114,7 +114,7 @@ class Detector:
                 shown = ", ".join(list(entry.classes)[:8]) + (", ..." if len(entry.classes) > 8 else "")
                 raise GarageError(f"none of its classes ({shown}) is a vehicle or person class "
                                   f"({', '.join(sorted(wanted))}): map its names with detector.class_map, e.g. "
-                                  f"'+detector.class_map={{{entry.classes[0]}: vehicle}}'", entry.where)
+                                  f"+detector.class_map.{entry.classes[0]}=vehicle", entry.where)
         if not any(e.classes for e in self.entries):
             return
         unknown = sorted(set(self.class_map) - known)

@@ -30,7 +30,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.state import STATE
-from garage_exp.perception.detect.base import Detections, Intrinsics
+from garage_exp.perception.detect.base import Detections, Intrinsics, message_of
 from garage_exp.perception.detect.detector import Detector
 
 log = logging.getLogger("garage_exp")
@@ -297,8 +297,7 @@ def _serve(conn, threads: int) -> None:
                 answer = detector.detect([rgb], [intrinsics])[0]
             reply = ("ok", answer)
         except GarageError as exc:
-            message = str(exc)[len(f"{exc.where}: "):] if exc.where else str(exc)
-            reply = ("error", ("GarageError", message, exc.where))
+            reply = ("error", ("GarageError", message_of(exc), exc.where))
         except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it in the job
             reply = ("error", (type(exc).__name__, str(exc), None))
         conn.send((*reply, records.take()))
