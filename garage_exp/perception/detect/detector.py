@@ -30,6 +30,7 @@ from garage_exp.perception.detect import entries as entry_kinds
 from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, as_batch,
                                                per_frame)
 from garage_exp.perception.detect.devices import check_device, device_line
+from garage_exp.perception.detect.matching import PERSON_CLASSES, VEHICLE_CLASSES
 
 log = logging.getLogger("garage_exp")
 GROUPS = ("vehicle", "person")
@@ -120,12 +121,13 @@ class Detector:
         unknown = sorted(set(self.class_map) - known)
         if unknown:
             raise GarageError(f"{unknown} are not among any model's classes", "detector.class_map")
-        if not self.class_map:  # with a map, the listed (COCO) classes may belong to no model
-            for key, listed in (("classes", self.classes), ("person_classes", self.person_classes)):
-                unknown = sorted(set(listed) - known)
-                if unknown:
-                    raise GarageError(f"classes {unknown} are not among any model's classes ({', '.join(self.names)})",
-                                      f"detector.{key}")
+        # A class the user listed that no model knows is a typo; the default (COCO) names may belong to no model.
+        for key, listed, default in (("classes", self.classes, VEHICLE_CLASSES),
+                                     ("person_classes", self.person_classes, PERSON_CLASSES)):
+            unknown = sorted(set(listed) - known - set(default))
+            if unknown:
+                raise GarageError(f"classes {unknown} are not among any model's classes ({', '.join(self.names)})",
+                                  f"detector.{key}")
 
     def detect(self, frames: Any, intrinsics: Intrinsics | Sequence[Intrinsics | None] | None = None
                ) -> list[list[Detections]]:
