@@ -1,16 +1,29 @@
 """The process's state: what one process keeps between the jobs it runs, in one object.
 
-The entry point (`garage_exp.cli.app.cli`) owns it: it starts each command with `begin()`, which clears what
-belongs to one command (the sweep, its count of finished jobs, a stop asked for by a signal, the tracking
-server's outage) and keeps what is expensive to rebuild (the warm renderer with its compiled shaders, the
-detector's child process, the classified plans). Modules read and write its fields instead of keeping
-globals of their own, so a test or a second command in one process starts from a known state.
+Every memo, cache and warm resource of the package lives here, with its *scope*, the span it is good for:
+
+- `process`: expensive to rebuild and still right for any later command: the warm renderer (its shaders), the
+  detector's child process (its models), loaded models and asset libraries, the render device, memos of pure
+  functions (a texture by seed, a plan's classification by content).
+- `command`: belongs to one command: the sweep, its count of finished jobs, a stop asked for by a signal, the
+  tracking server's outage, the checked search spaces, the stores opened.
+- `job`: belongs to one job of a sweep.
+
+The command shell starts each command with `begin()` (clears the command and job scopes), a job starts with
+`begin_job()` (clears the job scope) and the tests' reset calls `clear("process")` where it wants a fresh
+process. Modules read and write STATE's fields, or keep a cache that STATE made (`STATE.cache(name, scope)`, a
+dict) or a memo it registered (`@STATE.memo(scope)`, an `lru_cache`), instead of module globals of their own:
+`tests/test_state.py` fails on a module-level cache that STATE does not know.
 """
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+
+SCOPES = ("process", "command", "job")  # widest first: clearing one clears those narrower too
 
 
 @dataclass
@@ -24,14 +37,54 @@ class ProcessState:
     detector: Any = None  # the detector's child process (models load once per process)
     plans: dict = field(default_factory=dict)  # plan path -> ((mtime, size), classified plan): sweeps check many jobs
     maps: dict = field(default_factory=dict)  # a plan's digest -> its map's PNG bytes: a sweep's jobs share one plan
+    # name -> (scope, clear): every registered cache and memo, and how to empty it
+    registered: dict[str, tuple[str, Callable[[], None]]] = field(default_factory=dict)
+
+    def register(self, name: str, scope: str, clear: Callable[[], None]) -> None:
+        """Record a cache's `clear` under `scope` (one of SCOPES); the same name again replaces it (a reload)."""
+        if scope not in SCOPES:
+            raise ValueError(f"scope must be one of {SCOPES}, got {scope!r}")
+        self.registered[name] = (scope, clear)
+
+    def cache(self, name: str, scope: str) -> dict:
+        """A dict for a module's cache, emptied when `scope` is cleared."""
+        store: dict = {}
+        self.register(name, scope, store.clear)
+        return store
+
+    def memo(self, scope: str, maxsize: int | None = 128) -> Callable:
+        """`functools.lru_cache(maxsize)` registered under `scope`: for pure functions of small immutable inputs."""
+        def wrap(fn: Callable) -> Callable:
+            cached = functools.lru_cache(maxsize=maxsize)(fn)
+            self.register(f"{fn.__module__}.{fn.__qualname__}", scope, cached.cache_clear)
+            return cached
+        return wrap
+
+    def clear(self, scope: str) -> None:
+        """Empty every cache of `scope` and of the scopes narrower than it (and the fields of those scopes)."""
+        narrower = SCOPES[SCOPES.index(scope):]
+        for kind, clear in list(self.registered.values()):
+            if kind in narrower:
+                clear()
+        if "command" in narrower:
+            self.sweep = None
+            self.finished_jobs = 0
+            self.stopping = False
+            self.tracking_down_since = None
+            self.tracking_given_up = False
+        if scope == "process":
+            self.plans.clear()
+            self.maps.clear()
 
     def begin(self) -> ProcessState:
-        """A new command in this process: forget the last one's sweep, counts and outage, keep the warm parts."""
-        self.sweep = None
-        self.finished_jobs = 0
-        self.stopping = False
-        self.tracking_down_since = None
-        self.tracking_given_up = False
+        """A new command in this process: forget the last one's sweep, counts, outage and command caches, keep
+        the warm parts."""
+        self.clear("command")
+        return self
+
+    def begin_job(self) -> ProcessState:
+        """A new job of the command: forget the last job's caches."""
+        self.clear("job")
         return self
 
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.state import STATE
-from garage_exp.perception.detect.base import Detections, Intrinsics, message_of
+from garage_exp.perception.detect.base import Detections, Intrinsics, as_batch, message_of, per_frame
 from garage_exp.perception.detect.detector import Detector
 
 log = logging.getLogger("garage_exp")
@@ -345,6 +345,33 @@ def open_detector(detector: Detector, probe: Intrinsics | None = None) -> Detect
         worker = STATE.detector = DetectorProcess(threads)
     worker.load(detector, probe)
     return worker
+
+
+class WarmDetector:
+    """A `Detector`'s batch interface (`detect`, `names`, `scoring`) on the process's one warm detector
+    (`open_detector`): a caller outside the frame loop (the search's pre-screen) shares the job's child and its
+    loaded models instead of loading them a second time in this process."""
+
+    def __init__(self, detector: Detector, probe: Intrinsics | None = None):
+        self._detector = detector
+        self._warm = open_detector(detector, probe)
+
+    @property
+    def names(self) -> list[str]:
+        return self._warm.names  # waits for the load; raises its GarageError
+
+    def scoring(self) -> dict[str, tuple[str, ...]]:
+        return self._detector.scoring()
+
+    def detect(self, frames, intrinsics=None) -> list[list[Detections]]:
+        batch = as_batch(frames)
+        try:
+            for rgb, cam in zip(batch, per_frame(intrinsics, len(batch))):
+                self._warm.submit(rgb, cam)
+            return [self._warm.result() for _ in batch]
+        except BaseException:
+            self._warm.drain()  # the next caller starts in step
+            raise
 
 
 @atexit.register
