@@ -30,7 +30,6 @@ def machine(monkeypatch):
         monkeypatch.setenv(var, "unset-by-test")
         monkeypatch.delenv(var)
     monkeypatch.setattr(device, "_DEVICE", {})
-    monkeypatch.setattr(device, "_kind", None)
 
     def make(*files: str):
         monkeypatch.setattr(icd.glob, "glob", lambda pattern: sorted(f for f in files

@@ -170,6 +170,7 @@ def test_the_prescreen_and_the_job_share_one_warm_detector(monkeypatch):
     warm = STATE.detector
     assert warm is not None and _worker_children() == [warm.pid]
     assert open_detector(full) is warm and warm.names == full.names  # the job's detector: the same child
+    assert [d.model for d in cheap.detect([rgb])[0]] == cheap.names  # the pre-screen's own again, after the job's
     assert _worker_children() == [warm.pid]
     ours = full.cheap(0.5).detect([rgb])[0]  # the same detections as in-process
     for a, b in zip(found, ours):

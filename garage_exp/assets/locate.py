@@ -155,7 +155,7 @@ def fetch_models(names: tuple[str, ...] = MODEL_WEIGHTS) -> Path:
 
     target = fetched_models_dir()
     target.mkdir(parents=True, exist_ok=True)
-    prepare_environment(offline=True)  # config dir and fonts under the cache; downloads still go through (explicit call)
+    prepare_environment(offline=True)  # config dir and fonts under the cache; downloads still go (an explicit call)
     from ultralytics.utils.downloads import attempt_download_asset
 
     for name in names:

