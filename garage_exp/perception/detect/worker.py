@@ -61,10 +61,14 @@ class InlineDetector:
     def load(self, detector: Detector, probe: Intrinsics | None = None) -> None:
         """Use `detector` from now on (checked on the probe), as `DetectorProcess.load`; the same one is kept."""
         self.drain()
-        if self._detector is None or detector != self._detector:
+        if detector != self._detector:
             self._detector = replace(detector, threads=self._threads)
             self._detector.check(probe)
             self.names = self._detector.names
+
+    @property
+    def loaded(self) -> Detector | None:
+        return self._detector
 
     def submit(self, rgb: np.ndarray, intrinsics: Intrinsics | None = None) -> None:
         self._queue.append((rgb, intrinsics))
@@ -120,6 +124,11 @@ class DetectorProcess:
             return
         self._spec, self._names, self._loading = (detector, probe), None, True
         self._send(("load", self._spec))
+
+    @property
+    def loaded(self) -> Detector | None:
+        """The detector last asked for (`load`)."""
+        return self._spec[0] if self._spec is not None else None
 
     @property
     def names(self) -> list[str]:
@@ -370,7 +379,8 @@ class WarmDetector:
 
     def detect(self, frames, intrinsics=None) -> list[list[Detections]]:
         batch = as_batch(frames)
-        self._warm.load(self._detector, self._probe)  # a job's preflight may have loaded its own since: a no-op if not
+        if self._warm.loaded != self._detector:  # a job's preflight loaded its own since
+            self._warm.load(self._detector, self._probe)
         try:
             for rgb, cam in zip(batch, per_frame(intrinsics, len(batch))):
                 self._warm.submit(rgb, cam)
