@@ -130,9 +130,8 @@ def check_slots(cfg: DictConfig) -> None:
 
 def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
-    on the first problem. A dry run checks the config and the plan; a real job also the detector weights,
-    the vehicle assets, and builds its scene description (garage, case, palette, modifiers, cameras) - all
-    but rendering, in ~0.1 s. Then the disk space the job will write, against the free space unless
+    on the first problem: the config, the plan, the vehicle assets, and the scene description (garage, case,
+    palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also the detector weights. Then the disk space the job will write, against the free space unless
     check_space is false (a sweep adds up all its jobs' estimates and checks them once)."""
     from garage_exp.core.schema_check import check_schema
 
@@ -140,19 +139,22 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     plan_path = resolve_plan_path(cfg.plan)
     prepared = PreparedJob(plan_path, classified_plan(plan_path))
     check_config(cfg)
+    import numpy as np
+
+    from garage_exp.scenario.assemble import build_scene
+
     if not cfg.dry_run:
-        import numpy as np
-
         from garage_exp.perception.detect.detector import model_format, resolve_model
-        from garage_exp.scenario.assemble import build_scene
-
         from garage_exp.perception.slots.detector import check_slot_weights
 
         for entry in cfg.detector.models:
             model_format(resolve_model(entry, cfg.detector.registry))  # missing weights fail here (nothing downloaded)
         check_slot_weights(cfg.slot_detector)
-        prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
-                                                     np.random.default_rng(int(cfg.seed)))
+    # A dry run builds the scene description too (~0.1 s, no rendering): it refuses every job the real run would
+    # refuse at scene build (placements, overlaps, reach), in the same words. It keeps none of it.
+    scene, setup = build_scene(cfg, prepared.classified, _library(), np.random.default_rng(int(cfg.seed)))
+    if not cfg.dry_run:
+        prepared.scene, prepared.setup = scene, setup
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig
