@@ -198,7 +198,7 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
     records = [episode(env, [1.0, 0.0])[1]["episode_verdict"], episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
     assert [r["testable"] for r in records] == [True, False]
     root = tmp_path / "suite"
-    files = write_suite(env.job, records, root, env.movers, 10 / 3.6, per_band=2)
+    files = write_suite(env.job, records, root, env.movers, per_band=2)
     manifest = pd.read_csv(files[0])
     assert len(manifest) == 1 and manifest.episode.tolist() == [0] and (root / "README.md").is_file()
     name = manifest.scenario[0]
@@ -386,7 +386,8 @@ def test_pull_out_bounds_are_checked_before_an_episode(store):
     with pytest.raises(GarageError) as beyond:
         PullOutEnv(overrides=[*base, "gym.movers=[{actor: car, key: gap, low: -6, high: 0.2}]"])
     assert str(beyond.value).startswith("gym.movers.0.low: car.gap cannot be -6 (case.actors.car.gap: gap -6 m")
-    with pytest.raises(GarageError, match=r"^gym.movers.0: car moving its gap between -3 and 0.2 runs into ego"):
+    with pytest.raises(GarageError, match=r"^gym.movers.0.low: car.gap at -3 puts ego and car in one another \(the "
+                                          r"ego's distance 3\): it fits to -2\.\d+ \(give low: -2\.\d+, or null"):
         PullOutEnv(overrides=[*base, "gym.movers=[{actor: car, key: gap, low: -3, high: 0.2}]"])
 
 

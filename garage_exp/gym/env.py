@@ -166,15 +166,7 @@ class StepOutEnv(gymnasium.Env):
         return self._observation(), {}
 
     def step(self, action):
-        action = np.asarray(action, dtype=float).reshape(-1)
-        self.k += 1
-        for i, m in enumerate(self.movers):
-            if m.once:
-                if self.k == 1:
-                    self.values[m.name] = limits.placed_once(m, action[i])
-            else:
-                self.values[m.name], self.velocity[m.name] = limits.advance(
-                    m, self.values[m.name], self.velocity[m.name], action[i], self.dt)
+        self.move(action)
         ego_pose, poses = self._poses(self.drive[self.k])
         row = self._frame(ego_pose, poses)
         self.frames.append(row)
@@ -198,6 +190,19 @@ class StepOutEnv(gymnasium.Env):
         self.ret += r
         self.last = row
         return self._observation(), float(r), bool(terminated), False, info
+
+    def move(self, action) -> None:
+        """The step's moves, before its frame: the next frame of the drive, and each mover's value as the action
+        asks, within its limits (limits.py)."""
+        action = np.asarray(action, dtype=float).reshape(-1)
+        self.k += 1
+        for i, m in enumerate(self.movers):
+            if m.once:
+                if self.k == 1:
+                    self.values[m.name] = limits.placed_once(m, action[i])
+            else:
+                self.values[m.name], self.velocity[m.name] = limits.advance(
+                    m, self.values[m.name], self.velocity[m.name], action[i], self.dt)
 
     def _poses(self, drive: float, moved: dict[str, float] | None = None):
         """(the ego's pose, the others') with the ego at `drive` and the movers at `moved` (default: this step's)."""
