@@ -26,14 +26,18 @@ OVERLAP = ["case=stepout", "case.actors.child.offset=0.25", "case.motion.end=19"
 EPISODES = 40
 
 
-@pytest.fixture(scope="module")
-def env(tmp_path_factory):
+def make_env(tmp_path_factory, *overrides):
     """The step-out environment (no episode is rendered here: its moves and poses only)."""
     require("vehicles", "models")
     from garage_exp.gym.env import StepOutEnv, compose
 
     uri = f"sqlite:///{tmp_path_factory.mktemp('env') / 'mlflow.db'}"
-    return StepOutEnv(compose(["case.motion.start=14", "case.motion.step=1.0", f"tracking.uri={uri}"]))
+    return StepOutEnv(compose(["case.motion.start=14", "case.motion.step=1.0", f"tracking.uri={uri}", *overrides]))
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    return make_env(tmp_path_factory)  # the default movers: the child's out each step, its offset once
 
 
 def play(env, actions: list) -> dict:
@@ -79,13 +83,19 @@ def test_the_adversarys_offset_stops_where_a_job_refuses(env):
             rerun(env, record)
 
 
-def test_every_random_episode_reruns_as_a_job(env):
+@pytest.mark.parametrize("movers", ["default", "offset only"])
+def test_every_random_episode_reruns_as_a_job(env, tmp_path_factory, movers):
     """Many episodes of random actions (and the extremes: full speed out, back, the offset at either bound),
-    each of random length, exported and built as a job: every frame places every actor as the environment did."""
+    each of random length, exported and built as a job: every frame places every actor as the environment did.
+    With the offset its only mover, the environment holds the child at its own `out` while the case's co-motion
+    would walk it out: the export holds it there too."""
+    if movers != "default":
+        env = make_env(tmp_path_factory, "gym.movers=[{actor: child, key: offset, low: null, high: null, once: true}]")
     rng = np.random.default_rng(31)
     n = len(env.movers)
     episodes = [[np.full(n, a)] * (len(env.drive) - 1) for a in (-1.0, 1.0)]
-    episodes += [[np.array([1.0, -1.0])] * (len(env.drive) - 1), [np.array([-1.0, 1.0])] * (len(env.drive) - 1)]
+    if n == 2:
+        episodes += [[np.array([1.0, -1.0])] * (len(env.drive) - 1), [np.array([-1.0, 1.0])] * (len(env.drive) - 1)]
     for _ in range(EPISODES):
         length = int(rng.integers(1, len(env.drive)))
         episodes.append(list(rng.uniform(-1.0, 1.0, size=(length, n))))

@@ -41,6 +41,10 @@ def scenario_values(job: DictConfig, record: dict, movers) -> dict:
             case["actors"][m.actor][m.key] = round(float(seq[0]), 6)
         else:
             along[m.actor] = {"key": m.key, "values": [round(float(v), 6) for v in seq]}
+    for name, spec in (motion.get("along") or {}).items():
+        if name not in along:  # the environment moves only its movers: it held this actor at its own value
+            held = float(case["actors"][name][spec["key"]])
+            along[name] = {"key": spec["key"], "values": [held] * len(record["ego"])}
     if "along" in motion or along:
         motion["along"] = along
     # One variant: the episode's (its shown actors and target); its `set` values are already the actors' own.

@@ -76,6 +76,10 @@ def resolve_movers(movers, actors: dict, movable: tuple[str, ...]) -> list[Mover
         if (m.actor, m.key) in seen:
             raise GarageError(f"{m.actor}.{m.key} is moved twice", where)
         seen.add((m.actor, m.key))
+        stepped = [n.key for n in out if n.actor == m.actor and not n.once]
+        if stepped and not m.once:  # a scenario moves an actor along by one key (case.motion.along.<actor>)
+            raise GarageError(f"{m.actor} already moves its {stepped[0]} each step: an exported episode moves an "
+                              f"actor by one key; give {m.key} once: true", where + ".once")
         body = physical(actors[m.actor])
         if not body:
             raise GarageError(f"{m.actor} is a {actors[m.actor].kind}: it cannot move by itself", where + ".actor")
