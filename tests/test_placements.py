@@ -219,6 +219,36 @@ def test_an_infeasible_jobs_return_prunes_its_trial():
     assert outcome({"error": "RuntimeError: boom"}, "late").state == TrialState.FAIL  # other errors still fail
 
 
+def test_the_prescreen_leaves_an_overlapping_trial_to_its_job(tmp_path, monkeypatch, caplog):
+    """The pre-screen's own preflight meets the overlap first: it hands the trial to its job (which refuses it
+    before rendering, and the trial is pruned), without a "pre-screen failed" warning."""
+    from types import SimpleNamespace
+
+    from garage_exp.search import prescreen
+    from garage_exp.search import space as space_mod
+    from garage_exp.search import study as study_mod
+    from garage_exp.search.loop import SearchLoop
+
+    cfg = compose_cfg("plan=tiny", f"search.storage=sqlite:///{tmp_path / 'optuna.db'}", "search.prescreen.level=truth")
+    space = space_mod.build(["light.intensity=interval(0.1,1.0)"], cfg, {})
+
+    def look(_cfg):
+        raise Infeasible("actors child and car_right overlap", "case.actors", ("child", "car_right"))
+
+    monkeypatch.setattr(prescreen, "look", look)
+    launched = []
+
+    def launch(batch, idx):
+        launched.append(idx)
+        return [SimpleNamespace(return_value={"error": "f.yaml: case.actors: actors child and car_right overlap",
+                                              "infeasible": True})]
+
+    study = study_mod.open_study(cfg.search, "s", 0, space.params)
+    SearchLoop(cfg.search, space, study, launch, 2, compose=lambda overrides: cfg).run()
+    assert launched == [0, 1] and "pre-screen failed" not in caplog.text
+    assert all(t.state == TrialState.PRUNED and t.user_attrs["placement"] for t in study.trials)
+
+
 def test_the_overrides_at_fault_are_those_that_place_the_actors():
     from garage_exp.search.space import at_fault
 
