@@ -160,7 +160,9 @@ class StepOutEnv(gymnasium.Env):
         super().reset(seed=seed)
         self._open()
         self._state_reset()
-        self.sensor_rng = np.random.default_rng(int(self.np_random.integers(2**63)))
+        # The sensor's noise as a job draws it (run/frames.py: seed + 1, frame after frame), so that an exported
+        # episode, rerun as a job, sees the same noisy frames and comes to its own verdict.
+        self.sensor_rng = np.random.default_rng(int(self.job.seed) + 1)
         ego_pose, poses = self._poses(self.drive[0])
         self.last["range"] = self._range(ego_pose, poses)
         return self._observation(), {}
