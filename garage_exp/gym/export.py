@@ -24,6 +24,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.schema import GROUPS
+from garage_exp.results.late import confirmed_text
 from garage_exp.search.suite import DEFAULT_BANDS, NOT_SCENARIO, band_of
 
 
@@ -58,8 +59,8 @@ def scenario_yaml(job: DictConfig, name: str, record: dict, movers) -> str:
     defaults = [{f"override /{group}": level} for group, level in choices.items()] + ["_self_"]
     moves = "; ".join(f"{n}: {', '.join(f'{v:.3f}' for v in seq)}" for n, seq in record["values"].items())
     head = (f"# @package _global_\n# Scenario {name}: an adversary's episode, {'late' if record['late'] else 'in time'}"
-            f" (critical distance {record['critical_distance']:.2f} m, confirmed at "
-            f"{record['detection_distance']:.2f} m), difficulty {record['difficulty']:.3f} over "
+            f" (critical distance {record['critical_distance']:.2f} m, {confirmed_text(record['detection_distance'], 2)}"
+            f"), difficulty {record['difficulty']:.3f} over "
             f"{record['fair_frames']} fair frame(s).\n"
             f"# Per frame: ego {', '.join(f'{v:g}' for v in record['ego'])}; {moves}\n"
             + "# Rerun: python -m garage_exp --config-dir <this suite's dir> +scenario=" + name + "\n")
@@ -121,5 +122,6 @@ def index_text(table: pd.DataFrame, episodes: int, per_band: int) -> str:
              "| scenario | band | difficulty | late | confirmed at (m) | critical (m) |", "|---|---|---|---|---|---|"]
     for r in table.itertuples():
         lines.append(f"| {r.scenario} | {r.band} | {r.difficulty:.3f} | {'yes' if r.late else 'no'} | "
-                     f"{r.detection_distance:.1f} | {r.critical_distance:.1f} |")
+                     f"{'never' if pd.isna(r.detection_distance) else f'{r.detection_distance:.1f}'} | "
+                     f"{r.critical_distance:.1f} |")
     return "\n".join(lines) + "\n"

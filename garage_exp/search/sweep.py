@@ -14,6 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 from garage_exp.core.errors import GarageError
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
+from garage_exp.search.objectives import objective
 
 log = logging.getLogger("garage_exp")
 SWEEPER = "hydra_plugins.garage_search.sweeper.SearchSweeper"
@@ -224,8 +225,9 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
         run_id = trial.user_attrs.get("run_id")
         if run_id:
             tracking.retry(lambda r=run_id, k=rank: mlc.set_tag(r, "search_rank", str(k)))
-    if best:
-        tracking.retry(lambda: mlc.log_metric(parent_run_id, "best_difficulty", float(best[0].values[0])))
+    if best:  # named by the objective: best_difficulty, best_lateness, best_slot_miss
+        metric = f"best_{objective(config.search.objective).metric}"
+        tracking.retry(lambda: mlc.log_metric(parent_run_id, metric, float(best[0].values[0])))
 
 
 def summary(result: dict, out_dir: Path) -> str:
