@@ -440,9 +440,9 @@ def test_a_suite_readme_says_never_for_a_target_never_confirmed(tmp_path):
     from garage_exp.gym.export import index_text
 
     table = pd.DataFrame([{"scenario": "hard_1", "band": "hard", "difficulty": 1.0, "late": True,
-                           "detection_distance": math.nan, "critical_distance": 5.0, "exact": True},
+                           "detection_distance": math.nan, "critical_distance": 5.0},
                           {"scenario": "easy_1", "band": "easy", "difficulty": 0.1, "late": False,
-                           "detection_distance": 9.04, "critical_distance": 5.0, "exact": True}])
+                           "detection_distance": 9.04, "critical_distance": 5.0}])
     text = index_text(table, 2, 1)
-    assert "| hard_1 | hard | 1.000 | yes | never | 5.0 | yes |" in text
-    assert "| easy_1 | easy | 0.100 | no | 9.0 | 5.0 | yes |" in text and "nan" not in text
+    assert "| hard_1 | hard | 1.000 | yes | never | 5.0 |" in text  # (every export is exact: no `exact` column)
+    assert "| easy_1 | easy | 0.100 | no | 9.0 | 5.0 |" in text and "nan" not in text
