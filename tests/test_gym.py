@@ -42,11 +42,12 @@ def env(store):
 
 
 def episode(env, action, seed=0):
-    """One episode with a fixed action: (rewards, the final info)."""
+    """One episode with a fixed action (or one drawn each step by `action()`): (rewards, the final info)."""
     env.reset(seed=seed)
     rewards, done, info = [], False, {}
     while not done:
-        _, r, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32))
+        _, r, terminated, truncated, info = env.step(np.asarray(action() if callable(action) else action,
+                                                                dtype=np.float32))
         rewards.append(r)
         done = terminated or truncated
     return rewards, info
@@ -195,7 +196,9 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
 
     from garage_exp.gym.export import write_suite
 
-    records = [episode(env, [1.0, 0.0])[1]["episode_verdict"], episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
+    rng = np.random.default_rng(3)  # a child running out at uneven speeds, from anywhere in its gap
+    records = [episode(env, lambda: rng.uniform([0.3, -1.0], [1.0, 1.0]))[1]["episode_verdict"],
+               episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
     assert [r["testable"] for r in records] == [True, False]
     root = tmp_path / "suite"
     files = write_suite(env.job, records, root, env.movers, per_band=2)
@@ -210,6 +213,10 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     table = pd.read_csv(tmp_path / "run" / "frames.csv")
     assert table.position.tolist() == records[0]["ego"]  # the episode's drive, frame for frame
+    # The same frames, the same noise, the same detections: the episode's own confidences and verdict (issue 31).
+    assert table.composite.tolist() == pytest.approx(records[0]["confidence"], abs=1e-6)
+    verdict = pd.read_csv(tmp_path / "run" / "late.csv").iloc[0]
+    assert (bool(verdict.late), bool(verdict.testable)) == (records[0]["late"], records[0]["testable"])
 
 
 @pytest.mark.slow

@@ -37,6 +37,7 @@ from garage_exp.gym import limits, reward
 # Plain bounds of the observation's state entries (time, speeds, distances): wide enough for any garage.
 FAR = 500.0
 YAW_STEP = 2.0  # degrees between the headings a moved yaw's range is checked at
+EXPORTED = 6  # decimals of a moved value: the actors stand where an exported scenario, rerun, puts them
 
 
 def job_config(cfg: DictConfig) -> DictConfig:
@@ -201,10 +202,11 @@ class StepOutEnv(gymnasium.Env):
         for i, m in enumerate(self.movers):
             if m.once:
                 if self.k == 1:
-                    self.values[m.name] = limits.placed_once(m, action[i])
+                    self.values[m.name] = round(limits.placed_once(m, action[i]), EXPORTED)
             else:
-                self.values[m.name], self.velocity[m.name] = limits.advance(
-                    m, self.values[m.name], self.velocity[m.name], action[i], self.dt)
+                value, self.velocity[m.name] = limits.advance(m, self.values[m.name], self.velocity[m.name],
+                                                              action[i], self.dt)
+                self.values[m.name] = round(value, EXPORTED)
 
     def _poses(self, drive: float, moved: dict[str, float] | None = None):
         """(the ego's pose, the others') with the ego at `drive` and the movers at `moved` (default: this step's)."""
