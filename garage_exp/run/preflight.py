@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import PLANS_DIR
 from garage_exp.core.state import STATE
+from garage_exp.scenario.fits import hint
 
 
 @dataclass
@@ -29,6 +30,7 @@ class PreparedJob:
     setup: Any = None  # garage_exp.scenario.CaseSetup; None for a dry run
     bytes_out: int = 0  # estimated bytes the job writes under its output dir
     bytes_store: int = 0  # estimated bytes into a local sqlite store and its artifacts (0 for a server)
+    detector: Any = None  # garage_exp.perception.detect.Detector, checked (every entry loaded); None for a dry run
 
 
 def resolve_plan_path(plan_cfg) -> Path:
@@ -133,8 +135,9 @@ def check_slots(cfg: DictConfig) -> None:
 def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem: the config, the plan, the vehicle assets, and the scene description (garage, case,
-    palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also the detector weights. Then the disk space the job will write, against the free space unless
-    check_space is false (a sweep adds up all its jobs' estimates and checks them once)."""
+    palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also the detector weights. Then the
+    disk space the job will write, against the free space unless check_space is false (a sweep adds up all its
+    jobs' estimates and checks them once)."""
     from garage_exp.core.schema_check import check_schema
 
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
@@ -145,18 +148,25 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
 
     from garage_exp.scenario.assemble import build_scene
 
+    detector = None
     if not cfg.dry_run:
-        from garage_exp.perception.detect.detector import model_format, resolve_model
+        from garage_exp.perception.detect import build_detector
         from garage_exp.perception.slots.detector import check_slot_weights
 
-        for entry in cfg.detector.models:
-            model_format(resolve_model(entry, cfg.detector.registry))  # missing weights fail here (nothing downloaded)
+        detector = build_detector(cfg.detector)  # a missing file or unknown format fails here (nothing downloaded)
         check_slot_weights(cfg.slot_detector)
     # A dry run builds the scene description too (~0.1 s, no rendering): it refuses every job the real run would
     # refuse at scene build (placements, overlaps, reach), in the same words. It keeps none of it.
-    scene, setup = build_scene(cfg, prepared.classified, _library(), np.random.default_rng(int(cfg.seed)))
+    try:
+        scene, setup = build_scene(cfg, prepared.classified, _library(), np.random.default_rng(int(cfg.seed)))
+    except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
+        where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+        if not where:
+            raise
+        raise exc.again(f"{exc}; {where}", None) from None
     if not cfg.dry_run:
         prepared.scene, prepared.setup = scene, setup
+        prepared.detector = check_loads(detector, prepared.scene)
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig
@@ -166,6 +176,17 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
         out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
         check_free([(out, prepared.bytes_out), (store_dir(cfg), prepared.bytes_store)], "this job")
     return prepared
+
+
+def check_loads(detector, scene):
+    """Every entry of the detector loads and answers a probe frame of the job's first camera, in the process
+    that will detect (the detector's child, kept for the job): a file that is not a model is refused before
+    anything is written. The same detector is checked once per process."""
+    from garage_exp.perception.detect import Intrinsics
+    from garage_exp.perception.detect.worker import open_detector
+
+    open_detector(detector, Intrinsics.of(scene.cameras[0])).names  # noqa: B018 - waits; raises the load's error
+    return detector
 
 
 def store_dir(cfg: DictConfig) -> Path:
