@@ -216,7 +216,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
                 run.log_artifact(path, "frames")
     if dataset is not None:
         run.log_artifact(dataset.finish())
-    print(frame_table.one_line(cfg, summary, len(table)))
+    print(frame_table.one_line(cfg, summary, [cam.name for cam in scene.cameras]))
     if "late_testable" in summary:
         print(late.line(summary))
     return summary
