@@ -125,17 +125,12 @@ def test_sapien_backend_has_every_member_of_the_interface():
 
 def _sweep_jobs(overrides: list[str]):
     """The composed config of every job a `-m` command would run, via Hydra's own sweeper."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
+    from conftest import compose_cfg, hydra_loader
 
-    import garage_exp.cli.app  # noqa: F401  the schema and resolvers
-    from garage_exp.cli.app import quote_numeric_choices
     from garage_exp.cli.callbacks import sweep_jobs
 
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        config = compose("config", overrides=quote_numeric_choices(overrides), return_hydra_config=True)
-        loader = GlobalHydra.instance().config_loader()
+    with hydra_loader() as loader:
+        config = compose_cfg(*overrides, hydra=True)
         return [loader.load_sweep_config(config, job) for job in sweep_jobs(config)]
 
 

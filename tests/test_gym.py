@@ -242,19 +242,25 @@ def test_training_through_the_command_line(store, tmp_path):
     assert (tmp_path / "export" / "suite" / "README.md").is_file()
 
 
-def test_gym_config_keeps_the_experiments_groups():
-    """conf/gym.yaml lists conf/config.yaml's groups (its own case aside): a group added there is added here."""
-    import yaml
+def test_gym_config_is_the_experiments_with_the_step_out_case():
+    """conf/gym.yaml composes conf/config.yaml (a group or a default added there is here too), typed by GymConf,
+    with the step-out case; an experiment's override works the same in both."""
+    from conftest import compose_cfg
+    from omegaconf import OmegaConf
 
-    from conftest import ROOT
+    from garage_exp.gym.schema import GymConf
 
-    def groups(name):
-        d = yaml.safe_load((ROOT / "conf" / name).read_text())["defaults"]
-        return {k: v for item in d if isinstance(item, dict) for k, v in item.items()}
-
-    main, gym = groups("config.yaml"), groups("gym.yaml")
-    assert {k: v for k, v in main.items() if k != "case"} == {k: v for k, v in gym.items() if k != "case"}
-    assert gym["case"] == "stepout"
+    gym = compose_cfg("light=dim", config="gym", hydra=True)
+    job = compose_cfg("light=dim", "case=stepout", hydra=True)
+    assert OmegaConf.get_type(gym) is GymConf and gym.mode == "train" and gym.tracking.experiment == "garage_gym"
+    choices = {k: v for k, v in gym.hydra.runtime.choices.items() if not k.startswith(("hydra", "config_schema"))}
+    assert choices == {k: v for k, v in job.hydra.runtime.choices.items()
+                       if not k.startswith(("hydra", "config_schema"))}
+    assert choices["case"] == "stepout" and choices["light"] == "dim"
+    mine = {k: v for k, v in OmegaConf.to_container(gym).items() if k not in ("hydra", "gym", "mode", "tracking")}
+    assert mine == {k: v for k, v in OmegaConf.to_container(job).items() if k not in ("hydra", "tracking")}
+    # an adversary is no sweep of jobs: the experiment's sweep callback is not run for it
+    assert gym.hydra.callbacks.mlflow_sweep._target_ == "hydra.experimental.callback.Callback"
 
 
 @pytest.mark.slow
