@@ -276,3 +276,24 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None, entry=No
         root.handlers[:] = handlers  # Hydra's job logging configured the root logger for the call
         root.setLevel(level)
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
+
+
+# --- a signal in the middle of a command, in this process -----------------------------------------------------------
+def sigterm_here(*args, **kwargs):
+    """Stands in for a command's long part (a training, a step, a scoring): SIGTERM to this process, as a
+    scheduler's time limit sends it. The command's shell turns it into an exception right here (Terminated)."""
+    import signal
+    import time
+
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(30)  # the handler raises before this ends
+    raise AssertionError("SIGTERM was not handled")
+
+
+def run_statuses(uri: str, experiment: str) -> list[str]:
+    """The status of every run in the store's experiment."""
+    from garage_exp.tracking import runs as tracking
+
+    mlc = tracking.client(uri)
+    exp = mlc.get_experiment_by_name(experiment)
+    return [r.info.status for r in mlc.search_runs([exp.experiment_id])] if exp else []

@@ -242,6 +242,32 @@ def test_training_through_the_command_line(store, tmp_path):
     assert (tmp_path / "export" / "suite" / "README.md").is_file()
 
 
+def test_sigterm_ends_the_adversary_run_killed(store, tmp_path, monkeypatch):
+    """SIGTERM during the training: the gym's MLflow run ends KILLED, the command exits 143 with one line (a bare
+    traceback before). The environment and the training are stand-ins: the signal, not the training, is tested."""
+    from conftest import run_statuses, seed_store, sigterm_here
+
+    from garage_exp.gym import env as env_module
+    from garage_exp.gym import train as train_module
+    from garage_exp.gym.app import cli
+
+    class NoEnv:
+        def __init__(self, cfg):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(env_module, "StepOutEnv", NoEnv)
+    monkeypatch.setattr(train_module, "train", sigterm_here)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    seed_store([f"tracking.uri={uri}"], tmp_path)
+    r = run_in_process([*FAST, f"tracking.uri={uri}", f"hydra.run.dir={tmp_path / 'run'}"], tmp_path, entry=cli)
+    assert r.returncode == 143, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines()[-1] == "garage_exp.gym: terminated (SIGTERM)"
+    assert run_statuses(uri, "garage_gym") == ["KILLED"]
+
+
 def test_gym_config_is_the_experiments_with_the_step_out_case():
     """conf/gym.yaml composes conf/config.yaml (a group or a default added there is here too), typed by GymConf,
     with the step-out case; an experiment's override works the same in both."""

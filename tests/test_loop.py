@@ -126,3 +126,44 @@ def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch
     with pytest.raises(GarageError, match=r"base_train.yaml changed\); give this run another dir"):
         Loop(cfg).train("D0", **kw)
     assert len(ran) == 3 and capsys.readouterr().out == ""
+
+
+def test_sigterm_stops_the_loop_and_its_running_step(tmp_path, monkeypatch):
+    """SIGTERM to the loop: exit 143 with one line saying how to go on (the loop had no handler: it died at once);
+    the running step, a child process, gets the SIGTERM too and stops as its command does (its run KILLED), instead
+    of being killed with its run left RUNNING."""
+    import sys
+
+    from garage_exp.loop import steps
+    from garage_exp.loop.app import cli
+
+    child = tmp_path / "child.py"
+    child.write_text("import signal, sys, time\n"
+                     "signal.signal(signal.SIGTERM, lambda s, f: (open(sys.argv[1], 'w').write(str(s)), sys.exit(143)))\n"
+                     "open(sys.argv[2], 'w').write('up')\n"
+                     "time.sleep(60)\n")
+    got, up = tmp_path / "got", tmp_path / "up"
+
+    def step(cmd, log):  # a step that runs, then the loop gets SIGTERM
+        import threading
+
+        def kill_when_up():
+            import os
+            import signal
+            import time
+
+            while not up.exists():
+                time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        threading.Thread(target=kill_when_up, daemon=True).start()
+        real_run([sys.executable, str(child), str(got), str(up)], log)
+
+    real_run = steps.run
+    monkeypatch.setattr(steps, "run", step)
+    r = run_in_process([f"dir={tmp_path / 'loop'}"], tmp_path, entry=cli)
+    assert r.returncode == 143, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines()[-1] == ("garage_exp.loop: terminated (SIGTERM); rerun the same command to go "
+                                                  "on where it stopped")
+    assert got.read_text() == "15"  # the step got SIGTERM and finished its handler
+

@@ -300,3 +300,20 @@ def test_an_unknown_base_is_named_once(tmp_path):
     with pytest.raises(GarageError) as caught:
         load_base(str(tmp_path / "weights.txt"), None)
     assert str(caught.value).startswith("base: ") and "base: base:" not in str(caught.value)
+
+
+def test_sigterm_ends_the_training_run_killed(tmp_path, monkeypatch, mlflow_uri):
+    """SIGTERM (a scheduler's limit, the loop stopped) during the training: its MLflow run ends KILLED, not RUNNING,
+    and the command exits 143 with one line, as `python -m garage_exp` does (it raised a bare traceback before)."""
+    from conftest import run_statuses, seed_store, sigterm_here
+
+    from garage_exp.train import fit
+
+    monkeypatch.setattr(fit, "fit", sigterm_here)
+    sets = [str(write_dataset(tmp_path / f"scenario{k}")) for k in range(2)]
+    seed_store([f"tracking.uri={mlflow_uri}"], tmp_path)
+    r = run_train([f"data=[{','.join(sets)}]", "val_fraction=0.5", "epochs=1", "imgsz=64"], tmp_path, mlflow_uri)
+    assert r.returncode == 143, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines()[-1] == "garage_exp.train: terminated (SIGTERM)"
+    assert run_statuses(mlflow_uri, "garage_train") == ["KILLED"]
+
