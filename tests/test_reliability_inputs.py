@@ -23,7 +23,7 @@ CORPUS = Path(__file__).resolve().parent / "bad_inputs"
 CASES = yaml.safe_load((CORPUS / "cases.yaml").read_text())
 BY_ID = {c["id"]: c for c in CASES}
 # `command`: which command an entry runs (default the main one), as its cli's "module:function" ("" = garage_exp's).
-COMMANDS = {"garage_exp": "", "verify": "garage_exp.verify.app:cli"}
+COMMANDS = {"garage_exp": "", **{c: f"garage_exp.{c}.app:cli" for c in ("gym", "train", "loop", "verify")}}
 
 
 def test_corpus_is_large_and_well_formed():
