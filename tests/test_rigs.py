@@ -50,10 +50,15 @@ def test_a_rigs_headline_counts_and_scores_the_same_camera():
                     for s in range(7) for cam in ("front", "rear", "left", "right")])
     names = SimpleNamespace(name="x")
     cfg = SimpleNamespace(case=SimpleNamespace(name="slots"), light=names, sensor=names, plan=names)
-    line = one_line(cfg, summarise(table, 0.5, primary="front"), ["front", "rear", "left", "right"])
+    rig = ["front", "rear", "left", "right"]
+    line = one_line(cfg, summarise(table, 0.5, primary="front"), rig, "front")
     assert ": front camera (the primary of 4; cameras.csv scores each), 7 frames, " in line
     assert line.endswith("recall 0.00, difficulty 1.000")
-    single = one_line(cfg, summarise(table[table.camera == "rear"], 0.5, primary="rear"), ["rear"])
+    # a case that names its camera (case.camera: rear, as cpra does) is headlined by that camera's frames
+    named = one_line(cfg, summarise(table, 0.5, primary="rear"), rig, "rear")
+    assert ": rear camera (the primary of 4; cameras.csv scores each), 7 frames, " in named
+    assert named.endswith("recall 1.00, difficulty 0.100")
+    single = one_line(cfg, summarise(table[table.camera == "rear"], 0.5, primary="rear"), ["rear"], "rear")
     assert single.endswith(": 7 frames, confidence mean 0.900 min 0.900, recall 1.00, difficulty 0.100")
 
 

@@ -244,20 +244,27 @@ def unmatched(ours, theirs, box_px: float, score_tol: float, above: float) -> in
 
 @pytest.mark.slow
 def test_an_onnx_export_of_the_trained_model_detects_as_its_pt(trained, tmp_path):
-    """The trained project model exported by ultralytics to ONNX (run through onnxruntime) gives the same
-    detections as its .pt on the rendered frames it was trained on: every detection of either within 0.5 px and
-    a confidence within 0.002 of one of the other's, same class (docs/perception.md states this tolerance)."""
+    """The trained project model exported by ultralytics to ONNX gives the same detections as its .pt: on the
+    rendered frames it was trained on, every candidate detection before non-maximum suppression (all 84 x N
+    outputs: box centre and size in pixels, 80 class scores) agrees within 0.01 px and 1e-4 (docs/perception.md
+    states this tolerance), and the ONNX file runs as a detector entry. After one epoch every candidate scores
+    near its prior (~1e-4), so which of the tied boxes NMS keeps is arbitrary: the candidates are compared, not
+    the kept boxes."""
     import numpy as np
+    import onnxruntime
+    import torch
     from PIL import Image
     from ultralytics import YOLO
+    from ultralytics.data.augment import LetterBox
 
     from garage_exp.perception.detect import Detector, resolve
 
     tmp, uri, jobs, _ = trained
     pt = tmp_path / "trained.pt"
     shutil.copyfile(resolve(f"models:/{NAME}/1", uri), pt)
-    onnx = YOLO(str(pt)).export(format="onnx", imgsz=128, simplify=False)
-    images = sorted((jobs[0] / "dataset" / "images").glob("*.png")) + sorted((jobs[1] / "dataset" / "images").glob("*.png"))
+    # dynamic: the graph takes the .pt's rectangular (letterboxed to a multiple of 32) input, not a fixed square
+    onnx = YOLO(str(pt)).export(format="onnx", imgsz=128, dynamic=True, simplify=False)
+    images = sorted(p for job in jobs for p in (job / "dataset" / "images").glob("*.png"))
     frames = [np.asarray(Image.open(p).convert("RGB")) for p in images]
     a = Detector([pt], conf=0.01, imgsz=128, device="cpu").detect(frames)
     b = Detector([onnx], conf=0.01, imgsz=128, device="cpu").detect(frames)

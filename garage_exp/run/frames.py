@@ -25,8 +25,10 @@ from garage_exp.results import table as frame_table
 from garage_exp.scenario import CaseSetup, Shot
 from garage_exp.scenario.assemble import HIDDEN
 from garage_exp.scenario.build import moves_ego
+from garage_exp.scenario.fits import hint
 from garage_exp.run.slots import SlotFrames, slot_line
 from garage_exp.run.slots import wanted as slot_frames_wanted
+from garage_exp.scene.camera import scored_camera
 from garage_exp.scene.description import Scene
 
 log = logging.getLogger("garage_exp")
@@ -188,7 +190,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
         table = pd.DataFrame(rows)
         table.to_csv(table_path, index=False)
         run.log_artifact(table_path)  # kept even when the job fails half-way
-    primary = scene.cameras[0].name
+    primary = scored_camera(cfg.camera, str(cfg.case.get("camera") or ""))  # the case's camera, else the first
     summary = frame_table.summarise(table, cfg.detector.threshold, primary=primary)
     run.log_series("confidence", table[table.camera == primary].composite.tolist())
     run.log_series("visible_fraction", table[table.camera == primary].visible_fraction.tolist())
@@ -216,7 +218,18 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
                 run.log_artifact(path, "frames")
     if dataset is not None:
         run.log_artifact(dataset.finish())
-    print(frame_table.one_line(cfg, summary, [cam.name for cam in scene.cameras]))
+    print(frame_table.one_line(cfg, summary, [cam.name for cam in scene.cameras], primary))
+    if not summary["fair_frames"] and not trial:
+        print(no_fair_line(cfg, primary, len(scene.cameras) > 1))
     if "late_testable" in summary:
         print(late.line(summary))
     return summary
+
+
+def no_fair_line(cfg: DictConfig, primary: str, rig: bool) -> str:
+    """Said when no frame tested the detector fairly: its numbers measure a hidden, tiny or cut-off target."""
+    where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+    return (f"garage_exp: no frame {f'of the primary camera ({primary}) ' if rig else ''}is a fair test (the target "
+            f"at least {cfg.search.min_visible:g} visible, {cfg.search.min_box:g} px tall, at most "
+            f"{cfg.search.max_truncation:g} cut off): the numbers above measure no fair frame"
+            + (f"; {where}" if where else ""))

@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import PLANS_DIR
 from garage_exp.core.state import STATE
+from garage_exp.scenario.fits import hint
 
 
 @dataclass
@@ -88,6 +89,7 @@ def check_config(cfg: DictConfig) -> None:
     from garage_exp.scene.parking import check_palette
     from garage_exp.scene.structure import check_garage
     from garage_exp.core.plugins import build
+    from garage_exp.exports.openscenario import check_export
 
     for key in ("seed", "light.seed", "palette.seed", "materials.seed"):
         value = OmegaConf.select(cfg, key)
@@ -108,6 +110,7 @@ def check_config(cfg: DictConfig) -> None:
     check_materials(cfg.materials)
     check_clutter(cfg.clutter)
     check_slots(cfg)
+    check_export(cfg)
 
 
 def check_slots(cfg: DictConfig) -> None:
@@ -150,8 +153,14 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
 
         detector = build_detector(cfg.detector)  # a missing file or unknown format fails here (nothing downloaded)
         check_slot_weights(cfg.slot_detector)
-        prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
-                                                     np.random.default_rng(int(cfg.seed)))
+        try:
+            prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
+                                                         np.random.default_rng(int(cfg.seed)))
+        except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
+            where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+            if not where:
+                raise
+            raise GarageError(f"{exc}; {where}") from None
         prepared.detector = check_loads(detector, prepared.scene)
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:

@@ -27,6 +27,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from garage_exp.core.errors import GarageError
+from garage_exp.scene.camera import scored_camera
 
 LEVELS = ("none", "truth", "detector")
 
@@ -96,15 +97,16 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
     renderer.load(prepared.scene)
     sensor = build(cheap.sensor, "a sensor model", "sensor._target_")
     det = cfg.detector
+    cameras = {cam.name: Intrinsics.of(cam) for cam in prepared.scene.cameras}
     rows = []
     for item in render_frames(cheap, prepared.scene, prepared.setup, renderer, sensor,
                               np.random.default_rng(cfg.seed + 1)):
-        if item.camera != prepared.scene.cameras[0].name:
+        if item.camera != scored_camera(cheap.camera, str(cheap.case.get("camera") or "")):
             continue
         if detector is None:  # ground truth alone: no score
             score = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
         else:
-            dets = detector.detect([item.rgb], Intrinsics.of(prepared.scene.cameras[0]))[0]
+            dets = detector.detect([item.rgb], cameras[item.camera])[0]
             score = score_target(dets, item.target, item.truth, iou_threshold=det.iou, match=det.match,
                                  threshold=det.threshold, **detector.scoring())
         rows.append(frame_row(item.shot, item.camera, item.target, score, detector.names if detector else [],

@@ -31,6 +31,8 @@ class EntryKind:
     claims: Callable[[str], bool]  # the resolved entry string -> whether this kind loads it (cheap, no loading)
     entry_class: str  # "module:Class" of its Entry
     prefix: str = ""  # a string prefix that names the kind ("callable:"); "" for files
+    # a prefixed entry made concrete (its file part an absolute path: the detector's process may run elsewhere)
+    resolve: Callable[[str], str] | None = None
 
     def make(self, entry: str, settings: EntrySettings) -> Entry:
         module, _, name = self.entry_class.partition(":")
@@ -59,17 +61,19 @@ def resolve(entry: str | Path, registry: str | None = None) -> str:
     text = str(entry)
     if model_registry.is_registered(text):
         return str(model_registry.resolve(text, registry))
-    if prefixed(text) is not None:
-        return text
+    kind = prefixed(text)
+    if kind is not None:
+        return kind.resolve(text) if kind.resolve else text
     return str(resolve_path(text))
 
 
 def resolve_path(text: str) -> Path:
-    """A model file or folder: as is when absolute or existing, else under the models dir (an OpenVINO export
-    the models dir lacks falls back to the official `.pt` of the same network that `assets fetch` brings)."""
+    """A model file or folder: as is when absolute, made absolute when it exists relative to the working dir,
+    else under the models dir (an OpenVINO export the models dir lacks falls back to the official `.pt` of the
+    same network that `assets fetch` brings)."""
     path = Path(text).expanduser()
     if path.is_absolute() or path.exists():
-        return path
+        return path.absolute()
     from garage_exp.assets.locate import models_dir
 
     root = models_dir()
@@ -138,8 +142,14 @@ def _ultralytics_file(entry: str) -> bool:
 register(EntryKind("ultralytics", _ultralytics_file, "garage_exp.perception.detect.ultralytics_entry:UltralyticsEntry"))
 register(EntryKind("onnx", lambda e: Path(e).suffix == ".onnx" and Path(e).is_file(),
                    "garage_exp.perception.detect.onnx_entry:OnnxEntry"))
+def _torchvision_file(entry: str) -> str:
+    """torchvision:ARCH:FILE with FILE found as a model file is (left as written when it has no file part)."""
+    arch, sep, file = entry[len("torchvision:"):].partition(":")
+    return f"torchvision:{arch}:{resolve_path(file)}" if sep and file else entry
+
+
 register(EntryKind("torchvision", lambda e: True, "garage_exp.perception.detect.torchvision_entry:TorchvisionEntry",
-                   prefix="torchvision:"))
+                   prefix="torchvision:", resolve=_torchvision_file))
 register(EntryKind("callable", lambda e: True, "garage_exp.perception.detect.callable_entry:CallableEntry",
                    prefix="callable:"))
 for _prefix in ("http://", "https://", "grpc://"):  # a model server (KServe v2 / Triton); grpc:// is refused in one line
