@@ -297,3 +297,37 @@ def run_statuses(uri: str, experiment: str) -> list[str]:
     mlc = tracking.client(uri)
     exp = mlc.get_experiment_by_name(experiment)
     return [r.info.status for r in mlc.search_runs([exp.experiment_id])] if exp else []
+
+
+# --- a tracking server that does not answer -------------------------------------------------------------------------
+class Refused(Exception):
+    pass
+
+
+REFUSED = Refused("API request to http://127.0.0.1:1/api/2.0/mlflow/runs/create failed with exception "
+                  "HTTPConnectionPool(host='127.0.0.1', port=1): Max retries exceeded with url: ... "
+                  "(Caused by NewConnectionError(...: Failed to establish a new connection: [Errno 111] "
+                  "Connection refused'))")
+
+
+@pytest.fixture
+def fresh_outage(monkeypatch):
+    """retry()'s outage state as in a new process, and sleeps that only count (the list of them)."""
+    from garage_exp.core.state import STATE
+    from garage_exp.tracking import client
+
+    monkeypatch.setattr(STATE, "tracking_down_since", None)
+    monkeypatch.setattr(STATE, "tracking_given_up", False)
+    monkeypatch.setattr(STATE, "stopping", False)
+    monkeypatch.setattr(client, "_uri", lambda: "http://127.0.0.1:1")
+    slept = []
+    clock = [1000.0]
+
+    def sleep(s):
+        slept.append(s)
+        clock[0] += s
+
+    monkeypatch.setattr(client.time, "sleep", sleep)
+    monkeypatch.setattr(client.time, "monotonic", lambda: clock[0])
+    return slept
+
