@@ -53,20 +53,19 @@ def test_the_console_scripts_are_the_commands():
             assert f"from {module} import {function}" in main.read_text(), name
 
 
-def test_a_console_script_runs_a_command(tmp_path, capsys, monkeypatch):
+def test_a_console_script_runs_a_command(tmp_path, capsys):
     """The entry functions take argv as a console script passes it: `garage-exp-plan check FILE`, and a Hydra
     command's bad input is its one line and exit 2 (its name first), nothing left of the run dir."""
+    from conftest import run_in_process
+
     from garage_exp.plan.__main__ import main as plan_main
     from garage_exp.train.app import cli as train_cli
 
     assert plan_main(["check", str(PROJECT_ROOT / "plans" / "tiny.yaml")]) == 0
     assert "plan tiny" in capsys.readouterr().out
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("sys.argv", ["garage-exp-train"])
-    with pytest.raises(SystemExit) as exit_:
-        train_cli(["epochs=0", f"hydra.run.dir={tmp_path / 'run'}"])
-    assert exit_.value.code == 2
-    assert capsys.readouterr().err.strip().splitlines() == ["garage_exp.train: epochs: 0 is outside 1-10000"]
+    r = run_in_process([], tmp_path, entry=lambda: train_cli(["epochs=0", f"hydra.run.dir={tmp_path / 'run'}"]))
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == ["garage_exp.train: epochs: 0 is outside 1-10000"]
     assert not (tmp_path / "run").exists()
 
 

@@ -26,11 +26,16 @@ def failed_job(cfg: DictConfig, error: str) -> float | dict:
     return {"error": error} if cfg.search.trial is not None else math.nan
 
 
+def abandon_sweep(exc: BaseException) -> None:
+    """The command stopped before its end: the parent run of an interrupted sweep must not stay RUNNING."""
+    callbacks.abandon_sweep(STATE.sweep, exc)
+
+
+# Module-level functions, not lambdas: a launcher that runs jobs elsewhere (submitit, Ray) pickles the task with
+# its command, and a function pickled by value would take the process state (and its locks) along.
 COMMAND = shell.Command(
     "garage_exp", "config", resume_hint="rerun the same command with resume=true to finish the sweep",
-    failed_job=failed_job,
-    # the parent run of an interrupted sweep must not stay RUNNING
-    on_abort=lambda exc: callbacks.abandon_sweep(STATE.sweep, exc))
+    failed_job=failed_job, on_abort=abandon_sweep)
 
 
 def main(cfg: DictConfig) -> float | dict:
