@@ -13,6 +13,7 @@ from omegaconf import DictConfig
 
 from garage_exp.cli import callbacks
 from garage_exp.core import shell
+from garage_exp.core.errors import Infeasible
 from garage_exp.core.overrides import quote_numeric_choices  # noqa: F401 - app.quote_numeric_choices
 from garage_exp.core.state import STATE
 from garage_exp.run.job import run_job
@@ -39,8 +40,21 @@ COMMAND = shell.Command(
 
 
 def main(cfg: DictConfig) -> float | dict:
-    """One job: its difficulty (NaN for a plan-only job), a search trial's metrics."""
-    return run_job(cfg)
+    """One job: its difficulty (NaN for a plan-only job), a search trial's metrics; a search trial whose sampled
+    values put two actors in one another is pruned by the search (its line says why), not failed."""
+    try:
+        return run_job(cfg)
+    except Infeasible as exc:
+        from pathlib import Path
+
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        hc = HydraConfig.get()
+        if cfg.search.trial is None or hc.mode != RunMode.MULTIRUN:
+            raise
+        shell.remove_untouched(Path(hc.runtime.output_dir))
+        return {"error": str(exc), "infeasible": True}
 
 
 def cli(argv: list[str] | None = None) -> None:
