@@ -9,9 +9,10 @@ Every memo, cache and warm resource of the package lives here, with its *scope*,
   tracking server's outage, the checked search spaces, the stores opened.
 - `job`: belongs to one job of a sweep.
 
-The command shell starts each command with `begin()` (clears the command and job scopes), a job starts with
-`begin_job()` (clears the job scope) and the tests' reset calls `clear("process")` where it wants a fresh
-process. Modules read and write STATE's fields, or keep a cache that STATE made (`STATE.cache(name, scope)`, a
+The command shell (`garage_exp.core.shell`, around every Hydra command) starts each command with `begin()` and
+closes it with `end()` (both clear the command and job scopes, and undo what a stop changed in the environment), a
+job starts with `begin_job()` (clears the job scope), and a test that wants a fresh process calls
+`clear("process")`. Modules read and write STATE's fields, or keep a cache that STATE made (`STATE.cache(name, scope)`, a
 dict) or a memo it registered (`@STATE.memo(scope)`, an `lru_cache`), instead of module globals of their own:
 `tests/test_state.py` fails on a module-level cache that STATE does not know.
 """
@@ -19,6 +20,7 @@ dict) or a memo it registered (`@STATE.memo(scope)`, an `lru_cache`), instead of
 from __future__ import annotations
 
 import functools
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -39,6 +41,17 @@ class ProcessState:
     maps: dict = field(default_factory=dict)  # a plan's digest -> its map's PNG bytes: a sweep's jobs share one plan
     # name -> (scope, clear): every registered cache and memo, and how to empty it
     registered: dict[str, tuple[str, Callable[[], None]]] = field(default_factory=dict)
+    stopped_env: dict = field(default_factory=dict)  # what stop() changed in os.environ: name -> earlier value
+
+    # A request already on its way to a server that hangs must not hold a stopping command's exit either.
+    STOP_ENV = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "3", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"}
+
+    def stop(self) -> None:
+        """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry)."""
+        self.stopping = True
+        for name, value in self.STOP_ENV.items():
+            self.stopped_env.setdefault(name, os.environ.get(name))
+            os.environ[name] = value
 
     def register(self, name: str, scope: str, clear: Callable[[], None]) -> None:
         """Record a cache's `clear` under `scope` (one of SCOPES); the same name again replaces it (a reload)."""
@@ -72,6 +85,12 @@ class ProcessState:
             self.stopping = False
             self.tracking_down_since = None
             self.tracking_given_up = False
+            for name, value in self.stopped_env.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+            self.stopped_env.clear()
         if scope == "process":
             self.plans.clear()
             self.maps.clear()
@@ -81,6 +100,11 @@ class ProcessState:
         the warm parts."""
         self.clear("command")
         return self
+
+    def end(self) -> None:
+        """The command is over: the process (a test session, a benchmark running commands in turn) keeps no part
+        of it, nor the network time-outs its stop set."""
+        self.clear("command")
 
     def begin_job(self) -> ProcessState:
         """A new job of the command: forget the last job's caches."""
