@@ -24,7 +24,7 @@ def compose_cfg(*overrides: str):
 def test_every_group_has_levels_and_cases_and_experiments_exist():
     assert len(LEVELS) >= 2 * len(GROUPS) - 4  # garage, renderer, tracking have one level; the rest several
     assert {"1", "2", "3"} <= {lv for g, lv in LEVELS if g == "case"}
-    assert EXPERIMENTS == ["case3_table", "light_sensor", "light_table"]
+    assert EXPERIMENTS == ["case3_table", "cpnco", "cpra", "light_sensor", "light_table"]
 
 
 @pytest.mark.parametrize("group,level", LEVELS, ids=[f"{g}={lv}" for g, lv in LEVELS])
@@ -67,6 +67,8 @@ def test_dry_run_with_every_level_and_experiment(tmp_path_factory):
     product's own checks accept it and it writes its config and plan map."""
     jobs = [(f"{g}={lv}", [f"{g}={lv}"] if g in ("plan", "case") else ["plan=tiny", f"{g}={lv}"])
             for g, lv in LEVELS]  # the small plan, unless the level needs a feature of the default plan
+    # case=cpra is scored by its rear camera (case.camera): it runs on a rig that has one
+    jobs = [(name, [*args, "camera=rear"] if name == "case=cpra" else args) for name, args in jobs]
     jobs += [(f"experiment={e}", [f"+experiment={e}"]) for e in EXPERIMENTS]
     for name, level_args in jobs:
         work = tmp_path_factory.mktemp(name.replace("=", "-"))

@@ -193,15 +193,21 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
     import pandas as pd
     import yaml
 
+    from omegaconf import OmegaConf
+
     from garage_exp.gym.export import write_suite
+    from garage_exp.scenario.asam import validate
 
     records = [episode(env, [1.0, 0.0])[1]["episode_verdict"], episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
     assert [r["testable"] for r in records] == [True, False]
     root = tmp_path / "suite"
-    files = write_suite(env.job, records, root, env.movers, 10 / 3.6, per_band=2)
+    job = OmegaConf.merge(env.job, {"export": {"openscenario": True}})  # each scenario as OpenSCENARIO too
+    files = write_suite(job, records, root, env.movers, 10 / 3.6, per_band=2)
     manifest = pd.read_csv(files[0])
     assert len(manifest) == 1 and manifest.episode.tolist() == [0] and (root / "README.md").is_file()
     name = manifest.scenario[0]
+    assert validate(root / "openscenario" / name / "scenario.xosc") == "OpenSCENARIO_1_2.xsd"
+    assert validate(root / "openscenario" / name / "garage.xodr")
     text = (root / "scenario" / f"{name}.yaml").read_text()
     values = yaml.safe_load(text)
     assert values["case"]["motion"]["values"] == records[0]["ego"]
@@ -419,3 +425,29 @@ def test_pullout_env_checker_passes_and_the_car_pulls_out_within_its_limits(stor
     _, poses = env._poses(env.drive[-1])  # the episode's last frame: the car's nose 1.8 m into the lane
     past, across = past_bay_line(env.live.site, env.live.bays, poses["car"], env.live.made["car"].extent[0])
     assert past == pytest.approx(1.8) and across == pytest.approx(0.0)
+
+
+def test_the_late_rates_carry_their_intervals_and_a_tiny_run_says_it_proves_nothing():
+    """Issue 31, item 10: "late rate 0.00 untrained -> 0.50 trained (2 episodes each)" had no interval."""
+    from garage_exp.gym.app import rates_line
+
+    tiny = rates_line((0, 2), (1, 2))
+    assert tiny.startswith("late rate 0.00 (95 % CI 0.00-0.66, 0 of 2) untrained -> 0.50 (95 % CI 0.09-0.91, 1 of 2)")
+    assert "no clear change at this many episodes (Fisher's exact p = 1.00)" in tiny
+    clear = rates_line((0, 30), (20, 30))
+    assert "0 of 30" in clear and "20 of 30" in clear and "no clear change" not in clear
+
+
+def test_a_suite_readme_says_never_for_a_target_never_confirmed(tmp_path):
+    """Issue 31, item 10: the README showed "nan" in its "confirmed at (m)" column."""
+    import pandas as pd
+
+    from garage_exp.gym.export import index_text
+
+    table = pd.DataFrame([{"scenario": "hard_1", "band": "hard", "difficulty": 1.0, "late": True,
+                           "detection_distance": math.nan, "critical_distance": 5.0, "exact": True},
+                          {"scenario": "easy_1", "band": "easy", "difficulty": 0.1, "late": False,
+                           "detection_distance": 9.04, "critical_distance": 5.0, "exact": True}])
+    text = index_text(table, 2, 1)
+    assert "| hard_1 | hard | 1.000 | yes | never | 5.0 | yes |" in text
+    assert "| easy_1 | easy | 0.100 | no | 9.0 | 5.0 | yes |" in text and "nan" not in text

@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 from optuna.trial import TrialState
 
 from garage_exp.results import late
-from garage_exp.search.loop import outcome
+from garage_exp.search.loop import line, outcome
 
 # 10 km/h, 0.5 s, 3.4 m/s^2, 2.5 m: stopping 2.778 x 0.5 + 2.778^2 / 6.8 = 2.524 m, critical 5.024 m
 EGO = OmegaConf.create({"speed": 10.0, "reaction": 0.5, "deceleration": 3.4, "margin": 2.5, "k": 2, "n": 3})
@@ -135,6 +135,22 @@ def test_the_late_objective_prunes_an_untestable_trial_and_scores_lateness():
     assert hidden.state == TrialState.PRUNED and hidden.attrs["infeasible"]
     # the difficulty objective is untouched by a late verdict beside it
     assert outcome({**base, "late_testable": 1.0, "lateness": 1.0, "late": 1.0}, "difficulty").values == [0.3]
+
+
+def test_a_trial_line_is_worded_by_the_objective_not_by_its_values():
+    """A difficulty search on a case that drives the ego returns a late verdict too: its line said "lateness"
+    whenever the two numbers happened to be equal (issue 31, item 5)."""
+    result = {"visible_fraction_mean": 0.5, "fair_frames": 4, "frames": 10, "fair_difficulty": 1.0,
+              "late_testable": 1.0, "lateness": 1.0, "late": 1.0, "detection_distance": math.nan}
+    hard = line(0, outcome(result, "difficulty"), 3, "difficulty")
+    assert "difficulty 1.000 over 4 fair frame(s)" in hard and "lateness" not in hard
+    late = line(1, outcome(result, "late"), 3, "late")
+    assert late == "garage_exp: trial 2/3: lateness 1.000 (late 1.00, never confirmed)"
+    hidden = {**result, "fair_frames": 0, "fair_difficulty": math.nan, "late_testable": 0.0, "lateness": math.nan}
+    assert line(2, outcome(hidden, "difficulty"), 3, "difficulty").endswith(
+        "no fairly visible frame (visible fraction 0.50): infeasible")
+    assert line(2, outcome(hidden, "late"), 3, "late").endswith(
+        "never fairly visible before the critical distance: infeasible")
 
 
 def test_stepout_frames_have_the_ego_time_and_the_child_steps_out_at_its_speed():

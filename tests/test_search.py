@@ -242,3 +242,26 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
             hydras = OmegaConf.to_container(loader.load_sweep_config(master, trial))
             assert ours == hydras
         assert len(launch.cache) == 2  # light=dim twice: one composition
+
+
+def test_a_suite_scenario_of_a_late_search_says_lateness():
+    """A scenario file's header names the objective's value (issue 31, item 5): lateness, not difficulty."""
+    from optuna.trial import create_trial
+
+    from garage_exp.search.suite import scenario_yaml
+
+    job = compose_cfg("case=stepout", "search.objective=late", hydra=True)
+    trial = create_trial(values=[0.6], user_attrs={"fair_frames": 3, "visible_fraction": 0.8})
+    head = scenario_yaml(job, "hard_1", trial).splitlines()[1]
+    assert "lateness 0.600 over 3 fair frame(s)" in head and "difficulty" not in head
+
+
+def test_a_study_is_continued_only_under_the_objective_it_was_made_for(tmp_path):
+    """late and difficulty both have one maximised value: the names stored in the study tell them apart, so a
+    difficulty search never adds its values to a study of lateness."""
+    storage = f"search.storage=sqlite:///{tmp_path / 'optuna.db'}"
+    late = compose_cfg("search.objective=late", storage).search
+    study = study_mod.open_study(late, "mine", 0)
+    assert study.user_attrs["direction_names"] == ["lateness"] and study.metric_names == ["lateness"]
+    with pytest.raises(GarageError, match=r"made for another objective \(lateness, not difficulty\)"):
+        study_mod.open_study(compose_cfg(storage).search, "mine", 0)

@@ -241,3 +241,31 @@ def test_a_design_size_that_is_not_a_power_of_two_is_one_line(n):
 def test_no_continuous_factor_is_one_line():
     with pytest.raises(GarageError, match="no continuous factor"):
         sensitivity.saltelli_design({"occluder": CategoricalDistribution(["a"])}, 8, seed=0)
+
+
+def test_the_trial_table_names_its_column_by_the_objective_and_the_rerun_keeps_the_fairness_rule(tmp_path):
+    """A late study's trials.csv and hardest.csv hold `lateness`, not `difficulty` (issue 31, item 5); the rerun
+    command keeps what the job itself reads of `search.*` (which frames are fair tests), not the rest."""
+    study = optuna.create_study(directions=["maximize"], study_name="late")
+    study.set_user_attr("direction_names", ["lateness"])
+    study.set_user_attr("untestable", "never fairly visible before the critical distance")
+    study.add_trial(create_trial(params={"light.intensity": 0.2}, distributions={"light.intensity": SPACE["light.intensity"]},
+                                 state=TrialState.PRUNED, user_attrs={"overrides": ["case=stepout"], "infeasible": True}))
+    for k, value in enumerate([0.2, 0.7, 0.4]):
+        study.add_trial(create_trial(
+            params={"light.intensity": 0.3 + 0.2 * k}, distributions={"light.intensity": SPACE["light.intensity"]},
+            values=[value], user_attrs={"overrides": ["case=stepout", "search.min_visible=0.3", "search.trials=3",
+                                                      f"light.intensity={0.3 + 0.2 * k}", f"search.trial={k}"],
+                                        "fair_frames": 2, "frames": 4, "visible_fraction": 0.8, "late": 0.0,
+                                        "detection_distance": 7.0}))
+    analysis.analyse(study, tmp_path, top=2)
+    trials, hard = pd.read_csv(tmp_path / "trials.csv"), pd.read_csv(tmp_path / "hardest.csv")
+    assert "lateness" in trials and "difficulty" not in trials and trials.lateness.tolist()[1:] == [0.2, 0.7, 0.4]
+    assert trials.why[0] == "infeasible: never fairly visible before the critical distance"
+    assert hard.lateness.tolist() == [0.7, 0.4] and "difficulty" not in hard
+    assert analysis.rerun_overrides(study.trials[2]) == ["case=stepout", "search.min_visible=0.3",
+                                                         "light.intensity=0.5"]
+    report = (tmp_path / "search_report.md").read_text()
+    assert "### 1. trial 2: lateness 0.70" in report
+    assert "1 pruned as infeasible (never fairly visible before the critical distance)" in report
+    assert "python -m garage_exp case=stepout search.min_visible=0.3 light.intensity=0.5\n" in report

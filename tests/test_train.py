@@ -246,14 +246,15 @@ def test_split_never_puts_a_scenario_on_both_sides(tmp_path):
 def test_failures_per_100_trials_count_only_hard_fair_trials():
     from garage_exp.loop import budget
     from garage_exp.loop.steps import Trial
+    from garage_exp.results.stats import wilson
 
     trials = [Trial("s", 0, "COMPLETE", 0.9, None), Trial("s", 1, "COMPLETE", 0.5, None),
               Trial("s", 2, "PRUNED", None, None), Trial("s", 3, "COMPLETE", 0.61, None),
               Trial("s", 4, "RUNNING", None, None)]
     assert budget.failures(trials, hard_below=0.4) == (2, 4)  # confidence 0.1 and 0.39; the pruned trial counts
-    low, high = budget.wilson(0, 30)
+    low, high = wilson(0, 30)
     assert low == 0.0 and 0.10 < high < 0.13  # Wilson's interval is not empty at 0 / 30
-    low, high = budget.wilson(15, 30)
+    low, high = wilson(15, 30)
     assert low < 0.5 < high and abs((low + high) / 2 - 0.5) < 1e-9
 
 
@@ -321,3 +322,27 @@ def test_an_onnx_export_of_the_trained_model_detects_as_its_pt(trained, tmp_path
         assert unmatched(x, y, 0.5, 0.002, 0.012) == 0 and unmatched(y, x, 0.5, 0.002, 0.012) == 0
         compared += int((x.scores >= 0.012).sum())
     assert compared >= 8, "too few detections to compare"
+
+
+def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):
+    """Issue 31, item 10: a D0 that scores 0 everywhere puts every held-out trial at difficulty 1; the hard and easy
+    suites were then an arbitrary split, silently."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.loop import report
+    from garage_exp.loop.steps import Trial
+
+    cfg = OmegaConf.create({"heldout_graded_by": "shipped"})
+    for k in range(6):  # each trial left its dataset
+        (tmp_path / str(k) / "dataset").mkdir(parents=True)
+        (tmp_path / str(k) / "dataset" / "data.yaml").write_text("names: {0: person}\n")
+    flat = [Trial("heldout", k, "COMPLETE", 1.0, tmp_path / str(k)) for k in range(6)]
+    suites = report.heldout_suites(cfg, flat, {})
+    assert [t.number for t in suites["hard"]] == [0, 1] and [t.number for t in suites["easy"]] == [4, 5]
+    assert "fair difficulty is 1.00 for all 6 held-out trials" in suites.note and "arbitrary split" in suites.note
+    assert suites.note in capsys.readouterr().out
+    graded = [Trial("heldout", k, "COMPLETE", 1.0 - 0.1 * k, tmp_path / str(k)) for k in range(6)]
+    assert report.heldout_suites(cfg, graded, {}).note == ""
+    tied = [Trial("heldout", k, "COMPLETE", [0.9, 0.5, 0.5, 0.5, 0.5, 0.1][k], tmp_path / str(k)) for k in range(6)]
+    assert "4 held-out trials tie" in report.heldout_suites(cfg, tied, {}).note
+    assert "the same scenarios" in report.heldout_suites(cfg, flat[:1], {}).note

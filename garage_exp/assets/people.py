@@ -49,7 +49,7 @@ HEIGHT_RANGE = {"adult": (1.4, 2.1), "child": (0.9, 1.5)}
 # (weight, muscle) phenotypes.
 BUILDS = {"slim": (0.15, 0.4), "average": (0.5, 0.5), "heavy": (0.95, 0.55), "athletic": (0.4, 0.9)}
 GENDERS = {"male": 0.0, "female": 1.0, "neutral": 0.5}
-POSES = ("standing", "walking")
+POSES = ("standing", "walking", "crouching")
 REGIONS = ("skin", "hair", "shirt", "trousers", "shoes")
 
 # Clothing colours, sRGB 0-255. A `clothing` dict picks a base outfit with "outfit" (default "default") and
@@ -91,6 +91,13 @@ _POSE_ANGLES = {
                 "upperleg01.L": (-22.0, _LEGS_IN, 0.0), "upperleg01.R": (14.0, -_LEGS_IN, 0.0),
                 "lowerleg01.L": (8.0, 0.0, 0.0), "lowerleg01.R": (22.0, 0.0, 0.0),
                 "foot.R": (-10.0, 0.0, 0.0)},
+    # Crouching (a person tying a shoe or reaching under a car, case=crouch): thighs up, knees folded, the back
+    # leaning forward and the arms reaching ahead to the knees; about 55 % of the standing height.
+    "crouching": {"upperarm01.L": (-60.0, _ARMS_DOWN, 0.0), "upperarm01.R": (-60.0, -_ARMS_DOWN, 0.0),
+                  "lowerarm01.L": (40.0, 0.0, 0.0), "lowerarm01.R": (40.0, 0.0, 0.0),
+                  "upperleg01.L": (-120.0, 8.0, 0.0), "upperleg01.R": (-120.0, -8.0, 0.0),
+                  "lowerleg01.L": (150.0, 0.0, 0.0), "lowerleg01.R": (150.0, 0.0, 0.0),
+                  "foot.L": (-30.0, 0.0, 0.0), "foot.R": (-30.0, 0.0, 0.0), "spine03": (25.0, 0.0, 0.0)},
 }
 # The trousers' waistband above the hip joints, as a share of stature.
 _BELT = 0.045
@@ -207,6 +214,7 @@ PREBUILT: tuple[BodySpec, ...] = tuple(
         ("child", 1.20, "average", "neutral", "bright", POSES),
         ("child", 1.10, "slim", "female", "pink", ("standing",)),
         ("child", 1.30, "average", "male", "default", ("standing",)),
+        ("adult", 1.78, "average", "male", "default", ("crouching",)),  # case=crouch's
     )
     for pose in poses
 )

@@ -129,7 +129,8 @@ class ActorConf:
     size: str = ""
     colour: str = ""
     body: str = ""
-    # person: age group, height (m, None: the group's usual), build, pose (standing | walking), clothing palette
+    # person: age group, height (m, None: the group's usual), build, pose (standing | walking | crouching),
+    # clothing palette
     age: str = "adult"
     height: Optional[float] = None
     build: str = "average"
@@ -170,7 +171,8 @@ class OccluderConf:
 class AlongConf:
     """An actor moving at the same time as the motion's (a person stepping out while the ego drives): its
     placement value `key` goes from `start` towards `end` at `speed` (m/s) from the frame where the motion's
-    value passes `at` (None: from the first frame). The time of a frame is the ego's travel over `ego.speed`."""
+    value passes `at` (None: from the first frame), or timed to reach `end` as the motion's value passes `meet`.
+    The time of a frame is the ego's travel over `ego.speed`."""
 
     key: str = "out"  # distance | offset | yaw | out | gap
     start: float = 0.0
@@ -179,6 +181,10 @@ class AlongConf:
     at: Optional[float] = None
     values: list[float] = field(default_factory=list)  # instead: the value at each frame of the motion (the last
     # one held after), as an adversary's episode moved it (garage_exp/gym/export.py)
+    accelerate: float = 0.0  # metres from standstill to `speed` at a constant acceleration (0: at speed at once;
+    # Euro NCAP's pedestrian targets reach theirs after 1 m)
+    meet: Optional[float] = None  # instead of `at`: start so as to reach `end` when the motion's value passes
+    # `meet` (a synchronised arrival, as OpenSCENARIO's SynchronizeAction and the Euro NCAP protocols time it)
 
 
 @dataclass
@@ -220,6 +226,8 @@ class CaseConf:
     variants: list[VariantConf] = field(default_factory=list)
     target: str = ""  # the actor scored when a variant does not say; empty: the actor with role target
     slots: bool = False  # score parking-slot finding on a bird's-eye view of the fisheye rig (camera.bev)
+    camera: str = ""  # the rig's camera whose frames score the case (its summary, `late`): a reversing ego's
+    # `rear`; empty: the rig's first camera
 
 
 @dataclass
@@ -430,6 +438,16 @@ class EgoConf:
 
 
 @dataclass
+class ExportConf:
+    """Formats a job writes beside its frames for other tools (garage_exp/exports)."""
+
+    # openscenario/scenario.xosc (ASAM OpenSCENARIO 1.2: entities, initial positions, routes, speeds, triggers)
+    # and openscenario/garage.xodr (the plan's driving lanes as ASAM OpenDRIVE); a search writes its hardest
+    # trials', a suite each scenario's (docs/openscenario.md)
+    openscenario: bool = False
+
+
+@dataclass
 class Config:
     plan: PlanConf = field(default_factory=PlanConf)
     garage: GarageConf = field(default_factory=GarageConf)
@@ -455,6 +473,7 @@ class Config:
     search: SearchConf = field(default_factory=SearchConf)
     blank: bool = False  # the blank control: only the vehicles, background removed
     dataset: bool = False  # also write frames with YOLO, COCO and KITTI labels (garage_exp/exports)
+    export: ExportConf = field(default_factory=ExportConf)
     resume: bool = False
     dry_run: bool = False  # plan + map + MLflow only: no rendering or detection
 

@@ -6,6 +6,7 @@ policy's episodes as a suite)."""
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -66,9 +67,13 @@ TITLES = {"stepout": "PPO adversary: a child stepping out between parked cars",
           "pullout": "PPO adversary: a car pulling out of its bay"}
 
 
-def learning_curve(rows: list[dict], before: float, after: float, path: Path, case: str = "stepout") -> Path:
+def learning_curve(rows: list[dict], before: tuple[int, int], after: tuple[int, int], path: Path,
+                   case: str = "stepout") -> Path:
     """Each training episode's return and the late rate over a moving window, with the late rate of the
-    untrained and the trained policy's evaluation episodes."""
+    untrained and the trained policy's evaluation episodes ((late, episodes) each), shaded over its Wilson
+    interval: a handful of episodes shows as a wide band, not as a line."""
+    from garage_exp.results.stats import wilson
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -84,8 +89,13 @@ def learning_curve(rows: list[dict], before: float, after: float, path: Path, ca
     if len(rows) >= w:
         ax.plot(x[w - 1:], np.convolve(late, np.ones(w) / w, mode="valid"), "-", color="C3",
                 label=f"late rate, last {w} episodes")
-    ax.axhline(before, color="C0", ls="--", label=f"late rate untrained ({before:.2f})")
-    ax.axhline(after, color="C2", ls="--", label=f"late rate trained ({after:.2f})")
+    for (k, n), colour, who in ((before, "C0", "untrained"), (after, "C2", "trained")):
+        if not n:
+            continue
+        low, high = wilson(k, n)
+        ax.axhline(k / n, color=colour, ls="--",
+                   label=f"late rate {who} {k / n:.2f} ({k} of {n}; 95 % CI {low:.2f}-{high:.2f}, shaded)")
+        ax.axhspan(low, high, color=colour, alpha=0.12, lw=0)
     ax.set_xlabel("training episode")
     ax.set_ylabel("return / late rate")
     ax.set_ylim(-0.05, max(1.05, float(ret.max()) + 0.1) if len(ret) else 1.05)
@@ -97,11 +107,22 @@ def learning_curve(rows: list[dict], before: float, after: float, path: Path, ca
     return path
 
 
+def rates_line(before: tuple[int, int], after: tuple[int, int]) -> str:
+    """The late rate before and after training ((late, episodes) each), each with its Wilson interval, and, when
+    Fisher's exact test cannot tell them apart, that it cannot: a few evaluation episodes prove nothing."""
+    from garage_exp.results.stats import rate_text, rates_differ
+
+    text = f"late rate {rate_text(*before)} untrained -> {rate_text(*after)} trained"
+    p = rates_differ(*before, *after)
+    return text if p < 0.05 else text + f"; no clear change at this many episodes (Fisher's exact p = {p:.2f})"
+
+
 def run_train(cfg: DictConfig, env, out: Path) -> dict:
     import pandas as pd
 
     from garage_exp.gym import export
-    from garage_exp.gym.train import late_rate, train
+    from garage_exp.gym.train import late_count, train
+    from garage_exp.results.stats import wilson
     from garage_exp.tracking import runs as tracking
 
     g = cfg.gym
@@ -112,13 +133,15 @@ def run_train(cfg: DictConfig, env, out: Path) -> dict:
         rows = result["before"] + result["train"] + result["after"]
         table = pd.DataFrame(rows)
         table.to_csv(out / "episodes.csv", index=False)
-        before, after = late_rate(result["before"]), late_rate(result["after"])
+        before, after, trained = (late_count(result[k]) for k in ("before", "after", "train"))
         for k, r in enumerate(result["train"]):
             run.log_metrics({"episode_return": r["return"], "episode_late": float(r["late"]),
                              "episode_renders": r["renders"]}, step=k)
-        summary = {"late_rate_before": before, "late_rate_after": after, "train_episodes": len(result["train"]),
-                   "train_late_rate": late_rate(result["train"]), "renders": result["renders"],
-                   "wall_s": result["wall_s"]}
+        summary = {"train_episodes": len(result["train"]), "renders": result["renders"], "wall_s": result["wall_s"]}
+        for name, (k, n) in (("late_rate_before", before), ("late_rate_after", after), ("train_late_rate", trained)):
+            # each rate with its Wilson interval: a few evaluation episodes are a wide one
+            low, high = wilson(k, n)
+            summary.update({name: k / n if n else math.nan, f"{name}_low": low, f"{name}_high": high})
         run.log_metrics(summary)
         result["model"].save(out / "policy.zip")
         suite_root = Path(str(g.suite_dir)) if g.suite_dir else out / "suite"
@@ -137,9 +160,8 @@ def run_train(cfg: DictConfig, env, out: Path) -> dict:
     run.end("FINISHED")
     summary.update(run_id=run.run_id, policy=str(out / "policy.zip"), suite=str(suite_root))
     (out / "result.json").write_text(json.dumps(summary, indent=1))
-    print(f"garage_exp.gym: late rate {before:.2f} untrained -> {after:.2f} trained ({len(result['before'])} "
-          f"episodes each); {len(result['train'])} training episodes, {result['renders']} renders in "
-          f"{result['wall_s']:.0f} s; policy {out / 'policy.zip'}")
+    print(f"garage_exp.gym: {rates_line(before, after)}; {len(result['train'])} training episodes, "
+          f"{result['renders']} renders in {result['wall_s']:.0f} s; policy {out / 'policy.zip'}")
     return summary
 
 
@@ -163,14 +185,18 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
     from stable_baselines3 import PPO
 
     from garage_exp.gym import export
-    from garage_exp.gym.train import late_rate, rollouts
+    from garage_exp.gym.train import late_count, rollouts
+    from garage_exp.results.stats import rate_text, wilson
 
     model = PPO.load(str(Path(str(cfg.gym.policy)).expanduser()), env=env, device="cpu")
     rows, full = rollouts(model, env, int(cfg.gym.eval_episodes), int(cfg.gym.seed) + 10_000, "export")
     root = Path(str(cfg.gym.suite_dir)) if cfg.gym.suite_dir else out / "suite"
     export.write_suite(env.job, full, root, env.movers, float(cfg.ego.speed) / 3.6, int(cfg.gym.per_band),
                        slides=env.live.slides_between)
-    return {"late_rate": late_rate(rows), "suite": str(root)}
+    k, n = late_count(rows)
+    low, high = wilson(k, n)
+    print(f"garage_exp.gym: the policy's episodes: late rate {rate_text(k, n)}")
+    return {"late_rate": k / n if n else math.nan, "late_rate_low": low, "late_rate_high": high, "suite": str(root)}
 
 
 def gym_main(cfg: DictConfig) -> dict:

@@ -4,7 +4,8 @@ episode's group levels and every resolved value) that a job reruns,
 
     python -m garage_exp --config-dir <suite> +scenario=hard_1
 
-with a manifest (manifest.csv) and an index (README.md). Bands are the search's (confidence over the fair
+with a manifest (manifest.csv) and an index (README.md); with `export.openscenario=true`, each scenario as
+OpenSCENARIO and OpenDRIVE too (openscenario/<scenario>/scenario.xosc, garage.xodr). Bands are the search's (confidence over the fair
 frames), over the episodes whose target was fairly visible before the critical distance.
 
 An episode fixes the ego's drive (its rendered frames' motion values) and the adversary's values per frame. The
@@ -24,6 +25,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.schema import GROUPS
+from garage_exp.results.late import confirmed_text
 from garage_exp.search.suite import DEFAULT_BANDS, NOT_SCENARIO, band_of
 
 
@@ -87,8 +89,8 @@ def scenario_yaml(job: DictConfig, name: str, record: dict, movers, speed_ms: fl
     defaults = [{f"override /{group}": level} for group, level in choices.items()] + ["_self_"]
     moves = "; ".join(f"{n}: {', '.join(f'{v:.3f}' for v in seq)}" for n, seq in record["values"].items())
     head = (f"# @package _global_\n# Scenario {name}: an adversary's episode, {'late' if record['late'] else 'in time'}"
-            f" (critical distance {record['critical_distance']:.2f} m, confirmed at "
-            f"{record['detection_distance']:.2f} m), difficulty {record['difficulty']:.3f} over "
+            f" (critical distance {record['critical_distance']:.2f} m, {confirmed_text(record['detection_distance'], 2)}"
+            f"), difficulty {record['difficulty']:.3f} over "
             f"{record['fair_frames']} fair frame(s).\n"
             f"# Per frame: ego {', '.join(f'{v:g}' for v in record['ego'])}; {moves}\n"
             + ("" if exact else "# Not exact: the co-motion below is the nearest constant-speed walk to those "
@@ -131,6 +133,11 @@ def write_suite(job: DictConfig, records: list[dict], root: Path, movers, speed_
             path = root / "scenario" / f"{name}.yaml"
             path.write_text(text)
             paths.append(path)
+            if job.export.openscenario:  # the episode as OpenSCENARIO + OpenDRIVE: openscenario/<name>/
+                from garage_exp.run.openscenario import export
+
+                values, _ = scenario_values(job, r, movers, speed_ms, slides)
+                export(OmegaConf.merge(job, values), root / "openscenario" / name)
             rows.append({"scenario": name, "band": band, "difficulty": round(r["difficulty"], 6),
                          "confidence": round(1.0 - r["difficulty"], 6), "late": r["late"],
                          "detection_distance": r["detection_distance"], "critical_distance":
@@ -153,5 +160,6 @@ def index_text(table: pd.DataFrame, episodes: int, per_band: int) -> str:
              "| scenario | band | difficulty | late | confirmed at (m) | critical (m) | exact |", "|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         lines.append(f"| {r.scenario} | {r.band} | {r.difficulty:.3f} | {'yes' if r.late else 'no'} | "
-                     f"{r.detection_distance:.1f} | {r.critical_distance:.1f} | {'yes' if r.exact else 'no'} |")
+                     f"{'never' if pd.isna(r.detection_distance) else f'{r.detection_distance:.1f}'} | "
+                     f"{r.critical_distance:.1f} | {'yes' if r.exact else 'no'} |")
     return "\n".join(lines) + "\n"

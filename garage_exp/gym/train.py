@@ -90,8 +90,14 @@ def rollouts(model: PPO, env: StepOutEnv, episodes: int, seed: int, phase: str) 
     return rows, full
 
 
+def late_count(rows: list[dict]) -> tuple[int, int]:
+    """(late episodes, episodes): a share of independent episodes, for its Wilson interval."""
+    return sum(bool(r["late"]) for r in rows), len(rows)
+
+
 def late_rate(rows: list[dict]) -> float:
-    return sum(bool(r["late"]) for r in rows) / len(rows) if rows else math.nan
+    k, n = late_count(rows)
+    return k / n if n else math.nan
 
 
 def train(cfg: DictConfig, env: StepOutEnv) -> dict:

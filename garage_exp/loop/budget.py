@@ -4,7 +4,6 @@ epochs and image size, and the trainings' own counts are compared afterwards (`a
 
 from __future__ import annotations
 
-import math
 import random
 from pathlib import Path
 
@@ -25,16 +24,6 @@ def failures(trials: list[Trial], hard_below: float) -> tuple[int, int]:
     ran = [t for t in trials if t.state in ("COMPLETE", "PRUNED", "FAIL")]
     hard = [t for t in ran if t.state == "COMPLETE" and 1.0 - t.difficulty < hard_below]
     return len(hard), len(ran)
-
-
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson's 95 % interval of a proportion k / n."""
-    if n == 0:
-        return math.nan, math.nan
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 def images(datasets: list[Path]) -> list[Path]:

@@ -16,6 +16,7 @@ import pandas as pd
 
 from garage_exp.loop import budget
 from garage_exp.loop.evaluate import evaluate
+from garage_exp.results.stats import wilson
 
 METRICS = ("fair_recall", "fair_difficulty", "map50")
 
@@ -24,7 +25,14 @@ def weights_of(result: dict) -> Path:
     return Path(result["weights"])
 
 
-def heldout_suites(cfg, held: list, d0: dict) -> dict:
+class Suites(dict):
+    """The held-out suites by name (a dict, as the evaluation reads them) and `note`: why the split into hard and
+    easy means little or nothing ("" when the hard suite's trials are all harder than the easy suite's)."""
+
+    note: str = ""
+
+
+def heldout_suites(cfg, held: list, d0: dict) -> Suites:
     """The held-out hard and easy suites: the hardest and the easiest third of the held-out study's fairly visible
     trials, by D0's fair difficulty (scored here on the trials' frames) or by the shipped detectors' (the study's)."""
     from garage_exp.loop.evaluate import score_frames
@@ -39,7 +47,30 @@ def heldout_suites(cfg, held: list, d0: dict) -> dict:
         key = {t.number: t.difficulty for t in done}
     done.sort(key=lambda t: (-key[t.number], t.number))
     third = max(1, len(done) // 3)
-    return {"hard": done[:third], "easy": done[-third:]}
+    suites = Suites(hard=done[:third], easy=done[-third:])
+    suites.note = split_note([key[t.number] for t in done], third,
+                             "D0's" if cfg.heldout_graded_by == "d0" else "the shipped detectors'")
+    if suites.note:
+        print(f"garage_exp.loop: {suites.note}")
+    return suites
+
+
+def split_note(keys: list[float], third: int, whose: str) -> str:
+    """Why a split of `keys` (hardest first) into its first and last `third` cannot mean much: too few trials,
+    or ties across it (D0 finding nothing in any trial puts every one at difficulty 1). "" when it can."""
+    if len(keys) < 2:
+        return (f"{len(keys)} fairly visible held-out trial(s): the hard and the easy suite are the same "
+                "scenarios, not a split")
+    hard, easy = keys[:third], keys[-third:]
+    if min(hard) > max(easy):
+        return ""
+    tied = sum(1 for k in keys if k == min(hard))
+    if max(keys) == min(keys):
+        return (f"{whose} fair difficulty is {keys[0]:.2f} for all {len(keys)} held-out trials: the hard and the "
+                "easy suite are an arbitrary split (by trial number), not a graded one; their results do not compare "
+                "hard with easy")
+    return (f"{tied} held-out trials tie at {whose} fair difficulty {min(hard):.2f} across the split: the hard "
+            "and the easy suite are partly an arbitrary split (by trial number)")
 
 
 def evaluate_all(cfg, models: dict[str, dict[int, dict]], suites: dict) -> dict:
@@ -95,7 +126,7 @@ def failure_table(rounds: dict, hard_below: float) -> pd.DataFrame:
     rows = []
     for name, trials in rounds.items():
         k, n = budget.failures(trials, hard_below)
-        low, high = budget.wilson(k, n)
+        low, high = wilson(k, n)
         rows.append({"detector": name, "failures": k, "trials": n, "per_100": 100.0 * k / n if n else math.nan,
                      "low": 100.0 * low, "high": 100.0 * high})
     return pd.DataFrame(rows)
@@ -128,10 +159,14 @@ def write(cfg, out: Path, result: dict, rounds: dict, suites: dict, hard: list, 
     found = missed_then_found(frames, float(cfg.threshold))
     found.to_csv(out / "missed_then_found.csv", index=False)
     draw(arms, fails, scores, found, out / "loop.png")
+    note = getattr(suites, "note", "")
     summary = {"suites": {k: [f"{t.study}#{t.number}" for t in v] for k, v in suites.items()},
+               "suite_split": note or "graded: every hard-suite trial harder than every easy-suite one",
                "hard_training_scenarios": [t.number for t in hard], "times_s": times}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.loop: results in {out} (scores.csv, arms.csv, h_minus_r.csv, failures.csv, loop.png)")
+    if note:
+        print(f"garage_exp.loop: held-out suites: {note}")
     print(arms.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(diff.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(fails.to_string(index=False, float_format=lambda v: f"{v:.1f}"))

@@ -224,8 +224,8 @@ class SapienRenderer:
         """Remove every entity with its own id and every camera, add the new scene's; the merged statics and
         the light pool stay (shown again in full: the last frame may have culled some)."""
         for node in self._entities.values():
+            self._decal_ids.discard(int(node.per_scene_id))  # before the removal, which sets the id to 0
             self._scene.remove_entity(node)
-            self._decal_ids.discard(int(node.per_scene_id))
         for cam in self._cameras.values():
             for _, pinhole in cam.faces or [(None, cam)]:  # a fisheye's cube faces are cameras of their own
                 self._scene.remove_entity(pinhole.component.entity)
@@ -253,11 +253,16 @@ class SapienRenderer:
                     key = shape.material if isinstance(shape, (Box, Decal)) else None
                     tile = (math.floor(world.x / STATIC_TILE), math.floor(world.y / STATIC_TILE))
                     merged.setdefault(key, {}).setdefault(tile, []).append((world, shape))
-            else:
-                self._add_entity(entity)
         for material in [m for m in merged if m is not None] + ([None] if None in merged else []):
             for (a, b), shapes in merged[material].items():
                 self._add_merged(f"static:{material.name if material else 'meshes'}:{a}:{b}", shapes)
+        # The actors after the statics, as _replace_actors adds them to a scene it keeps: SAPIEN draws bodies in
+        # the order they were added, and where an actor's contact shadow meets a pillar's (both decals at
+        # SHADOW_Z, blended) the later one is drawn over the other. Any other order gave a search's trials
+        # (statics kept) other pixels than the same job loaded fresh (issue 31, item 3).
+        for entity in scene.entities:
+            if not self._merges(entity):
+                self._add_entity(entity)
         self._mount_cameras(scene)
         self._add_lights(scene)
         self._index_bodies(scene)

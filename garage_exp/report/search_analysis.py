@@ -52,28 +52,41 @@ def objective_names(study: optuna.Study) -> list[str]:
         f"objective_{k}" for k in range(2, len(study.directions))]
 
 
+def untestable(study: optuna.Study) -> str:
+    """Why the study's objective prunes a trial as infeasible, as the search stored it."""
+    return str(study.user_attrs.get("untestable") or "no fairly visible frame")
+
+
 def overrides(trial: FrozenTrial) -> list[str]:
     """The trial's override list as the sweeper stored it; its parameters as overrides when it stored none."""
     return list(trial.user_attrs.get("overrides") or [f"{k}={v}" for k, v in trial.params.items()])
 
 
+# The search settings a job reads itself: which frames are fair tests (its fair_* metrics and late verdict).
+JOB_SEARCH_KEYS = ("search.min_visible=", "search.min_box=", "search.max_truncation=")
+
+
 def rerun_overrides(trial: FrozenTrial) -> list[str]:
     """The overrides that rerun the scenario as a plain job: without the search's own settings and where it
-    logged (`search.*`, `tracking.*`), a quoted numeric level unquoted (the command line quotes it again)."""
+    logged (`search.*` but the fairness rule the job applies, `tracking.*`), a quoted numeric level unquoted
+    (the command line quotes it again)."""
     import re
 
-    kept = [o for o in overrides(trial) if not o.startswith(("search.", "tracking.", "hydra."))]
+    kept = [o for o in overrides(trial) if o.startswith(JOB_SEARCH_KEYS)
+            or not o.startswith(("search.", "tracking.", "hydra."))]
     return [re.sub(r"^([\w.]+)='(\d+)'$", r"\1=\2", o) for o in kept]
 
 
 def trial_table(study: optuna.Study) -> pd.DataFrame:
-    """One row per trial: number, state, difficulty (complete trials), the contract's user_attrs, each parameter
-    in its own column, the overrides, and why a trial was pruned or failed."""
+    """One row per trial: number, state, the first objective's value (complete trials) in a column named as the
+    objective names it (difficulty, lateness, slot_miss: `objective_names`), the contract's user_attrs, each
+    parameter in its own column, the overrides, and why a trial was pruned or failed."""
     multi = len(study.directions) > 1
+    name = objective_names(study)[0]
     rows = []
     for t in study.get_trials(deepcopy=False):
         done = t.state == TrialState.COMPLETE
-        row = {"trial": t.number, "state": t.state.name, "difficulty": difficulty(t) if done else np.nan}
+        row = {"trial": t.number, "state": t.state.name, name: difficulty(t) if done else np.nan}
         for key in (*ATTRS, *LATE_ATTRS):
             row[key] = t.user_attrs.get(key, np.nan)
         if multi and done and pd.isna(row["visible_fraction"]):
@@ -81,7 +94,7 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
         row.update(t.params)
         row["overrides"] = " ".join(overrides(t))
         row["why"] = ("screened as easy by the pre-screen" if t.user_attrs.get("screened") == "easy"
-                      else "infeasible: no fairly visible frame" if t.user_attrs.get("infeasible")
+                      else f"infeasible: {untestable(study)}" if t.user_attrs.get("infeasible")
                       else str(t.user_attrs.get("error", "")))
         row["run_id"] = t.user_attrs.get("run_id", "")
         row["frame"] = t.user_attrs.get("frame", "")
@@ -116,11 +129,11 @@ def side(value, dist: BaseDistribution) -> str:
     return THIRDS[min(int(position(value, dist) * 3), 2)]
 
 
-def sides(table: pd.DataFrame, param: str, dist: BaseDistribution) -> dict[str, pd.Series]:
-    """The complete trials' difficulties on each side (third or level) of a parameter."""
+def sides(table: pd.DataFrame, param: str, dist: BaseDistribution, name: str = "difficulty") -> dict[str, pd.Series]:
+    """The complete trials' values of the objective `name` on each side (third or level) of a parameter."""
     done = table[(table.state == "COMPLETE") & table[param].notna()]
     labels = [side(v, dist) for v in done[param]]
-    return {k: g for k, g in done.difficulty.groupby(labels)}
+    return {k: g for k, g in done[name].groupby(labels)}
 
 
 def range_text(dist: BaseDistribution) -> str:
@@ -130,7 +143,7 @@ def range_text(dist: BaseDistribution) -> str:
 
 
 def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: dict[str, float],
-             higher_is_harder: bool = True) -> list[tuple[str, str, str]]:
+             higher_is_harder: bool = True, name: str = "difficulty") -> list[tuple[str, str, str]]:
     """(parameter, side, sentence) per parameter of the trial, most important first: where its value lies and
     whether the study's complete trials are harder on that side than on the hardest other side (Welch's
     t-test); the sentence says "the harder side" only when they are."""
@@ -138,7 +151,7 @@ def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: d
     for param in sorted(trial.params, key=lambda p: (-importance.get(p, -1), p)):
         dist, value = dists[param], trial.params[param]
         where = side(value, dist)
-        groups = sides(table, param, dist)
+        groups = sides(table, param, dist, name)
         shown = f"{value:.3g}" if isinstance(value, float) else str(value)
         head = f"`{param}` = {shown}"
         if not isinstance(dist, CategoricalDistribution):
@@ -158,7 +171,7 @@ def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: d
         verdict = ("no clear harder side" if not p < ALPHA
                    else "the harder side" if harder else "not the harder side")
         there = f"with {param}={best}" if isinstance(dist, CategoricalDistribution) else f"in the {best}"
-        lines.append((param, where, f"{head}: {verdict} (p = {p:.2g}): difficulty {mine.mean():.2f} on average "
+        lines.append((param, where, f"{head}: {verdict} (p = {p:.2g}): {name} {mine.mean():.2f} on average "
                                     f"there ({len(mine)} trials) against {rest.mean():.2f} {there} ({len(rest)})."))
     return lines
 
@@ -281,7 +294,7 @@ def summary(study: optuna.Study, table: pd.DataFrame, names: list[str]) -> list[
     objectives = ", ".join(f"{n} ({d.name.lower()})" for n, d in zip(names, study.directions))
     return [f"# Search report: {study.study_name}", "",
             f"{len(table)} trials: {count['COMPLETE']} complete, {count['PRUNED']} pruned as infeasible "
-            f"(no fairly visible frame), {count['FAIL']} failed"
+            f"({untestable(study)}), {count['FAIL']} failed"
             + (f", {count['RUNNING']} running" if count["RUNNING"] else "")
             + (f", {count['WAITING']} waiting" if count["WAITING"] else "")
             + f". Objectives: {objectives}. Only complete trials are ranked.", ""]
@@ -291,19 +304,19 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
                     importance: dict[str, float]) -> tuple[list[str], list[Path]]:
     """The hardest scenarios: a table, then each one's command, reasons and frame; hardest.csv."""
     top_trials = hardest(study, top)
+    name = objective_names(study)[0]
     by_number = table.set_index("trial")
     late = [c for c in LATE_ATTRS if by_number[c].notna().any()]
     hard = by_number.loc[[t.number for t in top_trials]].reset_index()[
-        ["trial", "difficulty", *ATTRS, *late, "overrides", "run_id", "frame"]]
+        ["trial", name, *ATTRS, *late, "overrides", "run_id", "frame"]]
     hard.insert(0, "rank", range(1, len(hard) + 1))
     hard.to_csv(out_dir / "hardest.csv", index=False)
     written = [out_dir / "hardest.csv"]
     lines = [f"## The {len(top_trials)} hardest scenarios", ""]
     if not top_trials:
         return [*lines, "No complete trial: nothing to rank.", ""], written
-    name = objective_names(study)[0]
-    lines += [*md_table(hard[["rank", "trial", "difficulty", "visible_fraction", "fair_frames", "frames", *late]].rename(
-        columns={"difficulty": name, "visible_fraction": "visible fraction", "fair_frames": "fair frames",
+    lines += [*md_table(hard[["rank", "trial", name, "visible_fraction", "fair_frames", "frames", *late]].rename(
+        columns={"visible_fraction": "visible fraction", "fair_frames": "fair frames",
                  "detection_distance": "detection distance (m)", "ttc_at_detection": "TTC at detection (s)"})), ""]
     dists = distributions(study)
     higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
@@ -312,7 +325,7 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
         lines += [f"### {rank}. trial {t.number}: {name} {difficulty(t):.2f}, visible fraction "
                   f"{fmt(by_number.loc[t.number, 'visible_fraction'])}", "",
                   "Rerun it:", "", "```bash", command, "```", "",
-                  *what_makes_it_hard(why_hard(t, table, dists, importance, higher_is_harder))]
+                  *what_makes_it_hard(why_hard(t, table, dists, importance, higher_is_harder, name))]
         frame = copy_frame(t, out_dir)
         if frame:
             written.append(frame)

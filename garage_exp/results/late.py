@@ -162,6 +162,13 @@ def summary(per: pd.DataFrame, ego) -> dict[str, float]:
             "stopping_distance": stopping_distance(ego), "critical_distance": critical_distance(ego)}
 
 
+def confirmed_text(distance: float | None, digits: int = 1) -> str:
+    """Where the target was confirmed, in words: "confirmed at 7.2 m", or "never confirmed" (None or NaN)."""
+    if distance is None or math.isnan(distance):
+        return "never confirmed"
+    return f"confirmed at {distance:.{digits}f} m"
+
+
 def line(metrics: dict) -> str:
     """The late verdict in one line, for stdout."""
     n = int(metrics["late_testable"])

@@ -1,6 +1,7 @@
 """Uncertainty and significance for sweep results: bootstrap intervals over independent units (replicates or
-trajectories, never frames: frames of one trajectory are not independent), an ANOVA with effect sizes, and the
-logistic recall-against-visibility curve. Plain numbers in, plain tables out (numpy, pandas, SciPy,
+trajectories, never frames: frames of one trajectory are not independent), Wilson intervals for a share of
+independent trials (episodes, search trials), an ANOVA with effect sizes, and the logistic
+recall-against-visibility curve. Plain numbers in, plain tables out (numpy, pandas, SciPy,
 statsmodels)."""
 
 from __future__ import annotations
@@ -38,6 +39,34 @@ def mean_ci(values, seed: int = 0) -> tuple[float, float, float]:
     res = bootstrap((x,), np.mean, confidence_level=LEVEL, n_resamples=RESAMPLES, method="percentile",
                     rng=np.random.default_rng(seed))
     return mean, float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson's 95 % interval of a proportion k / n (independent trials): never empty at 0 or n, unlike the
+    plain k/n +- z se; (nan, nan) for n = 0."""
+    if n == 0:
+        return math.nan, math.nan
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def rate_text(k: int, n: int) -> str:
+    """A share of independent trials with its Wilson interval, in words: "0.50 (95 % CI 0.09-0.91, 1 of 2)"."""
+    if n == 0:
+        return "none (0 trials)"
+    low, high = wilson(k, n)
+    return f"{k / n:.2f} (95 % CI {low:.2f}-{high:.2f}, {k} of {n})"
+
+
+def rates_differ(k1: int, n1: int, k2: int, n2: int) -> float:
+    """Fisher's exact test (two-sided) of k1/n1 against k2/n2: its p-value (1.0 when either side is empty)."""
+    if n1 == 0 or n2 == 0:
+        return 1.0
+    from scipy.stats import fisher_exact
+
+    return float(fisher_exact([[k1, n1 - k1], [k2, n2 - k2]]).pvalue)
 
 
 def ratio_ci(values, clusters, seed: int = 0) -> tuple[float, float, float, int]:

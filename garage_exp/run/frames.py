@@ -27,6 +27,7 @@ from garage_exp.scenario.assemble import HIDDEN
 from garage_exp.scenario.build import moves_ego
 from garage_exp.run.slots import SlotFrames, slot_line
 from garage_exp.run.slots import wanted as slot_frames_wanted
+from garage_exp.scene.camera import scored_camera
 from garage_exp.scene.description import Scene
 
 log = logging.getLogger("garage_exp")
@@ -188,7 +189,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
         table = pd.DataFrame(rows)
         table.to_csv(table_path, index=False)
         run.log_artifact(table_path)  # kept even when the job fails half-way
-    primary = scene.cameras[0].name
+    primary = scored_camera(cfg.camera, str(cfg.case.get("camera") or ""))  # the case's camera, else the first
     summary = frame_table.summarise(table, cfg.detector.threshold, primary=primary)
     run.log_series("confidence", table[table.camera == primary].composite.tolist())
     run.log_series("visible_fraction", table[table.camera == primary].visible_fraction.tolist())

@@ -23,6 +23,8 @@ from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
 from garage_exp.scenario.place import (check_overlaps, no_room, pose_between, pose_in_bay, pose_on_path,
                                        pose_relative, site_bay, site_path)
 from garage_exp.scenario.sites import Site, find_site
+from garage_exp.scenario.timing import start_time, travelled
+from garage_exp.scene.camera import scored_camera
 from garage_exp.scene.description import Pose
 
 EGO = "ego"
@@ -40,6 +42,7 @@ def check_case(cfg) -> None:
             raise GarageError(f"a range is >= 0, got {cfg.replicate[key]}", f"replicate.{key}")
     try:
         _check_motion(cfg.case)
+        scored_camera(cfg.camera, str(cfg.case.get("camera") or ""))
     except GarageError as exc:
         raise GarageError(str(exc), level_file(cfg, "case")) from None
 
@@ -59,6 +62,11 @@ def _check_motion(case) -> None:
             raise GarageError(f"key {along.key!r} is not a placement value ({' | '.join(MOVABLE)})", where + ".key")
         if float(along.speed) < 0:
             raise GarageError(f"{along.speed} m/s is negative", where + ".speed")
+        if float(along.get("accelerate") or 0.0) < 0:
+            raise GarageError(f"{along.accelerate} m is negative", where + ".accelerate")
+        if along.get("meet") is not None and along.at is not None:
+            raise GarageError("give `at` (when it sets off) or `meet` (when it arrives), not both", where + ".meet")
+        # (`meet` may lie past the motion's end: the last frames come before the arrival the walk is timed for)
         if along.at is not None and not along.get("values") and case.motion.start is not None \
                 and case.motion.end is not None:
             lo, hi = sorted((float(case.motion.start), float(case.motion.end)))
@@ -84,7 +92,7 @@ def along_value(along, t: float, t_at: float, frame: int = 0) -> float:
     if listed:
         return float(listed[min(frame, len(listed) - 1)])
     start, end = float(along.start), float(along.end)
-    moved = float(along.speed) * max(0.0, t - t_at)
+    moved = travelled(along, t - t_at)
     return min(start + moved, end) if end >= start else max(start - moved, end)
 
 
@@ -235,8 +243,10 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
         values = (frame_values(case, actors[mover], site, _longest(made, made[mover].source), bays) if mover
                   else [float("nan")])
         times = frame_times(values, float(cfg.ego.speed)) if mover == EGO else [0.0] * len(values)
-        alongs = [(n, a, frame_times([values[0], float(a.at)], float(cfg.ego.speed))[1] if a.at is not None else 0.)
-                  for n, a in (case.motion.get("along") or {}).items() if n in actors]
+        def time_at(x: float) -> float:
+            return frame_times([values[0], x], float(cfg.ego.speed))[1]
+
+        alongs = [(n, a, start_time(a, time_at)) for n, a in (case.motion.get("along") or {}).items() if n in actors]
         for frame, (value, time) in enumerate(zip(values, times)):
             placed = dict(actors)
             if mover:

@@ -90,6 +90,18 @@ def check_camera(rig, dataset: bool = False) -> None:
             check_range(cam[side], *RESOLUTION_RANGE, key, f"{side} {cam[side]} px")
 
 
+def scored_camera(rig, wanted: str = "") -> str:
+    """The camera whose frames score a case: the one it names (`case.camera`: a reversing ego's rear camera),
+    else the rig's first; GarageError at `case.camera` when the rig has no camera so named."""
+    names = [str(cam.name) for cam in rig.cameras]
+    if not wanted:
+        return names[0]
+    if wanted not in names:
+        raise GarageError(f"the case is scored by camera {wanted!r}; rig {rig.name} has {', '.join(names)} (pick a "
+                          f"rig with a camera named {wanted!r}, or set case.camera)", "case.camera")
+    return wanted
+
+
 def _effective(rig) -> list[dict]:
     """Each camera's values with the rig's top-level overrides applied (see CameraRigConf)."""
     out = []

@@ -24,6 +24,7 @@ import optuna
 from optuna.trial import TrialState
 
 from garage_exp.core.exits import SweepStopped
+from garage_exp.search import objectives
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 
@@ -159,7 +160,7 @@ class SearchLoop:
                 log.error("trial %d failed: %s", trial.number, out.attrs["error"])
             self.study.tell(trial, out.values, state=out.state)
             self.ran.append(trial.number)
-            print(line(trial.number, out, self.budget))
+            print(line(trial.number, out, self.budget, self.search.objective))
         return self.ran
 
 
@@ -193,23 +194,12 @@ class SearchLoop:
         return True
 
 
-def line(number: int, out: Outcome, budget: int) -> str:
+def line(number: int, out: Outcome, budget: int, objective: str) -> str:
+    """A trial's line on stdout, worded by the search's objective (objectives.py), whatever the values."""
+    head = f"garage_exp: trial {number + 1}/{budget}"
     if out.state == TrialState.FAIL:
-        return f"garage_exp: trial {number + 1}/{budget} failed: {out.attrs['error'].splitlines()[0]}"
+        return f"{head} failed: {out.attrs['error'].splitlines()[0]}"
+    goal = objectives.objective(objective)
     if out.state == TrialState.PRUNED:
-        if "slot_fair" in out.attrs:
-            return f"garage_exp: trial {number + 1}/{budget}: no fair slot in any BEV frame: infeasible"
-        if "late" in out.attrs:
-            return (f"garage_exp: trial {number + 1}/{budget}: never fairly visible before the critical distance: "
-                    "infeasible")
-        return (f"garage_exp: trial {number + 1}/{budget}: no fairly visible frame (visible fraction "
-                f"{out.attrs['visible_fraction']:.2f}): infeasible")
-    if "slot_fair" in out.attrs:
-        return (f"garage_exp: trial {number + 1}/{budget}: slot_miss {out.values[0]:.3f} (slot recall "
-                f"{out.attrs['slot_recall']:.3f}, {out.attrs['slot_fair']:.1f} fair slots a frame)")
-    if "late" in out.attrs and out.attrs.get("lateness") == out.values[0]:
-        distance = out.attrs.get("detection_distance")
-        return (f"garage_exp: trial {number + 1}/{budget}: lateness {out.values[0]:.3f} (late "
-                f"{out.attrs['late']:.2f}, confirmed at {'never' if distance is None else f'{distance:.1f} m'})")
-    return (f"garage_exp: trial {number + 1}/{budget}: difficulty {out.values[0]:.3f} over "
-            f"{out.attrs['fair_frames']} fair frame(s), visible fraction {out.attrs['visible_fraction']:.2f}")
+        return f"{head}: {goal.infeasible(out.attrs)}"
+    return f"{head}: {goal.scored(out.values, out.attrs)}"

@@ -27,6 +27,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from garage_exp.core.errors import GarageError
+from garage_exp.scene.camera import scored_camera
 
 LEVELS = ("none", "truth", "detector")
 
@@ -99,7 +100,7 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
     rows = []
     for item in render_frames(cheap, prepared.scene, prepared.setup, renderer, sensor,
                               np.random.default_rng(cfg.seed + 1)):
-        if item.camera != prepared.scene.cameras[0].name:
+        if item.camera != scored_camera(cheap.camera, str(cheap.case.get("camera") or "")):
             continue
         if detector is None:  # ground truth alone: no score
             score = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)

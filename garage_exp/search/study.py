@@ -14,11 +14,9 @@ import optuna
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.search import storage
+from garage_exp.search.objectives import OBJECTIVES
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid")
-# late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
-OBJECTIVES = {"difficulty": ["difficulty"], "pareto": ["difficulty", "visible_fraction"], "late": ["lateness"],
-              "slots": ["slot_miss"]}  # slots: 1 - recall of the fair slots (a slot case, docs/slots.md)
 MODES = ("search", "suite")
 # Trials a lost worker left RUNNING are failed once their heartbeat is this old (Optuna's heartbeat).
 HEARTBEAT_S, GRACE_S = 30, 120
@@ -172,7 +170,8 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
     url = storage_url(search)
     if url.startswith("sqlite:///"):
         Path(urlparse(url).path).parent.mkdir(parents=True, exist_ok=True)
-    directions = ["maximize"] * len(OBJECTIVES[search.objective])
+    goal = OBJECTIVES[search.objective]
+    directions = list(goal.directions)
     with storage_lock(url):
         if url.startswith("sqlite"):
             store = optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S,
@@ -185,9 +184,12 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
                                         sampler=sampler(search, seed, params), load_if_exists=True)
         except ValueError as exc:
             raise GarageError(f"study {name!r} in {url}: {exc}", "search.study") from None
-    if len(study.directions) != len(directions):
-        raise GarageError(f"study {name!r} was made for another objective ({len(study.directions)} values); "
+    held = study.user_attrs.get("direction_names")  # what its values are: another objective's must not mix in
+    if [d.name.lower() for d in study.directions] != directions or (held and list(held) != list(goal.metrics)):
+        made = f"{', '.join(held)}" if held else f"{len(study.directions)} values"
+        raise GarageError(f"study {name!r} was made for another objective ({made}, not {', '.join(goal.metrics)}); "
                           "give another search.study", "search.objective")
-    study.set_user_attr("direction_names", OBJECTIVES[search.objective])
-    study.set_metric_names(OBJECTIVES[search.objective])  # optuna-dashboard's axis labels
+    study.set_user_attr("direction_names", list(goal.metrics))  # the analysis names its columns from these
+    study.set_user_attr("untestable", goal.untestable)  # and says why a pruned trial was infeasible
+    study.set_metric_names(list(goal.metrics))  # optuna-dashboard's axis labels
     return study

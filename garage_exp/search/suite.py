@@ -5,9 +5,10 @@ resolved value) that reruns to the trial's frame table:
 
     python -m garage_exp --config-dir <suite> +scenario=hard_1
 
-with a manifest (manifest.csv: band, difficulty, visible fraction, overrides) and, with `dataset=true`, the
+with a manifest (manifest.csv: band, the objective's value (difficulty, lateness, ...), visible fraction, overrides) and, with `dataset=true`, the
 suite's frames as a dataset: each scenario is rerun with dataset=true into dataset/<scenario>/ (YOLO, COCO,
-KITTI), with one YOLO data.yaml and one COCO file over all of them.
+KITTI), with one YOLO data.yaml and one COCO file over all of them; with `export.openscenario=true`, each
+scenario as OpenSCENARIO and OpenDRIVE too (openscenario/<scenario>/scenario.xosc, garage.xodr).
 """
 
 from __future__ import annotations
@@ -22,9 +23,10 @@ from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 
 from garage_exp.core.paths import OUTPUTS_DIR
+from garage_exp.search.objectives import objective
 
 # Keys a scenario file leaves out: how and where a run is tracked is the rerunning user's, not the scenario's.
-NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset")
+NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset", "export")
 
 
 DEFAULT_BANDS = {"easy": [0.7, 1.01], "moderate": [0.4, 0.7], "hard": [0.0, 0.4]}
@@ -77,7 +79,8 @@ def scenario_yaml(job: DictConfig, name: str, trial) -> str:
     task = OmegaConf.masked_copy(job, [k for k in job if k not in NOT_SCENARIO])  # Hydra's node is not resolvable here
     values = OmegaConf.to_container(task, resolve=True)
     defaults = [{f"override /{group}": str(level)} for group, level in choices.items()] + ["_self_"]
-    head = (f"# @package _global_\n# Scenario {name}: trial {trial.number}, difficulty {trial.values[0]:.3f} over "
+    metric = objective(str(job.search.objective)).metric
+    head = (f"# @package _global_\n# Scenario {name}: trial {trial.number}, {metric} {trial.values[0]:.3f} over "
             f"{trial.user_attrs.get('fair_frames')} fair frame(s), visible fraction "
             f"{trial.user_attrs.get('visible_fraction', 0):.2f}.\n# Rerun: python -m garage_exp --config-dir <this "
             f"suite's dir> +scenario={name}\n")
@@ -90,6 +93,7 @@ def write_suite(config: DictConfig, study, loader, launch=None, name: str = "") 
     root = suite_dir(config, name or study.study_name)
     (root / "scenario").mkdir(parents=True, exist_ok=True)
     rows, paths, reruns = [], [], []
+    metric = objective(str(config.search.objective)).metric  # the manifest's value column: difficulty, lateness, ...
     chosen = members(study, config.search)
     for band, trials in chosen.items():
         for k, trial in enumerate(trials, start=1):
@@ -99,14 +103,20 @@ def write_suite(config: DictConfig, study, loader, launch=None, name: str = "") 
             path = root / "scenario" / f"{scenario}.yaml"
             path.write_text(scenario_yaml(job, scenario, trial))
             paths.append(path)
-            rows.append({"scenario": scenario, "band": band, "difficulty": round(trial.values[0], 6),
-                         "confidence": round(1.0 - trial.values[0], 6),
+            if config.export.openscenario:  # the scenario as OpenSCENARIO + OpenDRIVE, beside its YAML
+                from garage_exp.run.openscenario import export
+
+                export(job, root / "openscenario" / scenario)
+            rows.append({"scenario": scenario, "band": band, metric: round(trial.values[0], 6),
+                         "confidence": round(1.0 - trial.values[0], 6) if metric == "difficulty" else None,
                          "visible_fraction": round(trial.user_attrs.get("visible_fraction", 0.0), 6),
                          "fair_frames": trial.user_attrs.get("fair_frames"), "trial": trial.number,
                          "run_id": trial.user_attrs.get("run_id"), "overrides": " ".join(overrides)})
             reruns.append((scenario, [*overrides, f"search.trial={trial.number}"], trial.user_attrs.get("output_dir")))
+    if config.export.openscenario and rows:
+        paths.append(root / "openscenario")  # a folder: logged as one
     manifest = root / "manifest.csv"
-    pd.DataFrame(rows, columns=["scenario", "band", "difficulty", "confidence", "visible_fraction", "fair_frames",
+    pd.DataFrame(rows, columns=["scenario", "band", metric, "confidence", "visible_fraction", "fair_frames",
                                 "trial", "run_id", "overrides"]).to_csv(manifest, index=False)
     short = {band: len(t) for band, t in chosen.items() if len(t) < int(config.search.suite.per_band)}
     if short:

@@ -1,0 +1,47 @@
+"""When an along-moving actor (a person stepping out as the ego drives) is where: its walk from standstill, and
+its start timed by the ego's travel (`at`) or synchronised to arrive as the ego does (`meet`).
+
+A walk covers `accelerate` metres at a constant acceleration up to `speed`, then keeps that speed (Euro NCAP's
+pedestrian targets reach their speed after 1 m); `accelerate: 0` is at speed from the first step.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def travelled(along, tau: float) -> float:
+    """Metres covered `tau` seconds after the start (0 before it)."""
+    v, a = float(along.speed), float(along.accelerate or 0.0)
+    if tau <= 0 or v <= 0:
+        return 0.0
+    if a <= 0:
+        return v * tau
+    ramp = 2.0 * a / v  # seconds to reach v over a metres
+    if tau <= ramp:
+        return v * tau * tau / (2.0 * ramp)
+    return a + v * (tau - ramp)
+
+
+def travel_time(along, metres: float) -> float:
+    """Seconds from the start to cover `metres` (inf when the actor does not move)."""
+    v, a = float(along.speed), float(along.accelerate or 0.0)
+    if metres <= 0:
+        return 0.0
+    if v <= 0:
+        return math.inf
+    if a <= 0:
+        return metres / v
+    ramp = 2.0 * a / v
+    if metres <= a:
+        return ramp * math.sqrt(metres / a)
+    return ramp + (metres - a) / v
+
+
+def start_time(along, time_at) -> float:
+    """Seconds after the first frame when the actor sets off: at the ego's `at`, or so as to reach `end` at the
+    ego's `meet` (negative: it was already on its way at the first frame). `time_at(value)`: the ego's time at a
+    motion value."""
+    if along.get("meet") is not None:
+        return time_at(float(along.meet)) - travel_time(along, abs(float(along.end) - float(along.start)))
+    return time_at(float(along.at)) if along.at is not None else 0.0
