@@ -31,8 +31,8 @@ def test_colour_remap_agrees_with_opencv_within_tolerance():
     got = remap_bilinear(torch.from_numpy(pictures), sampling_grid(cube.map_x, cube.map_y, w, h)).numpy()
     want = np.stack([cv_remap(p, cube.map_x, cube.map_y) for p in pictures])
     diff = np.abs(got.astype(int) - want.astype(int))
-    # Stated tolerance: at most 4 levels anywhere (hard 20 -> 230 edges), under 0.3 level on average.
-    assert diff.max() <= 4 and diff.mean() < 0.3, (diff.max(), diff.mean())
+    # Stated tolerance: one 8-bit level (measured: 1 on 0.003% of the values, hard 20 -> 230 edges included).
+    assert diff.max() <= 1 and diff.mean() < 0.01, (diff.max(), diff.mean())
     outside = cube.map_x < 0
     assert outside.any() and (got[:, outside] == 0).all()
 

@@ -2,8 +2,8 @@
 colour with `grid_sample` (bilinear, the maps' -1 outside the lens giving black as cv2.remap's constant border
 does), ids by the nearest atlas pixel's flat index (exact: the same indices as `fisheye.lookup`).
 
-Colour agrees with cv2.remap within a few 8-bit levels where the picture has sharp edges: OpenCV quantises each
-sample's position to 1/32 pixel and its weights to 15 bits, grid_sample does not (tests/test_fisheye_torch.py).
+Colour agrees with cv2.remap within one 8-bit level (OpenCV quantises each sample's position to 1/32 pixel,
+grid_sample does not; tests/test_fisheye_torch.py).
 """
 
 from __future__ import annotations
