@@ -56,7 +56,7 @@ def batch_of(shots, n):
 
 
 class Batched:
-    """The batched pipeline over one job's scene: render, silhouettes, ground truth, camera model."""
+    """The batched pipeline (run.pipeline.shoot_batch) over one job's scene, in `scenes` sub-scenes."""
 
     def __init__(self, job, scenes: int):
         from garage_exp.render.batch import BatchRenderer
@@ -69,19 +69,10 @@ class Batched:
         return self.renderer.render(shots)
 
     def frames(self, shots, generator=None):
-        """(frames uint8 after the camera model, per-frame MaskStats) of the shots."""
-        import torch
+        """(frames after the camera model, per-frame MaskStats, colour before it): run.pipeline.shoot_batch."""
+        from garage_exp.run.pipeline import shoot_batch
 
-        from garage_exp.perception.batch_sensor import apply_batch
-        from garage_exp.perception.batch_truth import batch_mask_stats, stats_of
-
-        rgb, ids = self.renderer.render(shots)
-        sil = self.renderer.silhouettes(shots, self.names)
-        sub = self.renderer.subs[0]
-        actor_ids = torch.tensor([[sub.ids[m] for m in self.names]] * len(shots), dtype=torch.int32, device="cuda")
-        see = torch.tensor(sorted(sub._decal_ids), dtype=torch.int32, device="cuda")
-        stats = stats_of(batch_mask_stats(ids, sil, actor_ids, see), [self.names] * len(shots))
-        return apply_batch(self.job.sensor, rgb, generator), stats, rgb
+        return shoot_batch(self.renderer, shots, self.names, self.job.sensor, generator)
 
 
 def section(results: dict, name: str, fn) -> None:

@@ -204,6 +204,8 @@ class BatchRenderer:
         channel 3, as `SapienRenderer._take_ids` reads it."""
         import torch
 
+        if not names:
+            return torch.zeros((len(shots), 0, self.spec.height, self.spec.width), dtype=torch.bool, device="cuda")
         masks = []
         for name in names:
             for sub in self.subs:

@@ -192,3 +192,22 @@ def render_frames(cfg: DictConfig, scene: Scene, shots: Iterable[Shot], renderer
     """The render half of the pipeline for callers that detect on their own (the pre-screen's in-process
     detector, the benchmarks and tests of the render stage): every camera of every shot, in order."""
     return FramePipeline(cfg, scene, renderer, sensor, sensor_rng).frames(shots)
+
+
+def shoot_batch(renderer, shots: Sequence[Shot], actors: Sequence[str], sensor, generator=None):
+    """The GPU path's render, ground truth and camera model for a batch of shots, one per sub-scene of a
+    `render.batch.BatchRenderer`: (frames after the camera model (N, H, W, 3) uint8 CUDA, each frame's
+    `groundtruth.MaskStats` of `actors`, the rendered colour before the camera model). Only the numbers cross
+    to the CPU; `groundtruth.truth_records` makes the records of a frame from its stats."""
+    import torch
+
+    from garage_exp.perception.batch_sensor import apply_batch
+    from garage_exp.perception.batch_truth import batch_mask_stats, stats_of
+
+    rgb, ids = renderer.render(shots)
+    silhouettes = renderer.silhouettes(shots, actors)
+    known = renderer.subs[0].ids
+    actor_ids = torch.tensor([[known[m] for m in actors]] * len(shots), dtype=torch.int32, device=ids.device)
+    see = torch.tensor(sorted(renderer.subs[0]._decal_ids), dtype=torch.int32, device=ids.device)
+    stats = stats_of(batch_mask_stats(ids, silhouettes, actor_ids, see), [list(actors)] * len(shots))
+    return apply_batch(sensor, rgb, generator), stats, rgb
