@@ -68,7 +68,8 @@ def main() -> int:
     launch.CachedLaunch.__call__ = call
     error = None
     with tempfile.TemporaryDirectory() as tmp:
-        argv = ["-m", "hydra/sweeper=search", *SCENARIO, "case.motion.start=12", "case.motion.end=11",
+        scenario = [o for o in SCENARIO if not o.startswith("case.motion.")]  # two frames a trial, not five
+        argv = ["-m", "hydra/sweeper=search", *scenario, "case.motion.start=12", "case.motion.end=11",
                 "camera.width=320", "camera.height=240", "renderer.save_frames=none", *SPACE,
                 f"search.trials={opts.trials}", "search.sampler=random", "search.study=soak",
                 f"search.storage=sqlite:///{tmp}/optuna.db", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
