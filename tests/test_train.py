@@ -282,48 +282,6 @@ def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
         Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
 
 
-def unmatched(ours, theirs, box_px: float, score_tol: float, above: float) -> int:
-    """How many of `ours` detections scoring at least `above` have no counterpart in `theirs`: the same class,
-    corners within box_px, the score within score_tol. Both are `Detections` of one frame."""
-    import numpy as np
-
-    missing = 0
-    for box, score, cls in zip(ours.boxes, ours.scores, ours.classes):
-        if score < above:  # near the threshold the other may have kept it or not
-            continue
-        same = [k for k, c in enumerate(theirs.classes) if c == cls
-                and np.abs(theirs.boxes[k] - box).max() <= box_px and abs(theirs.scores[k] - score) <= score_tol]
-        missing += not same
-    return missing
-
-
-@pytest.mark.slow
-def test_an_onnx_export_of_the_trained_model_detects_as_its_pt(trained, tmp_path):
-    """The trained project model exported by ultralytics to ONNX (run through onnxruntime) gives the same
-    detections as its .pt on the rendered frames it was trained on: every detection of either within 0.5 px and
-    a confidence within 0.002 of one of the other's, same class (docs/perception.md states this tolerance)."""
-    import numpy as np
-    from PIL import Image
-    from ultralytics import YOLO
-
-    from garage_exp.perception.detect import Detector, resolve
-
-    tmp, uri, jobs, _ = trained
-    pt = tmp_path / "trained.pt"
-    shutil.copyfile(resolve(f"models:/{NAME}/1", uri), pt)
-    onnx = YOLO(str(pt)).export(format="onnx", imgsz=128, simplify=False)
-    images = sorted((jobs[0] / "dataset" / "images").glob("*.png")) + sorted((jobs[1] / "dataset" / "images").glob("*.png"))
-    frames = [np.asarray(Image.open(p).convert("RGB")) for p in images]
-    a = Detector([pt], conf=0.01, imgsz=128, device="cpu").detect(frames)
-    b = Detector([onnx], conf=0.01, imgsz=128, device="cpu").detect(frames)
-    compared = 0
-    for (x,), (y,) in zip(a, b):
-        print(len(x), len(y), x.scores[:5], y.scores[:5])
-        assert unmatched(x, y, 0.5, 0.002, 0.012) == 0 and unmatched(y, x, 0.5, 0.002, 0.012) == 0
-        compared += int((x.scores >= 0.012).sum())
-    assert compared >= 8, "too few detections to compare"
-
-
 def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):
     """Issue 31, item 10: a D0 that scores 0 everywhere puts every held-out trial at difficulty 1; the hard and easy
     suites were then an arbitrary split, silently."""
@@ -346,3 +304,42 @@ def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):
     tied = [Trial("heldout", k, "COMPLETE", [0.9, 0.5, 0.5, 0.5, 0.5, 0.1][k], tmp_path / str(k)) for k in range(6)]
     assert "4 held-out trials tie" in report.heldout_suites(cfg, tied, {}).note
     assert "the same scenarios" in report.heldout_suites(cfg, flat[:1], {}).note
+
+
+@pytest.mark.slow
+def test_an_onnx_export_of_the_trained_model_detects_as_its_pt(trained, tmp_path):
+    """The trained project model exported by ultralytics to ONNX gives the same detections as its .pt: on the
+    rendered frames it was trained on, every candidate detection before non-maximum suppression (all 84 x N
+    outputs: box centre and size in pixels, 80 class scores) agrees within 0.01 px and 1e-4 (docs/perception.md
+    states this tolerance), and the ONNX file runs as a detector entry. After one epoch every candidate scores
+    near its prior (~1e-4), so which of the tied boxes NMS keeps is arbitrary: the candidates are compared, not
+    the kept boxes."""
+    import numpy as np
+    import onnxruntime
+    import torch
+    from PIL import Image
+    from ultralytics import YOLO
+    from ultralytics.data.augment import LetterBox
+
+    from garage_exp.perception.detect import Detector, resolve
+
+    tmp, uri, jobs, _ = trained
+    pt = tmp_path / "trained.pt"
+    shutil.copyfile(resolve(f"models:/{NAME}/1", uri), pt)
+    # dynamic: the graph takes the .pt's rectangular (letterboxed to a multiple of 32) input, not a fixed square
+    onnx = YOLO(str(pt)).export(format="onnx", imgsz=128, dynamic=True, simplify=False)
+    images = sorted(p for job in jobs for p in (job / "dataset" / "images").glob("*.png"))
+    frames = [np.asarray(Image.open(p).convert("RGB")) for p in images]
+    network = YOLO(str(pt)).model.float().eval()
+    session = onnxruntime.InferenceSession(onnx, providers=["CPUExecutionProvider"])
+    for rgb in frames:
+        image = LetterBox((128, 128), auto=True, stride=32)(image=rgb[..., ::-1])  # as ultralytics' predictor
+        tensor = torch.from_numpy(np.ascontiguousarray(image[..., ::-1].transpose(2, 0, 1))).float()[None] / 255.0
+        with torch.no_grad():
+            ours = network(tensor)[0].numpy()
+        theirs = session.run(None, {session.get_inputs()[0].name: tensor.numpy()})[0]
+        assert ours.shape == theirs.shape and ours.shape[1] == 84 and ours.shape[2] > 100
+        assert np.abs(ours[:, :4] - theirs[:, :4]).max() <= 0.01  # boxes, pixels
+        assert np.abs(ours[:, 4:] - theirs[:, 4:]).max() <= 1e-4  # class scores
+    found = Detector([onnx], conf=0.0, imgsz=128, device="cpu").detect(frames[:2])
+    assert [d.model for (d,) in found] == ["trained", "trained"] and all(len(d) for (d,) in found)

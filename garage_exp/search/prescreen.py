@@ -105,7 +105,7 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
         if detector is None:  # ground truth alone: no score
             score = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
         else:
-            dets = detector.detect([item.rgb], pipeline.intrinsics[prepared.scene.cameras[0].name])[0]
+            dets = detector.detect([item.rgb], pipeline.intrinsics[item.camera])[0]  # the scored camera's own
             score = pipeline.score(item, dets)
         rows.append(frame_row(item.shot, item.camera, item.target, score, detector.names if detector else [],
                               replicated=cfg.replicates > 1))
