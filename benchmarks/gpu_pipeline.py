@@ -61,8 +61,10 @@ class Batched:
     def __init__(self, job, scenes: int):
         from garage_exp.render.batch import BatchRenderer
         from garage_exp.run.pipeline import in_view
+        from garage_exp.scenario.assemble import HIDDEN
 
-        self.job, self.renderer = job, BatchRenderer(job.scene, scenes, max_lights=job.cfg.renderer.max_lights)
+        self.job = job
+        self.renderer = BatchRenderer(job.scene, scenes, HIDDEN, max_lights=job.cfg.renderer.max_lights)
         self.names = in_view(job.scene, {})
 
     def ceiling(self, shots):

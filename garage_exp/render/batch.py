@@ -136,7 +136,7 @@ class BatchRenderer:
     the GPU. Pinhole cameras only (a fisheye rig's faces are pinhole crops: render those and remap them with
     render/fisheye_torch.py). Needs CUDA (`require_cuda`)."""
 
-    def __init__(self, scene, scenes: int, max_lights: int = 8, camera: str | None = None):
+    def __init__(self, scene, scenes: int, hidden: Pose, max_lights: int = 8, camera: str | None = None):
         require_cuda()
         import sapien
         import torch
@@ -147,7 +147,7 @@ class BatchRenderer:
         if spec.fisheye:
             raise GarageError("the batched renderer takes pinhole cameras; a fisheye is rendered as its faces",
                               "renderer.device")
-        self.scene, self.spec = scene, spec
+        self.scene, self.spec, self.hidden = scene, spec, hidden  # hidden: where an absent actor waits
         self.subs = []
         for _ in range(scenes):  # each its own sapien.Scene, built as the CPU path builds it
             sub = SapienRenderer(max_lights=max_lights, device="cuda", cull=False)
@@ -177,11 +177,9 @@ class BatchRenderer:
     def _pose(self, shots: Sequence) -> None:
         import torch
 
-        from garage_exp.scenario.assemble import HIDDEN
-
         specs = {self.spec.name: self.spec}
         rest = {e.name: e.pose for e in self.scene.entities}
-        self.poses.copy_(torch.from_numpy(pack(self.layout, shots, specs, HIDDEN, rest)))
+        self.poses.copy_(torch.from_numpy(pack(self.layout, shots, specs, self.hidden, rest)))
         for sub, shot in zip(self.subs, shots):  # the light pool follows each camera (CPU-side, per sub-scene)
             sub._place(sub._cameras[self.spec.name], camera_to_world(shot.ego, self.spec))
             sub._show_only(sub._base)
