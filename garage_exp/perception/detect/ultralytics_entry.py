@@ -87,7 +87,7 @@ def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int =
 
     threads > 0 caps OpenVINO's inference threads (0: OpenVINO's default, all cores). With rendering running
     beside detection on a small machine, one thread each wastes less CPU than two each fighting for the same
-    cores (benchmarks/RESULTS.md). Ignored for other formats.
+    cores (docs/performance.md). Ignored for other formats.
     """
     kind = model_format(path)
     prepare_offline()
