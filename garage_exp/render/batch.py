@@ -141,7 +141,8 @@ class BatchRenderer:
         import sapien
         import torch
 
-        from garage_exp.render.sapien_backend import DECALS, SapienRenderer
+        from garage_exp.render.sapien_backend import SapienRenderer
+        from garage_exp.render.sapien_builder import DECALS
 
         spec = next((c for c in scene.cameras if c.name == camera), scene.cameras[0]) if camera else scene.cameras[0]
         if spec.fisheye:
@@ -153,7 +154,7 @@ class BatchRenderer:
             sub = SapienRenderer(max_lights=max_lights, device="cuda", cull=False)
             sub.load(scene)
             self.subs.append(sub)
-        movers = tuple(n for n in self.subs[0]._entities if n != self.subs[0]._ego and not n.endswith(DECALS))
+        movers = tuple(n for n in self.subs[0]._built.entities if n != self.subs[0]._ego and not n.endswith(DECALS))
         self.layout = Layout(scenes, (spec.name,), ("ego", *movers))
         ego = self.subs[0]._ego
         for i, sub in enumerate(self.subs):
@@ -162,11 +163,12 @@ class BatchRenderer:
                 component.set_gpu_pose_batch_index(self.layout.row(i, spec.name))
             for name in self.layout.actors:
                 entity = ego if name == "ego" else name
-                for node in (sub._entities.get(entity), sub._entities.get(entity + DECALS)):  # its shadow too
+                entities = sub._built.entities
+                for node in (entities.get(entity), entities.get(entity + DECALS)):  # its contact shadow too
                     for body in (node.components if node is not None else []):
                         for shape in getattr(body, "render_shapes", []):
                             shape.set_gpu_pose_batch_index(self.layout.row(i, name))
-        self.group = sapien.render.RenderSystemGroup([sub._scene.render_system for sub in self.subs])
+        self.group = sapien.render.RenderSystemGroup([sub._built.scene.render_system for sub in self.subs])
         self.lit = self.group.create_camera_group([s._cameras[spec.name].component for s in self.subs],
                                                   ["Color", "Segmentation"])
         self.ids_only = self.group.create_camera_group([s._cameras[spec.name].silhouette for s in self.subs],
@@ -182,7 +184,7 @@ class BatchRenderer:
         self.poses.copy_(torch.from_numpy(pack(self.layout, shots, specs, self.hidden, rest)))
         for sub, shot in zip(self.subs, shots):  # the light pool follows each camera (CPU-side, per sub-scene)
             sub._place(sub._cameras[self.spec.name], camera_to_world(shot.ego, self.spec))
-            sub._show_only(sub._base)
+            sub.bodies.show_only(sub.bodies.base)
         self.group.update_render()
 
     def render(self, shots: Sequence):
@@ -207,13 +209,11 @@ class BatchRenderer:
         masks = []
         for name in names:
             for sub in self.subs:
-                alone = np.zeros(len(sub._all), dtype=bool)
-                alone[sub._index[name]] = True
-                sub._show_only(alone)
+                sub.bodies.show_only(sub.bodies.only([name]))
             self.group.update_render()
             self.ids_only.take_picture()
             ids = torch.as_tensor(self.ids_only.get_picture_cuda("PositionSegmentation"), device="cuda")
-            masks.append(ids[: len(shots), ..., 3] == self.subs[0]._ids[name])
+            masks.append(ids[: len(shots), ..., 3] == self.subs[0].ids[name])
         for sub in self.subs:
-            sub._show_only(sub._base)
+            sub.bodies.show_only(sub.bodies.base)
         return torch.stack(masks, dim=1)

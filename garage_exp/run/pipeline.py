@@ -208,6 +208,6 @@ def shoot_batch(renderer, shots: Sequence[Shot], actors: Sequence[str], sensor, 
     silhouettes = renderer.silhouettes(shots, actors)
     known = renderer.subs[0].ids
     actor_ids = torch.tensor([[known[m] for m in actors]] * len(shots), dtype=torch.int32, device=ids.device)
-    see = torch.tensor(sorted(renderer.subs[0]._decal_ids), dtype=torch.int32, device=ids.device)
+    see = torch.tensor(sorted(renderer.subs[0]._built.decal_ids), dtype=torch.int32, device=ids.device)
     stats = stats_of(batch_mask_stats(ids, silhouettes, actor_ids, see), [list(actors)] * len(shots))
     return apply_batch(sensor, rgb, generator), stats, rgb

@@ -1,6 +1,6 @@
 """The batched GPU pipeline against SAPIEN's own ceiling, in one run, on one card (issue 34). One command:
 
-    python benchmarks/gpu_pipeline.py --out gpu_pipeline.json
+    python -m benchmarks.performance.gpu_pipeline --out gpu_pipeline.json
 
 On a machine without CUDA it refuses in one line (exit 2). It measures, in this process, on the project's real
 garage (the research plan, case 1, 640x480 unless --width/--height):
@@ -14,7 +14,7 @@ garage (the research plan, case 1, 640x480 unless --width/--height):
 - detectors: end to end, the batched pipeline's frames through the project's composite detector
   (`Detector.detect` on a batch: the three entries of detector.models), frames/s.
 - fisheye4: the four-fisheye rig's faces rendered batched and remapped with grid_sample, delivered Mpx/s.
-- search: trials/hour of today's search on this card (benchmarks/bench_search.py's throughput run, --trials).
+- search: trials/hour of today's search on this card (benchmarks/studies/search.py's throughput run, --trials).
 - gym: StepOut-v0 env steps/s (random actions).
 Each section records its error instead of its numbers when it fails, so one run gives every figure it can.
 """
@@ -30,8 +30,7 @@ import time
 import traceback
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchmarks.common import ROOT
 
 SCENE = ["plan=research", "case=1", "palette.target_colours=[black]", "renderer.device=cuda", "look=flat"]
 
@@ -117,7 +116,7 @@ def main() -> int:
     import numpy as np
     import torch
 
-    from jobkit import build_job
+    from benchmarks.jobkit import build_job
 
     skip = set(filter(None, opts.skip.split(",")))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
@@ -202,7 +201,7 @@ def main() -> int:
     def search():
         import tempfile
 
-        from bench_search import Timers, throughput
+        from benchmarks.studies.search import Timers, throughput
 
         timers, lines = Timers(), []
         timers.install()

@@ -5,7 +5,7 @@ research plan at QVGA, two frames a trial, random sampler, and records after eve
 (RSS) of this process and of the detector's child. Passes when every trial completed and this process's RSS
 grew less than `--limit` MB (default 50) from the end of the warm-up (`--warmup` trials) to the end.
 
-    nice -n 15 python benchmarks/soak.py --trials 300 --out /tmp/soak.json
+    nice -n 15 python -m benchmarks.performance.soak --trials 300 --out /tmp/soak.json
 
 The JSON holds the per-trial curve (trial, seconds since start, RSS MB, child RSS MB) and the verdict; the
 docs (docs/performance.md) quote it with the command, commit, date and machine.
@@ -22,10 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from bench_search import SCENARIO, SPACE  # noqa: E402 - the search benchmark's scenario and space
+from benchmarks.common import ROOT
+from benchmarks.studies.search import SCENARIO, SPACE  # the search benchmark's scenario and space
 
 
 def rss_mb(pid: int) -> float:
