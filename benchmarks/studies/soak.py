@@ -5,7 +5,7 @@ research plan at QVGA, two frames a trial, random sampler, and records after eve
 (RSS) of this process and of the detector's child. Passes when every trial completed and this process's RSS
 grew less than `--limit` MB (default 50) from the end of the warm-up (`--warmup` trials) to the end.
 
-    nice -n 15 python -m benchmarks.performance.soak --trials 300 --out /tmp/soak.json
+    nice -n 15 python -m benchmarks.studies.soak --trials 300 --out /tmp/soak.json
 
 The JSON holds the per-trial curve (trial, seconds since start, RSS MB, child RSS MB) and the verdict; the
 docs (docs/performance.md) quote it with the command, commit, date and machine.
