@@ -42,6 +42,7 @@ def main() -> int:
     parser.add_argument("--limit", type=float, default=50.0, help="allowed RSS growth after the warm-up, MB")
     parser.add_argument("--out", default="soak.json")
     opts = parser.parse_args()
+    command = " ".join(["python -m benchmarks.studies.soak", *sys.argv[1:]])  # before Hydra rewrites sys.argv
     os.environ.setdefault("YOLO_OFFLINE", "1")
 
     from garage_exp.cli import app
@@ -83,7 +84,7 @@ def main() -> int:
     growth = curve[-1]["rss_mb"] - base if curve else float("nan")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                             text=True).stdout.strip()
-    result = {"command": " ".join(sys.argv), "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
+    result = {"command": command, "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
               "machine": f"{os.cpu_count()} cores", "trials_done": len(curve), "trials_asked": opts.trials,
               "error": error, "warmup": opts.warmup, "rss_after_warmup_mb": base, "rss_growth_mb": round(growth, 1),
               "limit_mb": opts.limit, "passed": error is None and len(curve) == opts.trials and growth < opts.limit,
