@@ -22,13 +22,16 @@ from conftest import PYTHON, ROOT, run_app
 CORPUS = Path(__file__).resolve().parent / "bad_inputs"
 CASES = yaml.safe_load((CORPUS / "cases.yaml").read_text())
 BY_ID = {c["id"]: c for c in CASES}
+# `command`: which command an entry runs (default the main one), as its cli's "module:function" ("" = garage_exp's).
+COMMANDS = {"garage_exp": "", "verify": "garage_exp.verify.app:cli"}
 
 
 def test_corpus_is_large_and_well_formed():
     assert len(CASES) >= 30
     assert len(BY_ID) == len(CASES), "duplicate ids"
     for case in CASES:
-        assert set(case) <= {"id", "args", "expect", "env", "generate", "absent"}, case["id"]
+        assert set(case) <= {"id", "args", "expect", "env", "generate", "absent", "command", "server"}, case["id"]
+        assert case.get("command", "garage_exp") in COMMANDS, case["id"]
         assert case["expect"], case["id"]
         for arg in case["args"]:
             for path in re.findall(r"\{corpus\}/(\S+?)(?:\]|$)", arg):
@@ -67,15 +70,17 @@ def files_under(path: Path) -> set[str]:
     return {str(p.relative_to(path)) for p in path.rglob("*")}
 
 
-def forked_cli(batch: list[tuple[list[str], Path, dict]], scratch: Path) -> list[subprocess.CompletedProcess]:
-    """`python -m garage_exp ARGS` for each (args, cwd, env) of the batch, through tests/cli_forkserver.py (two
-    at a time, without paying the interpreter's start-up each time)."""
+def forked_cli(batch: list[tuple[list[str], Path, dict]], scratch: Path, entries: list[str] | None = None
+               ) -> list[subprocess.CompletedProcess]:
+    """`python -m garage_exp ARGS` (or the command of `entries`, one per request: COMMANDS' values) for each
+    (args, cwd, env) of the batch, through tests/cli_forkserver.py (two at a time, without paying the
+    interpreter's start-up each time)."""
 
     requests, results = [], []
     for k, (args, cwd, env) in enumerate(batch):
         argv = [*args, f"hydra.run.dir={cwd}/run", f"hydra.sweep.dir={cwd}/sweep"]  # as conftest.run_app
         requests.append({"argv": argv, "cwd": str(cwd), "env": env, "stdout": str(scratch / f"{k}.out"),
-                         "stderr": str(scratch / f"{k}.err")})
+                         "stderr": str(scratch / f"{k}.err"), "entry": (entries or [""] * len(batch))[k]})
     proc = subprocess.run([PYTHON, str(Path(__file__).with_name("cli_forkserver.py"))], cwd=scratch,
                           input="".join(json.dumps(r) + "\n" for r in requests), capture_output=True, text=True,
                           env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, timeout=600)
@@ -87,8 +92,11 @@ def forked_cli(batch: list[tuple[list[str], Path, dict]], scratch: Path) -> list
     return results
 
 
-def prepare(case: dict, work: Path) -> tuple[list[str], dict, list[str]]:
-    fill = lambda s: s.replace("{corpus}", str(CORPUS)).replace("{work}", str(work))  # noqa: E731
+def prepare(case: dict, work: Path, server: str = "") -> tuple[list[str], dict, list[str]]:
+    """The entry's arguments, environment and expected strings, with {corpus}, {work} and {server} (the URL of
+    the model the entry's `server` serves) filled in."""
+    fill = lambda s: s.replace("{corpus}", str(CORPUS)).replace("{work}", str(work)).replace(  # noqa: E731
+        "{server}", server)
     if case.get("generate"):
         generate(case["generate"], work)
     args = [fill(a) for a in case["args"]] + [f"tracking.uri=sqlite:///{work}/mlflow.db"]
@@ -110,15 +118,34 @@ def corpus_results(request, tmp_path_factory):
     """Runs the selected corpus entries through the fork server."""
     selected = [item.callspec.params["case_id"] for item in request.session.items
                 if item.module is request.module and hasattr(item, "callspec") and "case_id" in item.callspec.params]
-    results, batch = {}, []
-    for cid in selected:
-        work = tmp_path_factory.mktemp(cid)
-        args, env, expect = prepare(BY_ID[cid], work)
-        results[cid] = {"before": files_under(work), "work": work, "expect": expect}
-        batch.append((args, work, env))
-    for cid, proc in zip(selected, forked_cli(batch, tmp_path_factory.mktemp("forkserver"))):
-        results[cid].update(proc=proc, after=files_under(results[cid]["work"]))
+    results, batch, servers = {}, [], {}
+    try:
+        for cid in selected:
+            work = tmp_path_factory.mktemp(cid)
+            url = serve(BY_ID[cid], servers, tmp_path_factory) if BY_ID[cid].get("server") else ""
+            args, env, expect = prepare(BY_ID[cid], work, url)
+            results[cid] = {"before": files_under(work), "work": work, "expect": expect}
+            batch.append((args, work, env))
+        entries = [COMMANDS[BY_ID[cid].get("command", "garage_exp")] for cid in selected]
+        for cid, proc in zip(selected, forked_cli(batch, tmp_path_factory.mktemp("forkserver"), entries)):
+            results[cid].update(proc=proc, after=files_under(results[cid]["work"]))
+    finally:
+        for server in servers.values():
+            server.stop()
     return results
+
+
+def serve(case: dict, servers: dict, tmp_path_factory) -> str:
+    """A model server (tests/kserve_server.py, serving the small ONNX graph) with the entry's fault, started once
+    per fault for the module's run; the URL of its model. The caller stops every server by its pid."""
+    from kserve_server import Server, brightness_onnx
+
+    fault = case["server"]
+    if fault not in servers:
+        model = brightness_onnx(tmp_path_factory.mktemp("served") / "bright.onnx")
+        servers[fault] = Server({"bright": model}, fault=fault)
+        servers[fault].start()
+    return servers[fault].url("bright")
 
 
 def test_fork_server_answers_as_the_real_command_line(tmp_path_factory):
@@ -145,7 +172,8 @@ def test_bad_input(case_id, corpus_results):
     assert proc.returncode == 2, f"exit {proc.returncode}\nstdout:\n{proc.stdout[-3000:]}\nstderr:\n{proc.stderr}"
     assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
     lines = [ln.strip() for ln in re.split(r"[\r\n]+", proc.stderr) if ln.strip()]
-    ours = [ln for ln in lines if ln.startswith("garage_exp: ")]
+    command = case.get("command", "garage_exp")
+    ours = [ln for ln in lines if ln.startswith(f"{command if command == 'garage_exp' else 'garage_exp.' + command}: ")]
     assert len(ours) == 1, proc.stderr
     line = ours[0]
     for text in result["expect"]:

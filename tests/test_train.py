@@ -278,8 +278,86 @@ def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
     loop = Loop(OmegaConf.create({"dir": str(tmp_path)}))
     assert loop.reuse("arm", ["train", "epochs=6"], done=False) is False  # not done: run it
     assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
-    with pytest.raises(GarageError, match="epochs=8"):
+    with pytest.raises(GarageError, match="epochs=6 -> 8"):
         Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
+
+
+def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch, capsys):
+    """Issue 31, item 7: a study begun with 4 trials is not resumed with 5, and a training whose data list now
+    holds another split is not reused, finished or not; the refusal is one line and runs nothing."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop import steps
+    from garage_exp.loop.app import Loop
+
+    ran = []
+
+    def fake_run(cmd, log):
+        ran.append(cmd)
+        if "garage_exp.train" in cmd:
+            out = Path(next(a for a in cmd if a.startswith("hydra.run.dir="))[len("hydra.run.dir="):])
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "result.json").write_text("{}")
+
+    monkeypatch.setattr(steps, "run", fake_run)
+    monkeypatch.setattr(steps, "trials", lambda cfg, study: [])
+    monkeypatch.setattr(steps, "study_done", lambda cfg, study, n: False)  # interrupted: 4 of 4 never finished
+    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "loop.yaml")
+    cfg = OmegaConf.merge(cfg, {"dir": str(tmp_path), "tracking": {"uri": "sqlite:///x.db"}})
+    study = ("base", ["research"], 4, "qmc", 0)
+    loop = Loop(cfg)
+    loop.step("base data", lambda: loop.study(*study))
+    loop.step("base data", lambda: loop.study(*study))  # the same inputs: resumed
+    assert len(ran) == 2
+    with pytest.raises(GarageError, match=r"'base' made from other inputs \(search.trials=4 -> 5\)"):
+        fresh = Loop(cfg)
+        fresh.step("base data", lambda: fresh.study("base", ["research"], 5, "qmc", 0))
+    data = tmp_path / "data" / "base_train.yaml"
+    data.parent.mkdir()
+    data.write_text("train: [a]\n")
+    kw = {"data": [data], "val": [data], "base": "yolov8n.yaml", "epochs": 1, "seed": 0, "lr0": 0.01}
+    loop.step("D0", lambda: loop.train("D0", **kw))
+    loop.step("D0", lambda: loop.train("D0", **kw))  # finished, same inputs: reused
+    assert len(ran) == 3
+    data.write_text("train: [b]\n")  # another split (val_fraction=...) under the same path
+    capsys.readouterr()
+    with pytest.raises(GarageError, match=r"base_train.yaml changed\); give this run another dir"):
+        Loop(cfg).train("D0", **kw)
+    assert len(ran) == 3 and capsys.readouterr().out == ""
+
+
+def test_training_data_leaves_the_inputs_untouched(tmp_path):
+    """ultralytics writes labels.cache beside the labels it reads: the lists name links under the run's data/
+    folder, so the cache lands there and the input suites stay as they were (issue 31, item 12)."""
+    from omegaconf import OmegaConf
+    from ultralytics.data.dataset import YOLODataset
+
+    from garage_exp.core.offline import prepare_offline
+    from garage_exp.train.data import plan_data, write_data
+
+    prepare_offline()
+    sets = [str(write_dataset(tmp_path / "inputs" / f"scenario{k}")) for k in range(2)]
+    before = sorted(p for p in (tmp_path / "inputs").rglob("*"))
+    cfg = OmegaConf.create({"data": sets, "val": [], "val_fraction": 0.5, "replay": [], "replay_fraction": 0.0,
+                            "seed": 0})
+    data_yaml = write_data(plan_data(cfg), tmp_path / "out")
+    spec = yaml.safe_load(data_yaml.read_text())
+    for split in ("train", "val"):
+        dataset = YOLODataset(img_path=str(tmp_path / "out" / spec[split]), imgsz=64, augment=False,
+                              data={"names": spec["names"], "channels": 3})
+        assert len(dataset.labels) == 1 and dataset.labels[0]["cls"].tolist() == [[2.0]]
+    assert sorted(p for p in (tmp_path / "inputs").rglob("*")) == before
+    assert len(list((tmp_path / "out").rglob("labels.cache"))) == 2
+
+
+def test_an_unknown_base_is_named_once(tmp_path):
+    from garage_exp.core.errors import GarageError
+    from garage_exp.train.base import load_base
+
+    with pytest.raises(GarageError) as caught:
+        load_base(str(tmp_path / "weights.txt"), None)
+    assert str(caught.value).startswith("base: ") and "base: base:" not in str(caught.value)
 
 
 def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):

@@ -8,8 +8,6 @@ labelled actor by COCOeval on the exported COCO file.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from garage_exp.core.schema import SearchConf
 from garage_exp.exports.coco import CATEGORY_IDS
 from garage_exp.loop.steps import Trial
 from garage_exp.perception.detect import GTBox, score_target
+from garage_exp.results import cocoeval
 from garage_exp.results.table import fair_mask
 
 VISIBLE_BINS = (0.0, 0.25, 0.5, 0.75, 1.0001)
@@ -78,9 +77,6 @@ def score_frames(model: Path, imgsz: int, trials: list[Trial], threshold: float,
 
 def map50(trials: list[Trial], detections: list) -> float:
     """COCO AP at IoU 0.5 over every labelled actor of the trials' datasets (their COCO files merged)."""
-    from pycocotools.coco import COCO
-    from pycocotools.cocoeval import COCOeval
-
     gt = {"images": [], "annotations": [], "categories": []}
     ids = {}
     for trial in trials:
@@ -94,17 +90,7 @@ def map50(trials: list[Trial], detections: list) -> float:
             gt["annotations"].append({**a, "id": len(gt["annotations"]) + 1, "image_id": remap[a["image_id"]]})
     dts = [{"image_id": ids[(t, name)], "category_id": c, "bbox": b, "score": s} for t, name, c, b, s in detections
            if (t, name) in ids]
-    if not gt["annotations"] or not dts:
-        return 0.0
-    with contextlib.redirect_stdout(io.StringIO()):  # COCOeval prints its whole table
-        ground = COCO()
-        ground.dataset = gt
-        ground.createIndex()
-        ev = COCOeval(ground, ground.loadRes(dts), "bbox")
-        ev.evaluate()
-        ev.accumulate()
-        ev.summarize()
-    return float(max(ev.stats[1], 0.0))  # -1 means no ground truth of any category evaluated
+    return cocoeval.ap50(gt, dts)
 
 
 def summarise(frames: pd.DataFrame, ap50: float) -> dict:

@@ -21,6 +21,7 @@ from garage_exp.results import table as frame_table
 from garage_exp.run.pipeline import FramePipeline
 from garage_exp.scenario import CaseSetup
 from garage_exp.scenario.build import moves_ego
+from garage_exp.scenario.fits import hint
 from garage_exp.run.slots import SlotFrames, slot_line
 from garage_exp.run.slots import wanted as slot_frames_wanted
 from garage_exp.scene.camera import scored_camera
@@ -123,7 +124,18 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
                 run.log_artifact(path, "frames")
     if dataset is not None:
         run.log_artifact(dataset.finish())
-    print(frame_table.one_line(cfg, summary, len(table)))
+    print(frame_table.one_line(cfg, summary, [cam.name for cam in scene.cameras], primary))
+    if not summary["fair_frames"] and not trial:
+        print(no_fair_line(cfg, primary, len(scene.cameras) > 1))
     if "late_testable" in summary:
         print(late.line(summary))
     return summary
+
+
+def no_fair_line(cfg: DictConfig, primary: str, rig: bool) -> str:
+    """Said when no frame tested the detector fairly: its numbers measure a hidden, tiny or cut-off target."""
+    where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+    return (f"garage_exp: no frame {f'of the primary camera ({primary}) ' if rig else ''}is a fair test (the target "
+            f"at least {cfg.search.min_visible:g} visible, {cfg.search.min_box:g} px tall, at most "
+            f"{cfg.search.max_truncation:g} cut off): the numbers above measure no fair frame"
+            + (f"; {where}" if where else ""))

@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import PLANS_DIR
 from garage_exp.core.state import STATE
+from garage_exp.scenario.fits import hint
 
 
 @dataclass
@@ -152,8 +153,14 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
 
         detector = build_detector(cfg.detector)  # a missing file or unknown format fails here (nothing downloaded)
         check_slot_weights(cfg.slot_detector)
-        prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
-                                                     np.random.default_rng(int(cfg.seed)))
+        try:
+            prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
+                                                         np.random.default_rng(int(cfg.seed)))
+        except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
+            where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+            if not where:
+                raise
+            raise GarageError(f"{exc}; {where}") from None
         prepared.detector = check_loads(detector, prepared.scene)
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:

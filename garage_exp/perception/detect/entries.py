@@ -152,3 +152,6 @@ register(EntryKind("torchvision", lambda e: True, "garage_exp.perception.detect.
                    prefix="torchvision:", resolve=_torchvision_file))
 register(EntryKind("callable", lambda e: True, "garage_exp.perception.detect.callable_entry:CallableEntry",
                    prefix="callable:"))
+for _prefix in ("http://", "https://", "grpc://"):  # a model server (KServe v2 / Triton); grpc:// is refused in one line
+    register(EntryKind(f"server {_prefix[:-3]}", lambda e: True, "garage_exp.perception.detect.server:ServerEntry",
+                       prefix=_prefix))
