@@ -23,7 +23,7 @@ from garage_exp.cli import callbacks
 from garage_exp.core import schema
 from garage_exp.core.exits import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
                                    on_sigint, on_sigterm)
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, Infeasible
 from garage_exp.core.paths import PROJECT_ROOT
 from garage_exp.core.state import STATE
 from garage_exp.run.job import run_job
@@ -41,6 +41,8 @@ def main(cfg: DictConfig) -> float | dict:
     try:
         return run_job(cfg)
     except GarageError as exc:
+        if multirun and isinstance(exc, Infeasible) and cfg.search.trial is not None:
+            return {"error": str(exc), "infeasible": True}  # the search prunes the trial (its line says why)
         print(f"garage_exp: {exc}", file=sys.stderr)
         if not multirun:
             sys.exit(EXIT_INPUT)

@@ -145,9 +145,7 @@ def run_train(cfg: DictConfig, env, out: Path) -> dict:
         run.log_metrics(summary)
         result["model"].save(out / "policy.zip")
         suite_root = Path(str(g.suite_dir)) if g.suite_dir else out / "suite"
-        files = export.write_suite(env.job, result["after_full"], suite_root, env.movers,
-                                   float(cfg.ego.speed) / 3.6, int(g.per_band),
-                                   slides=env.live.slides_between)
+        files = export.write_suite(env.job, result["after_full"], suite_root, env.movers, int(g.per_band))
         figure = learning_curve(result["train"], before, after, out / "learning_curve.png", str(cfg.case.name))
         for path in (out / "episodes.csv", out / "policy.zip", figure):
             run.log_artifact(path)
@@ -191,8 +189,7 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
     model = PPO.load(str(Path(str(cfg.gym.policy)).expanduser()), env=env, device="cpu")
     rows, full = rollouts(model, env, int(cfg.gym.eval_episodes), int(cfg.gym.seed) + 10_000, "export")
     root = Path(str(cfg.gym.suite_dir)) if cfg.gym.suite_dir else out / "suite"
-    export.write_suite(env.job, full, root, env.movers, float(cfg.ego.speed) / 3.6, int(cfg.gym.per_band),
-                       slides=env.live.slides_between)
+    export.write_suite(env.job, full, root, env.movers, int(cfg.gym.per_band))
     k, n = late_count(rows)
     low, high = wilson(k, n)
     print(f"garage_exp.gym: the policy's episodes: late rate {rate_text(k, n)}")
