@@ -255,19 +255,51 @@ def test_training_through_the_command_line(store, tmp_path):
     assert (tmp_path / "export" / "suite" / "README.md").is_file()
 
 
-def test_gym_config_keeps_the_experiments_groups():
-    """conf/gym.yaml lists conf/config.yaml's groups (its own case aside): a group added there is added here."""
-    import yaml
+def test_sigterm_ends_the_adversary_run_killed(store, tmp_path, monkeypatch):
+    """SIGTERM during the training: the gym's MLflow run ends KILLED, the command exits 143 with one line (a bare
+    traceback before). The environment and the training are stand-ins: the signal, not the training, is tested."""
+    from conftest import run_statuses, seed_store, sigterm_here
 
-    from conftest import ROOT
+    from garage_exp.gym import env as env_module
+    from garage_exp.gym import train as train_module
+    from garage_exp.gym.app import cli
 
-    def groups(name):
-        d = yaml.safe_load((ROOT / "conf" / name).read_text())["defaults"]
-        return {k: v for item in d if isinstance(item, dict) for k, v in item.items()}
+    class NoEnv:
+        def __init__(self, cfg):
+            pass
 
-    main, gym = groups("config.yaml"), groups("gym.yaml")
-    assert {k: v for k, v in main.items() if k != "case"} == {k: v for k, v in gym.items() if k != "case"}
-    assert gym["case"] == "stepout"
+        def close(self):
+            pass
+
+    monkeypatch.setattr(env_module, "StepOutEnv", NoEnv)
+    monkeypatch.setattr(train_module, "train", sigterm_here)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    seed_store([f"tracking.uri={uri}"], tmp_path)
+    r = run_in_process([*FAST, f"tracking.uri={uri}", f"hydra.run.dir={tmp_path / 'run'}"], tmp_path, entry=cli)
+    assert r.returncode == 143, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines()[-1] == "garage_exp.gym: terminated (SIGTERM)"
+    assert run_statuses(uri, "garage_gym") == ["KILLED"]
+
+
+def test_gym_config_is_the_experiments_with_the_step_out_case():
+    """conf/gym.yaml composes conf/config.yaml (a group or a default added there is here too), typed by GymConf,
+    with the step-out case; an experiment's override works the same in both."""
+    from conftest import compose_cfg
+    from omegaconf import OmegaConf
+
+    from garage_exp.gym.schema import GymConf
+
+    gym = compose_cfg("light=dim", config="gym", hydra=True)
+    job = compose_cfg("light=dim", "case=stepout", hydra=True)
+    assert OmegaConf.get_type(gym) is GymConf and gym.mode == "train" and gym.tracking.experiment == "garage_gym"
+    choices = {k: v for k, v in gym.hydra.runtime.choices.items() if not k.startswith(("hydra", "config_schema"))}
+    assert choices == {k: v for k, v in job.hydra.runtime.choices.items()
+                       if not k.startswith(("hydra", "config_schema"))}
+    assert choices["case"] == "stepout" and choices["light"] == "dim"
+    mine = {k: v for k, v in OmegaConf.to_container(gym).items() if k not in ("hydra", "gym", "mode", "tracking")}
+    assert mine == {k: v for k, v in OmegaConf.to_container(job).items() if k not in ("hydra", "tracking")}
+    # an adversary is no sweep of jobs: the experiment's sweep callback is not run for it
+    assert gym.hydra.callbacks.mlflow_sweep._target_ == "hydra.experimental.callback.Callback"
 
 
 @pytest.mark.slow

@@ -488,6 +488,8 @@ GROUPS = {
 
 def register() -> None:
     cs = ConfigStore.instance()
-    cs.store(name="config_schema", node=Config)
+    # A group, so that a command whose config composes the experiment's (conf/gym.yaml) types it with its own
+    # subclass of Config: `override config_schema: gym`.
+    cs.store(group="config_schema", name="experiment", node=Config, package="_global_")
     for group, schema in GROUPS.items():
         cs.store(group=group, name=f"{group}_schema", node=schema)

@@ -7,21 +7,16 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, check_range
-from garage_exp.core.exits import EXIT_INPUT, install_error_report
-from garage_exp.core.paths import PROJECT_ROOT
 from garage_exp.gym import schema
 
-if not OmegaConf.has_resolver("garage_root"):
-    OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
-schema.register()
+COMMAND = shell.Command("garage_exp.gym", "gym", (schema.register,))
 
 
 def check_gym(cfg: DictConfig) -> None:
@@ -47,20 +42,6 @@ def check_gym(cfg: DictConfig) -> None:
             raise GarageError("mode=export needs a saved policy (gym.policy=.../policy.zip)", "gym.policy")
         if not Path(str(g.policy)).expanduser().is_file():
             raise GarageError("no such file", f"gym.policy={g.policy}")
-
-
-def remove_untouched(out: Path) -> None:
-    """Hydra's dir of a command refused for bad input: removed while it holds nothing but Hydra's own files, and
-    the date folder above it when that is left empty (as garage_exp/train does; train sits above this layer)."""
-    import shutil
-
-    try:
-        if out.is_dir() and all(p.name == ".hydra" or p.suffix == ".log" for p in out.iterdir()):
-            shutil.rmtree(out)
-            if out.parent.is_dir() and not any(out.parent.iterdir()):
-                out.parent.rmdir()
-    except OSError:
-        pass
 
 
 TITLES = {"stepout": "PPO adversary: a child stepping out between parked cars",
@@ -196,16 +177,12 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
     return {"late_rate": k / n if n else math.nan, "late_rate_low": low, "late_rate_high": high, "suite": str(root)}
 
 
-def gym_main(cfg: DictConfig) -> dict:
+def main(cfg: DictConfig) -> dict:
     from garage_exp.gym.env import StepOutEnv
 
     out = Path(HydraConfig.get().runtime.output_dir)
-    try:
-        check_gym(cfg)
-        env = StepOutEnv(cfg)
-    except GarageError:
-        remove_untouched(out)
-        raise
+    check_gym(cfg)  # bad input: the shell removes the run dir and says it in one line
+    env = StepOutEnv(cfg)
     try:
         if cfg.mode == "check":
             return run_check(cfg, env)
@@ -216,29 +193,7 @@ def gym_main(cfg: DictConfig) -> dict:
         env.close()
 
 
-@hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="gym")
-def main(cfg: DictConfig) -> dict:
-    try:
-        return gym_main(cfg)
-    except GarageError as exc:
-        print(f"garage_exp.gym: {exc}", file=sys.stderr)
-        sys.exit(EXIT_INPUT)
-
-
 def cli(argv: list[str] | None = None) -> None:
     """`python -m garage_exp.gym overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written);
-    1 a crash (traceback)."""
-    import signal
-
-    from garage_exp.core.overrides import quote_numeric_choices
-    from garage_exp.core.exits import on_sigterm
-    from garage_exp.core.state import STATE
-
-    sys.argv[1:] = quote_numeric_choices(sys.argv[1:] if argv is None else list(argv))
-    STATE.begin()
-    install_error_report()
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
-    try:
-        main()
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    1 a crash (traceback); 130 Ctrl-C, 143 SIGTERM (the training's run ends KILLED)."""
+    COMMAND.run(main, argv)

@@ -48,28 +48,10 @@ def job_config(cfg: DictConfig) -> DictConfig:
 
 def compose(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
     """The gym config as `python -m garage_exp.gym OVERRIDES` composes it (for gymnasium.make)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-
-    from garage_exp.core.overrides import quote_numeric_choices
-    from garage_exp.core.paths import PROJECT_ROOT
+    from garage_exp.core.shell import compose as compose_config
     from garage_exp.gym import schema
 
-    if not OmegaConf.has_resolver("garage_root"):
-        OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
-    from hydra.core.global_hydra import GlobalHydra
-
-    schema.register()
-    # A caller's own Hydra (a benchmark after a search in its process) is set aside for the call, then restored.
-    global_hydra = GlobalHydra.instance()
-    saved = global_hydra.hydra if global_hydra.is_initialized() else None
-    global_hydra.clear()
-    try:
-        with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-            return hydra_compose(config_name="gym", overrides=quote_numeric_choices(list(overrides)))
-    finally:
-        if saved is not None:
-            GlobalHydra.instance().initialize(saved)
+    return compose_config("gym", overrides, schemas=(schema.register,))
 
 
 class StepOutEnv(gymnasium.Env):

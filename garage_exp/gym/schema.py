@@ -66,4 +66,5 @@ class GymConf(Config):
 
 
 def register() -> None:
-    ConfigStore.instance().store(name="gym_schema", node=GymConf)
+    # conf/gym.yaml composes the experiment's config (conf/config.yaml) and types it with this subclass of Config.
+    ConfigStore.instance().store(group="config_schema", name="gym", node=GymConf, package="_global_")
