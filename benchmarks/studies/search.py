@@ -53,14 +53,14 @@ class Timers:
         setattr(owner, name, timed)
 
     def install(self):
-        from garage_exp.run import frames as experiment
+        from garage_exp.run.pipeline import FramePipeline
         from garage_exp.perception.detect import worker
         from garage_exp.search import launch
 
         # The render stage: each frame's lit picture, silhouettes, ground truth and sensor model, as the job's
-        # pipeline asks for it (experiment.render_frames); the detect stage: sending a frame to the detector
-        # process and waiting for its answer.
-        real_frames = experiment.render_frames
+        # pipeline asks for it (run.pipeline.FramePipeline.frames); the detect stage: sending a frame to the
+        # detector process and waiting for its answer.
+        real_frames = FramePipeline.frames
         timers = self
 
         def render_frames(*args, **kwargs):
@@ -75,7 +75,7 @@ class Timers:
                     timers.render += time.perf_counter() - t
                 yield item
 
-        experiment.render_frames = render_frames
+        FramePipeline.frames = render_frames
         for name in ("submit", "result"):
             self.wrap(worker.DetectorProcess, name, "detect")
         real_call = launch.CachedLaunch.__call__
