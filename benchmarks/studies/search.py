@@ -23,14 +23,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS
+from benchmarks.common import RESULTS, SCENARIO, SPACE
 
 # Case 1 as in the study of docs/results.md: the ego 12 to 10 m before the corner (5 frames), the black target
 # beyond the corner's pillar; three continuous factors, so that a grid of 3 levels is 27 trials.
-SCENARIO = ["plan=research", "case=1", "palette.target_colours=[black]", "case.motion.start=12", "case.motion.end=10",
-            "case.actors.target.clip=true"]  # a distance below the target's room (2.6 m) trimmed to it, as measured
-SPACE = ["light.intensity=interval(0.1,1.0)", "case.actors.target.distance=interval(2.0,10.0)",
-         "case.actors.target.yaw=interval(-90.0,90.0)"]
+
 
 
 class Timers:

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from benchmarks.common import ROOT
-from benchmarks.studies.search import SCENARIO, SPACE  # the search benchmark's scenario and space
+from benchmarks.common import SCENARIO, SPACE  # the search benchmark's scenario and space
 
 
 def rss_mb(pid: int) -> float:
