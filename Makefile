@@ -79,7 +79,7 @@ map: python
 BENCH_QUICK := performance.scene performance.look performance.detect performance.rigs performance.pipeline studies.slot_detector
 BENCH_LONG := performance.sweep performance.garage_size performance.profile_job studies.search studies.falsification
 BENCH_CLUSTER := performance.ray_nodes
-BENCH_GPU := performance.gpu
+BENCH_GPU := performance.gpu performance.gpu_pipeline
 define run_benchmarks
 	@for b in $(1); do echo "== python -m benchmarks.$$b"; $(BIN)/python -m benchmarks.$$b || exit 1; done
 endef

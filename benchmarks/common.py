@@ -33,3 +33,11 @@ def read_json_page(path: Path) -> dict:
     if found is None:
         raise ValueError(f"{path}: no ```json block")
     return json.loads(found.group(1))
+
+
+# The search benchmarks' scenario and space (studies/search.py, studies/soak.py, performance/gpu.py): case 1 with a
+# black target whose distance, yaw and the light a search varies.
+SCENARIO = ["plan=research", "case=1", "palette.target_colours=[black]", "case.motion.start=12", "case.motion.end=10",
+            "case.actors.target.clip=true"]  # a distance below the target's room (2.6 m) trimmed to it, as measured
+SPACE = ["light.intensity=interval(0.1,1.0)", "case.actors.target.distance=interval(2.0,10.0)",
+         "case.actors.target.yaw=interval(-90.0,90.0)"]

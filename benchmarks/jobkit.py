@@ -7,7 +7,7 @@ import os
 import platform
 import statistics
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,11 +33,15 @@ class Job:
 
     def frames(self, n: int | None = None):
         """The job's rendered frames (first n shots), as the experiment's render stage yields them."""
-        from garage_exp.run.frames import render_frames
+        return self.pipeline().frames(self.setup.shots if n is None else self.setup.shots[:n])
 
-        setup = self.setup if n is None else replace(self.setup, shots=self.setup.shots[:n])
-        return render_frames(self.cfg, self.scene, setup, self.renderer, self.sensor,
-                             np.random.default_rng(self.cfg.seed + 1))
+    def pipeline(self, detector=None, scoring: dict | None = None):
+        """The job's frame pipeline (run.pipeline) with a fresh sensor stream, as `run.frames.run_frames` makes
+        it; `detector` (submit/result) for `detected`."""
+        from garage_exp.run.pipeline import FramePipeline
+
+        return FramePipeline(self.cfg, self.scene, self.renderer, self.sensor,
+                             np.random.default_rng(self.cfg.seed + 1), detector, scoring or {})
 
 
 def build_job(overrides: list[str]) -> Job:

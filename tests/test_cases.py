@@ -125,7 +125,7 @@ def test_every_shipped_case_has_a_fair_frame_on_the_small_plan():
     from garage_exp.core.plugins import build as build_plugin
     from garage_exp.render import open_renderer
     from garage_exp.results.table import fair_mask, frame_row
-    from garage_exp.run.frames import render_frames
+    from garage_exp.run.pipeline import render_frames
     from garage_exp.run.preflight import preflight
     from garage_exp.scenario.fits import CASES, FITS
     from garage_exp.search.prescreen import cheap_config
@@ -142,7 +142,7 @@ def test_every_shipped_case_has_a_fair_frame_on_the_small_plan():
         renderer.load(prepared.scene)
         sensor = build_plugin(cfg.sensor, "a sensor model", "sensor._target_")
         rows = [frame_row(item.shot, item.camera, item.target, unscored, [])
-                for item in render_frames(cfg, prepared.scene, prepared.setup, renderer, sensor,
+                for item in render_frames(cfg, prepared.scene, prepared.setup.shots, renderer, sensor,
                                           np.random.default_rng(0))]
         rule = OmegaConf.create({**OmegaConf.to_container(cfg.search), "min_box": cfg.search.min_box * scale})
         fair[case] = int(fair_mask(pd.DataFrame(rows), rule).sum())

@@ -81,7 +81,7 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
     require("vulkan", "vehicles")
     from garage_exp.assets.vehicles import VehicleLibrary
     from garage_exp.scenario.assemble import build_scene
-    from garage_exp.run.frames import render_frames
+    from garage_exp.run.pipeline import render_frames
     from garage_exp.plan import classify, load_plan
     from garage_exp.render.sapien_backend import get_renderer
     from garage_exp.core.plugins import build
@@ -96,7 +96,7 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
     try:
         for cull in (True, False):
             renderer.cull = cull
-            frames[cull] = list(render_frames(cfg, scene, setup, renderer, build(cfg.sensor, "a sensor model", "sensor._target_"),
+            frames[cull] = list(render_frames(cfg, scene, setup.shots, renderer, build(cfg.sensor, "a sensor model", "sensor._target_"),
                                               np.random.default_rng(1)))
             if cull:
                 for shot in setup.shots:  # re-render each shot culled to see what it hid

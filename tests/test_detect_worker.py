@@ -6,7 +6,7 @@ import pytest
 from garage_exp.perception.detect import worker
 from garage_exp.perception.detect.detector import Detector
 from garage_exp.core.errors import GarageError
-from garage_exp.run.frames import overlapped
+from garage_exp.run.pipeline import overlapped
 
 
 class Recorder:

@@ -226,7 +226,7 @@ def test_the_default_job_runs_the_real_look_and_exports_its_textures(tmp_path):
 def test_each_replicate_draws_its_own_materials_and_comes_back():
     """Replicate k's surfaces are drawn from seed + k (materials=random: another garage); going from the loaded
     replicate to another and back is the identity, so the renderer's pictures follow the shots' order."""
-    from garage_exp.run.frames import replicate_materials
+    from garage_exp.run.pipeline import replicate_materials
 
     cfg, _, scene, _ = built("case=light", "materials=random")
     forward = replicate_materials(cfg, scene, 1, 0)
@@ -253,7 +253,7 @@ def test_a_job_after_a_restyled_one_renders_the_same_frames():
     last replicate's: two runs of a two-replicate job in one process give the same frames."""
     from garage_exp.core.plugins import build
     from garage_exp.render.sapien_backend import get_renderer
-    from garage_exp.run.frames import render_frames
+    from garage_exp.run.pipeline import render_frames
 
     cfg, _, scene, setup = built("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]",
                                  "replicates=2", "materials=random")
@@ -262,7 +262,7 @@ def test_a_job_after_a_restyled_one_renders_the_same_frames():
     for _ in range(2):
         renderer.load(scene)
         sensor = build(cfg.sensor, "a sensor model", "sensor._target_")
-        runs.append([f.rgb for f in render_frames(cfg, scene, setup, renderer, sensor, np.random.default_rng(1))])
+        runs.append([f.rgb for f in render_frames(cfg, scene, setup.shots, renderer, sensor, np.random.default_rng(1))])
     assert len(runs[0]) == 2 and [s.replicate for s in setup.shots] == [0, 1]
     assert all(np.array_equal(a, b) for a, b in zip(*runs))
     assert not np.array_equal(runs[0][0], runs[0][1])  # the replicates differ (materials, target's model)

@@ -156,7 +156,7 @@ def measure_sweep(work: Path, timeout: float) -> dict:
 
 
 def measure_search(work: Path, trials: int, timeout: float) -> dict:
-    from bench_search import SCENARIO, SPACE
+    from benchmarks.common import SCENARIO, SPACE
 
     args = ["-m", "hydra/sweeper=search", *SCENARIO, *SPACE, f"search.trials={trials}", "search.sampler=random",
             f"search.storage=sqlite:///{work}/optuna.db", f"tracking.uri=sqlite:///{work}/mlflow_search.db",

@@ -1,7 +1,7 @@
 """Frame cost of the real look against the flat one: `python -m benchmarks.performance.look [--frames 24] [--repeat 3]`.
 
 A frame is what the job pays per camera image before detection: the lit render, ground truth's silhouette
-renders and the sensor model (`run.frames.render_frames`). Each plan and look is one job built as the real
+renders and the sensor model (`run.pipeline.FramePipeline.frames`). Each plan and look is one job built as the real
 one is (jobkit), warmed by one frame; the time is the best of `--repeat` passes over `--frames` shots, the looks
 alternating, so the ratio is measured in one run, in one process, on one machine. Issue 21's goal: real <= 1.5x
 flat.

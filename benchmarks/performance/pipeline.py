@@ -37,7 +37,7 @@ OVERRIDES = ["case=1", "light=bright"]
 def measure(frames: int, repeat: int, ov_threads: list[int]) -> list[dict]:
     from garage_exp.core.plugins import build
     from garage_exp.perception.detect.worker import DetectorProcess, InlineDetector
-    from garage_exp.run.frames import overlapped
+    from garage_exp.run.pipeline import overlapped
 
     job = jobkit.build_job(OVERRIDES)
     spec = build(job.cfg.detector, "a detector", "detector._target_")

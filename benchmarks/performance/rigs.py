@@ -2,7 +2,7 @@
 `python -m benchmarks.performance.rigs [--shots 6] [--rounds 3] [--case 1]`.
 
 A frame here is one shot of the case: every camera of the rig rendered, with its ground truth (the unoccluded
-silhouettes) and the sensor model, as the job's render stage does it (`experiment.render_frames`); detection is
+silhouettes) and the sensor model, as the job's render stage does it (`run.pipeline.FramePipeline.frames`); detection is
 left out (it costs the same per image for every rig: 40-55 ms per model, docs/performance.md). The rigs take
 turns round by round (a scene load between turns, not timed), so a load that changes during the run falls on
 all rigs alike; ratios are of the median over rounds. Each rig's first frame compiles nothing new after the

@@ -23,14 +23,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS
+from benchmarks.common import RESULTS, SCENARIO, SPACE
 
 # Case 1 as in the study of docs/results.md: the ego 12 to 10 m before the corner (5 frames), the black target
 # beyond the corner's pillar; three continuous factors, so that a grid of 3 levels is 27 trials.
-SCENARIO = ["plan=research", "case=1", "palette.target_colours=[black]", "case.motion.start=12", "case.motion.end=10",
-            "case.actors.target.clip=true"]  # a distance below the target's room (2.6 m) trimmed to it, as measured
-SPACE = ["light.intensity=interval(0.1,1.0)", "case.actors.target.distance=interval(2.0,10.0)",
-         "case.actors.target.yaw=interval(-90.0,90.0)"]
+
 
 
 class Timers:
@@ -53,14 +50,14 @@ class Timers:
         setattr(owner, name, timed)
 
     def install(self):
-        from garage_exp.run import frames as experiment
+        from garage_exp.run.pipeline import FramePipeline
         from garage_exp.perception.detect import worker
         from garage_exp.search import launch
 
         # The render stage: each frame's lit picture, silhouettes, ground truth and sensor model, as the job's
-        # pipeline asks for it (experiment.render_frames); the detect stage: sending a frame to the detector
-        # process and waiting for its answer.
-        real_frames = experiment.render_frames
+        # pipeline asks for it (run.pipeline.FramePipeline.frames); the detect stage: sending a frame to the
+        # detector process and waiting for its answer.
+        real_frames = FramePipeline.frames
         timers = self
 
         def render_frames(*args, **kwargs):
@@ -75,7 +72,7 @@ class Timers:
                     timers.render += time.perf_counter() - t
                 yield item
 
-        experiment.render_frames = render_frames
+        FramePipeline.frames = render_frames
         for name in ("submit", "result"):
             self.wrap(worker.DetectorProcess, name, "detect")
         real_call = launch.CachedLaunch.__call__

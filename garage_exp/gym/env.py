@@ -5,7 +5,7 @@ pulls out of its bay towards the ego's path. Any actor's placement value can be 
 
 Each step is one frame: time advances by the ego's step over its speed, the adversary's action moves its values
 within physical limits (limits.py), the ego's front camera renders the scene and the detectors score the target,
-as a job's frame loop does (garage_exp/run/frames.py) but one frame at a time, in the process's warm renderer and
+through the frame pipeline a job uses (garage_exp/run/pipeline.py) but one frame at a time, in the process's warm renderer and
 detector child. The scene is built once per environment with every actor in it; a step only moves them.
 
 Observation (a Box, not pixels): time, the ego's speed, its distance before the target's spot, the critical
@@ -105,7 +105,7 @@ class StepOutEnv(gymnasium.Env):
             high += [m.high, m.rate]
         self.observation_space = spaces.Box(np.array(low, dtype=np.float32), np.array(high, dtype=np.float32),
                                             dtype=np.float32)
-        self.renderer = self.detector = self.sensor = None
+        self.renderer = self.detector = self.sensor = self.pipeline = None
         self.renders = 0  # frames rendered and detected by this environment, all episodes
         self.k = 0
         self._state_reset()
@@ -145,9 +145,10 @@ class StepOutEnv(gymnasium.Env):
         super().reset(seed=seed)
         self._open()
         self._state_reset()
-        # The sensor's noise as a job draws it (run/frames.py: seed + 1, frame after frame), so that an exported
+        # The sensor's noise as a job draws it (run/pipeline.py: seed + 1, frame after frame), so that an exported
         # episode, rerun as a job, sees the same noisy frames and comes to its own verdict.
         self.sensor_rng = np.random.default_rng(int(self.job.seed) + 1)
+        self.pipeline = None  # the frame pipeline over this episode's renderer, detector and sensor stream
         ego_pose, poses = self._poses(self.drive[0])
         self.last["range"] = self._range(ego_pose, poses)
         return self._observation(), {}
@@ -258,34 +259,21 @@ class StepOutEnv(gymnasium.Env):
         return float(np.linalg.norm(position - np.array([target.x, target.y, height / 2])))
 
     def _frame(self, ego_pose, poses) -> dict:
-        """Render the ego's first camera, detect and score the target: one frame table row and its verdicts."""
-        from garage_exp.perception.detect import Intrinsics, score_target
-        from garage_exp.perception.groundtruth import ground_truth
-        from garage_exp.render.composite import blank_composite
-        from garage_exp.scenario.assemble import HIDDEN
+        """Render the ego's first camera, detect and score the target (the frame pipeline, run.pipeline, one frame
+        waited for: the next step depends on it): one frame table row and its verdicts."""
+        from garage_exp.run.pipeline import FramePipeline, in_view
+        from garage_exp.scenario import Shot
 
-        job, scene, renderer = self.job, self.scene, self.renderer
-        renderer.set_pose("ego", ego_pose)
-        for name, pose in poses.items():
-            renderer.set_pose(name, pose if pose is not None else HIDDEN)
-        cam = scene.cameras[0]
-        frame = renderer.render(cam.name)
-        in_view = [v.name for v in scene.actors() if v.role != "ego" and v.kind != "box" and poses.get(v.name)]
-        truth = ground_truth(frame, renderer.unoccluded_ids(cam.name, in_view), scene, renderer.ids)
-        if not scene.background and str(job.look.name) != "flat":  # as run.frames.render_frames orders it
-            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, renderer.ids, [self.live.target]),
-                                    self.sensor_rng)
-        else:
-            rgb = self.sensor.apply(frame.rgb, self.sensor_rng)
-            if not scene.background:
-                rgb = blank_composite(rgb, frame, renderer.ids, [self.live.target])
-        self.detector.submit(rgb, Intrinsics.of(cam))
-        dets = self.detector.result()
+        if self.pipeline is None or self.pipeline.renderer is not self.renderer:
+            self.pipeline = FramePipeline(self.job, self.scene, self.renderer, self.sensor, self.sensor_rng,
+                                          self.detector, self.checked_detector.scoring())
+        shot = Shot(self.k, "", 0.0, ego_pose, poses, self.live.target)
+        self.pipeline.pose(shot)
+        # Only the case's actors are in view (parked cars are scenery here: a step renders no silhouette of them).
+        item = self.pipeline.shoot(shot, self.scene.cameras[0].name, in_view(self.scene, poses, placed_only=True))
+        score = self.pipeline.score(item, self.pipeline.detect_now(item))
         self.renders += 1
-        target = next((t for t in truth if t.name == self.live.target), None)
-        d = job.detector
-        score = score_target(dets, target, truth, iou_threshold=d.iou, match=d.match, threshold=d.threshold,
-                             **self.checked_detector.scoring())
+        target = item.target
         row = {"frame": self.k, "time": round(self.k * self.dt, 6), "ego": self.drive[self.k],
                **{m.name: round(self.values[m.name], 6) for m in self.movers},
                "range": self._range(ego_pose, poses),
@@ -294,7 +282,7 @@ class StepOutEnv(gymnasium.Env):
                "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
                "truncation": round(target.truncation, 4) if target else math.nan,
                "composite": round(float(score.composite), 6), "detected": bool(score.detected)}
-        row["fair"] = reward.fair(row, job.search)
+        row["fair"] = reward.fair(row, self.job.search)
         return row
 
     def _observation(self) -> np.ndarray:
@@ -319,7 +307,7 @@ class StepOutEnv(gymnasium.Env):
 
     def close(self) -> None:
         # The renderer and the detector child belong to the process (core.state.STATE): later envs and jobs reuse them.
-        self.renderer = self.detector = None
+        self.renderer = self.detector = self.pipeline = None
 
 
 # `garage_exp/PullOut-v0`: case=pullout with the car's `gap` as the adversary's one mover, from parked (0.2 m behind

@@ -159,16 +159,22 @@ def _edge_points(local: np.ndarray, per_edge: int = 9) -> np.ndarray:
     return np.concatenate([local[a] + t * (local[b] - local[a]) for a, b in _EDGES], axis=0)
 
 
-def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Scene,
-                 ids: Mapping[str, int]) -> list[VehicleTruth]:
-    """One record per vehicle with a non-empty unoccluded silhouette (a vehicle is "in view" when it would be
-    seen with nothing in the way), in the order of `silhouettes`.
+@dataclass(frozen=True)
+class MaskStats:
+    """The pixel work of one actor's ground truth: its unoccluded silhouette and visible pixels, counted and
+    boxed (None: empty), and whether the silhouette touches the image border. The numpy path (`mask_stats`) and
+    the batched torch path (`perception.batch_truth`) both give these; `truth_records` turns them into records."""
 
-    silhouettes: name -> HxW bool mask (`renderer.unoccluded_ids`); ids: name -> segmentation id
-    (`renderer.ids`). Poses come from the frame (where the vehicles stood when it was rendered), falling back to
-    the description's.
-    """
-    camera = frame.position
+    name: str
+    unoccluded_pixels: int
+    visible_pixels: int
+    full_box: BoxXYXY | None
+    visible_box: BoxXYXY | None
+    touches_border: bool
+
+
+def mask_stats(frame: Frame, silhouettes: Mapping[str, np.ndarray], ids: Mapping[str, int]) -> list[MaskStats]:
+    """Each actor's `MaskStats` on one frame, in the order of `silhouettes` (see `ground_truth`)."""
     # Decal pixels (a shadow over a tyre's last millimetre) hide nothing: one mask for every actor of the frame.
     see_through = np.isin(frame.ids, list(frame.see_through)) if frame.see_through else None
     out = []
@@ -178,27 +184,52 @@ def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Sce
             raise ValueError(f"silhouette of {name} is {silhouette.shape}, the frame {frame.ids.shape}")
         full_box = mask_box(silhouette)
         if full_box is None:
+            out.append(MaskStats(name, 0, 0, None, None, False))
             continue
-        entity = scene.entity(name)
-        pose = frame.poses.get(name, entity.pose)
         shown = frame.ids == ids[name]
         if see_through is not None:
             shown |= see_through
         visible = shown & silhouette
-        unoccluded_pixels = int(silhouette.sum())
-        visible_pixels = int(visible.sum())
-        fraction = visible_pixels / unoccluded_pixels
+        out.append(MaskStats(name, int(silhouette.sum()), int(visible.sum()), full_box, mask_box(visible),
+                             _touches_border(silhouette)))
+    return out
+
+
+def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Scene,
+                 ids: Mapping[str, int]) -> list[VehicleTruth]:
+    """One record per vehicle with a non-empty unoccluded silhouette (a vehicle is "in view" when it would be
+    seen with nothing in the way), in the order of `silhouettes`.
+
+    silhouettes: name -> HxW bool mask (`renderer.unoccluded_ids`); ids: name -> segmentation id
+    (`renderer.ids`). Poses come from the frame (where the vehicles stood when it was rendered), falling back to
+    the description's.
+    """
+    return truth_records(frame, mask_stats(frame, silhouettes, ids), scene)
+
+
+def truth_records(frame: Frame, stats: list[MaskStats], scene: Scene) -> list[VehicleTruth]:
+    """The records of the actors whose silhouettes are not empty: the pixel counts and boxes of `stats`, the
+    geometry (distance, truncation, off-axis angle) from the frame's camera and poses."""
+    camera = frame.position
+    out = []
+    for st in stats:
+        if st.full_box is None:
+            continue
+        name, full_box = st.name, st.full_box
+        entity = scene.entity(name)
+        pose = frame.poses.get(name, entity.pose)
+        fraction = st.visible_pixels / st.unoccluded_pixels
         corners = world_corners(entity, pose)
         if corners is not None:
             centre = (corners.min(axis=0) + corners.max(axis=0)) / 2
             truncation = projected_truncation(frame, corners)
         else:
             centre = np.array([pose.x, pose.y, pose.z])
-            truncation = 1.0 if _touches_border(silhouette) else 0.0
+            truncation = 1.0 if st.touches_border else 0.0
         occ = occlusion_state(fraction)
         out.append(VehicleTruth(
-            name=name, role=entity.role, visible_pixels=visible_pixels, unoccluded_pixels=unoccluded_pixels,
-            visible_fraction=fraction, visible_box=mask_box(visible), full_box=full_box,
+            name=name, role=entity.role, visible_pixels=st.visible_pixels, unoccluded_pixels=st.unoccluded_pixels,
+            visible_fraction=fraction, visible_box=st.visible_box, full_box=full_box,
             distance=float(np.linalg.norm(centre - camera)), truncation=truncation, occlusion=occ,
             kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation),
             kind="person" if entity.is_person else "vehicle", off_axis=_off_axis(frame, centre)))

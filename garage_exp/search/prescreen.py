@@ -84,10 +84,9 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
     """The frames' table at `scale` of the resolution (ground truth; with `detector`, a `Detector` or a `WarmDetector`,
     its scores too) and the job's setup."""
     from garage_exp.core.plugins import build
-    from garage_exp.perception.detect import Intrinsics, score_target
     from garage_exp.render import open_renderer
     from garage_exp.results.table import frame_row
-    from garage_exp.run.frames import render_frames
+    from garage_exp.run.pipeline import FramePipeline
     from garage_exp.run.preflight import preflight
 
     cheap = cheap_config(cfg, scale)
@@ -95,19 +94,18 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
     renderer = open_renderer(cheap.renderer)
     renderer.load(prepared.scene)
     sensor = build(cheap.sensor, "a sensor model", "sensor._target_")
-    det = cfg.detector
-    cameras = {cam.name: Intrinsics.of(cam) for cam in prepared.scene.cameras}
+    pipeline = FramePipeline(cheap, prepared.scene, renderer, sensor, np.random.default_rng(cfg.seed + 1),
+                             detector, detector.scoring() if detector is not None else {})
+    scored = scored_camera(cheap.camera, str(cheap.case.get("camera") or ""))
     rows = []
-    for item in render_frames(cheap, prepared.scene, prepared.setup, renderer, sensor,
-                              np.random.default_rng(cfg.seed + 1)):
-        if item.camera != scored_camera(cheap.camera, str(cheap.case.get("camera") or "")):
+    for item in pipeline.frames(prepared.setup.shots):
+        if item.camera != scored:
             continue
         if detector is None:  # ground truth alone: no score
             score = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
         else:
-            dets = detector.detect([item.rgb], cameras[item.camera])[0]
-            score = score_target(dets, item.target, item.truth, iou_threshold=det.iou, match=det.match,
-                                 threshold=det.threshold, **detector.scoring())
+            dets = detector.detect([item.rgb], pipeline.intrinsics[item.camera])[0]  # the scored camera's own
+            score = pipeline.score(item, dets)
         rows.append(frame_row(item.shot, item.camera, item.target, score, detector.names if detector else [],
                               replicated=cfg.replicates > 1))
     return pd.DataFrame(rows), prepared.setup

@@ -1,0 +1,84 @@
+"""The one frame pipeline (run/pipeline.py): no second copy of its sequence in the project, and its stages on a
+tiny scene drawn by a stand-in renderer (plain arrays: the order of the sensor's random stream, ground truth
+from the renderer's ids, the overlapped detection)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from garage_exp.perception.sensor import make_sensor
+from garage_exp.render import Frame
+from garage_exp.run.pipeline import FramePipeline, in_view
+from garage_exp.scenario import Shot
+from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.description import CameraSpec, Entity, Pose, Scene
+
+ROOT = Path(__file__).resolve().parent.parent
+# The stages a rendered frame goes through; a module that calls them on a render copies the pipeline. (Scoring
+# alone is also done on saved pictures: loop/evaluate.py, bench_detect.py.)
+STAGES = [r"\bground_truth\(", r"\bblank_composite\(", r"sensor\.apply\("]
+
+
+def test_no_second_copy_of_the_frame_sequence():
+    """Only run/pipeline.py calls ground truth, the blank composite and the sensor model on rendered frames
+    (their own modules and tests aside)."""
+    own = {"perception/groundtruth.py", "render/composite.py", "perception/sensor.py", "run/pipeline.py"}
+    offenders = []
+    for path in [*(ROOT / "garage_exp").rglob("*.py"), *(ROOT / "benchmarks").rglob("*.py")]:
+        rel = path.relative_to(ROOT / "garage_exp").as_posix() if "garage_exp" in path.parts else path.name
+        if rel in own:
+            continue
+        text = path.read_text()
+        offenders += [f"{rel}: {s}" for s in STAGES if re.search(s, text)]
+    assert not offenders, offenders
+
+
+class Drawn:
+    """A stand-in renderer: a 40x30 frame where the target covers a block that moves with its pose."""
+
+    ids = {"target": 3, "ego": 9}
+
+    def __init__(self):
+        self.poses = {}
+
+    def set_pose(self, name, pose):
+        self.poses[name] = pose
+
+    def render(self, camera):
+        spec = CameraSpec(camera, Pose(0.0, 0.0, 1.0), width=40, height=30)
+        ids = np.zeros((30, 40), np.int32)
+        x = int(self.poses["target"].y) + 10
+        ids[10:20, x:x + 8] = 3
+        rgb = np.full((30, 40, 3), 90, np.uint8)
+        rgb[ids == 3] = 200
+        return Frame(camera, rgb, ids, camera_to_world(self.poses["ego"], spec), *intrinsics_of(spec),
+                     {"target": self.poses["target"]})
+
+    def unoccluded_ids(self, camera, names):
+        frame = self.render(camera)
+        return {n: frame.ids == self.ids[n] for n in names}
+
+
+def test_frames_draw_the_sensor_stream_in_shot_then_camera_order():
+    scene = Scene("s", [Entity("target", "target", Pose(10.0, 0.0, 0.0, 90.0), extent=(4.5, 1.8, 1.5),
+                               static=False)],
+                  cameras=[CameraSpec("front", Pose(0.0, 0.0, 1.0), width=40, height=30),
+                           CameraSpec("rear", Pose(0.0, 0.0, 1.0, 180.0), width=40, height=30)])
+    cfg = OmegaConf.create({"look": {"name": "flat"}, "dataset": False,
+                            "detector": {"iou": 0.5, "match": "full", "threshold": 0.5}})
+    shots = [Shot(k, "", float(k), Pose(), {"target": Pose(10.0, float(k), 0.0, 90.0)}, "target") for k in range(3)]
+    noisy = make_sensor(name="camera", kind="camera", params={})
+    got = list(FramePipeline(cfg, scene, Drawn(), noisy, np.random.default_rng(4)).frames(shots))
+    assert [(f.shot.index, f.camera) for f in got] == [(k, c) for k in range(3) for c in ("front", "rear")]
+    rng, renderer = np.random.default_rng(4), Drawn()
+    for f in got:
+        renderer.set_pose("ego", f.shot.ego)
+        renderer.set_pose("target", f.shot.poses["target"])
+        assert np.array_equal(f.rgb, noisy.apply(renderer.render(f.camera).rgb, rng))
+        assert f.target.full_box == (10 + f.shot.index, 10, 18 + f.shot.index, 20)
+    assert in_view(scene, {"target": None}) == [] and in_view(scene, {}) == ["target"]
+    assert in_view(scene, {}, placed_only=True) == []
