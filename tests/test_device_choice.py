@@ -29,8 +29,7 @@ def machine(monkeypatch):
         # (a fake ICD left in os.environ would blind every later render in this xdist worker)
         monkeypatch.setenv(var, "unset-by-test")
         monkeypatch.delenv(var)
-    monkeypatch.setattr(device, "_checked", None)
-    monkeypatch.setattr(device, "_kind", None)
+    monkeypatch.setattr(device, "_DEVICE", {})
 
     def make(*files: str):
         monkeypatch.setattr(icd.glob, "glob", lambda pattern: sorted(f for f in files
@@ -98,10 +97,9 @@ def test_an_unknown_device_is_refused(machine):
 
 def test_a_process_keeps_its_first_device(machine, monkeypatch):
     machine("/dev/nvidia0", NVIDIA, LAVAPIPE)
-    monkeypatch.setattr(device, "_checked", "GPU: llvmpipe (LLVM 15.0.6, 256 bits)")
-    monkeypatch.setattr(device, "_kind", "cpu")
-    assert device.ensure_device("auto") == device._checked
-    assert device.ensure_device("cpu") == device._checked
+    monkeypatch.setattr(device, "_DEVICE", {"checked": "GPU: llvmpipe (LLVM 15.0.6, 256 bits)", "kind": "cpu"})
+    assert device.ensure_device("auto") == device._DEVICE["checked"]
+    assert device.ensure_device("cpu") == device._DEVICE["checked"]
     with pytest.raises(GarageError, match="cuda asked, but this process already renders on GPU: llvmpipe"):
         device.ensure_device("cuda")
 
@@ -166,7 +164,7 @@ def test_the_detector_logs_its_pick_once_per_process(cuda, monkeypatch, caplog, 
     cuda(True)
     weights = tmp_path / "mine.pt"
     weights.write_bytes(b"")
-    monkeypatch.setattr(detector, "_SAID", set())
+    monkeypatch.setattr(detector, "_SAID", {})
     loaded = []
     monkeypatch.setattr(ultralytics_entry, "load_model",
                         lambda path, imgsz, dev, threads, where: loaded.append(dev) or _Model())

@@ -151,11 +151,11 @@ def fetch_vehicles(force: bool = False) -> Path:
 
 def fetch_models(names: tuple[str, ...] = MODEL_WEIGHTS) -> Path:
     """Download the official Ultralytics weights into the cache's models folder; that folder."""
-    from garage_exp.core.offline import prepare_offline
+    from garage_exp.core.environment import prepare_environment
 
     target = fetched_models_dir()
     target.mkdir(parents=True, exist_ok=True)
-    prepare_offline()  # config dir and fonts under the cache; downloads still go through (explicit call)
+    prepare_environment(offline=True)  # config dir and fonts under the cache; downloads still go (an explicit call)
     from ultralytics.utils.downloads import attempt_download_asset
 
     for name in names:

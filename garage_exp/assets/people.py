@@ -36,6 +36,7 @@ import numpy as np
 from garage_exp.core import paths
 from garage_exp.assets.vehicles import write_atomic
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 
 log = logging.getLogger(__name__)
 
@@ -103,7 +104,7 @@ _POSE_ANGLES = {
 _BELT = 0.045
 _ARM_BONES = ("clavicle", "shoulder", "upperarm", "lowerarm")
 
-_MODEL = None  # anny's model, loaded once per process
+_MODEL = STATE.cache("assets.people.model", "process")  # anny's model, loaded once per process
 
 
 @dataclass(frozen=True)
@@ -263,8 +264,7 @@ def _anny_version() -> str:
 
 def load_anny():
     """anny's body model (once per process); its cache goes under ours unless ANNY_CACHE_DIR says otherwise."""
-    global _MODEL
-    if _MODEL is None:
+    if "anny" not in _MODEL:
         try:
             import anny
             from anny.paths import set_anny_cache_path
@@ -273,9 +273,9 @@ def load_anny():
         set_anny_cache_path(os.environ.get("ANNY_CACHE_DIR") or paths.cache_dir() / "anny")
         start = time.perf_counter()
         # Dual-quaternion skinning in torch: arms turned down keep their volume at the shoulder, and no warp.
-        _MODEL = anny.Anny(skinning_method="dqs")
+        _MODEL["anny"] = anny.Anny(skinning_method="dqs")
         log.info("loaded anny in %.1f s", time.perf_counter() - start)
-    return _MODEL
+    return _MODEL["anny"]
 
 
 def _rotation(angles: tuple[float, float, float]) -> np.ndarray:

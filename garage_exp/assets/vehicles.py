@@ -33,6 +33,7 @@ from garage_exp.core import paths
 from garage_exp.assets.ac3d import AcFile, MeshPart, mesh_parts, nearest_lod, read_ac, to_scene
 from garage_exp.assets.locate import vehicles_dir
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 from garage_exp.scene.kinds import kind_of
 
 log = logging.getLogger(__name__)
@@ -339,7 +340,7 @@ class VehicleLibrary:
         return candidates[int(rng.integers(len(candidates)))]
 
 
-_LIBRARIES: dict[Path, VehicleLibrary] = {}
+_LIBRARIES: dict[Path, VehicleLibrary] = STATE.cache("assets.vehicles.libraries", "process")
 
 
 def shared_library(root: Path | None = None) -> VehicleLibrary:

@@ -1,8 +1,9 @@
 """Keep ultralytics and OpenVINO off the network.
 
-Call `prepare_offline()` before the first `import ultralytics` or `import openvino`: both read their settings
-from the environment and files at import time, and both would otherwise reach the internet (ultralytics for its
-font, its connectivity check and analytics; OpenVINO for GA4 telemetry sent from a background thread).
+`core.environment.prepare_environment(offline=True)` calls `prepare_offline()`; call it before the first
+`import ultralytics` or `import openvino`: both read their settings from the environment and files at import time,
+and both would otherwise reach the internet (ultralytics for its font, its connectivity check and analytics;
+OpenVINO for GA4 telemetry sent from a background thread).
 """
 
 from __future__ import annotations
@@ -14,10 +15,11 @@ import sys
 from pathlib import Path
 
 from garage_exp.core.paths import cache_dir
+from garage_exp.core.state import STATE
 
 # ultralytics' plot labels ask for these fonts and download them when missing.
 FONT_NAMES = ("Arial.ttf", "Arial.Unicode.ttf")
-_prepared = False
+_PREPARED = STATE.cache("core.offline", "process")  # "done" once this process's environment is set
 
 
 def prepare_offline() -> Path:
@@ -25,10 +27,9 @@ def prepare_offline() -> Path:
 
     YOLO_CONFIG_DIR defaults to <cache_dir>/ultralytics (a user's own setting is kept), so ultralytics'
     settings and fonts stay out of ~/.config; YOLO_OFFLINE is forced to 1."""
-    global _prepared
     config_root = Path(os.environ.setdefault("YOLO_CONFIG_DIR", str(cache_dir() / "ultralytics")))
     settings_dir = config_root / "Ultralytics"  # ultralytics appends this sub-dir to YOLO_CONFIG_DIR
-    if _prepared:
+    if _PREPARED:
         return settings_dir
     os.environ["YOLO_OFFLINE"] = "1"  # skips ultralytics' DNS check, hub calls and analytics
     _opt_out_of_openvino_telemetry()
@@ -38,7 +39,7 @@ def prepare_offline() -> Path:
         from ultralytics.utils import USER_CONFIG_DIR
 
         _install_fonts(Path(USER_CONFIG_DIR))
-    _prepared = True
+    _PREPARED["done"] = True
     return settings_dir
 
 

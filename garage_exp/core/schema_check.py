@@ -12,20 +12,20 @@ file), the key and the nearest valid one.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import typing
 from pathlib import Path
 from typing import Any, Iterator
 
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.state import STATE
 from garage_exp.core.schema import Config
 from garage_exp.core.errors import GarageError, did_you_mean
 
 NOT_IN_SCHEMA = ("hydra",)  # top-level nodes that are not the task's config (a sweep job's config carries hydra)
 
 
-@functools.lru_cache(maxsize=None)
+@STATE.memo("process", maxsize=None)
 def _fields(schema: type) -> dict[str, Any]:
     return typing.get_type_hints(schema)
 

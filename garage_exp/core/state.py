@@ -1,18 +1,31 @@
 """The process's state: what one process keeps between the jobs it runs, in one object.
 
-The command shell (`garage_exp.core.shell`, around every Hydra command) owns it: it starts each command with
-`begin()` and closes it with `end()`, which clear what belongs to one command (the sweep, its count of finished
-jobs, a stop asked for by a signal and what the stop changed, the tracking server's outage) and keep what is
-expensive to rebuild (the warm renderer with its compiled shaders, the detector's child process, the classified
-plans). Modules read and write its fields instead of keeping
-globals of their own, so a test or a second command in one process starts from a known state.
+Every memo, cache and warm resource of the package lives here, with its *scope*, the span it is good for:
+
+- `process`: expensive to rebuild and still right for any later command: the warm renderer (its shaders), the
+  detector's child process (its models), loaded models and asset libraries, the render device, memos of pure
+  functions (a texture by seed, a plan's classification by content).
+- `command`: belongs to one command: the sweep, its count of finished jobs, a stop asked for by a signal, the
+  tracking server's outage, the checked search spaces, the stores opened.
+- `job`: belongs to one job of a sweep.
+
+The command shell (`garage_exp.core.shell`, around every Hydra command) starts each command with `begin()` and
+closes it with `end()` (both clear the command and job scopes, and undo what a stop changed in the environment), a
+job starts with `begin_job()` (clears the job scope), and a test that wants a fresh process calls
+`clear("process")`. Modules read and write STATE's fields, or keep a cache that STATE made (`STATE.cache(name, scope)`, a
+dict) or a memo it registered (`@STATE.memo(scope)`, an `lru_cache`), instead of module globals of their own:
+`tests/test_state.py` fails on a module-level cache that STATE does not know.
 """
 
 from __future__ import annotations
 
+import functools
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+
+SCOPES = ("process", "command", "job")  # widest first: clearing one clears those narrower too
 
 
 @dataclass
@@ -26,7 +39,8 @@ class ProcessState:
     detector: Any = None  # the detector's child process (models load once per process)
     plans: dict = field(default_factory=dict)  # plan path -> ((mtime, size), classified plan): sweeps check many jobs
     maps: dict = field(default_factory=dict)  # a plan's digest -> its map's PNG bytes: a sweep's jobs share one plan
-
+    # name -> (scope, clear): every registered cache and memo, and how to empty it
+    registered: dict[str, tuple[str, Callable[[], None]]] = field(default_factory=dict)
     stopped_env: dict = field(default_factory=dict)  # what stop() changed in os.environ: name -> earlier value
 
     # A request already on its way to a server that hangs must not hold a stopping command's exit either.
@@ -39,28 +53,63 @@ class ProcessState:
             self.stopped_env.setdefault(name, os.environ.get(name))
             os.environ[name] = value
 
+    def register(self, name: str, scope: str, clear: Callable[[], None]) -> None:
+        """Record a cache's `clear` under `scope` (one of SCOPES); the same name again replaces it (a reload)."""
+        if scope not in SCOPES:
+            raise ValueError(f"scope must be one of {SCOPES}, got {scope!r}")
+        self.registered[name] = (scope, clear)
+
+    def cache(self, name: str, scope: str) -> dict:
+        """A dict for a module's cache, emptied when `scope` is cleared."""
+        store: dict = {}
+        self.register(name, scope, store.clear)
+        return store
+
+    def memo(self, scope: str, maxsize: int | None = 128) -> Callable:
+        """`functools.lru_cache(maxsize)` registered under `scope`: for pure functions of small immutable inputs."""
+        def wrap(fn: Callable) -> Callable:
+            cached = functools.lru_cache(maxsize=maxsize)(fn)
+            self.register(f"{fn.__module__}.{fn.__qualname__}", scope, cached.cache_clear)
+            return cached
+        return wrap
+
+    def clear(self, scope: str) -> None:
+        """Empty every cache of `scope` and of the scopes narrower than it (and the fields of those scopes)."""
+        narrower = SCOPES[SCOPES.index(scope):]
+        for kind, clear in list(self.registered.values()):
+            if kind in narrower:
+                clear()
+        if "command" in narrower:
+            self.sweep = None
+            self.finished_jobs = 0
+            self.stopping = False
+            self.tracking_down_since = None
+            self.tracking_given_up = False
+            for name, value in self.stopped_env.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+            self.stopped_env.clear()
+        if scope == "process":
+            self.plans.clear()
+            self.maps.clear()
+
     def begin(self) -> ProcessState:
-        """A new command in this process: forget the last one's sweep, counts and outage, keep the warm parts."""
-        self._forget_command()
+        """A new command in this process: forget the last one's sweep, counts, outage and command caches, keep
+        the warm parts."""
+        self.clear("command")
         return self
 
     def end(self) -> None:
         """The command is over: the process (a test session, a benchmark running commands in turn) keeps no part
         of it, nor the network time-outs its stop set."""
-        self._forget_command()
+        self.clear("command")
 
-    def _forget_command(self) -> None:
-        self.sweep = None
-        self.finished_jobs = 0
-        self.stopping = False
-        self.tracking_down_since = None
-        self.tracking_given_up = False
-        for name, value in self.stopped_env.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-        self.stopped_env.clear()
+    def begin_job(self) -> ProcessState:
+        """A new job of the command: forget the last job's caches."""
+        self.clear("job")
+        return self
 
 
 STATE = ProcessState()

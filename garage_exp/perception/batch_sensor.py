@@ -14,17 +14,17 @@ its tables stay byte-identical.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from garage_exp.core.state import STATE
 from garage_exp.perception import sensor as numpy_sensor
 from garage_exp.perception.sensor import SensorModel
 
 
-@lru_cache(maxsize=16)
+@STATE.memo("process", maxsize=16)
 def _table(name: str, device: str, *key) -> torch.Tensor:
     """The numpy model's lookup tables as tensors, once per device."""
     if name == "linear":

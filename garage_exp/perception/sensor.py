@@ -14,12 +14,12 @@ shows as colour speckle, much like a camera's raw chroma noise before denoising.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
 
 KINDS = ("ideal", "noisy", "camera")
@@ -54,7 +54,7 @@ def aces(x: np.ndarray) -> np.ndarray:
     return (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
 
 
-@lru_cache(maxsize=8)
+@STATE.memo("process", maxsize=8)
 def _falloff(shape: tuple[int, int], strength: float) -> np.ndarray:
     h, w = shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
@@ -65,7 +65,7 @@ def _falloff(shape: tuple[int, int], strength: float) -> np.ndarray:
 _OUT_STEPS, _OUT_RANGE = 16384, 4.0  # signal (full scale 1) -> output table: 1/4096 steps up to 4x full scale
 
 
-@lru_cache(maxsize=4)
+@STATE.memo("process", maxsize=4)
 def _output_table(tone: str, quantize: bool) -> np.ndarray:
     signal = (np.arange(_OUT_STEPS, dtype=np.float64) + 0.5) * (_OUT_RANGE / _OUT_STEPS)
     if tone == "filmic":

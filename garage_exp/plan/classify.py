@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.plan.model import DRIVEABLE, ENTRANCE, EXIT, LANE, OBSTACLE, OPPOSITE, PARKING, YAW, Plan
 
 KIND = {OBSTACLE: "obstacle", PARKING: "parking", LANE: "lane", ENTRANCE: "entrance", EXIT: "exit"}
@@ -142,7 +142,7 @@ def classify(plan: Plan) -> Classified:
     return _classify_cached(plan)
 
 
-@lru_cache(maxsize=16)
+@STATE.memo("process", maxsize=16)
 def _classify_cached(plan: Plan) -> Classified:
     m, n = plan.shape
     cells = tuple(tuple(classify_cell(plan, i, j) for j in range(n)) for i in range(m))

@@ -17,12 +17,12 @@ from the camera that sees it, more the higher it is. That is what every IPM surr
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.render.fisheye import lens_of
 from garage_exp.scene.camera import camera_to_world, to_camera
@@ -140,7 +140,7 @@ def bev_maps(cameras, spec: BevSpec, ego_extent=None) -> BevMaps:
     return _maps(fisheyes, spec, extent)
 
 
-@functools.lru_cache(maxsize=8)
+@STATE.memo("process", maxsize=8)
 def _maps(cameras: tuple[CameraSpec, ...], spec: BevSpec, extent) -> BevMaps:
     w, h = spec.size
     cols, rows = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)

@@ -16,16 +16,17 @@ import logging
 import os
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 from garage_exp.render.icd import (ICD_DIRS, ICD_VARS, INSTALL_HINT, check_available, gpu_present, lavapipe_icd,
                                    nvidia_icd)
 
 log = logging.getLogger(__name__)
 
-_checked: str | None = None  # the device summary once a device was found
-_kind: str | None = None  # what _checked is: "cpu" (lavapipe), "cuda" (NVIDIA) or "gpu" (another GPU)
-# SAPIEN drops its Vulkan context (and every compiled pipeline) when the last scene, material and shape die,
-# so a job that replaces its scene would pay the 3-6 s shader compilation again. Holding the engine keeps it.
-_engine: object | None = None
+# The process's device once found: "checked" (SAPIEN's device summary), "kind" (what it is: "cpu" (lavapipe),
+# "cuda" (NVIDIA) or "gpu" (another GPU)) and "engine": SAPIEN drops its Vulkan context (and every compiled
+# pipeline) when the last scene, material and shape die, so a job that replaces its scene would pay the 3-6 s
+# shader compilation again. Holding the engine keeps it.
+_DEVICE: dict[str, object] = STATE.cache("render.device", "process")
 
 
 def choose_icd(device: str = "auto") -> str | None:
@@ -70,21 +71,21 @@ def ensure_device(device: str = "auto") -> str:
     renders on another device than `device` asks for (the loader reads its ICD once). Idempotent and cheap after
     the first call.
     """
-    global _checked, _engine, _kind
-    if _checked is not None:
+    checked = _DEVICE.get("checked")
+    if checked is not None:
         check_available(device)
-        if device != "auto" and device != _kind:
-            raise GarageError(f"{device} asked, but this process already renders on {_checked} "
+        if device != "auto" and device != _DEVICE["kind"]:
+            raise GarageError(f"{device} asked, but this process already renders on {checked} "
                               "(a process keeps its first Vulkan device); run it in a new process",
                               "renderer.device")
-        return _checked
+        return checked
     choose_icd(device)
     try:
         import sapien.render
 
         devices = supported_devices(sapien.render.get_device_summary())
         if devices:
-            _engine = sapien.render.SapienRenderer()
+            _DEVICE["engine"] = sapien.render.SapienRenderer()
     except Exception as exc:  # noqa: BLE001 - any failure here means no usable device
         raise GarageError(f"SAPIEN found no Vulkan device ({_first_line(exc)}): {INSTALL_HINT}", "renderer") from exc
     if not devices:
@@ -93,9 +94,9 @@ def ensure_device(device: str = "auto") -> str:
                           "renderer")
     if device != "auto" and device_kind(devices[0]) != device:
         raise GarageError(f"{device} asked, but SAPIEN found only {devices[0]}", "renderer.device")
-    _checked, _kind = devices[0], device_kind(devices[0])
-    log.info("renderer device %s -> %s (Vulkan)", device, _checked.split(": ", 1)[-1])
-    return _checked
+    _DEVICE.update(checked=devices[0], kind=device_kind(devices[0]))
+    log.info("renderer device %s -> %s (Vulkan)", device, devices[0].split(": ", 1)[-1])
+    return devices[0]
 
 
 def supported_devices(summary: str) -> list[str]:

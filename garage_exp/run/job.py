@@ -108,6 +108,7 @@ def run_job(cfg: DictConfig) -> float | dict:
     """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job; a
     search trial (`search.trial` set) returns its summary metrics with its run id and dir instead. A tracking
     server that stays away stops the sweep (every later job would wait for it too)."""
+    STATE.begin_job()  # the last job's job-scoped caches go
     try:
         return _run_job(cfg)
     except tracking.TrackingAway as exc:

@@ -7,9 +7,9 @@ Shared by the exporter (garage_exp/exports/openscenario.py: its tests validate w
 
 from __future__ import annotations
 
-from functools import lru_cache
 from pathlib import Path
 
+from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
 
 OSC_SCHEMAS = {"0": "OpenSCENARIO_1_0.xsd", "1": "OpenSCENARIO_1_1.xsd", "2": "OpenSCENARIO_1_2.xsd",
@@ -25,7 +25,7 @@ def schemas_dir() -> Path:
     return Path(scenariogeneration.__file__).resolve().parent.parent / "schemas"
 
 
-@lru_cache(maxsize=8)
+@STATE.memo("process", maxsize=8)
 def _schema(name: str):
     import xmlschema
 

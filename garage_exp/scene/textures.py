@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import math
 import zlib
-from functools import lru_cache
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
 from garage_exp.scene.description import Material, Texture
 
@@ -212,7 +212,7 @@ _MAKERS = {"concrete": _floor, "asphalt": _floor, "wall": _wall, "stripes": _str
 KINDS = tuple(_MAKERS)
 
 
-@lru_cache(maxsize=48)
+@STATE.memo("process", maxsize=48)
 def image(material: Material) -> tuple[np.ndarray, np.ndarray | None]:
     """The material's texture as (linear RGBA float32 H x W x 4, roughness H x W or None). Cached: a scene
     has about twenty distinct textures (each replicate redraws eight), each made once per process (~2 MB each)."""

@@ -72,17 +72,16 @@ def _scaled(pixels, scale: float) -> int:
 
 
 def cheap_detector(detector_conf, scale: float):
-    """The first model of the trial's detectors at `scale` of its input size, in this process (its models are
-    loaded once per process: perception.detect.base.LOADED)."""
+    """The first model of the trial's detectors at `scale` of its input size, on the process's one warm detector
+    (the jobs' detector child, core.state.STATE.detector: its models load once, in one process)."""
     from garage_exp.perception.detect import build_detector
+    from garage_exp.perception.detect.worker import WarmDetector
 
-    detector = build_detector(detector_conf).cheap(scale)
-    detector.check()
-    return detector
+    return WarmDetector(build_detector(detector_conf).cheap(scale))  # checked, as in the job
 
 
 def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame, object]:
-    """The frames' table at `scale` of the resolution (ground truth; with `detector`, an in-process `Detector`,
+    """The frames' table at `scale` of the resolution (ground truth; with `detector`, a `Detector` or a `WarmDetector`,
     its scores too) and the job's setup."""
     from garage_exp.core.plugins import build
     from garage_exp.render import open_renderer

@@ -22,6 +22,7 @@ import time
 from optuna.storages import RDBStorage
 
 from garage_exp.core.exits import SweepStopped, stopping, wait_seconds
+from garage_exp.core.state import STATE
 
 # What psycopg and SQLAlchemy say while the server is down, restarting or cut the connection.
 DOWN = ("connection refused", "could not connect", "connection to server at", "server closed the connection",
@@ -157,7 +158,7 @@ class _AdvisoryLock:
             self.guard.release()
 
 
-_locks: dict[str, _AdvisoryLock] = {}
+_locks: dict[str, _AdvisoryLock] = STATE.cache("search.storage.locks", "process")
 
 
 def storage_lock(url: str):

@@ -12,13 +12,14 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 from garage_exp.search.objectives import objective
 
 log = logging.getLogger("garage_exp")
 SWEEPER = "hydra_plugins.garage_search.sweeper.SearchSweeper"
-_CHECKED: dict[tuple[str, ...], space_mod.Space] = {}
+_CHECKED: dict[tuple[str, ...], space_mod.Space] = STATE.cache("search.sweep.checked", "command")
 
 
 def is_search(config: DictConfig) -> bool:

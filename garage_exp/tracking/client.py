@@ -14,6 +14,7 @@ import random
 import sys
 import time
 
+from garage_exp.core.environment import prepare_environment
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.core.state import STATE
 
@@ -49,12 +50,7 @@ def client(uri: str | None = None):
     from garage_exp.tracking.store import open_store
 
     uri = tracking_uri(uri)
-    if uri.startswith(("http://", "https://")):
-        # MLflow's own HTTP retries (7, with back-off up to two minutes each, and a 120 s timeout) sat more than
-        # 15 minutes on a stopped server; retry() below waits instead, for a bounded time, and says so.
-        os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
-        os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "30")
-    os.environ["MLFLOW_TRACKING_URI"] = uri  # for child processes and the outage messages (the module's doc)
+    prepare_environment(uri)  # $MLFLOW_TRACKING_URI for child processes and the outage messages (the module's doc)
     # The client opens (and may create) the store: a write, made once under the store's lock.
     return open_store(uri, lambda: retry(lambda: mlflow.MlflowClient(uri)))
 

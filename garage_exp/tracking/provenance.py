@@ -3,7 +3,6 @@ params, the plan file's digest, the git commit, run names and sweep keys. Plain 
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import subprocess
@@ -12,12 +11,13 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.state import STATE
 from garage_exp.core.paths import PROJECT_ROOT
 
 NAME_MAX = 250  # MLflow's runs.name column: sqlite ignores the length, PostgreSQL refuses a longer name
 
 
-@functools.lru_cache(maxsize=1)
+@STATE.memo("process", maxsize=1)
 def git_commit() -> str:
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT, capture_output=True, text=True,

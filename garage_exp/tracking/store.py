@@ -13,8 +13,10 @@ import sqlite3
 from pathlib import Path
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 
-_OPENED: set[str] = set()  # stores this process has opened (MLflow caches the store object per URI)
+# stores this process has opened (MLflow caches the store object per URI)
+_OPENED: dict[str, bool] = STATE.cache("tracking.store.opened", "process")
 
 
 def sqlite_path(uri: str) -> Path | None:
@@ -49,7 +51,7 @@ def open_store(uri: str, make):
     finally:
         if lock is not None:
             lock.release()
-    _OPENED.add(uri)
+    _OPENED[uri] = True
     return client
 
 

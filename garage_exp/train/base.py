@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from garage_exp.core.errors import GarageError
-from garage_exp.core.offline import prepare_offline
+from garage_exp.core.environment import prepare_environment
 
 
 @dataclass
@@ -45,7 +45,7 @@ def load_base(entry: str, registry: str | None) -> Base:
 
 
 def _load(name: str, where: str):
-    prepare_offline()
+    prepare_environment(offline=True)
     from ultralytics import YOLO
 
     try:

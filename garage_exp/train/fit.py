@@ -12,7 +12,7 @@ import json
 import time
 from pathlib import Path
 
-from garage_exp.core.offline import prepare_offline
+from garage_exp.core.environment import prepare_environment
 from garage_exp.train.base import Base
 from garage_exp.train.data import DataPlan
 
@@ -62,7 +62,7 @@ def epoch_logger(run, n_images: int, timings: list[float]):
 
 def fit(cfg, plan: DataPlan, base: Base, data_yaml: Path, out: Path, run) -> dict:
     """Train; return the final metrics, the weights' path and the mean training throughput (images/s)."""
-    prepare_offline()
+    prepare_environment(offline=True)
     from ultralytics import YOLO
     from ultralytics.utils import SETTINGS
 

@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 
 WHERE = "detector.models"
 
@@ -220,4 +221,4 @@ class Loaded:
         return self.models[key]
 
 
-LOADED = Loaded()
+LOADED = Loaded(STATE.cache("perception.detect.loaded", "process"))

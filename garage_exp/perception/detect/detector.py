@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from garage_exp.core.errors import GarageError, check_range
+from garage_exp.core.state import STATE
 from garage_exp.perception.detect import entries as entry_kinds
 from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, as_batch,
                                                per_frame)
@@ -34,7 +35,7 @@ from garage_exp.perception.detect.matching import PERSON_CLASSES, VEHICLE_CLASSE
 
 log = logging.getLogger("garage_exp")
 GROUPS = ("vehicle", "person")
-_SAID: set[str] = set()  # device lines already logged by this process
+_SAID: dict[str, bool] = STATE.cache("perception.detect.said", "process")  # device lines this process logged
 
 
 @dataclass
@@ -99,7 +100,7 @@ class Detector:
         self._check_classes()
         line = device_line(self.device, self.names, self.entries)
         if line not in _SAID:  # once per process and choice, not once per job
-            _SAID.add(line)
+            _SAID[line] = True
             log.info("%s", line)
         self.checked = True
 

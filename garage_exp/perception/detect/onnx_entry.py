@@ -13,11 +13,11 @@ from __future__ import annotations
 import ast
 import json
 from collections.abc import Sequence
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, Intrinsics, checked,
                                                probe_frame)
 from garage_exp.perception.detect.devices import pick_device
@@ -36,7 +36,7 @@ def onnx_metadata(path: str | Path) -> dict[str, str]:
     return dict(_metadata(str(p.resolve()), stat.st_mtime_ns, stat.st_size))
 
 
-@lru_cache(maxsize=64)
+@STATE.memo("process", maxsize=64)
 def _metadata(path: str, mtime: int, size: int) -> tuple[tuple[str, str], ...]:
     import onnx
 

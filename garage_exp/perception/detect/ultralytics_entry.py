@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from garage_exp.core.errors import GarageError
-from garage_exp.core.offline import prepare_offline
+from garage_exp.core.environment import prepare_environment
 from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, Intrinsics
 from garage_exp.perception.detect.devices import cuda_available, pick_device
 from garage_exp.perception.detect.entries import OPENVINO_SUFFIX
@@ -90,7 +90,7 @@ def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int =
     cores (docs/performance.md). Ignored for other formats.
     """
     kind = model_format(path)
-    prepare_offline()
+    prepare_environment(offline=True)
     from ultralytics import YOLO
 
     start = time.perf_counter()

@@ -30,7 +30,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.state import STATE
-from garage_exp.perception.detect.base import Detections, Intrinsics, message_of
+from garage_exp.perception.detect.base import Detections, Intrinsics, as_batch, message_of, per_frame
 from garage_exp.perception.detect.detector import Detector
 
 log = logging.getLogger("garage_exp")
@@ -53,10 +53,22 @@ class InlineDetector:
     """The serial fallback: detection on the calling thread when its result is asked for."""
 
     def __init__(self, detector: Detector, probe: Intrinsics | None = None, threads: int = 0):
-        self._detector = replace(detector, threads=threads)
-        self._detector.check(probe)
-        self.names = self._detector.names
+        self._threads = threads
+        self._detector: Detector | None = None
         self._queue: deque[tuple[np.ndarray, Intrinsics | None]] = deque()
+        self.load(detector, probe)
+
+    def load(self, detector: Detector, probe: Intrinsics | None = None) -> None:
+        """Use `detector` from now on (checked on the probe), as `DetectorProcess.load`; the same one is kept."""
+        self.drain()
+        if detector != self._detector:
+            self._detector = replace(detector, threads=self._threads)
+            self._detector.check(probe)
+            self.names = self._detector.names
+
+    @property
+    def loaded(self) -> Detector | None:
+        return self._detector
 
     def submit(self, rgb: np.ndarray, intrinsics: Intrinsics | None = None) -> None:
         self._queue.append((rgb, intrinsics))
@@ -112,6 +124,11 @@ class DetectorProcess:
             return
         self._spec, self._names, self._loading = (detector, probe), None, True
         self._send(("load", self._spec))
+
+    @property
+    def loaded(self) -> Detector | None:
+        """The detector last asked for (`load`)."""
+        return self._spec[0] if self._spec is not None else None
 
     @property
     def names(self) -> list[str]:
@@ -345,6 +362,32 @@ def open_detector(detector: Detector, probe: Intrinsics | None = None) -> Detect
         worker = STATE.detector = DetectorProcess(threads)
     worker.load(detector, probe)
     return worker
+
+
+class WarmDetector:
+    """A `Detector`'s batch interface (`detect`, `names`, `scoring`) on the process's one warm detector
+    (`open_detector`): a caller outside the frame loop (the search's pre-screen) shares the job's child and its
+    loaded models instead of loading them a second time in this process."""
+
+    def __init__(self, detector: Detector, probe: Intrinsics | None = None):
+        self._detector, self._probe = detector, probe
+        self._warm = open_detector(detector, probe)
+        self.names = self._warm.names  # waits for the load: a detector that cannot load fails here (GarageError)
+
+    def scoring(self) -> dict[str, tuple[str, ...]]:
+        return self._detector.scoring()
+
+    def detect(self, frames, intrinsics=None) -> list[list[Detections]]:
+        batch = as_batch(frames)
+        if self._warm.loaded != self._detector:  # a job's preflight loaded its own since
+            self._warm.load(self._detector, self._probe)
+        try:
+            for rgb, cam in zip(batch, per_frame(intrinsics, len(batch))):
+                self._warm.submit(rgb, cam)
+            return [self._warm.result() for _ in batch]
+        except BaseException:
+            self._warm.drain()  # the next caller starts in step
+            raise
 
 
 @atexit.register

@@ -24,12 +24,12 @@ Worn paint is what makes a slot hard, not unfair.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from garage_exp.core.state import STATE
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 from garage_exp.render.bev import BevMaps, BevSpec
 from garage_exp.render.fisheye import lens_of
@@ -129,7 +129,7 @@ def paint_left(cell_i: int, cell_j: int, piece: int, wear: float) -> float:
     return 1.0 - wear
 
 
-@functools.lru_cache(maxsize=32)
+@STATE.memo("process", maxsize=32)
 def texture_left(paint_wear: float) -> float:
     """The mean share of a line's paint the real look's texture leaves at this wear (its patches of worn-through
     paint, scene/textures._paint, averaged over a tile of its noise): 1.00 fresh, 0.96 at 0.3, 0.50 at 0.79."""
