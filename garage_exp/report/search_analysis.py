@@ -1,12 +1,12 @@
 """What the user sees of a study (issue 10, §3): figures, tables and a report of the hardest scenarios.
 
-`analyse(study, out_dir)` works on any Optuna study whose trials follow the sweeper's contract (values:
-difficulty, or [difficulty, visible fraction]; user_attrs: overrides, visible_fraction, fair_frames, frames,
-recall, confidence, frame, and "infeasible" on a pruned trial or "error" on a failed one). It writes, into
-out_dir: history.png, importances.png/.csv (fANOVA), slices.png, pareto.png (multi-objective), sensitivity.png/
-.csv (Sobol', see sensitivity), trials.csv, hardest.csv, frames/ (the hardest trials' frames) and
-search_report.md/.html. Only complete trials are ranked; pruned (infeasible) and failed ones are counted and
-listed apart. `python -m garage_exp.report.search_analysis` writes the same for a study in a storage, finished or
+`analyse(study, out_dir)` works on any Optuna study whose trials follow the sweeper's contract (values: the
+search objective's, named by the study's user_attr direction_names: difficulty, lateness, ...; user_attrs:
+overrides, visible_fraction, fair_frames, frames, recall, confidence, frame, and "infeasible" on a pruned
+trial or "error" on a failed one). It writes, into out_dir: history.png, importances.png/.csv (fANOVA),
+slices.png, pareto.png (multi-objective), sensitivity.png/.csv (Sobol', see sensitivity), trials.csv, hardest.csv,
+frames/ (the hardest trials' frames) and search_report.md/.html. Only complete trials are ranked; pruned
+(infeasible) and failed ones are counted and listed apart. `python -m garage_exp.report.search_analysis` writes the same for a study in a storage, finished or
 still running.
 """
 
@@ -39,12 +39,15 @@ THIRDS = ("low third", "middle third", "high third")
 ALPHA = 0.05  # a side is called harder only when Welch's t-test tells it from the hardest other side
 
 
-def difficulty(trial: FrozenTrial) -> float:
-    """The first objective is the difficulty, in single- and multi-objective studies alike."""
+def first_value(trial: FrozenTrial) -> float:
+    """The trial's first value, the one the study ranks by (difficulty, lateness, slot_miss: whatever the search's
+    objective stored as `direction_names`), in single- and multi-objective studies alike."""
     return trial.values[0]
 
 
 def objective_names(study: optuna.Study) -> list[str]:
+    """The study's value names, as the search stored them (search/objectives.py); a study without them was
+    made before the search stored names, when the only objectives were difficulty and pareto."""
     names = study.user_attrs.get("direction_names") or study.metric_names
     if names and len(names) == len(study.directions):
         return list(names)
@@ -86,7 +89,7 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
     rows = []
     for t in study.get_trials(deepcopy=False):
         done = t.state == TrialState.COMPLETE
-        row = {"trial": t.number, "state": t.state.name, name: difficulty(t) if done else np.nan}
+        row = {"trial": t.number, "state": t.state.name, name: first_value(t) if done else np.nan}
         for key in (*ATTRS, *LATE_ATTRS):
             row[key] = t.user_attrs.get(key, np.nan)
         if multi and done and pd.isna(row["visible_fraction"]):
@@ -103,10 +106,10 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
 
 
 def hardest(study: optuna.Study, top: int) -> list[FrozenTrial]:
-    """The top complete trials by difficulty (the study's first direction says which end is hard)."""
+    """The top complete trials by the first value (the study's first direction says which end is hard)."""
     done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     harder_is_higher = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
-    return sorted(done, key=lambda t: (-difficulty(t) if harder_is_higher else difficulty(t), t.number))[:top]
+    return sorted(done, key=lambda t: (-first_value(t) if harder_is_higher else first_value(t), t.number))[:top]
 
 
 def distributions(study: optuna.Study) -> dict[str, BaseDistribution]:
@@ -177,13 +180,13 @@ def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: d
 
 
 def importances(study: optuna.Study) -> tuple[dict[str, float], str]:
-    """fANOVA importances of the parameters for the difficulty (seeded), or {} and the reason they are missing."""
+    """fANOVA importances of the parameters for the first value (seeded), or {} and the reason they are missing."""
     done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     if len(done) < 2:
         return {}, f"Importances skipped: {len(done)} complete trial(s), fANOVA needs at least 2."
     evaluator = optuna.importance.FanovaImportanceEvaluator(seed=FANOVA_SEED)
     try:
-        found = optuna.importance.get_param_importances(study, evaluator=evaluator, target=difficulty)
+        found = optuna.importance.get_param_importances(study, evaluator=evaluator, target=first_value)
     except RuntimeError as exc:  # fANOVA's "zero total variance": every trial equally hard
         return {}, f"Importances skipped: {exc}"
     if not found:
@@ -224,12 +227,12 @@ def figures(study: optuna.Study, out_dir: Path, importance: dict[str, float]) ->
     if not done:
         return {}
     # one objective: no target, so optuna also draws the best-so-far line; two: the difficulty alone
-    target = difficulty if len(study.directions) > 1 else None
+    target = first_value if len(study.directions) > 1 else None
     out = {"history": save_plot(lambda: vis.plot_optimization_history(
         study, target=target, target_name=names[0]), out_dir / "history.png", (7, 4))}
     params = sorted({p for t in done for p in t.params})
     if params:
-        out["slices"] = save_plot(lambda: vis.plot_slice(study, target=difficulty, target_name=names[0]),
+        out["slices"] = save_plot(lambda: vis.plot_slice(study, target=first_value, target_name=names[0]),
                                   out_dir / "slices.png")  # optuna sizes it to the parameters
     if importance:
         plt, _ = _plots()
@@ -322,7 +325,7 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
     higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
     for rank, t in enumerate(top_trials, 1):
         command = " ".join(["python -m garage_exp", *map(shlex.quote, rerun_overrides(t))])
-        lines += [f"### {rank}. trial {t.number}: {name} {difficulty(t):.2f}, visible fraction "
+        lines += [f"### {rank}. trial {t.number}: {name} {first_value(t):.2f}, visible fraction "
                   f"{fmt(by_number.loc[t.number, 'visible_fraction'])}", "",
                   "Rerun it:", "", "```bash", command, "```", "",
                   *what_makes_it_hard(why_hard(t, table, dists, importance, higher_is_harder, name))]
