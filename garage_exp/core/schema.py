@@ -216,7 +216,9 @@ class CaseConf:
     """A scenario (one YAML file of the `case` group): a site of the plan, actors, a motion, variants."""
 
     name: str = MISSING
-    site: str = MISSING  # corner | bay_beside_pillar | straight_run (garage_exp/scenario/sites.py)
+    # corner | bay_beside_pillar | straight_run | ... (garage_exp/scenario/sites.py), or your own site function:
+    # {_target_: my_sites.ramp, ...its keyword arguments}
+    site: Any = MISSING
     position_label: str = "position (m)"  # the plot's x axis: what the motion moves
     bays: dict[str, str] = field(default_factory=dict)  # names for the site's bays (far: 3, mine: right:2)
     keep_free: list[str] = field(default_factory=list)  # bays kept free of the palette's parked cars (besides
@@ -324,14 +326,15 @@ class SlotMetricsConf:
 @dataclass
 class SlotDetectorConf:
     """The slot detector run on the BEV (garage_exp/perception/slots/detector.py): `lines`, the classical
-    baseline (no weights); `callable`, the user's function `target` ("package.module:function", called with the
-    BEV RGB image and its metres per pixel, returning a SlotFrame); `pose`, an ultralytics pose model `model`
+    baseline (no weights); `callable`, the user's function `detect: {_target_: package.module.function, ...}`
+    (called with the BEV RGB image and its metres per pixel, then the node's other keys, returning a SlotFrame); `pose`, an ultralytics pose model `model`
     (.pt) whose keypoints are a slot's four corners (`keypoints: corners`) or a marking point and a point along
     its direction (`keypoints: points`)."""
 
     name: str = "lines"
     kind: str = "lines"  # lines | callable | pose
-    target: str = ""  # callable
+    detect: Any = None  # callable: {_target_: package.module.function, ...its keyword arguments}
+    target: str = ""  # the old form of `detect` ("package.module:function"): refused, naming the new one
     model: str = ""  # pose: path to the .pt
     keypoints: str = "corners"  # pose: corners | points
     conf: float = 0.25  # pose: the model's confidence threshold

@@ -43,6 +43,11 @@ class Objective:
     # level?, attrs) -> FULL | INFEASIBLE | EASY; None: this objective has no cheap look.
     screen: Callable | None = None
     confidence: bool = False  # the first value is 1 - the composite confidence (the suite's confidence column)
+    # The gym's adversary (garage_exp/gym): its name for this objective (`gym.objective`; "": the gym cannot be
+    # rewarded for it) and the episode verdict's key it rewards (gym/reward.judge). An episode's value is its
+    # `metric`.
+    gym: str = ""
+    verdict: str = ""
 
     @property
     def metric(self) -> str:
@@ -153,12 +158,13 @@ def _needs_slots(job) -> str | None:
 
 OBJECTIVES: dict[str, Objective] = {o.name: o for o in (
     Objective("difficulty", ("difficulty",), ("maximize",), _judge_difficulty, _difficulty, NOT_VISIBLE,
-              screen=_screen_difficulty, confidence=True),
+              screen=_screen_difficulty, confidence=True, gym="hard", verdict="hard_fair"),
     # the difficulty against the target's visible fraction, both maximised
     Objective("pareto", ("difficulty", "visible_fraction"), ("maximize", "maximize"), _judge_pareto, _difficulty,
               NOT_VISIBLE, confidence=True),
     Objective("late", ("lateness",), ("maximize",), _judge_late, _late,
-              "never fairly visible before the critical distance", needs=_needs_late, screen=_screen_late),
+              "never fairly visible before the critical distance", needs=_needs_late, screen=_screen_late,
+              gym="late", verdict="late"),
     Objective("slots", ("slot_miss",), ("maximize",), _judge_slots, _slots, "no fair slot in any BEV frame",
               needs=_needs_slots),
 )}
@@ -167,3 +173,8 @@ OBJECTIVES: dict[str, Objective] = {o.name: o for o in (
 def objective(name: str) -> Objective:
     """The objective `search.objective` names (check_search has refused unknown names)."""
     return OBJECTIVES[name]
+
+
+def gym_objectives() -> dict[str, Objective]:
+    """The objectives the gym's adversary can be rewarded for, by the gym's name for each (`gym.objective`)."""
+    return {o.gym: o for o in OBJECTIVES.values() if o.gym}
