@@ -193,15 +193,21 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
     import pandas as pd
     import yaml
 
+    from omegaconf import OmegaConf
+
     from garage_exp.gym.export import write_suite
+    from garage_exp.scenario.asam import validate
 
     records = [episode(env, [1.0, 0.0])[1]["episode_verdict"], episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
     assert [r["testable"] for r in records] == [True, False]
     root = tmp_path / "suite"
-    files = write_suite(env.job, records, root, env.movers, 10 / 3.6, per_band=2)
+    job = OmegaConf.merge(env.job, {"export": {"openscenario": True}})  # each scenario as OpenSCENARIO too
+    files = write_suite(job, records, root, env.movers, 10 / 3.6, per_band=2)
     manifest = pd.read_csv(files[0])
     assert len(manifest) == 1 and manifest.episode.tolist() == [0] and (root / "README.md").is_file()
     name = manifest.scenario[0]
+    assert validate(root / "openscenario" / name / "scenario.xosc") == "OpenSCENARIO_1_2.xsd"
+    assert validate(root / "openscenario" / name / "garage.xodr")
     text = (root / "scenario" / f"{name}.yaml").read_text()
     values = yaml.safe_load(text)
     assert values["case"]["motion"]["values"] == records[0]["ego"]

@@ -69,7 +69,7 @@ def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp
     suite = tmp_path / "suite"
     args = [*SEARCH, "search.mode=suite", "search.trials=3", "search.suite.per_band=2", f"search.suite.dir={suite}",
             "+search.suite.bands.any=[0.0,1.01]", "search.min_visible=0.0", "search.min_box=0", "search.max_truncation=1.0", "dataset=true",
-            "palette.target_colours=[black]", "case.motion.start=5", "case.motion.end=4", "case.motion.step=1",
+            "export.openscenario=true", "palette.target_colours=[black]", "case.motion.start=5", "case.motion.end=4", "case.motion.step=1",
             "light.intensity=interval(0.3,1.0)", "case.actors.target.distance=interval(4.0,6.0)", *stores(tmp_path)]
     r = run_app(args, tmp_path, env={"PYTHONPATH": str(ROOT / "tests" / "faults"),
                                      "GARAGE_EXP_FAULT": "frame:raise:1:0"})  # trial 1 crashes in its first frame
@@ -88,6 +88,17 @@ def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp
     coco = json.loads((suite / "dataset" / "coco.json").read_text())
     assert len(coco["images"]) == 4 and coco["annotations"]  # 2 scenarios x 2 frames, the cars labelled
     assert (suite / "dataset" / "data.yaml").exists()
+
+    # export.openscenario=true: each scenario, and the study's hardest trials, as OpenSCENARIO + OpenDRIVE (schema-valid);
+    # the trials' own jobs, lean, write none
+    from garage_exp.scenario.asam import validate
+
+    for folder in [suite / "openscenario" / "any_1", suite / "openscenario" / "any_2",
+                   *sorted((tmp_path / "sweep" / "search" / "openscenario").glob("rank*_trial*"))]:
+        assert validate(folder / "scenario.xosc") == "OpenSCENARIO_1_2.xsd" and validate(folder / "garage.xodr")
+    hardest = sorted(p.name for p in (tmp_path / "sweep" / "search" / "openscenario").iterdir())
+    assert hardest == ["rank1_trial0", "rank2_trial2"] or hardest == ["rank1_trial2", "rank2_trial0"], hardest
+    assert [p.parent.name for p in (tmp_path / "sweep").glob("*/openscenario")] == ["search"]
 
     trial = study.trials[int(manifest.trial[0])]
     rerun = run_app(["--config-dir", str(suite), "+scenario=any_1", f"tracking.uri=sqlite:///{tmp_path / 'rerun.db'}"],

@@ -438,6 +438,16 @@ class EgoConf:
 
 
 @dataclass
+class ExportConf:
+    """Formats a job writes beside its frames for other tools (garage_exp/exports)."""
+
+    # openscenario/scenario.xosc (ASAM OpenSCENARIO 1.2: entities, initial positions, routes, speeds, triggers)
+    # and openscenario/garage.xodr (the plan's driving lanes as ASAM OpenDRIVE); a search writes its hardest
+    # trials', a suite each scenario's (docs/openscenario.md)
+    openscenario: bool = False
+
+
+@dataclass
 class Config:
     plan: PlanConf = field(default_factory=PlanConf)
     garage: GarageConf = field(default_factory=GarageConf)
@@ -463,6 +473,7 @@ class Config:
     search: SearchConf = field(default_factory=SearchConf)
     blank: bool = False  # the blank control: only the vehicles, background removed
     dataset: bool = False  # also write frames with YOLO, COCO and KITTI labels (garage_exp/exports)
+    export: ExportConf = field(default_factory=ExportConf)
     resume: bool = False
     dry_run: bool = False  # plan + map + MLflow only: no rendering or detection
 

@@ -4,7 +4,8 @@ episode's group levels and every resolved value) that a job reruns,
 
     python -m garage_exp --config-dir <suite> +scenario=hard_1
 
-with a manifest (manifest.csv) and an index (README.md). Bands are the search's (confidence over the fair
+with a manifest (manifest.csv) and an index (README.md); with `export.openscenario=true`, each scenario as
+OpenSCENARIO and OpenDRIVE too (openscenario/<scenario>/scenario.xosc, garage.xodr). Bands are the search's (confidence over the fair
 frames), over the episodes whose target was fairly visible before the critical distance.
 
 An episode fixes the ego's drive (its rendered frames' motion values) and the adversary's values per frame. The
@@ -132,6 +133,11 @@ def write_suite(job: DictConfig, records: list[dict], root: Path, movers, speed_
             path = root / "scenario" / f"{name}.yaml"
             path.write_text(text)
             paths.append(path)
+            if job.export.openscenario:  # the episode as OpenSCENARIO + OpenDRIVE: openscenario/<name>/
+                from garage_exp.run.openscenario import export
+
+                values, _ = scenario_values(job, r, movers, speed_ms, slides)
+                export(OmegaConf.merge(job, values), root / "openscenario" / name)
             rows.append({"scenario": name, "band": band, "difficulty": round(r["difficulty"], 6),
                          "confidence": round(1.0 - r["difficulty"], 6), "late": r["late"],
                          "detection_distance": r["detection_distance"], "critical_distance":

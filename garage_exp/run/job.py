@@ -174,6 +174,11 @@ def _run_job(cfg: DictConfig) -> float | dict:
         run.log_artifact(out / "config.yaml")
         if trial is None:  # a search trial's map is its study's: the parent holds it
             run.log_artifact(plan_map(prepared.classified, out / "plan_map.png"))
+        if cfg.export.openscenario and trial is None:  # a search exports its hardest trials itself
+            from garage_exp.run.openscenario import export
+
+            for path in export(cfg, out / "openscenario", prepared):
+                run.log_artifact(path, "openscenario")
         if cfg.dry_run:
             summary = {"difficulty": math.nan}
         else:

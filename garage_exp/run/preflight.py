@@ -87,6 +87,7 @@ def check_config(cfg: DictConfig) -> None:
     from garage_exp.scene.parking import check_palette
     from garage_exp.scene.structure import check_garage
     from garage_exp.core.plugins import build
+    from garage_exp.exports.openscenario import check_export
 
     for key in ("seed", "light.seed", "palette.seed", "materials.seed"):
         value = OmegaConf.select(cfg, key)
@@ -107,6 +108,7 @@ def check_config(cfg: DictConfig) -> None:
     check_materials(cfg.materials)
     check_clutter(cfg.clutter)
     check_slots(cfg)
+    check_export(cfg)
 
 
 def check_slots(cfg: DictConfig) -> None:

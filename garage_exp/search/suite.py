@@ -7,7 +7,8 @@ resolved value) that reruns to the trial's frame table:
 
 with a manifest (manifest.csv: band, the objective's value (difficulty, lateness, ...), visible fraction, overrides) and, with `dataset=true`, the
 suite's frames as a dataset: each scenario is rerun with dataset=true into dataset/<scenario>/ (YOLO, COCO,
-KITTI), with one YOLO data.yaml and one COCO file over all of them.
+KITTI), with one YOLO data.yaml and one COCO file over all of them; with `export.openscenario=true`, each
+scenario as OpenSCENARIO and OpenDRIVE too (openscenario/<scenario>/scenario.xosc, garage.xodr).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.search.objectives import objective
 
 # Keys a scenario file leaves out: how and where a run is tracked is the rerunning user's, not the scenario's.
-NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset")
+NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset", "export")
 
 
 DEFAULT_BANDS = {"easy": [0.7, 1.01], "moderate": [0.4, 0.7], "hard": [0.0, 0.4]}
@@ -103,12 +104,18 @@ def write_suite(config: DictConfig, study, loader, launch=None, name: str = "") 
             path = root / "scenario" / f"{scenario}.yaml"
             path.write_text(scenario_yaml(job, scenario, trial))
             paths.append(path)
+            if config.export.openscenario:  # the scenario as OpenSCENARIO + OpenDRIVE, beside its YAML
+                from garage_exp.run.openscenario import export
+
+                export(job, root / "openscenario" / scenario)
             rows.append({"scenario": scenario, "band": band, metric: round(trial.values[0], 6),
                          "confidence": round(1.0 - trial.values[0], 6) if goal.confidence else None,
                          "visible_fraction": round(trial.user_attrs.get("visible_fraction", 0.0), 6),
                          "fair_frames": trial.user_attrs.get("fair_frames"), "trial": trial.number,
                          "run_id": trial.user_attrs.get("run_id"), "overrides": " ".join(overrides)})
             reruns.append((scenario, [*overrides, f"search.trial={trial.number}"], trial.user_attrs.get("output_dir")))
+    if config.export.openscenario and rows:
+        paths.append(root / "openscenario")  # a folder: logged as one
     manifest = root / "manifest.csv"
     pd.DataFrame(rows, columns=["scenario", "band", metric, "confidence", "visible_fraction", "fair_frames",
                                 "trial", "run_id", "overrides"]).to_csv(manifest, index=False)

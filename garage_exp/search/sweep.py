@@ -159,11 +159,25 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
 
     search = config.search
     paths = list(analyse(result["study"], out_dir, top=int(search.top)))
+    if config.export.openscenario:
+        paths.extend(export_hardest(config, result["study"], out_dir / "openscenario", loader))
     if search.mode == "suite":
         from garage_exp.search.suite import write_suite
 
         paths.extend(write_suite(config, result["study"], loader, launch, result["name"]))
     return paths
+
+
+def export_hardest(config: DictConfig, study, out: Path, loader) -> list[Path]:
+    """The `search.top` hardest trials as OpenSCENARIO and OpenDRIVE: out/rank<k>_trial<n>/ (each trial's job
+    composed again and prepared, not rendered); [out], a folder logged as one, or [] when no trial completed."""
+    from garage_exp.run.openscenario import export
+
+    best = ranked(study)[: int(config.search.top)]
+    for rank, trial in enumerate(best, start=1):
+        overrides = [o for o in trial.user_attrs.get("overrides", []) if not o.startswith("search.trial=")]
+        export(loader.load_sweep_config(config, overrides), out / f"rank{rank}_trial{trial.number}")
+    return [out] if best else []
 
 
 def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: list[Path], out_dir: Path) -> None:
@@ -178,7 +192,10 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [*paths, draw_map(classified_plan(resolve_plan_path(config.plan)), out_dir / "plan_map.png")]
     for path in paths:
-        tracking.retry(lambda p=path: mlc.log_artifact(parent_run_id, str(p), "search"))
+        if path.is_dir():  # a folder of files (the OpenSCENARIO exports) keeps its layout
+            tracking.retry(lambda p=path: mlc.log_artifacts(parent_run_id, str(p), f"search/{p.name}"))
+        else:
+            tracking.retry(lambda p=path: mlc.log_artifact(parent_run_id, str(p), "search"))
     tags = {"study": result["name"], "storage": study_mod.storage_url(config.search),
             "search_sampler": config.search.sampler, "search_mode": config.search.mode}
     for key, value in tags.items():
