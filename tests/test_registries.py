@@ -37,7 +37,7 @@ def recall_objective(monkeypatch):
 
 
 def search_node(**keys):
-    from garage_exp.core.schema import SearchConf
+    from garage_exp.search.schema import SearchConf
 
     return OmegaConf.merge(OmegaConf.structured(SearchConf), keys)
 

@@ -12,7 +12,7 @@ from conftest import compose_cfg
 from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
-from garage_exp.core.schema import SlotDetectorConf, SlotLinesConf, SlotMetricsConf
+from garage_exp.perception.slots.schema import SlotDetectorConf, SlotLinesConf, SlotMetricsConf
 from garage_exp.perception.slots.detector import check_slot_detector, check_slot_weights, from_pose, load
 from garage_exp.perception.slots.marks import SlotFrame
 from garage_exp.perception.slots.synthetic import bev_row

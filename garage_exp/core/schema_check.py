@@ -19,7 +19,7 @@ from typing import Any, Iterator
 
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp.core.schema import Config
+from garage_exp.core.schema import config_schema
 from garage_exp.core.errors import GarageError, did_you_mean
 
 NOT_IN_SCHEMA = ("hydra",)  # top-level nodes that are not the task's config (a sweep job's config carries hydra)
@@ -44,7 +44,7 @@ def unknown_keys(value: Any, schema: Any, path: tuple[str, ...] = ()) -> Iterato
             return
         fields = _fields(schema)
         for key, item in value.items():
-            if not path and key in NOT_IN_SCHEMA and schema is Config:
+            if not path and key in NOT_IN_SCHEMA and schema is config_schema():
                 continue
             if key not in fields:
                 yield path, str(key), schema

@@ -96,8 +96,7 @@ def load(conf: Any) -> Detect:
     kind = str(conf.kind)
     if kind == "lines":
         from garage_exp.perception.slots.lines import detect as detect_lines
-
-        from garage_exp.core.schema import SlotLinesConf
+        from garage_exp.perception.slots.schema import SlotLinesConf
 
         # plain attribute reads in the detector's loops (a config node's are slow); missing keys take the defaults
         params = SlotLinesConf(**OmegaConf.to_container(conf.lines, resolve=True)) \
