@@ -107,7 +107,7 @@ def check_schema(cfg: DictConfig, overrides: list[str] | None = None) -> None:
     the key and the nearest valid key: `+case.bumper_gapp=1: case has no key 'bumper_gapp' (did you mean
     'bumper_gap'?)`."""
     values = OmegaConf.to_container(cfg, resolve=False)
-    for parent, key, schema in unknown_keys(values, Config):
+    for parent, key, schema in unknown_keys(values, config_schema()):
         full = ".".join((*parent, key))
         given = override_of(full, task_overrides(cfg) if overrides is None else overrides)
         where = given or level_file(cfg, parent[0] if parent else "")
