@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 RUN_ARGS ?= -m light=bright,dim case=1,2,3 replicates=2
 export YOLO_OFFLINE := 1
 
-.PHONY: setup system python data run test ui dashboard map bench clean mutation docs
+.PHONY: setup system python data run test ui dashboard map bench bench-long bench-cluster bench-gpu clean mutation docs
 
 setup: system python data
 
@@ -61,7 +61,7 @@ mutation: python
 
 ui: python
 	@$(BIN)/python -m garage_exp.tracking.store $(CURDIR)/outputs/mlflow.db
-	@$(BIN)/python -m garage_exp.tracking.runs --uri sqlite:///$(CURDIR)/outputs/mlflow.db
+	@$(BIN)/python -m garage_exp.tracking.ui --uri sqlite:///$(CURDIR)/outputs/mlflow.db
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
 
 # optuna-dashboard over a search's study (issue 10): the same storage the sweeper writes, local only.
@@ -74,8 +74,30 @@ dashboard: python
 map: python
 	@for p in plans/*.yaml plans/*.csv; do $(BIN)/python -m garage_exp.plan map $$p -o outputs/maps/$$(basename $${p%.*}).png; done
 
+# Benchmarks (benchmarks/README.md), each `python -m benchmarks.GROUP.NAME`: `make bench` runs the quick ones (about
+# 20 minutes on 2 cores, estimated from the documented runs), the others by name. Their numbers are in docs/performance.md and benchmarks/results/.
+BENCH_QUICK := performance.scene performance.look performance.detect performance.rigs performance.pipeline studies.slot_detector
+BENCH_LONG := performance.sweep performance.garage_size performance.profile_job studies.search studies.falsification
+BENCH_CLUSTER := performance.ray_nodes
+BENCH_GPU := performance.gpu
+define run_benchmarks
+	@for b in $(1); do echo "== python -m benchmarks.$$b"; $(BIN)/python -m benchmarks.$$b || exit 1; done
+endef
+
 bench: setup
-	@for b in benchmarks/bench_*.py; do $(BIN)/python $$b; done
+	$(call run_benchmarks,$(BENCH_QUICK))
+
+# an hour or more: sweeps, the garage-size rounds, a profile, searches, the falsification study (1.5 h)
+bench-long: setup
+	$(call run_benchmarks,$(BENCH_LONG))
+
+# Ray nodes, a PostgreSQL study and an MLflow server on this machine (scripts/setup_postgres.sh, done by setup)
+bench-cluster: setup
+	$(call run_benchmarks,$(BENCH_CLUSTER))
+
+# the GPU path against the CPU one; on a CPU-only machine its GPU parts are skipped with a message
+bench-gpu: setup
+	$(call run_benchmarks,$(BENCH_GPU))
 
 clean:
 	rm -rf outputs mutants

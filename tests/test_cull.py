@@ -102,10 +102,10 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
                 for shot in setup.shots:  # re-render each shot culled to see what it hid
                     renderer.set_pose("ego", shot.ego)
                     renderer.render(scene.cameras[0].name)
-                    rows = np.flatnonzero(renderer._base & ~renderer._shown)
+                    rows = np.flatnonzero(renderer.bodies.base & ~renderer.bodies.shown)
                     # the boxes as they stood then: an actor (and its shadow decal) moves on in later frames
                     hidden.append((renderer.camera_pose(scene.cameras[0].name), rows,
-                                   renderer._lo[rows].copy(), renderer._hi[rows].copy()))
+                                   renderer.bodies.lo[rows].copy(), renderer.bodies.hi[rows].copy()))
     finally:
         renderer.cull = True
     assert len(frames[True]) == 3
@@ -117,3 +117,37 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
     for pose, rows, lo, hi in hidden:
         for k in range(len(rows)):
             assert covers_no_pixel(lo[k], hi[k], spec, pose, samples=3)
+
+
+# ---- the renderer's parts that need no device (issue 32, item 5: split out of sapien_backend) ----------------
+
+
+def test_silhouette_groups_share_a_render_only_when_their_rectangles_are_disjoint():
+    from garage_exp.render.silhouettes import disjoint_groups, image_rect
+
+    ahead = image_rect(np.array([[9.0, -1.0, 0.0], [11.0, 1.0, 1.5]]), CAM, SPEC)
+    assert ahead is not None and 0 < ahead[0] < ahead[2] < SPEC.width
+    assert image_rect(np.array([[-6.0, -1.0, 0.0], [-4.0, 1.0, 1.5]]), CAM, SPEC) is None  # behind
+    assert image_rect(np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 2.0]]), CAM, SPEC) == (0.0, 0.0, 640.0, 480.0)
+    rects = {"a": (0, 0, 10, 10), "b": (20, 0, 30, 10), "c": (5, 5, 25, 15), "d": (40, 40, 50, 50)}
+    assert disjoint_groups(rects) == [["a", "b", "d"], ["c"]]
+
+
+def test_the_light_pool_goes_to_the_strongest_lamps_at_the_camera():
+    from garage_exp.render.light_pool import LAMP_POWER, LightPool
+    from garage_exp.scene.description import Light, Scene
+
+    lamps = [Light(f"l{k}", (3.0 * k, 0.0, 2.5)) for k in range(5)] + [Light("off", (0.0, 0.0, 2.5), intensity=0.0)]
+    pool = LightPool()
+    pool.set_lamps(Scene("s", lights=lamps))
+    assert len(pool.pos) == 5 and pool.rgb[0] == pytest.approx(np.array(lamps[0].color) * LAMP_POWER)
+    assert list(pool.choose([6.2, 0.0, 1.5], 3)) == [2, 3, 1]  # nearest first; the dark lamp takes none
+    assert len(pool.choose([0.0, 0.0, 1.5], 10)) == 5
+
+
+def test_a_shape_type_without_a_sapien_converter_is_one_line_error():
+    from garage_exp.core.errors import GarageError
+    from garage_exp.render.sapien_builder import sapien_shape
+
+    with pytest.raises(GarageError, match="cannot draw a str"):
+        sapien_shape("not a shape", None, "car", Pose())

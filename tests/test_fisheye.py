@@ -176,11 +176,11 @@ def test_a_fisheye_scene_reloaded_with_other_actors_renders_as_a_fresh_load(rend
 
     renderer.load(garage(camera=fisheye_camera(), target_at=12.0))
     renderer.render("front")
-    sapien_scene, entities = renderer._scene, len(renderer._scene.get_entities())
+    sapien_scene, entities = renderer.sapien_scene, len(renderer.sapien_scene.get_entities())
     scene = garage(camera=fisheye_camera(), target_at=7.0)
     renderer.load(scene)
-    assert renderer._scene is sapien_scene  # the statics stayed
-    assert len(renderer._scene.get_entities()) == entities  # and no face camera was left behind
+    assert renderer.sapien_scene is sapien_scene  # the statics stayed
+    assert len(renderer.sapien_scene.get_entities()) == entities  # and no face camera was left behind
     reused = renderer.render("front")
     fresh_renderer = SapienRenderer(max_lights=8)
     fresh_renderer.load(scene)

@@ -145,6 +145,20 @@ def test_cli_map_writes_the_png(tmp_path):
     assert default.returncode == 0 and (tmp_path / "tiny_map.png").is_file()
 
 
+def test_cli_generate_writes_the_shipped_generated_garages(tmp_path):
+    """The plan generator lives with the plans (`python -m garage_exp.plan generate`, issue 32 item 6) and the
+    shipped plans/garage*.yaml are its output, byte for byte; each loads and classifies."""
+    from garage_exp.plan.__main__ import main
+
+    assert main(["generate", "-o", str(tmp_path)]) == 0
+    written = sorted(tmp_path.glob("*.yaml"))
+    assert [p.name for p in written] == ["garage13x15.yaml", "garage26x30.yaml", "garage39x45.yaml"]
+    for path in written:
+        assert path.read_bytes() == (PLANS_DIR / path.name).read_bytes()
+        assert "python -m garage_exp.plan generate" in path.read_text().splitlines()[3]
+    assert classify(load_plan(written[0])).plan.shape == (13, 15)
+
+
 def test_makefile_map_target_uses_this_cli():
     assert "python -m garage_exp.plan map" in (PROJECT_ROOT / "Makefile").read_text()
 

@@ -274,23 +274,23 @@ def test_a_scene_with_the_same_statics_replaces_only_its_actors_and_renders_as_a
     from garage_exp.render.sapien_backend import SapienRenderer
 
     renderer.load(garage(pillar_at=6.0))
-    sapien_scene = renderer._scene
+    sapien_scene = renderer.sapien_scene
     renderer.render("front")  # leaves some static tiles culled
     scene = garage(pillar_at=6.0, target_at=8.0)
     scene.entities.append(vehicle("extra", "parked", Pose(20.0, 2.0, 0.0)))
     renderer.load(scene)
-    assert renderer._scene is sapien_scene and set(renderer.ids) >= {"ego", "target", "extra"}
+    assert renderer.sapien_scene is sapien_scene and set(renderer.ids) >= {"ego", "target", "extra"}
     reused = renderer.render("front")
     fresh_renderer = SapienRenderer(max_lights=8)
     fresh_renderer.load(scene)
-    assert fresh_renderer._scene is not sapien_scene
+    assert fresh_renderer.sapien_scene is not sapien_scene
     fresh = fresh_renderer.render("front")
     assert np.array_equal(reused.rgb, fresh.rgb)
     for name in ("target", "extra", "case_pillar"):
         if name in renderer.ids:
             assert np.array_equal(reused.ids == renderer.ids[name], fresh.ids == fresh_renderer.ids[name])
     renderer.load(garage(pillar_at=9.0))  # other statics: a full load
-    assert renderer._scene is not sapien_scene
+    assert renderer.sapien_scene is not sapien_scene
 
 
 @render
@@ -312,16 +312,16 @@ def test_contact_shadows_that_meet_draw_the_same_in_a_kept_scene_as_in_a_fresh_o
         return scene
 
     renderer.load(shadowed(9.0))
-    sapien_scene = renderer._scene
+    sapien_scene = renderer.sapien_scene
     renderer.render("front")
     scene = shadowed(10.0)
     renderer.load(scene)
-    assert renderer._scene is sapien_scene  # the statics were kept
+    assert renderer.sapien_scene is sapien_scene  # the statics were kept
     kept = renderer.render("front")
     fresh_renderer = SapienRenderer(max_lights=8)
     fresh_renderer.load(scene)
     fresh = fresh_renderer.render("front")
-    parked = fresh.ids == int(fresh_renderer._entities["parked:decals"].per_scene_id)
+    parked = fresh.ids == int(fresh_renderer._built.entities["parked:decals"].per_scene_id)
     assert parked.sum() > 20  # the car's shadow is in view
     assert np.array_equal(kept.rgb, fresh.rgb)
     assert len(kept.see_through) == len(fresh.see_through)  # the replaced actors' decals are forgotten
@@ -345,18 +345,18 @@ def test_another_light_on_the_same_garage_recolours_the_loaded_statics_as_a_fres
         return scene
 
     renderer.load(lit(1.0, 0.05))
-    sapien_scene = renderer._scene
+    sapien_scene = renderer.sapien_scene
     bright = renderer.render("front")
     dim = lit(0.3, 0.01)
     renderer.load(dim)
-    assert renderer._scene is sapien_scene  # recoloured, not rebuilt
+    assert renderer.sapien_scene is sapien_scene  # recoloured, not rebuilt
     reused = renderer.render("front")
     fresh_renderer = SapienRenderer(max_lights=8)
     fresh_renderer.load(dim)
     fresh = fresh_renderer.render("front")
     assert np.array_equal(reused.rgb, fresh.rgb) and reused.rgb.mean() < bright.rgb.mean() - 5
     renderer.load(lit(0.3, 0.01, off=(2, 3)))
-    assert renderer._scene is not sapien_scene
+    assert renderer.sapien_scene is not sapien_scene
 
 
 @render

@@ -12,6 +12,8 @@ from optuna.trial import TrialState, create_trial
 
 from garage_exp.core.errors import GarageError
 from garage_exp.report import search_analysis as analysis, sensitivity
+from garage_exp.report.trials import distributions, rerun_overrides, trial_table
+from garage_exp.report.why_hard import why_hard
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 
@@ -111,9 +113,9 @@ def test_single_objective_report_ranks_only_complete_trials_and_explains(tmp_pat
 
 def test_a_bright_trial_is_told_it_is_not_on_the_harder_side(tmp_path):
     study = study_of(30)
-    table = analysis.trial_table(study)
+    table = trial_table(study)
     bright = next(t for t in study.trials if t.state == TrialState.COMPLETE and t.params["light.intensity"] > 0.75)
-    lines = [text for _, _, text in analysis.why_hard(bright, table, analysis.distributions(study), {})]
+    lines = [text for _, _, text in why_hard(bright, table, distributions(study), {})]
     light = next(ln for ln in lines if ln.startswith("`light.intensity`"))
     assert "high third" in light and "not the harder side" in light and "in the low third (" in light
 
@@ -263,7 +265,7 @@ def test_the_trial_table_names_its_column_by_the_objective_and_the_rerun_keeps_t
     assert "lateness" in trials and "difficulty" not in trials and trials.lateness.tolist()[1:] == [0.2, 0.7, 0.4]
     assert trials.why[0] == "infeasible: never fairly visible before the critical distance"
     assert hard.lateness.tolist() == [0.7, 0.4] and "difficulty" not in hard
-    assert analysis.rerun_overrides(study.trials[2]) == ["case=stepout", "search.min_visible=0.3",
+    assert rerun_overrides(study.trials[2]) == ["case=stepout", "search.min_visible=0.3",
                                                          "light.intensity=0.5"]
     report = (tmp_path / "search_report.md").read_text()
     assert "### 1. trial 2: lateness 0.70" in report

@@ -450,7 +450,9 @@ def fresh_outage(monkeypatch):
     monkeypatch.setattr(STATE, "tracking_down_since", None)
     monkeypatch.setattr(STATE, "tracking_given_up", False)
     monkeypatch.setattr(STATE, "stopping", False)
-    monkeypatch.setattr(tracking, "_uri", lambda: "http://127.0.0.1:1")
+    from garage_exp.tracking import client
+
+    monkeypatch.setattr(client, "_uri", lambda: "http://127.0.0.1:1")
     slept = []
     clock = [1000.0]
 
@@ -458,8 +460,8 @@ def fresh_outage(monkeypatch):
         slept.append(s)
         clock[0] += s
 
-    monkeypatch.setattr(tracking.time, "sleep", sleep)
-    monkeypatch.setattr(tracking.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(client.time, "sleep", sleep)
+    monkeypatch.setattr(client.time, "monotonic", lambda: clock[0])
     return slept
 
 

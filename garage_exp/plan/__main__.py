@@ -1,4 +1,5 @@
-"""`python -m garage_exp.plan map PLAN_FILE [-o out.png]` draws a plan; `... check PLAN_FILE` summarises it.
+"""`python -m garage_exp.plan map PLAN_FILE [-o out.png]` draws a plan; `... check PLAN_FILE` summarises it;
+`... generate [-o DIR]` writes the generated big garages (plan/generate.py) into plans/.
 Bad input prints the one-line GarageError to stderr and exits 2."""
 
 from __future__ import annotations
@@ -40,11 +41,19 @@ def _parser() -> argparse.ArgumentParser:
     draw.add_argument("-o", "--output", type=Path, help="PNG to write (default: PLAN_map.png here)")
     check = sub.add_parser("check", help="load and classify the plan and print a summary")
     check.add_argument("plan_file", type=Path, metavar="PLAN_FILE")
+    generate = sub.add_parser("generate", help="write the generated garages (garage13x15, 26x30, 39x45)")
+    generate.add_argument("-o", "--output", type=Path, help="folder to write them into (default: the project's plans/)")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "generate":
+        from garage_exp.plan.generate import write_plans
+
+        for path in write_plans(*([args.output] if args.output else [])):
+            print(path)
+        return 0
     try:
         classified = classify(load_plan(args.plan_file))
         if args.command == "map":

@@ -4,7 +4,7 @@ group: clean, worn, wet, random) and contact shadows under vehicles, people, pil
 Contact shadows are baked decals, not shadow maps: measured on lavapipe, SAPIEN's shadow maps cost 3x a frame
 and draw hard shadows of the nearest three lamps only, while the darkening that tells the eye (and a detector)
 that a car stands on the floor is the soft one right under it, which an alpha-blended decal gives for the cost
-of a quad. They move with their actor and carry no id of its (render/sapien_backend.py), so ground truth is
+of a quad. They move with their actor and carry no id of its (render/sapien_builder.py), so ground truth is
 unchanged.
 """
 

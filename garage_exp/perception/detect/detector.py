@@ -148,7 +148,7 @@ def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int =
 
     threads > 0 caps OpenVINO's inference threads (0: OpenVINO's default, all cores). With rendering running
     beside detection on a small machine, one thread each wastes less CPU than two each fighting for the same
-    cores (benchmarks/RESULTS.md). Ignored for .pt weights.
+    cores (docs/performance.md). Ignored for .pt weights.
     """
     path = path.resolve()
     key = (path, threads, device)

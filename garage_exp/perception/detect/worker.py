@@ -42,7 +42,7 @@ def cores() -> int:
 
 
 # OpenVINO threads in the child: half the cores, the renderer beside it keeps the rest busy. On 2 cores one
-# thread detects at 0.104 CPU s a frame against 0.125 with two (benchmarks/RESULTS.md), so the pair wastes
+# thread detects at 0.104 CPU s a frame against 0.125 with two (docs/performance.md), so the pair wastes
 # less. GARAGE_EXP_OV_THREADS overrides (0: OpenVINO's default, all cores).
 DEFAULT_THREADS = max(1, cores() // 2)
 

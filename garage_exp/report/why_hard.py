@@ -1,0 +1,101 @@
+"""What makes a study's scenario hard: the parameters' fANOVA importances, and for each parameter of a trial
+where its value lies and whether the study's complete trials are harder on that side (Welch's t-test)."""
+
+from __future__ import annotations
+
+import numpy as np
+import optuna
+import pandas as pd
+from optuna.distributions import BaseDistribution, CategoricalDistribution
+from optuna.trial import FrozenTrial, TrialState
+from scipy.stats import ttest_ind
+
+from garage_exp.report import sensitivity
+from garage_exp.report.trials import first_value
+
+FANOVA_SEED = 0  # the importances of one study are the same every time they are computed
+THIRDS = ("low third", "middle third", "high third")
+ALPHA = 0.05  # a side is called harder only when Welch's t-test tells it from the hardest other side
+
+
+def importances(study: optuna.Study) -> tuple[dict[str, float], str]:
+    """fANOVA importances of the parameters for the first value (seeded), or {} and the reason they are missing."""
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if len(done) < 2:
+        return {}, f"Importances skipped: {len(done)} complete trial(s), fANOVA needs at least 2."
+    evaluator = optuna.importance.FanovaImportanceEvaluator(seed=FANOVA_SEED)
+    try:
+        found = optuna.importance.get_param_importances(study, evaluator=evaluator, target=first_value)
+    except RuntimeError as exc:  # fANOVA's "zero total variance": every trial equally hard
+        return {}, f"Importances skipped: {exc}"
+    if not found:
+        return {}, "Importances skipped: no parameter was sampled in every complete trial."
+    return {k: float(v) for k, v in found.items()}, ""
+
+
+def position(value, dist: BaseDistribution) -> float:
+    """Where a numeric value lies in its range, 0 (low end) to 1 (high end); on a log scale for log ranges."""
+    return float(np.clip(sensitivity.to_unit(value, dist), 0, 1))
+
+
+def side(value, dist: BaseDistribution) -> str:
+    """The part of the range a value is in: a categorical level, or a third of a numeric range."""
+    if isinstance(dist, CategoricalDistribution):
+        return str(value)
+    return THIRDS[min(int(position(value, dist) * 3), 2)]
+
+
+def sides(table: pd.DataFrame, param: str, dist: BaseDistribution, name: str = "difficulty") -> dict[str, pd.Series]:
+    """The complete trials' values of the objective `name` on each side (third or level) of a parameter."""
+    done = table[(table.state == "COMPLETE") & table[param].notna()]
+    labels = [side(v, dist) for v in done[param]]
+    return {k: g for k, g in done[name].groupby(labels)}
+
+
+def range_text(dist: BaseDistribution) -> str:
+    if isinstance(dist, CategoricalDistribution):
+        return "levels " + ", ".join(map(str, dist.choices))
+    return f"{dist.low:g} to {dist.high:g}" + (" (log scale)" if getattr(dist, "log", False) else "")
+
+
+def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: dict[str, float],
+             higher_is_harder: bool = True, name: str = "difficulty") -> list[tuple[str, str, str]]:
+    """(parameter, side, sentence) per parameter of the trial, most important first: where its value lies and
+    whether the study's complete trials are harder on that side than on the hardest other side (Welch's
+    t-test); the sentence says "the harder side" only when they are."""
+    lines = []
+    for param in sorted(trial.params, key=lambda p: (-importance.get(p, -1), p)):
+        dist, value = dists[param], trial.params[param]
+        where = side(value, dist)
+        groups = sides(table, param, dist, name)
+        shown = f"{value:.3g}" if isinstance(value, float) else str(value)
+        head = f"`{param}` = {shown}"
+        if not isinstance(dist, CategoricalDistribution):
+            head += f", {position(value, dist):.0%} of the way from {range_text(dist)}, in the {where}"
+        if param in importance:
+            head += f" (importance {importance[param]:.2f})"
+        mine = groups.get(where, pd.Series(dtype=float))
+        others = {k: g for k, g in groups.items() if k != where and len(g) >= 2}
+        if len(mine) < 2 or not others:
+            lines.append((param, where, f"{head}: too few trials on each side to tell whether this side is harder."))
+            continue
+        pick = max if higher_is_harder else min
+        best = pick(others, key=lambda k: others[k].mean())  # the hardest of the other sides
+        rest = others[best]
+        p = ttest_ind(mine, rest, equal_var=False).pvalue
+        harder = mine.mean() >= rest.mean() if higher_is_harder else mine.mean() <= rest.mean()
+        verdict = ("no clear harder side" if not p < ALPHA
+                   else "the harder side" if harder else "not the harder side")
+        there = f"with {param}={best}" if isinstance(dist, CategoricalDistribution) else f"in the {best}"
+        lines.append((param, where, f"{head}: {verdict} (p = {p:.2g}): {name} {mine.mean():.2f} on average "
+                                    f"there ({len(mine)} trials) against {rest.mean():.2f} {there} ({len(rest)})."))
+    return lines
+
+
+def what_makes_it_hard(reasons: list[tuple[str, str, str]]) -> list[str]:
+    """The report's lines for one scenario: a one-line summary, then one bullet per parameter."""
+    harder = [f"`{param}` ({where})" for param, where, text in reasons if ": the harder side (" in text]
+    summary = ("In short: hard through " + ", ".join(harder) + "." if harder else
+               "In short: none of its parameters sits on a side that is clearly harder in this study's data.")
+    return ["What makes it hard: " + summary.removeprefix("In short: "), "",
+            *(f"- {text}" for _, _, text in reasons), ""]

@@ -1,0 +1,122 @@
+"""The MLflow client of a store, and waiting out a store or tracking server that does not answer.
+
+One MLflow idiom: every call goes through an `MlflowClient` made for an explicit URI (`client(uri)`), never
+through MLflow's fluent API (active runs, `mlflow.set_tracking_uri`); a job's run is logged by run id
+(jobrun.JobRun). The URI is exported to the environment as $MLFLOW_TRACKING_URI (what the fluent API's
+set_tracking_uri did here before): child processes (the sweep's workers) inherit the store this process writes
+to, and `tracking_uri(None)` and the outage messages name it from then on.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import sys
+import time
+
+from garage_exp.core.paths import OUTPUTS_DIR
+from garage_exp.core.state import STATE
+
+# sqlite answers "database is locked" (or "database table is locked") when another process holds the write
+# lock longer than its busy timeout; the write did not happen and is safe to repeat.
+TRANSIENT = ("database is locked", "database table is locked")
+
+# A tracking server that does not answer: refused or reset connections, timeouts, a proxy's 502-504; or a
+# server whose PostgreSQL store restarts (it answers 503, or 500 with the driver's text, until the database is
+# back).
+UNREACHABLE = ("max retries exceeded", "connection refused", "connection aborted", "connection reset",
+               "read timed out", "connecttimeout", "remotedisconnected", "failed to establish a new connection",
+               "error code 429", "error code 502", "error code 503", "error code 504",
+               "server closed the connection unexpectedly", "terminating connection due to administrator command",
+               "the database system is shutting down", "the database system is starting up",
+               "the database system is in recovery mode", "could not connect to server", "connection to server at")
+
+
+def tracking_uri(uri: str | None = None) -> str:
+    """Config override, then $MLFLOW_TRACKING_URI, then the project's sqlite store (absolute, cwd-proof)."""
+    if uri:
+        return uri
+    if os.environ.get("MLFLOW_TRACKING_URI"):
+        return os.environ["MLFLOW_TRACKING_URI"]
+    OUTPUTS_DIR.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{OUTPUTS_DIR / 'mlflow.db'}"
+
+
+def client(uri: str | None = None):
+    """An MlflowClient of the store `uri` names (see tracking_uri), the store created on first use."""
+    import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
+
+    from garage_exp.tracking.store import open_store
+
+    uri = tracking_uri(uri)
+    if uri.startswith(("http://", "https://")):
+        # MLflow's own HTTP retries (7, with back-off up to two minutes each, and a 120 s timeout) sat more than
+        # 15 minutes on a stopped server; retry() below waits instead, for a bounded time, and says so.
+        os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
+        os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "30")
+    os.environ["MLFLOW_TRACKING_URI"] = uri  # for child processes and the outage messages (the module's doc)
+    # The client opens (and may create) the store: a write, made once under the store's lock.
+    return open_store(uri, lambda: retry(lambda: mlflow.MlflowClient(uri)))
+
+
+class TrackingAway(Exception):
+    """The tracking server stayed away longer than the wait allowed (or a signal came while it was away)."""
+
+
+def tracking_wait() -> float:
+    """How long a call waits for a tracking server that went away ($GARAGE_EXP_TRACKING_WAIT, seconds)."""
+    from garage_exp.core.exits import wait_seconds
+
+    return wait_seconds("GARAGE_EXP_TRACKING_WAIT")
+
+
+def _unreachable(exc: BaseException) -> bool:
+    text = f"{type(exc).__name__}: {exc}".lower()
+    return any(t in text for t in UNREACHABLE)
+
+
+def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.0):
+    """Call fn(), retrying on sqlite's 'database is locked' (several workers share one sqlite store) with
+    jittered exponential back-off (~30 s in all before the error is raised), and on a tracking server that
+    does not answer for up to tracking_wait() seconds (one line when the wait starts, one when the server is
+    back), then TrackingAway. After Ctrl-C or SIGTERM nothing waits: one attempt, and none at all when the
+    server was already away."""
+    from garage_exp.core.exits import stopping
+
+    k = 0
+    while True:
+        if STATE.tracking_given_up or (stopping() and STATE.tracking_down_since is not None):
+            raise TrackingAway(f"tracking server {_uri()} away")
+        try:
+            result = fn()
+        except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError and requests' errors
+            if _unreachable(exc):
+                now = time.monotonic()
+                if STATE.tracking_down_since is None:
+                    STATE.tracking_down_since = now
+                    if not stopping():
+                        print(f"garage_exp: tracking server {_uri()} not answering; retrying for up to "
+                              f"{tracking_wait():.0f} s (GARAGE_EXP_TRACKING_WAIT)", file=sys.stderr, flush=True)
+                waited = now - STATE.tracking_down_since
+                if stopping() or waited >= tracking_wait():
+                    STATE.tracking_given_up = not stopping()
+                    raise TrackingAway(f"tracking server {_uri()} away for {waited:.0f} s") from None
+                time.sleep(min(30.0, 2.0 ** min(k, 5), tracking_wait() - waited + 0.01))
+                k += 1
+                continue
+            text = str(exc).lower()
+            if not any(t in text for t in TRANSIENT) or k >= attempts - 1:
+                raise
+            time.sleep(min(max_delay, base_delay * (2**k)) * (0.5 + random.random()))
+            k += 1
+            continue
+        if STATE.tracking_down_since is not None:
+            print(f"garage_exp: tracking server {_uri()} answers again after {time.monotonic() - STATE.tracking_down_since:.0f} s",
+                  file=sys.stderr, flush=True)
+            STATE.tracking_down_since = None
+        return result
+
+
+def _uri() -> str:
+    """The store the last client() was made for, as its outage messages name it."""
+    return tracking_uri()

@@ -1,0 +1,60 @@
+"""The benchmarks (issue 32, item 6): grouped by kind, each one's arguments parse, results are small Markdown
+pages without machine paths, and `make` names every benchmark in exactly one target. That the package never
+imports a benchmark is an import contract (pyproject.toml, `lint-imports`)."""
+
+from __future__ import annotations
+
+import os
+import re
+import runpy
+import sys
+
+import pytest
+
+from garage_exp.core.paths import PROJECT_ROOT
+
+BENCH = PROJECT_ROOT / "benchmarks"
+GROUPS = ("performance", "studies", "figures")
+MODULES = sorted(f"benchmarks.{g}.{p.stem}" for g in GROUPS for p in (BENCH / g).glob("*.py") if p.stem != "__init__")
+
+
+def test_every_benchmark_is_in_a_group():
+    loose = sorted(p.name for p in BENCH.glob("*.py"))
+    assert loose == ["__init__.py", "common.py", "jobkit.py"]  # only the shared helpers at the top
+    assert len(MODULES) >= 19
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_each_benchmark_parses_its_arguments(module, monkeypatch, capsys):
+    """`--help` runs the module as `python -m` does (its imports, its parser) and does nothing else."""
+    monkeypatch.setattr(sys, "argv", [module, "--help"])
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    monkeypatch.setattr(os, "environ", dict(os.environ))
+    with pytest.raises(SystemExit) as stop:
+        runpy.run_module(module, run_name="__main__", alter_sys=True)
+    assert stop.value.code == 0
+    assert capsys.readouterr().out.startswith("usage:")
+
+
+def test_results_are_small_markdown_pages_without_machine_paths():
+    files = sorted((BENCH / "results").iterdir())
+    assert files and all(f.suffix == ".md" for f in files)
+    for f in files:
+        text = f.read_text()
+        assert text.startswith("# "), f.name
+        assert f.stat().st_size < 32_000, f"{f.name}: summarise, do not keep raw records"
+        assert not re.search(r"(/work/|/home/|/tmp/|/Users/)", text), f.name
+
+
+def test_make_runs_the_quick_benchmarks_and_names_the_others():
+    make = (PROJECT_ROOT / "Makefile").read_text()
+    named = {}
+    for target in ("BENCH_QUICK", "BENCH_LONG", "BENCH_CLUSTER", "BENCH_GPU"):
+        line = re.search(rf"^{target} := (.*)$", make, re.M)
+        assert line, target
+        for name in line.group(1).split():
+            named.setdefault(f"benchmarks.{name}", []).append(target)
+    measured = {m for m in MODULES if ".figures." not in m and not m.endswith(".before")}  # before needs --before
+    assert set(named) == measured and all(len(v) == 1 for v in named.values())
+    assert named["benchmarks.performance.ray_nodes"] == ["BENCH_CLUSTER"]
+    assert named["benchmarks.performance.gpu"] == ["BENCH_GPU"]
