@@ -116,3 +116,26 @@ def test_a_pinhole_camera_keeps_no_lens_fields_and_an_unknown_model_is_refused()
                                           r"\| fisheye\)"):
         check_camera(fisheye_rig("orthographic"))
     assert np.isclose(lenses.FISHEYE_FOV_RANGE[1], 200.0)
+
+
+def test_each_layers_schema_lives_beside_its_check_and_core_registers_it_by_name():
+    """Item 4: a node one layer owns is declared in that layer; core names it, imports no layer above it."""
+    import ast
+    from pathlib import Path
+
+    from garage_exp.core import schema
+    from garage_exp.exports.openscenario import ExportConf
+    from garage_exp.perception.slots.schema import SlotDetectorConf, SlotLinesConf
+    from garage_exp.results.late import EgoConf
+    from garage_exp.search.schema import SearchConf
+
+    source = Path(schema.__file__).read_text()
+    declared = {n.name for n in ast.walk(ast.parse(source)) if isinstance(n, ast.ClassDef)}
+    assert not declared & {"SearchConf", "EgoConf", "SlotDetectorConf", "SlotLinesConf", "ExportConf"}
+    types = {f.name: f.type for f in dataclasses.fields(schema.Config)}
+    assert (types["search"], types["ego"], types["slot_detector"], types["export"]) == (
+        SearchConf, EgoConf, SlotDetectorConf, ExportConf)
+    assert schema.SlotLinesConf is SlotLinesConf  # code written before the move still imports it from core
+    config = OmegaConf.structured(schema.Config)
+    assert list(config)[:8] == ["plan", "garage", "light", "camera", "palette", "occluder", "case", "ego"]
+    assert config.search.objective == "difficulty" and config.slot_detector.lines.max_gap == 0.8
