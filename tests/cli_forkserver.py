@@ -3,7 +3,8 @@ project's start-up (~1 s). It imports what `python -m garage_exp` imports, then,
 that does exactly what `python -m garage_exp ARGS` does - `garage_exp.cli.app.cli()` with that argv, in that
 working dir and environment, its stdout and stderr in files - and answers with the child's exit code.
 
-Protocol: one JSON object per line on stdin {"argv", "cwd", "env", "stdout", "stderr"}, all before stdin
+Protocol: one JSON object per line on stdin {"argv", "cwd", "env", "stdout", "stderr", optional "entry": another
+command's cli as "module:function", e.g. "garage_exp.verify.app:cli"}, all before stdin
 closes; one per line on stdout {"id" (the request's index), "rc"} as the children finish. Only for tests
 (tests/test_reliability_inputs.py, which also runs a few entries as real subprocesses to compare).
 """
@@ -60,7 +61,13 @@ def child(request: dict) -> int:
     import garage_exp
 
     sys.argv = [os.path.join(os.path.dirname(garage_exp.__file__), "__main__.py"), *request["argv"]]
-    code = call_cli()
+    entry = None
+    if request.get("entry"):
+        import importlib
+
+        module, _, name = request["entry"].partition(":")
+        entry = getattr(importlib.import_module(module), name)
+    code = call_cli(entry)
     sys.stdout.flush()
     sys.stderr.flush()
     return code

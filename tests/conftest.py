@@ -55,9 +55,9 @@ def missing(capability: str) -> str | None:
 
                 vehicles_dir()
             else:
-                from garage_exp.perception.detect.detector import resolve_model
+                from garage_exp.perception.detect.entries import resolve
 
-                absent = [m for m in default_models() if not resolve_model(m).exists()]
+                absent = [m for m in default_models() if not Path(resolve(m)).exists()]
                 problem = f"detector models missing: {absent}" if absent else None
         except GarageError as exc:
             problem = str(exc)

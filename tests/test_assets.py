@@ -463,3 +463,16 @@ def test_where_command_prints_the_folders():
     proc = subprocess.run([sys.executable, "-m", "garage_exp.assets", "where"], capture_output=True, text=True,
                           timeout=60)
     assert f"vehicles: {VEHICLES}" in proc.stdout
+
+
+@needs_vehicles
+def test_excluded_vehicles_are_not_a_warning_on_every_command(caplog):
+    """Three implausible models were warned about by every command; they are said once at set-up (`ensure`)
+    and at debug level otherwise (issue 31, item 12)."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    getattr(vehicles, "_WARNED", set()).clear()
+    library = VehicleLibrary(VEHICLES)
+    assert library.excluded
+    assert not [r for r in caplog.records if "excluded" in r.getMessage()]

@@ -106,3 +106,49 @@ def test_every_case_is_built_on_every_experiment_plan(library, plan, case):
     assert setup.shots and all(s.target in names for s in setup.shots)
     assert all(n in names for s in setup.shots for n in s.poses)
     assert all(on_lane(classified, s.ego) or case == "2" for s in setup.shots)
+
+
+@pytest.mark.render
+@pytest.mark.slow
+def test_every_shipped_case_has_a_fair_frame_on_the_small_plan():
+    """Issue 31, item 11: on plan=small every shipped case builds and, with its own settings, some frame is a fair
+    test of the detector (the search's rule). Ground truth only, at a quarter of the resolution (the box rule
+    scaled with it), every camera of the rig (the slot case's parked target is behind the ego)."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.plugins import build as build_plugin
+    from garage_exp.render import open_renderer
+    from garage_exp.results.table import fair_mask, frame_row
+    from garage_exp.run.frames import render_frames
+    from garage_exp.run.preflight import preflight
+    from garage_exp.scenario.fits import CASES, FITS
+    from garage_exp.search.prescreen import cheap_config
+
+    require("vulkan", "vehicles")
+    assert set(CASES) <= set(globals()["CASES"]) and FITS["small"] == CASES
+    scale, unscored = 0.25, SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
+    fair = {}
+    for case in CASES:
+        cfg = cheap_config(compose_cfg("plan=small", f"case={case}", *(["camera=fisheye4"] if case == "slots" else [])),
+                           scale)
+        prepared = preflight(cfg, check_space=False)
+        renderer = open_renderer(cfg.renderer)
+        renderer.load(prepared.scene)
+        sensor = build_plugin(cfg.sensor, "a sensor model", "sensor._target_")
+        rows = [frame_row(item.shot, item.camera, item.target, unscored, [])
+                for item in render_frames(cfg, prepared.scene, prepared.setup, renderer, sensor,
+                                          np.random.default_rng(0))]
+        rule = OmegaConf.create({**OmegaConf.to_container(cfg.search), "min_box": cfg.search.min_box * scale})
+        fair[case] = int(fair_mask(pd.DataFrame(rows), rule).sum())
+    assert all(fair.values()), fair
+
+
+def test_a_case_on_a_shipped_plan_it_does_not_fit_names_the_plans_that_fit():
+    from garage_exp.scenario.fits import FITS, hint
+
+    assert set(FITS) <= {p.stem for p in (ROOT / "conf" / "plan").glob("*.yaml")}
+    assert hint("3", "tiny", None).startswith("case=3 does not fit plan=tiny; it fits plan=small, research")
+    assert hint("3", "small", None) == hint("3", "tiny", "/my/plan.yaml") == hint("cpra", "tiny", None) == ""

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 from conftest import require
 
-from garage_exp.perception.detect import GTBox, ModelDetections, iou, model_format, score_target
+from garage_exp.perception.detect import Detections, GTBox, iou, score_target
+from garage_exp.perception.detect import entries as entry_kinds
+from garage_exp.perception.detect import ultralytics_entry
 from garage_exp.perception.detect import detector as detector_module
 from garage_exp.core import offline
 from garage_exp.core.errors import GarageError
@@ -16,10 +18,10 @@ DEFAULT_MODELS = ("yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model", 
 BUS_BOX = (10.0, 230.0, 805.0, 760.0)  # the bus in ultralytics' bus.jpg (810x1080), by hand
 
 
-def dets(model: str, *rows: tuple) -> ModelDetections:
+def dets(model: str, *rows: tuple) -> Detections:
     """Synthetic detections: rows of (x1, y1, x2, y2, conf, class)."""
-    return ModelDetections(model, np.array([r[:4] for r in rows], np.float32).reshape(-1, 4),
-                           np.array([r[4] for r in rows], np.float32), [r[5] for r in rows])
+    return Detections(np.array([r[:4] for r in rows], np.float32).reshape(-1, 4),
+                      np.array([r[4] for r in rows], np.float32), [r[5] for r in rows], model)
 
 
 # --- IoU and matching, no model -------------------------------------------------------------------------------
@@ -117,14 +119,14 @@ def no_loading(monkeypatch):
     """Fail the test if anything would load (or download) a model."""
     def refuse(*args, **kwargs):
         raise AssertionError("a model was loaded")
-    monkeypatch.setattr(detector_module, "load_model", refuse)
+    monkeypatch.setattr(ultralytics_entry, "load_model", refuse)
 
 
 def test_missing_model_path_names_it(tmp_path, no_loading):
     missing = tmp_path / "nothing_openvino_model"
     with pytest.raises(GarageError) as err:
         detector_module.Detector([missing])
-    assert err.value.where == str(missing)
+    assert err.value.where == f"detector.models {missing}"
 
 
 def test_bare_weights_name_is_refused_not_downloaded(tmp_path, monkeypatch, no_loading):
@@ -143,30 +145,37 @@ def test_one_bad_path_fails_before_any_loading(tmp_path, no_loading):
     assert err.value.where.endswith("missing.pt")
 
 
-def test_model_format_dispatch(tmp_path):
+def test_entry_kind_dispatch(tmp_path, no_loading):
+    """The kind of an entry is decided from its string or file, without loading it."""
     ov = tmp_path / "m_openvino_model"
     ov.mkdir()
+    entry = entry_kinds.make_entry(str(ov), detector_module.EntrySettings())
     with pytest.raises(GarageError, match="no .xml"):
-        model_format(ov)
+        entry.check()
     (ov / "m.xml").write_text("<net/>")
-    assert model_format(ov) == "openvino"
-    pt = tmp_path / "m.pt"
-    pt.write_bytes(b"")
-    assert model_format(pt) == "pt"
+    assert entry_kinds.kind_of(str(ov)).name == "ultralytics"
+    for suffix in (".pt", ".engine", ".torchscript"):
+        (tmp_path / f"m{suffix}").write_bytes(b"")
+        assert entry_kinds.kind_of(str(tmp_path / f"m{suffix}")).name == "ultralytics"
     plain = tmp_path / "weights"
     plain.mkdir()
     with pytest.raises(GarageError, match="_openvino_model"):
-        model_format(plain)
+        entry_kinds.kind_of(str(plain))
     onnx = tmp_path / "m.onnx"
     onnx.write_bytes(b"")
-    with pytest.raises(GarageError, match="unsupported"):
-        model_format(onnx)
+    assert entry_kinds.kind_of(str(onnx)).name == "onnx"  # not an ultralytics export: onnxruntime's
+    other = tmp_path / "m.tflite"
+    other.write_bytes(b"")
+    with pytest.raises(GarageError, match="unsupported model file"):
+        entry_kinds.kind_of(str(other))
+    assert entry_kinds.kind_of("callable:pkg.mod:fn").name == "callable"
+    assert entry_kinds.kind_of("torchvision:fcos_resnet50_fpn:x.pth").name == "torchvision"
 
 
 def test_model_labels_are_short_and_unique():
-    assert detector_module.model_label(Path("/x/yolo11n_int8_openvino_model")) == "yolo11n_int8"
-    assert detector_module.model_label(Path("/x/best.pt")) == "best"
-    assert detector_module._unique(["a", "b", "a"]) == ["a", "b", "a_2"]
+    assert ultralytics_entry.model_label(Path("/x/yolo11n_int8_openvino_model")) == "yolo11n_int8"
+    assert ultralytics_entry.model_label(Path("/x/best.pt")) == "best"
+    assert detector_module.unique(["a", "b", "a"]) == ["a", "b", "a_2"]
 
 
 def test_iou_of_degenerate_and_integer_boxes():
@@ -248,7 +257,7 @@ def test_openvino_telemetry_opt_out(tmp_path, monkeypatch):
 def default_models() -> list[Path]:
     """The default detector's models, found as the product finds them (a skip only where they are missing)."""
     require("models")
-    return [detector_module.resolve_model(name) for name in DEFAULT_MODELS]
+    return [entry_kinds.resolve(name) for name in DEFAULT_MODELS]
 
 
 def bus_image() -> tuple[Path, np.ndarray]:
@@ -266,7 +275,7 @@ def detector():
 @pytest.mark.detect
 def test_default_models_find_the_bus(detector):
     _, rgb = bus_image()
-    found = detector.detect(rgb)
+    found = detector.detect([rgb])[0]
     assert [d.model for d in found] == ["yolo11n_int8", "yolov8n_int8", "yolo26n_int8"]
     bus = GTBox(BUS_BOX, BUS_BOX)
     score = score_target(found, bus, [bus])
@@ -282,18 +291,20 @@ def test_default_models_find_the_bus(detector):
 def test_rgb_frames_match_ultralytics_own_file_reading(detector):
     """ultralytics reads files with OpenCV (BGR); our RGB arrays must give the very same detections."""
     path, rgb = bus_image()
-    ours = detector.detect(rgb)[0]
-    theirs = detector._models[0].predict(str(path), conf=detector.conf, imgsz=detector.imgsz, verbose=False)[0]
+    ours = detector.detect([rgb])[0][0]
+    theirs = detector.entries[0]._model.predict(str(path), conf=detector.conf, imgsz=detector.imgsz,
+                                                verbose=False)[0]
     assert np.allclose(ours.boxes, theirs.boxes.xyxy.cpu().numpy(), atol=0.5)
-    assert np.allclose(ours.confs, theirs.boxes.conf.cpu().numpy(), atol=1e-4)
-    swapped = detector.detect(np.ascontiguousarray(rgb[..., ::-1]))[0]
-    assert not np.allclose(swapped.confs[:3], ours.confs[:3], atol=1e-4)
+    assert np.allclose(ours.scores, theirs.boxes.conf.cpu().numpy(), atol=1e-4)
+    swapped = detector.detect([np.ascontiguousarray(rgb[..., ::-1])])[0][0]
+    assert not np.allclose(swapped.scores[:3], ours.scores[:3], atol=1e-4)
 
 
 @pytest.mark.detect
 def test_models_are_loaded_once_per_process(detector):
-    again = detector_module.Detector(detector.paths)
-    assert all(a is b for a, b in zip(again._models, detector._models))
+    again = detector_module.Detector(detector.models)
+    again.check()
+    assert all(a._model is b._model for a, b in zip(again.entries, detector.entries))
 
 
 @pytest.mark.detect
@@ -309,7 +320,7 @@ def test_pt_weights_load_through_the_same_path(tmp_path):
     weights = tmp_path / "untrained.pt"
     model.save(weights)
     detector = detector_module.Detector([weights], conf=0.0, imgsz=320)
-    found = detector.detect(np.zeros((240, 320, 3), np.uint8))
+    found = detector.detect([np.zeros((240, 320, 3), np.uint8)])[0]
     assert detector.names == ["untrained"] and found[0].model == "untrained"
     assert found[0].boxes.shape == (len(found[0].classes), 4) and len(found[0].classes) > 0
 
@@ -320,6 +331,6 @@ def test_from_config(detector):
 
     from garage_exp.core.schema import DetectorConf
 
-    conf = OmegaConf.merge(OmegaConf.structured(DetectorConf), {"models": [str(p) for p in detector.paths]})
-    made = detector_module.Detector.from_config(conf)
+    conf = OmegaConf.merge(OmegaConf.structured(DetectorConf), {"models": list(detector.models), "registry": None})
+    made = detector_module.build_detector(conf)
     assert made.names == detector.names and made.classes == ("car", "truck", "bus") and made.conf == 0.05

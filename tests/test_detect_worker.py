@@ -15,7 +15,7 @@ class Recorder:
     def __init__(self):
         self.calls, self.queue = [], []
 
-    def submit(self, rgb):
+    def submit(self, rgb, intrinsics=None):
         self.calls.append(("submit", int(rgb[0, 0, 0])))
         self.queue.append(int(rgb[0, 0, 0]))
 
@@ -28,11 +28,12 @@ class Recorder:
 class Item:
     def __init__(self, k):
         self.rgb = np.full((2, 2, 3), k, np.uint8)
+        self.camera = "front"
 
 
 def test_overlapped_keeps_frame_order_and_submits_one_ahead():
     rec = Recorder()
-    out = [(item.rgb[0, 0, 0], dets[0]) for item, dets in overlapped((Item(k) for k in range(4)), rec)]
+    out = [(item.rgb[0, 0, 0], dets[0]) for item, dets in overlapped((Item(k) for k in range(4)), rec, {})]
     assert out == [(k, k) for k in range(4)]
     assert rec.calls == [("submit", 0), ("submit", 1), ("result", 0), ("submit", 2), ("result", 1),
                          ("submit", 3), ("result", 2), ("result", 3)]
@@ -50,15 +51,14 @@ def test_serial_fallback_is_chosen_by_the_environment(monkeypatch):
 
 def test_a_bad_model_path_fails_in_the_parent_before_any_child(tmp_path):
     with pytest.raises(GarageError, match="model not found"):
-        worker.open_detector({"models": [tmp_path / "nothing_openvino_model"], "classes": ("car",)})
+        Detector([tmp_path / "nothing_openvino_model"], classes=("car",))
 
 
 @pytest.fixture(scope="module")
 def spec():
     from test_detect import default_models
 
-    return {"models": default_models(), "classes": ("car", "truck", "bus"), "conf": 0.05, "imgsz": 640,
-            "device": "cpu"}
+    return Detector(default_models(), classes=("car", "truck", "bus"), conf=0.05, imgsz=640, device="cpu")
 
 
 @pytest.mark.detect
@@ -67,7 +67,7 @@ def test_child_detections_equal_in_process_ones(spec):
 
     _, rgb = bus_image()
     frames = [rgb, np.zeros((480, 640, 3), np.uint8), np.ascontiguousarray(rgb[::2, ::2])]
-    here = Detector(**spec)
+    here = spec
     child = worker.DetectorProcess(threads=1)
     try:
         child.load(spec)
@@ -75,10 +75,10 @@ def test_child_detections_equal_in_process_ones(spec):
         for frame in frames:
             child.submit(frame)
         for frame in frames:
-            theirs, ours = child.result(), here.detect(frame)
+            theirs, ours = child.result(), here.detect([frame])[0]
             for a, b in zip(theirs, ours):
                 assert a.model == b.model and a.classes == b.classes
-                np.testing.assert_allclose(a.confs, b.confs, atol=1e-6)
+                np.testing.assert_allclose(a.scores, b.scores, atol=1e-6)
                 np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-3)
     finally:
         child.close()
@@ -88,7 +88,9 @@ def test_child_detections_equal_in_process_ones(spec):
 def test_child_errors_are_garage_errors_and_the_child_survives(spec):
     child = worker.DetectorProcess(threads=1)
     try:
-        child.load({**spec, "classes": ("spaceship",)})
+        from dataclasses import replace
+
+        child.load(replace(spec, classes=("spaceship",)))
         with pytest.raises(GarageError, match="spaceship"):
             child.submit(np.zeros((64, 64, 3), np.uint8))
         child.load(spec)
@@ -111,6 +113,6 @@ def test_a_render_failure_keeps_the_frame_already_sent():
 
     rec, got = Recorder(), []
     with pytest.raises(GarageError, match="boom"):
-        for item, dets in overlapped(frames(), rec):
+        for item, dets in overlapped(frames(), rec, {}):
             got.append(dets[0])
     assert got == [0, 1]

@@ -11,7 +11,7 @@ import pytest
 from conftest import compose_cfg
 
 from garage_exp.core.errors import GarageError
-from garage_exp.perception.detect import detector
+from garage_exp.perception.detect import detector, devices, ultralytics_entry
 from garage_exp.render import check_renderer
 from garage_exp.render import device, icd
 
@@ -117,7 +117,7 @@ def test_device_kind(name, kind):
 def cuda(monkeypatch):
     """cuda(True/False): whether torch 'sees' a CUDA GPU."""
     def make(present: bool):
-        monkeypatch.setattr(detector, "cuda_available", lambda: present)
+        monkeypatch.setattr(devices, "cuda_available", lambda: present)
     return make
 
 
@@ -127,7 +127,7 @@ def cuda(monkeypatch):
     ("cpu", "pt", True, "cpu"), ("cuda", "pt", True, "cuda:0"), ("cuda", "openvino", True, "cpu")])
 def test_detector_pick(cuda, asked, kind, present, picked):
     cuda(present)
-    assert detector.pick_device(asked, kind) == picked
+    assert devices.pick_device(asked, cpu_only=kind == "openvino") == picked
 
 
 @pytest.mark.parametrize("asked, message", [("cuda", "cuda asked, but torch sees no CUDA GPU"),
@@ -135,17 +135,31 @@ def test_detector_pick(cuda, asked, kind, present, picked):
 def test_detector_refusals(cuda, asked, message):
     cuda(False)
     with pytest.raises(GarageError, match=f"detector.device: {message}"):
-        detector.pick_device(asked, "pt")
+        devices.pick_device(asked)
 
 
-def test_detector_line_says_where_each_model_runs_and_why():
-    line = detector.device_line("auto", ["yolo11n_int8", "yolov8n_int8", "mine"], ["openvino", "openvino", "pt"],
-                                ["cpu", "cpu", "cuda:0"])
+def _entries(tmp_path, asked: str, *names: str) -> list:
+    """Ultralytics entries (not loaded) for files or OpenVINO folders of these names."""
+    out = []
+    for name in names:
+        path = tmp_path / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.mkdir() if name.endswith("_openvino_model") else path.write_bytes(b"")
+        out.append(ultralytics_entry.UltralyticsEntry(str(path), detector.EntrySettings(device=asked)))
+    return out
+
+
+def test_detector_line_says_where_each_model_runs_and_why(cuda, tmp_path):
+    cuda(True)
+    entries = _entries(tmp_path, "auto", "yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model", "mine.pt")
+    line = devices.device_line("auto", ["yolo11n_int8", "yolov8n_int8", "mine"], entries)
     assert line == "detector device auto -> cpu for yolo11n_int8, yolov8n_int8 (OpenVINO export: CPU only); " \
                    "cuda:0 for mine"
-    assert detector.device_line("auto", ["mine"], ["pt"], ["cpu"]) == \
+    cuda(False)
+    assert devices.device_line("auto", ["mine"], _entries(tmp_path / "x", "auto", "mine.pt")) == \
         "detector device auto -> cpu for mine (torch sees no CUDA GPU)"
-    assert detector.device_line("cpu", ["a"], ["openvino"], ["cpu"]) == "detector device cpu -> cpu for a"
+    assert devices.device_line("cpu", ["a"], _entries(tmp_path / "y", "cpu", "a_openvino_model")) == \
+        "detector device cpu -> cpu for a"
 
 
 def test_the_detector_logs_its_pick_once_per_process(cuda, monkeypatch, caplog, tmp_path):
@@ -154,11 +168,13 @@ def test_the_detector_logs_its_pick_once_per_process(cuda, monkeypatch, caplog, 
     weights.write_bytes(b"")
     monkeypatch.setattr(detector, "_SAID", set())
     loaded = []
-    monkeypatch.setattr(detector, "load_model", lambda path, imgsz, dev, threads: loaded.append(dev) or _Model())
+    monkeypatch.setattr(ultralytics_entry, "load_model",
+                        lambda path, imgsz, dev, threads, where: loaded.append(dev) or _Model())
     with caplog.at_level(logging.INFO, logger="garage_exp"):
         first = detector.Detector(models=[weights])
-        detector.Detector(models=[weights])
-    assert first.devices == ["cuda:0"] and loaded == ["cuda:0", "cuda:0"]
+        first.check()
+        detector.Detector(models=[weights]).check()
+    assert first.devices == ["cuda:0"] and loaded == ["cuda:0"]  # loaded once per process
     said = [r.getMessage() for r in caplog.records if "detector device" in r.getMessage()]
     assert said == ["detector device auto -> cuda:0 for mine"]
 

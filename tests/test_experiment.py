@@ -31,11 +31,11 @@ def _skip_without_backends():
 def pipeline():
     """The process's renderer and the default detectors (paid once for the module)."""
     _skip_without_backends()
-    from garage_exp.perception.detect import Detector
+    from garage_exp.perception.detect import build_detector
     from garage_exp.render.sapien_backend import get_renderer
 
     cfg = compose_cfg()
-    return get_renderer(max_lights=cfg.renderer.max_lights), Detector.from_config(cfg.detector)
+    return get_renderer(max_lights=cfg.renderer.max_lights), build_detector(cfg.detector)
 
 
 def shoot(pipeline, *overrides: str):
@@ -64,7 +64,7 @@ def shoot(pipeline, *overrides: str):
         truth = ground_truth(frame, renderer.unoccluded_ids(cam, in_view), scene, renderer.ids)
         rgb = frame.rgb if scene.background else blank_composite(frame.rgb, frame, renderer.ids, [shot.target])
         target = next(t for t in truth if t.name == shot.target)
-        score = score_target(detector.detect(rgb), target, truth, classes=tuple(cfg.detector.classes))
+        score = score_target(detector.detect([rgb])[0], target, truth, classes=tuple(cfg.detector.classes))
         out.append((shot, target, score, rgb))
     return out
 

@@ -55,7 +55,7 @@ def test_official_pt_detector_runs_or_names_the_missing_weights(tmp_path):
                 {"GARAGE_EXP_MODELS": str(empty)}, fresh_store=True)
     assert r.returncode == 2, r.stderr[-3000:]
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert lines == [f"garage_exp: {empty / models[0]}: model not found"], r.stderr[-3000:]
+    assert lines == [f"garage_exp: detector.models {empty / models[0]}: model not found"], r.stderr[-3000:]
     assert list(empty.iterdir()) == [] and list(missing.iterdir()) == []  # no store, no run, no download
 
     weights = tmp_path / "models"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from garage_exp.assets import people
-from garage_exp.perception.detect import GTBox, ModelDetections, score_target
+from garage_exp.perception.detect import Detections, GTBox, score_target
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.groundtruth import ground_truth, local_box, mask_box, world_corners
 from garage_exp.render import Frame
@@ -162,9 +162,9 @@ def test_ground_truth_of_a_person(adult):
 
 # --- mixed classes ------------------------------------------------------------------------------------------------
 
-def dets(model: str, *rows: tuple) -> ModelDetections:
-    return ModelDetections(model, np.array([r[:4] for r in rows], np.float32).reshape(-1, 4),
-                           np.array([r[4] for r in rows], np.float32), [r[5] for r in rows])
+def dets(model: str, *rows: tuple) -> Detections:
+    return Detections(np.array([r[:4] for r in rows], np.float32).reshape(-1, 4),
+                      np.array([r[4] for r in rows], np.float32), [r[5] for r in rows], model)
 
 
 def test_a_person_target_is_matched_by_person_classes_and_a_car_by_vehicle_classes():

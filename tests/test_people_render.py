@@ -23,7 +23,7 @@ def street(tmp_path_factory):
     _skip_without_backends()
     from garage_exp.assets.people import PeopleLibrary
     from garage_exp.assets.vehicles import VehicleLibrary
-    from garage_exp.perception.detect import Detector, score_target
+    from garage_exp.perception.detect import build_detector, score_target
     from garage_exp.scenario.assemble import HIDDEN, build_scene
     from garage_exp.perception.groundtruth import ground_truth
     from garage_exp.plan import classify, load_plan
@@ -41,7 +41,7 @@ def street(tmp_path_factory):
                                      static=False, kind="person"))
     renderer = get_renderer(max_lights=cfg.renderer.max_lights)
     renderer.load(scene)
-    detector = Detector.from_config(cfg.detector)
+    detector = build_detector(cfg.detector)
     shot, cam = setup.shots[0], scene.cameras[0]
     renderer.set_pose("ego", shot.ego)
     for name in shot.poses:
@@ -56,7 +56,7 @@ def street(tmp_path_factory):
         frame = renderer.render(cam.name)
         truth = ground_truth(frame, renderer.unoccluded_ids(cam.name, [who]), scene, renderer.ids)
         target = next(t for t in truth if t.name == who)
-        dets = detector.detect(frame.rgb)
+        dets = detector.detect([frame.rgb])[0]
         score = score_target(dets, target, truth, iou_threshold=cfg.detector.iou, match=cfg.detector.match,
                              threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes),
                              person_classes=tuple(cfg.detector.person_classes))

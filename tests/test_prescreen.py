@@ -25,14 +25,13 @@ HARD = 0.6
 
 
 def test_the_prescreen_never_screens_out_a_trial_that_the_full_render_finds_hard():
-    from garage_exp.core.plugins import build
-    from garage_exp.perception.detect.detector import Detector
+    from garage_exp.perception.detect import build_detector
     from garage_exp.search import prescreen
 
     verdicts, full_detector = [], None
     for point in SET:
         cfg = compose_cfg(*BASE, *point)
-        full_detector = full_detector or Detector(**build(cfg.detector, "a detector", "detector._target_"))
+        full_detector = full_detector or build_detector(cfg.detector)
         table, _ = prescreen.frames_table(cfg, full_detector, 1.0)  # the job's frames: full size, three models
         full = fair_summary(table, "front", cfg.search, cfg.detector.threshold)["fair_difficulty"]
         seen = prescreen.look(cfg)

@@ -4,6 +4,7 @@ under one parent run."""
 
 from __future__ import annotations
 
+import os
 import shutil
 
 from conftest import ROOT, run_app
@@ -35,8 +36,26 @@ def test_ray_launcher_config_composes():
     from garage_exp.cluster.ray_jobs import GB, settings
 
     conf = settings(launcher)
-    assert conf.address == "auto" and conf.retries == 2 and conf.workers == 2
+    assert conf.address is None and conf.retries == 2 and conf.workers == 2
     assert conf.options() == {"num_cpus": 4, "num_gpus": 0, "max_retries": 0, "memory": 8 * GB}
+
+
+def test_without_a_cluster_the_ray_launcher_starts_a_local_ray_and_says_so(monkeypatch, capsys):
+    """Issue 31, item 8: no address given and no `ray start` cluster: one line, then a local Ray (not Ray's
+    "Could not find any running Ray instance" traceback); the workers' lines come without colour codes."""
+    import ray
+
+    from garage_exp.cluster import ray_jobs
+
+    calls = []
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.delenv("RAY_COLOR_PREFIX", raising=False)
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", lambda **kw: calls.append(kw))
+    monkeypatch.setattr(ray_jobs, "joined_cluster", lambda: None)
+    ray_jobs.connect(ray_jobs.settings(hydra_config("hydra/launcher=ray").launcher))
+    assert [c["address"] for c in calls] == [None] and os.environ["RAY_COLOR_PREFIX"] == "0"
+    assert capsys.readouterr().out.startswith("garage_exp: no Ray cluster runs on this machine: starting a local Ray")
 
 
 def test_submitit_local_sweep_runs_each_job_in_its_own_process(tmp_path, mlflow_uri):

@@ -39,6 +39,29 @@ def test_each_camera_is_scored_where_it_sees_the_target():
     assert camera_line(never).startswith("never detected") and math.isnan(never.first_shot.iloc[0])
 
 
+def test_a_rigs_headline_counts_and_scores_the_same_camera():
+    """Issue 31, item 4: the headline counted the frames of all four cameras and scored the front one; it now
+    counts the frames it scores (the primary camera's) and names that camera."""
+    from types import SimpleNamespace
+
+    from garage_exp.results.table import one_line
+
+    table = frames([(s, "black", cam, 0.5, 0.9 if cam == "rear" else 0.0)
+                    for s in range(7) for cam in ("front", "rear", "left", "right")])
+    names = SimpleNamespace(name="x")
+    cfg = SimpleNamespace(case=SimpleNamespace(name="slots"), light=names, sensor=names, plan=names)
+    rig = ["front", "rear", "left", "right"]
+    line = one_line(cfg, summarise(table, 0.5, primary="front"), rig, "front")
+    assert ": front camera (the primary of 4; cameras.csv scores each), 7 frames, " in line
+    assert line.endswith("recall 0.00, difficulty 1.000")
+    # a case that names its camera (case.camera: rear, as cpra does) is headlined by that camera's frames
+    named = one_line(cfg, summarise(table, 0.5, primary="rear"), rig, "rear")
+    assert ": rear camera (the primary of 4; cameras.csv scores each), 7 frames, " in named
+    assert named.endswith("recall 1.00, difficulty 0.100")
+    single = one_line(cfg, summarise(table[table.camera == "rear"], 0.5, primary="rear"), ["rear"], "rear")
+    assert single.endswith(": 7 frames, confidence mean 0.900 min 0.900, recall 1.00, difficulty 0.100")
+
+
 @pytest.mark.render
 @pytest.mark.detect
 @pytest.mark.slow
@@ -54,6 +77,7 @@ def test_the_fisheye4_rig_runs_a_job(tmp_path, mlflow_uri):
     assert table.iloc[1].kitti == "out_of_view"  # the rear camera does not see it
     cams = pd.read_csv(tmp_path / "run" / "cameras.csv")
     assert set(cams.camera) == set(table.camera) and "cameras: " in r.stdout
+    assert ": front camera (the primary of 4; cameras.csv scores each), 1 frames, " in r.stdout
 
 
 def test_the_sweep_report_says_which_camera_saw_the_target_first_and_best():

@@ -106,13 +106,14 @@ def test_split_is_by_scenario(trained):
 
 @pytest.mark.slow
 def test_registered_weights_load_and_score_a_job(trained):
-    from garage_exp.perception.detect import Detector, resolve_model
+    from garage_exp.perception.detect import Detector, resolve
 
     tmp, uri, jobs, _ = trained
-    path = resolve_model(f"models:/{NAME}/1", uri)
+    path = Path(resolve(f"models:/{NAME}/1", uri))
     assert path.name == f"{NAME}_v1.pt"
     detector = Detector(models=[path], imgsz=128)
-    assert {"car", "truck", "bus", "person"} <= set(detector._models[0].names.values())
+    detector.check()
+    assert {"car", "truck", "bus", "person"} <= set(detector.entries[0].classes)
     (tmp / "score").mkdir()
     r = run_app([f"detector.models=[models:/{NAME}/latest]", "detector.imgsz=128", *FRAMES,
                  f"tracking.uri={uri}"], tmp / "score")
@@ -277,8 +278,86 @@ def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
     loop = Loop(OmegaConf.create({"dir": str(tmp_path)}))
     assert loop.reuse("arm", ["train", "epochs=6"], done=False) is False  # not done: run it
     assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
-    with pytest.raises(GarageError, match="epochs=8"):
+    with pytest.raises(GarageError, match="epochs=6 -> 8"):
         Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
+
+
+def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch, capsys):
+    """Issue 31, item 7: a study begun with 4 trials is not resumed with 5, and a training whose data list now
+    holds another split is not reused, finished or not; the refusal is one line and runs nothing."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop import steps
+    from garage_exp.loop.app import Loop
+
+    ran = []
+
+    def fake_run(cmd, log):
+        ran.append(cmd)
+        if "garage_exp.train" in cmd:
+            out = Path(next(a for a in cmd if a.startswith("hydra.run.dir="))[len("hydra.run.dir="):])
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "result.json").write_text("{}")
+
+    monkeypatch.setattr(steps, "run", fake_run)
+    monkeypatch.setattr(steps, "trials", lambda cfg, study: [])
+    monkeypatch.setattr(steps, "study_done", lambda cfg, study, n: False)  # interrupted: 4 of 4 never finished
+    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "loop.yaml")
+    cfg = OmegaConf.merge(cfg, {"dir": str(tmp_path), "tracking": {"uri": "sqlite:///x.db"}})
+    study = ("base", ["research"], 4, "qmc", 0)
+    loop = Loop(cfg)
+    loop.step("base data", lambda: loop.study(*study))
+    loop.step("base data", lambda: loop.study(*study))  # the same inputs: resumed
+    assert len(ran) == 2
+    with pytest.raises(GarageError, match=r"'base' made from other inputs \(search.trials=4 -> 5\)"):
+        fresh = Loop(cfg)
+        fresh.step("base data", lambda: fresh.study("base", ["research"], 5, "qmc", 0))
+    data = tmp_path / "data" / "base_train.yaml"
+    data.parent.mkdir()
+    data.write_text("train: [a]\n")
+    kw = {"data": [data], "val": [data], "base": "yolov8n.yaml", "epochs": 1, "seed": 0, "lr0": 0.01}
+    loop.step("D0", lambda: loop.train("D0", **kw))
+    loop.step("D0", lambda: loop.train("D0", **kw))  # finished, same inputs: reused
+    assert len(ran) == 3
+    data.write_text("train: [b]\n")  # another split (val_fraction=...) under the same path
+    capsys.readouterr()
+    with pytest.raises(GarageError, match=r"base_train.yaml changed\); give this run another dir"):
+        Loop(cfg).train("D0", **kw)
+    assert len(ran) == 3 and capsys.readouterr().out == ""
+
+
+def test_training_data_leaves_the_inputs_untouched(tmp_path):
+    """ultralytics writes labels.cache beside the labels it reads: the lists name links under the run's data/
+    folder, so the cache lands there and the input suites stay as they were (issue 31, item 12)."""
+    from omegaconf import OmegaConf
+    from ultralytics.data.dataset import YOLODataset
+
+    from garage_exp.core.offline import prepare_offline
+    from garage_exp.train.data import plan_data, write_data
+
+    prepare_offline()
+    sets = [str(write_dataset(tmp_path / "inputs" / f"scenario{k}")) for k in range(2)]
+    before = sorted(p for p in (tmp_path / "inputs").rglob("*"))
+    cfg = OmegaConf.create({"data": sets, "val": [], "val_fraction": 0.5, "replay": [], "replay_fraction": 0.0,
+                            "seed": 0})
+    data_yaml = write_data(plan_data(cfg), tmp_path / "out")
+    spec = yaml.safe_load(data_yaml.read_text())
+    for split in ("train", "val"):
+        dataset = YOLODataset(img_path=str(tmp_path / "out" / spec[split]), imgsz=64, augment=False,
+                              data={"names": spec["names"], "channels": 3})
+        assert len(dataset.labels) == 1 and dataset.labels[0]["cls"].tolist() == [[2.0]]
+    assert sorted(p for p in (tmp_path / "inputs").rglob("*")) == before
+    assert len(list((tmp_path / "out").rglob("labels.cache"))) == 2
+
+
+def test_an_unknown_base_is_named_once(tmp_path):
+    from garage_exp.core.errors import GarageError
+    from garage_exp.train.base import load_base
+
+    with pytest.raises(GarageError) as caught:
+        load_base(str(tmp_path / "weights.txt"), None)
+    assert str(caught.value).startswith("base: ") and "base: base:" not in str(caught.value)
 
 
 def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):
@@ -303,3 +382,42 @@ def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):
     tied = [Trial("heldout", k, "COMPLETE", [0.9, 0.5, 0.5, 0.5, 0.5, 0.1][k], tmp_path / str(k)) for k in range(6)]
     assert "4 held-out trials tie" in report.heldout_suites(cfg, tied, {}).note
     assert "the same scenarios" in report.heldout_suites(cfg, flat[:1], {}).note
+
+
+@pytest.mark.slow
+def test_an_onnx_export_of_the_trained_model_detects_as_its_pt(trained, tmp_path):
+    """The trained project model exported by ultralytics to ONNX gives the same detections as its .pt: on the
+    rendered frames it was trained on, every candidate detection before non-maximum suppression (all 84 x N
+    outputs: box centre and size in pixels, 80 class scores) agrees within 0.01 px and 1e-4 (docs/perception.md
+    states this tolerance), and the ONNX file runs as a detector entry. After one epoch every candidate scores
+    near its prior (~1e-4), so which of the tied boxes NMS keeps is arbitrary: the candidates are compared, not
+    the kept boxes."""
+    import numpy as np
+    import onnxruntime
+    import torch
+    from PIL import Image
+    from ultralytics import YOLO
+    from ultralytics.data.augment import LetterBox
+
+    from garage_exp.perception.detect import Detector, resolve
+
+    tmp, uri, jobs, _ = trained
+    pt = tmp_path / "trained.pt"
+    shutil.copyfile(resolve(f"models:/{NAME}/1", uri), pt)
+    # dynamic: the graph takes the .pt's rectangular (letterboxed to a multiple of 32) input, not a fixed square
+    onnx = YOLO(str(pt)).export(format="onnx", imgsz=128, dynamic=True, simplify=False)
+    images = sorted(p for job in jobs for p in (job / "dataset" / "images").glob("*.png"))
+    frames = [np.asarray(Image.open(p).convert("RGB")) for p in images]
+    network = YOLO(str(pt)).model.float().eval()
+    session = onnxruntime.InferenceSession(onnx, providers=["CPUExecutionProvider"])
+    for rgb in frames:
+        image = LetterBox((128, 128), auto=True, stride=32)(image=rgb[..., ::-1])  # as ultralytics' predictor
+        tensor = torch.from_numpy(np.ascontiguousarray(image[..., ::-1].transpose(2, 0, 1))).float()[None] / 255.0
+        with torch.no_grad():
+            ours = network(tensor)[0].numpy()
+        theirs = session.run(None, {session.get_inputs()[0].name: tensor.numpy()})[0]
+        assert ours.shape == theirs.shape and ours.shape[1] == 84 and ours.shape[2] > 100
+        assert np.abs(ours[:, :4] - theirs[:, :4]).max() <= 0.01  # boxes, pixels
+        assert np.abs(ours[:, 4:] - theirs[:, 4:]).max() <= 1e-4  # class scores
+    found = Detector([onnx], conf=0.0, imgsz=128, device="cpu").detect(frames[:2])
+    assert [d.model for (d,) in found] == ["trained", "trained"] and all(len(d) for (d,) in found)

@@ -39,8 +39,9 @@ def one_line_error(stderr: str) -> str:
 def spec():
     from test_detect import default_models
 
-    return {"models": default_models()[:1], "classes": ("car", "truck", "bus"), "conf": 0.05, "imgsz": 320,
-            "device": "cpu"}
+    from garage_exp.perception.detect.detector import Detector
+
+    return Detector(default_models()[:1], classes=("car", "truck", "bus"), conf=0.05, imgsz=320, device="cpu")
 
 
 @pytest.fixture(scope="module")
@@ -54,15 +55,15 @@ def frames():
 def same(a, b):
     assert [d.model for d in a] == [d.model for d in b]
     for x, y in zip(a, b):
-        np.testing.assert_allclose(x.confs, y.confs, atol=1e-6)
+        np.testing.assert_allclose(x.scores, y.scores, atol=1e-6)
         np.testing.assert_allclose(x.boxes, y.boxes, atol=1e-3)
 
 
 @pytest.mark.detect
 def test_a_killed_detector_process_is_replaced_and_its_frames_sent_again(spec, frames, caplog):
-    from garage_exp.perception.detect.detector import Detector
+    from dataclasses import replace
 
-    expected = [Detector(**spec, threads=1).detect(f) for f in frames]
+    expected = [replace(spec, threads=1).detect([f])[0] for f in frames]
     child = worker.DetectorProcess(threads=1)
     try:
         child.load(spec)

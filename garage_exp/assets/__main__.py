@@ -41,8 +41,19 @@ def _ensure() -> int:
         print(f"fetching detector weights {', '.join(locate.MODEL_WEIGHTS)} ...", flush=True)
         locate.fetch_models()
     found = _where()
+    _excluded()
     _people(verbose=False)
     return found
+
+
+def _excluded() -> None:
+    """The vehicles left out of the library, said once here at set-up rather than by every command."""
+    from garage_exp.assets.vehicles import VehicleLibrary
+
+    excluded = VehicleLibrary().excluded
+    if excluded:
+        print(f"vehicles excluded as implausible in a garage: {', '.join(excluded)} "
+              "(`python -m garage_exp.assets convert` says why)")
 
 
 def _fetch() -> int:

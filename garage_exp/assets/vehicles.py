@@ -76,7 +76,6 @@ _FROM_Z_LENGTH = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 # x' = -x, y' = z, z' = y.
 _FROM_X_LENGTH = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
 _TURN = np.diag([-1.0, -1.0, 1.0])
-_WARNED: set[str] = set()  # excluded models already reported by this process
 
 
 def colour_from_name(name: str) -> str | None:
@@ -277,9 +276,8 @@ class VehicleLibrary:
             entry = meta[name]
             if entry["excluded"]:
                 self.excluded[name] = entry["excluded"]
-                if name not in _WARNED:
-                    log.warning("vehicle %s excluded: %s", name, entry["excluded"])
-                    _WARNED.add(name)
+                # Said once at set-up (`python -m garage_exp.assets ensure`), not by every command.
+                log.debug("vehicle %s excluded: %s", name, entry["excluded"])
                 continue
             models.append(VehicleModel(
                 name=name, length=entry["length"], width=entry["width"], height=entry["height"],

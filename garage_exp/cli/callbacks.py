@@ -143,6 +143,10 @@ class MlflowSweepCallback(Callback):
             study = search_sweep.study_name_of(config)
         jobs = check_sweep(config)  # before anything is written
         self.jobs = len(jobs) if jobs is not None else None
+        if uses_ray(config):  # the cluster answers (or a local Ray starts) before anything is written
+            from garage_exp.cluster.ray_jobs import connect, settings
+
+            connect(settings(config.hydra.launcher))
         # Jobs in this very process (Hydra's basic launcher): a stopped sweep can count the finished ones.
         self.in_process = OmegaConf.select(config, "hydra.launcher._target_") == BASIC_LAUNCHER
         self.uri = config.tracking.uri
@@ -180,6 +184,10 @@ class MlflowSweepCallback(Callback):
 
     @_fatal
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        if uses_ray(config):
+            from garage_exp.cluster.ray_jobs import disconnect
+
+            disconnect()
         if not self.parent_run_id:
             return
         from garage_exp.report import child_runs, summary, sweep_report
@@ -204,6 +212,10 @@ class MlflowSweepCallback(Callback):
         tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "jobs_failed", str(self.failures)))
         tracking.retry(lambda: mlc.set_terminated(self.parent_run_id, status))
         self.ended = True
+
+
+def uses_ray(config: DictConfig) -> bool:
+    return str(OmegaConf.select(config, "hydra.launcher._target_") or "").endswith("garage_ray.launcher.RayLauncher")
 
 
 def ui_hint(uri: str | None, experiment_id: str) -> str:

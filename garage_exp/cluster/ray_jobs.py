@@ -31,7 +31,9 @@ GB = 1024**3
 class RaySettings:
     """`hydra.launcher.*` (conf/hydra/launcher/ray.yaml)."""
 
-    address: str | None = "auto"  # auto: the cluster this machine joined (`ray start`); null: a local Ray
+    # null: the cluster this machine joined (`ray start`), else a local Ray started here; an address (auto,
+    # HOST:PORT, ray://HOST:PORT) names a cluster that must answer
+    address: str | None = None
     num_cpus: float = 1.0  # per job (per search worker)
     num_gpus: float = 0.0
     memory_gb: float | None = None  # Ray's scheduling reservation, not a limit
@@ -55,17 +57,74 @@ def settings(launcher_cfg) -> RaySettings:
 
 def connect(conf: RaySettings) -> None:
     """Join the cluster (or start a local Ray) once per process; the workers inherit `env` and the tracking
-    URI the driver uses (a job's run must land where its sweep's parent is)."""
+    URI the driver uses (a job's run must land where its sweep's parent is). Called by the sweep's check, before
+    anything is written: a named address that does not answer is a GarageError."""
     import ray
 
     if ray.is_initialized():
         return
+    named = conf.address or os.environ.get("RAY_ADDRESS") or None
+    if named:
+        check_answers(named, "hydra.launcher.address" if conf.address else "RAY_ADDRESS")
+    else:
+        joined = joined_cluster()
+        if joined is None:
+            print("garage_exp: no Ray cluster runs on this machine: starting a local Ray in this process (to use a "
+                  "cluster: `ray start --head` first, or hydra.launcher.address=HOST:PORT)", flush=True)
+        else:
+            check_answers(joined, "the cluster this machine joined (`ray start`)")
+    os.environ.setdefault("RAY_COLOR_PREFIX", "0")  # workers' lines without colour codes (1 brings them back)
     env = {str(k): str(v) for k, v in conf.env.items()}
     for name in ("MLFLOW_TRACKING_URI", "YOLO_OFFLINE", "GARAGE_EXP_TRACKING_WAIT", "GARAGE_EXP_STORAGE_WAIT"):
         if os.environ.get(name) and name not in env:
             env[name] = os.environ[name]
     ray.init(address=conf.address, runtime_env={"env_vars": env} if env else None, log_to_driver=True,
-             logging_level=logging.WARNING, include_dashboard=False if conf.address is None else None)
+             logging_level=logging.WARNING, include_dashboard=False if named is None else None)
+
+
+def disconnect() -> None:
+    """At the sweep's end, before its summary: the driver leaves Ray (a local Ray it started stops), so no
+    worker's late line prints after the summary; the jobs' logs are in their dirs."""
+    import ray
+
+    if ray.is_initialized():
+        ray.shutdown()
+
+
+def joined_cluster() -> str | None:
+    """The address of the cluster `ray start` began on this machine (Ray's own lookup for address=None), or
+    None when there is none and ray.init will start a local Ray."""
+    from ray._private import services  # private, but the very rule ray.init(address=None) follows
+
+    try:
+        return services.canonicalize_bootstrap_address(None)
+    except ConnectionError:
+        return None
+
+
+def check_answers(address: str, where: str) -> None:
+    """GarageError in one line unless a Ray cluster answers at `address` (auto: the one this machine joined).
+    ray.init itself would wait minutes on an address where nothing listens."""
+    import socket
+
+    from ray._private import services
+
+    from garage_exp.core.errors import GarageError
+
+    resolved = address
+    if address == "auto":
+        try:
+            resolved = services.canonicalize_bootstrap_address_or_die("auto")
+        except ConnectionError:
+            resolved = None
+    host, _, port = (resolved or "").removeprefix("ray://").rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout=3).close()
+        return
+    except (OSError, ValueError):
+        pass
+    raise GarageError(f"no Ray cluster answers at {address}: start one with `ray start --head` (on that host), or "
+                      "leave hydra.launcher.address out (null) to start a local Ray in this process", where)
 
 
 def lost(exc: BaseException) -> bool:

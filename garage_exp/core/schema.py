@@ -281,14 +281,17 @@ class SensorConf:
 
 @dataclass
 class DetectorConf:
-    """The detectors: `_target_` names the factory of the detector's arguments, called with the other keys."""
+    """The detector under test: `_target_` names the factory of the composite detector, called with the other keys.
+    Entries of `models`: perception.detect.entries (docs/perception.md)."""
 
     name: str = "coco3"
-    _target_: str = "garage_exp.perception.detect.detector.detector_spec"
+    _target_: str = "garage_exp.perception.detect.detector.make_detector"
     models: list[str] = field(default_factory=lambda: ["yolo11n_int8_openvino_model", "yolov8n_int8_openvino_model",
                                                          "yolo26n_int8_openvino_model"])
     classes: list[str] = field(default_factory=lambda: ["car", "truck", "bus"])  # a vehicle target's classes
     person_classes: list[str] = field(default_factory=lambda: ["person"])  # a pedestrian target's classes
+    # A model's own class names -> vehicle | person, for models whose names are not COCO's ({Pedestrian: person}).
+    class_map: dict[str, str] = field(default_factory=dict)
     conf: float = 0.05  # keep low detections: a miss scores 0, a weak hit its confidence
     iou: float = 0.5
     match: str = "full"  # full | visible | either
@@ -298,7 +301,7 @@ class DetectorConf:
     # outputs/mlflow.db. By default the job's own store (tracking.uri), where `python -m garage_exp.train` registers.
     registry: Optional[str] = "${oc.select:tracking.uri,null}"
     # auto: .pt models on the first CUDA GPU when torch sees one, else the CPU; OpenVINO exports always on the CPU.
-    # cpu | cuda (cuda without a CUDA GPU is refused). perception.detect.detector.pick_device.
+    # cpu | cuda (cuda without a CUDA GPU is refused). perception.detect.devices.pick_device.
     device: str = "auto"
 
 

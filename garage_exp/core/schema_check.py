@@ -113,3 +113,12 @@ def check_schema(cfg: DictConfig, overrides: list[str] | None = None) -> None:
         where = given or level_file(cfg, parent[0] if parent else "")
         owner = ".".join(parent) or "the config"
         raise GarageError(f"{owner} has no key {key!r}{did_you_mean(key, _fields(schema))}", where)
+
+
+def refuse_unknown_keys(cfg: DictConfig, schema: type) -> None:
+    """A command's config (`python -m garage_exp.train`, `.verify`) holds only its schema's keys (Hydra's own
+    `hydra` node aside); else GarageError naming the first unknown key and the dataclass that lacks it."""
+    for path, key, owner in unknown_keys(OmegaConf.to_container(cfg, resolve=False), schema):
+        if path == () and key == "hydra":
+            continue
+        raise GarageError(f"unknown key {key!r} (not in {owner.__name__})", ".".join((*path, key)))

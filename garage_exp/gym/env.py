@@ -93,6 +93,7 @@ class StepOutEnv(gymnasium.Env):
                               "case.motion.actor")
         prepared = preflight(job, check_space=False)
         self.scene, self.setup = prepared.scene, prepared.setup
+        self.checked_detector = prepared.detector  # every entry loaded by the preflight (perception.detect)
         self.live = LiveScenario(job, prepared.classified, self.setup, int(self.cfg.gym.variant))
         ego_conf = self.live.actors[EGO]
         self.drive = [float(v) for v in frame_values(case, ego_conf, self.live.site, self.live.made[EGO].extent[0],
@@ -129,12 +130,13 @@ class StepOutEnv(gymnasium.Env):
 
     def _open(self) -> None:
         from garage_exp.core.plugins import build
+        from garage_exp.perception.detect import Intrinsics
         from garage_exp.perception.detect.worker import open_detector
         from garage_exp.render import open_renderer
 
         job = self.job
         if self.detector is None or (hasattr(self.detector, "alive") and not self.detector.alive()):
-            self.detector = open_detector(build(job.detector, "a detector", "detector._target_"))
+            self.detector = open_detector(self.checked_detector, Intrinsics.of(self.scene.cameras[0]))
         if self.sensor is None:
             self.sensor = build(job.sensor, "a sensor model", "sensor._target_")
         self.renderer = open_renderer(job.renderer)
@@ -252,7 +254,7 @@ class StepOutEnv(gymnasium.Env):
 
     def _frame(self, ego_pose, poses) -> dict:
         """Render the ego's first camera, detect and score the target: one frame table row and its verdicts."""
-        from garage_exp.perception.detect import score_target
+        from garage_exp.perception.detect import Intrinsics, score_target
         from garage_exp.perception.groundtruth import ground_truth
         from garage_exp.render.composite import blank_composite
         from garage_exp.scenario.assemble import HIDDEN
@@ -272,13 +274,13 @@ class StepOutEnv(gymnasium.Env):
             rgb = self.sensor.apply(frame.rgb, self.sensor_rng)
             if not scene.background:
                 rgb = blank_composite(rgb, frame, renderer.ids, [self.live.target])
-        self.detector.submit(rgb)
+        self.detector.submit(rgb, Intrinsics.of(cam))
         dets = self.detector.result()
         self.renders += 1
         target = next((t for t in truth if t.name == self.live.target), None)
         d = job.detector
         score = score_target(dets, target, truth, iou_threshold=d.iou, match=d.match, threshold=d.threshold,
-                             classes=tuple(d.classes), person_classes=tuple(d.person_classes))
+                             **self.checked_detector.scoring())
         row = {"frame": self.k, "time": round(self.k * self.dt, 6), "ego": self.drive[self.k],
                **{m.name: round(self.values[m.name], 6) for m in self.movers},
                "range": self._range(ego_pose, poses),

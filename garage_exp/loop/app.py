@@ -1,7 +1,8 @@
 """`python -m garage_exp.loop`: the closed-loop experiment, step by step (garage_exp/loop/__init__.py says which).
 
 Every step's result stays under `dir`; rerunning the command skips the steps already done (a study that holds its
-trials, a training with its result.json), so an interrupted loop goes on where it stopped.
+trials, a training with its result.json), so an interrupted loop goes on where it stopped; a step made or begun
+from other inputs (its command, the files it reads) is refused in one line, never reused.
 """
 
 from __future__ import annotations
@@ -45,6 +46,10 @@ def check_loop(cfg: DictConfig) -> None:
         raise GarageError("base .pt not found", str(cfg.base))
 
 
+# Steps every variant shares: a change to them needs another dir, not a variant.
+SHARED_STEPS = ("base", "D0", "failures_D0", "random", "heldout")
+
+
 class Loop:
     def __init__(self, cfg: DictConfig):
         self.cfg = cfg
@@ -54,27 +59,33 @@ class Loop:
         self.times_file = self.dir / "times.json"
         self.times: dict[str, float] = json.loads(self.times_file.read_text()) if self.times_file.is_file() else {}
         self.ran = False
-        # The command each step ran with: a step's result is reused only for the same command, never silently
-        # for other settings.
+        self.name = ""  # the step under way
+        # Each step's full inputs (its command and the digests of the files it reads): a step, finished or not, is
+        # reused or resumed only for the same inputs, never silently for other settings.
         self.commands_file = self.dir / "commands.json"
         self.commands: dict[str, list[str]] = (json.loads(self.commands_file.read_text())
                                                if self.commands_file.is_file() else {})
 
-    def reuse(self, name: str, cmd: list[str], done: bool) -> bool:
-        """Whether step `name`'s result on disk is reused; GarageError when it was made by another command."""
+    def reuse(self, name: str, cmd: list[str], done: bool, inputs: list[Path] = ()) -> bool:
+        """Whether step `name`'s result on disk is reused; GarageError when the step (finished or begun) was
+        made from other inputs: another command, or files it reads (a data list, weights) that changed since."""
+        key = [*cmd, *steps.digests(inputs)]
         known = self.commands.get(name)
-        if done and known is not None and known != cmd:
-            changed = sorted(set(cmd) ^ set(known))[:4]
-            raise GarageError(f"{self.dir} holds step {name!r} run with other settings ({', '.join(changed)}); give "
-                              "this run its own variant=NAME (its arms and second round apart) or another dir", "dir")
-        self.commands[name] = cmd
+        if known is not None and known != key:
+            hint = ("give this run another dir" if name in SHARED_STEPS else
+                    "give this run its own variant=NAME (its arms and second round apart) or another dir")
+            raise GarageError(f"{self.dir} holds step {name!r} made from other inputs ({steps.changes(known, key)}); "
+                              f"{hint}", "dir")
+        self.commands[name] = key
         self.commands_file.write_text(json.dumps(self.commands, indent=1))
         return done
 
     def step(self, name: str, fn, always: bool = False):
         start = time.perf_counter()
-        print(f"garage_exp.loop: {name} ...", flush=True)
         self.ran = always
+        self.name = name
+        if always:
+            print(f"garage_exp.loop: {name} ...", flush=True)
         result = fn()
         if self.ran:
             self.times[name] = time.perf_counter() - start
@@ -85,19 +96,23 @@ class Loop:
               + ("" if self.ran else " (done before)"), flush=True)
         return result
 
+    def _run(self, cmd: list[str]) -> None:
+        self.ran = True
+        print(f"garage_exp.loop: {self.name} ...", flush=True)  # said once its inputs passed the check
+        steps.run(cmd, self.log)
+
     def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None):
         cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models)
-        if not self.reuse(name, cmd, steps.study_done(self.cfg, name, trials)):
-            self.ran = True
-            steps.run(cmd, self.log)
+        if not self.reuse(name, cmd, steps.study_done(self.cfg, name, trials), [Path(m) for m in models or ()]):
+            self._run(cmd)
         return steps.trials(self.cfg, name)
 
     def train(self, name: str, **kw) -> dict:
         out = self.dir / "train" / name
         cmd = steps.train_command(self.cfg, name, out, **kw)
-        if not self.reuse(name, cmd, (out / "result.json").is_file()):
-            self.ran = True
-            steps.run(cmd, self.log)
+        inputs = [Path(p) for key in ("data", "val", "replay") for p in kw.get(key, ())] + [Path(str(kw["base"]))]
+        if not self.reuse(name, cmd, (out / "result.json").is_file(), inputs):
+            self._run(cmd)
         return json.loads((out / "result.json").read_text())
 
 

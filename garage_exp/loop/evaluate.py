@@ -8,8 +8,6 @@ labelled actor by COCOeval on the exported COCO file.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from garage_exp.search.schema import SearchConf
 from garage_exp.exports.coco import CATEGORY_IDS
 from garage_exp.loop.steps import Trial
 from garage_exp.perception.detect import GTBox, score_target
+from garage_exp.results import cocoeval
 from garage_exp.results.table import fair_mask
 
 VISIBLE_BINS = (0.0, 0.25, 0.5, 0.75, 1.0001)
@@ -35,11 +34,15 @@ def score_frames(model: Path, imgsz: int, trials: list[Trial], threshold: float,
     """One row per frame of the trials' primary camera: trial, shot, image, visible fraction, box height,
     truncation, fair, confidence, detected. Every detection of a COCO class the datasets label goes to
     `keep_coco` as (trial, file name, category id, xywh, score), for mAP."""
+    from omegaconf import OmegaConf
     from PIL import Image
 
-    from garage_exp.perception.detect import Detector
+    from garage_exp.core.schema import DetectorConf
+    from garage_exp.perception.detect import build_detector
 
-    detector = Detector(models=[model], imgsz=imgsz, conf=0.05)
+    # The project's one factory, with the defaults a job uses (classes, conf 0.05), this model alone.
+    detector = build_detector(OmegaConf.structured(DetectorConf), models=[str(model)], imgsz=imgsz, registry=None)
+    detector.check()
     rows = []
     for trial in trials:
         table = pd.read_csv(trial.output_dir / "frames.csv")
@@ -50,18 +53,19 @@ def score_frames(model: Path, imgsz: int, trials: list[Trial], threshold: float,
         for row in table.itertuples():
             name = f"{int(row.shot):04d}_{row.camera}.png"
             rgb = np.asarray(Image.open(trial.dataset / "images" / name).convert("RGB"))
-            dets = detector.detect(rgb)
+            dets = detector.detect([rgb])[0]  # a dataset image: no camera at hand
             ann = targets.get((name, row.target))
             truth = None if ann is None else GTBox(xyxy(ann["bbox"]), xyxy(ann["attributes"]["visible_bbox"]),
                                                    "person" if ann["category_id"] == CATEGORY_IDS["person"]
                                                    else "vehicle")
-            score = score_target(dets, truth, iou_threshold=0.5, match="full", threshold=threshold)
+            score = score_target(dets, truth, iou_threshold=0.5, match="full", threshold=threshold,
+                                 **detector.scoring())
             rows.append({"study": trial.study, "trial": trial.number, "shot": int(row.shot),
                          "image": str(trial.dataset / "images" / name), "visible_fraction": row.visible_fraction,
                          "box_height": row.box_height, "truncation": row.truncation, "confidence": score.composite,
                          "detected": score.detected})
             if keep_coco is not None:
-                for box, conf, cls in zip(dets[0].boxes, dets[0].confs, dets[0].classes):
+                for box, conf, cls in zip(dets[0].boxes, dets[0].scores, dets[0].classes):
                     if cls in CATEGORY_IDS:
                         x1, y1, x2, y2 = (float(v) for v in box)
                         keep_coco.append((trial.number, name, CATEGORY_IDS[cls], [x1, y1, x2 - x1, y2 - y1],
@@ -73,9 +77,6 @@ def score_frames(model: Path, imgsz: int, trials: list[Trial], threshold: float,
 
 def map50(trials: list[Trial], detections: list) -> float:
     """COCO AP at IoU 0.5 over every labelled actor of the trials' datasets (their COCO files merged)."""
-    from pycocotools.coco import COCO
-    from pycocotools.cocoeval import COCOeval
-
     gt = {"images": [], "annotations": [], "categories": []}
     ids = {}
     for trial in trials:
@@ -89,17 +90,7 @@ def map50(trials: list[Trial], detections: list) -> float:
             gt["annotations"].append({**a, "id": len(gt["annotations"]) + 1, "image_id": remap[a["image_id"]]})
     dts = [{"image_id": ids[(t, name)], "category_id": c, "bbox": b, "score": s} for t, name, c, b, s in detections
            if (t, name) in ids]
-    if not gt["annotations"] or not dts:
-        return 0.0
-    with contextlib.redirect_stdout(io.StringIO()):  # COCOeval prints its whole table
-        ground = COCO()
-        ground.dataset = gt
-        ground.createIndex()
-        ev = COCOeval(ground, ground.loadRes(dts), "bbox")
-        ev.evaluate()
-        ev.accumulate()
-        ev.summarize()
-    return float(max(ev.stats[1], 0.0))  # -1 means no ground truth of any category evaluated
+    return cocoeval.ap50(gt, dts)
 
 
 def summarise(frames: pd.DataFrame, ap50: float) -> dict:

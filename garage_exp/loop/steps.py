@@ -6,6 +6,7 @@ is a scenario, so a study's trials are training or evaluation data as they are, 
 
 from __future__ import annotations
 
+import hashlib
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -92,3 +93,29 @@ def study_done(cfg: DictConfig, study: str, n: int) -> bool:
         return len([t for t in trials(cfg, study) if t.state != "RUNNING"]) >= n
     except KeyError:  # no such study yet
         return False
+
+
+def digests(paths: list[Path]) -> list[str]:
+    """`input:PATH=sha256:...` for each file a step reads, and for a data.yaml the .txt image list beside it (the
+    same path may hold another split or another draw); a models:/ name or a YAML ultralytics ships is no file."""
+    out = []
+    for path in paths:
+        for f in (path, path.with_suffix(".txt")) if path.suffix in (".yaml", ".yml") else (path,):
+            if f.is_file():
+                out.append(f"input:{f}=sha256:{hashlib.sha256(f.read_bytes()).hexdigest()[:16]}")
+    return out
+
+
+def changes(old: list[str], new: list[str], most: int = 3) -> str:
+    """What differs between two steps' inputs, by key: `search.trials=4 -> 5`, `input data/hard.yaml changed`."""
+    def by_key(items):
+        return dict(item.split("=", 1) if "=" in item else (item, "") for item in items)
+
+    a, b = by_key(old), by_key(new)
+    said = []
+    for key in [k for k in {**a, **b} if a.get(k) != b.get(k)]:
+        if key.startswith("input:"):
+            said.append(f"{Path(key[6:]).name} {'changed' if key in a and key in b else 'differs'}")
+        else:
+            said.append(f"{key}={a.get(key, '(none)')} -> {b.get(key, '(none)')}")
+    return ", ".join(said[:most]) + (f", ... {len(said) - most} more" if len(said) > most else "")

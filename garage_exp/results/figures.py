@@ -64,7 +64,7 @@ def draw_boxes(rgb: np.ndarray, target, dets, score=None, min_conf: float = 0.25
             x1, y1, x2, y2 = map(int, target.visible_box)
             cv2.rectangle(img, (x1, y1), (x2, y2), (240, 220, 0), 1)
     for model in dets:
-        for box, conf, cls in zip(model.boxes, model.confs, model.classes):
+        for box, conf, cls in zip(model.boxes, model.scores, model.classes):
             if conf < min_conf or cls not in classes:
                 continue
             x1, y1, x2, y2 = map(int, box)

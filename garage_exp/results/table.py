@@ -137,7 +137,12 @@ def _metric_key(label: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "_-./" else "_" for ch in text)
 
 
-def one_line(cfg, summary: dict, frames: int) -> str:
-    return (f"case={cfg.case.name} light={cfg.light.name} sensor={cfg.sensor.name} plan={cfg.plan.name}: "
-            f"{frames} frames, confidence mean {summary['confidence_mean']:.3f} min {summary['confidence_min']:.3f}, "
-            f"recall {summary['recall']:.2f}, difficulty {summary['difficulty']:.3f}")
+def one_line(cfg, summary: dict, cameras: list[str], primary: str) -> str:
+    """The job's headline. One rule for every rig: it counts and scores the primary camera's frames (the camera
+    the case names in `case.camera`, else the rig's first: the frames the summary metrics cover) and names it;
+    cameras.csv and the `cameras:` line score every camera."""
+    rig = (f"{primary} camera (the primary of {len(cameras)}; cameras.csv scores each), "
+           if len(cameras) > 1 else "")
+    return (f"case={cfg.case.name} light={cfg.light.name} sensor={cfg.sensor.name} plan={cfg.plan.name}: {rig}"
+            f"{int(summary['frames'])} frames, confidence mean {summary['confidence_mean']:.3f} "
+            f"min {summary['confidence_min']:.3f}, recall {summary['recall']:.2f}, difficulty {summary['difficulty']:.3f}")

@@ -25,6 +25,7 @@ from garage_exp.results import table as frame_table
 from garage_exp.scenario import CaseSetup, Shot
 from garage_exp.scenario.assemble import HIDDEN
 from garage_exp.scenario.build import moves_ego
+from garage_exp.scenario.fits import hint
 from garage_exp.run.slots import SlotFrames, slot_line
 from garage_exp.run.slots import wanted as slot_frames_wanted
 from garage_exp.scene.camera import scored_camera
@@ -104,9 +105,10 @@ def late_verdict(cfg: DictConfig, table: pd.DataFrame, setup: CaseSetup, out: Pa
     return late.summary(per, cfg.ego)
 
 
-def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered, list]]:
-    """Each frame with its detections, in order. Frame k is submitted before frame k+1 is rendered, so the
-    detector (a child process) works on k while this process renders k+1."""
+def overlapped(frames: Iterable[Rendered], detector, cameras: dict) -> Iterator[tuple[Rendered, list]]:
+    """Each frame with its detections, in order. Frame k is submitted (with its camera's intrinsics, `cameras`
+    by name) before frame k+1 is rendered, so the detector (a child process) works on k while this process
+    renders k+1."""
     waiting: deque[Rendered] = deque()
     rendered = iter(frames)
     while True:
@@ -119,7 +121,7 @@ def overlapped(frames: Iterable[Rendered], detector) -> Iterator[tuple[Rendered,
             while waiting:
                 yield waiting.popleft(), detector.result()
             raise exc
-        detector.submit(frame.rgb)
+        detector.submit(frame.rgb, cameras.get(frame.camera))
         waiting.append(frame)
         if len(waiting) > 1:
             yield waiting.popleft(), detector.result()
@@ -132,15 +134,16 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     them on the job's run, and return the summary metrics (`difficulty`, and `fair_*`: the search's
     objective)."""
     from garage_exp.core.plugins import build
-    from garage_exp.perception.detect import score_target
+    from garage_exp.perception.detect import Intrinsics, score_target
     from garage_exp.perception.detect.worker import open_detector
     from garage_exp.render import open_renderer
     from garage_exp.scene.gltf import export_glb
 
-    # First, so that the models load in the detector's process while this one loads the scene (built by the
-    # job's preflight) and compiles its shaders (the first frame).
-    detector = open_detector(build(cfg.detector, "a detector", "detector._target_"))
     scene, setup = prepared.scene, prepared.setup
+    cameras = {cam.name: Intrinsics.of(cam) for cam in scene.cameras}
+    # The detector the preflight checked (its models loaded in the detector's process): not checked again.
+    detector = open_detector(prepared.detector, cameras[scene.cameras[0].name])
+    classes = prepared.detector.scoring()
     sensor = build(cfg.sensor, "a sensor model", "sensor._target_")
     renderer = open_renderer(cfg.renderer)
     renderer.load(scene)
@@ -160,11 +163,10 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     slots = SlotFrames.open(cfg, prepared, out) if slot_frames_wanted(cfg) else None
     frames = render_frames(cfg, scene, setup, renderer, sensor, sensor_rng)
     try:
-        for item, dets in overlapped(frames, detector):
+        for item, dets in overlapped(frames, detector, cameras):
             shot, target = item.shot, item.target
             score = score_target(dets, target, item.truth, iou_threshold=cfg.detector.iou, match=cfg.detector.match,
-                                 threshold=cfg.detector.threshold, classes=tuple(cfg.detector.classes),
-                                 person_classes=tuple(cfg.detector.person_classes))
+                                 threshold=cfg.detector.threshold, **classes)
             row = frame_table.frame_row(shot, item.camera, target, score, detector.names, kinds.get(shot.target),
                                     replicated=cfg.replicates > 1, off_axis=fisheye)
             rows.append(row)
@@ -216,7 +218,18 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
                 run.log_artifact(path, "frames")
     if dataset is not None:
         run.log_artifact(dataset.finish())
-    print(frame_table.one_line(cfg, summary, len(table)))
+    print(frame_table.one_line(cfg, summary, [cam.name for cam in scene.cameras], primary))
+    if not summary["fair_frames"] and not trial:
+        print(no_fair_line(cfg, primary, len(scene.cameras) > 1))
     if "late_testable" in summary:
         print(late.line(summary))
     return summary
+
+
+def no_fair_line(cfg: DictConfig, primary: str, rig: bool) -> str:
+    """Said when no frame tested the detector fairly: its numbers measure a hidden, tiny or cut-off target."""
+    where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+    return (f"garage_exp: no frame {f'of the primary camera ({primary}) ' if rig else ''}is a fair test (the target "
+            f"at least {cfg.search.min_visible:g} visible, {cfg.search.min_box:g} px tall, at most "
+            f"{cfg.search.max_truncation:g} cut off): the numbers above measure no fair frame"
+            + (f"; {where}" if where else ""))

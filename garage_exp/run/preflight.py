@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import PLANS_DIR
 from garage_exp.core.state import STATE
+from garage_exp.scenario.fits import hint
 
 
 @dataclass
@@ -29,6 +30,7 @@ class PreparedJob:
     setup: Any = None  # garage_exp.scenario.CaseSetup; None for a dry run
     bytes_out: int = 0  # estimated bytes the job writes under its output dir
     bytes_store: int = 0  # estimated bytes into a local sqlite store and its artifacts (0 for a server)
+    detector: Any = None  # garage_exp.perception.detect.Detector, checked (every entry loaded); None for a dry run
 
 
 def resolve_plan_path(plan_cfg) -> Path:
@@ -146,16 +148,21 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     if not cfg.dry_run:
         import numpy as np
 
-        from garage_exp.perception.detect.detector import model_format, resolve_model
+        from garage_exp.perception.detect import build_detector
+        from garage_exp.perception.slots.detector import check_slot_weights
         from garage_exp.scenario.assemble import build_scene
 
-        from garage_exp.perception.slots.detector import check_slot_weights
-
-        for entry in cfg.detector.models:
-            model_format(resolve_model(entry, cfg.detector.registry))  # missing weights fail here (nothing downloaded)
+        detector = build_detector(cfg.detector)  # a missing file or unknown format fails here (nothing downloaded)
         check_slot_weights(cfg.slot_detector)
-        prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
-                                                     np.random.default_rng(int(cfg.seed)))
+        try:
+            prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
+                                                         np.random.default_rng(int(cfg.seed)))
+        except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
+            where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+            if not where:
+                raise
+            raise GarageError(f"{exc}; {where}") from None
+        prepared.detector = check_loads(detector, prepared.scene)
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig
@@ -165,6 +172,17 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
         out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
         check_free([(out, prepared.bytes_out), (store_dir(cfg), prepared.bytes_store)], "this job")
     return prepared
+
+
+def check_loads(detector, scene):
+    """Every entry of the detector loads and answers a probe frame of the job's first camera, in the process
+    that will detect (the detector's child, kept for the job): a file that is not a model is refused before
+    anything is written. The same detector is checked once per process."""
+    from garage_exp.perception.detect import Intrinsics
+    from garage_exp.perception.detect.worker import open_detector
+
+    open_detector(detector, Intrinsics.of(scene.cameras[0])).names  # noqa: B018 - waits; raises the load's error
+    return detector
 
 
 def store_dir(cfg: DictConfig) -> Path:

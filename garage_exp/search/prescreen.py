@@ -30,7 +30,6 @@ from garage_exp.scene.camera import scored_camera
 from garage_exp.search.objectives import objective
 
 LEVELS = ("none", "truth", "detector")
-_DETECTORS: dict[str, object] = {}  # the cheap detector of this process, by spec (loaded once)
 
 
 @dataclass
@@ -73,24 +72,20 @@ def _scaled(pixels, scale: float) -> int:
 
 
 def cheap_detector(detector_conf, scale: float):
-    """The first model of the trial's detectors at `scale` of its input size, in this process."""
-    from garage_exp.core.plugins import build
-    from garage_exp.perception.detect.detector import Detector
+    """The first model of the trial's detectors at `scale` of its input size, in this process (its models are
+    loaded once per process: perception.detect.base.LOADED)."""
+    from garage_exp.perception.detect import build_detector
 
-    spec = dict(build(detector_conf, "a detector", "detector._target_"))
-    spec["models"] = spec["models"][:1]
-    spec["imgsz"] = max(160, int(round(spec["imgsz"] * scale / 32)) * 32)
-    key = repr(sorted(spec.items()))
-    if key not in _DETECTORS:
-        _DETECTORS[key] = Detector(**spec)
-    return _DETECTORS[key]
+    detector = build_detector(detector_conf).cheap(scale)
+    detector.check()
+    return detector
 
 
 def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame, object]:
     """The frames' table at `scale` of the resolution (ground truth; with `detector`, an in-process `Detector`,
     its scores too) and the job's setup."""
     from garage_exp.core.plugins import build
-    from garage_exp.perception.detect import score_target
+    from garage_exp.perception.detect import Intrinsics, score_target
     from garage_exp.render import open_renderer
     from garage_exp.results.table import frame_row
     from garage_exp.run.frames import render_frames
@@ -102,6 +97,7 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
     renderer.load(prepared.scene)
     sensor = build(cheap.sensor, "a sensor model", "sensor._target_")
     det = cfg.detector
+    cameras = {cam.name: Intrinsics.of(cam) for cam in prepared.scene.cameras}
     rows = []
     for item in render_frames(cheap, prepared.scene, prepared.setup, renderer, sensor,
                               np.random.default_rng(cfg.seed + 1)):
@@ -110,9 +106,9 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
         if detector is None:  # ground truth alone: no score
             score = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
         else:
-            score = score_target(detector.detect(item.rgb), item.target, item.truth, iou_threshold=det.iou,
-                                 match=det.match, threshold=det.threshold, classes=tuple(det.classes),
-                                 person_classes=tuple(det.person_classes))
+            dets = detector.detect([item.rgb], cameras[item.camera])[0]
+            score = score_target(dets, item.target, item.truth, iou_threshold=det.iou, match=det.match,
+                                 threshold=det.threshold, **detector.scoring())
         rows.append(frame_row(item.shot, item.camera, item.target, score, detector.names if detector else [],
                               replicated=cfg.replicates > 1))
     return pd.DataFrame(rows), prepared.setup

@@ -27,12 +27,9 @@ schema.register()
 
 def check_train(cfg: DictConfig) -> None:
     """The `train` config's values (the schema checked the types; unknown keys are refused here)."""
-    from garage_exp.core.schema_check import unknown_keys
+    from garage_exp.core.schema_check import refuse_unknown_keys
 
-    for path, key, owner in unknown_keys(OmegaConf.to_container(cfg, resolve=False), schema.TrainConf):
-        if path == () and key == "hydra":
-            continue
-        raise GarageError(f"unknown key {key!r} (not in {owner.__name__})", ".".join((*path, key)))
+    refuse_unknown_keys(cfg, schema.TrainConf)
     check_range(cfg.epochs, 1, 10_000, "epochs")
     check_range(cfg.batch, 1, 4096, "batch")
     check_range(cfg.freeze, 0, 1000, "freeze")

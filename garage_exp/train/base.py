@@ -41,7 +41,7 @@ def load_base(entry: str, registry: str | None) -> Base:
         name = str(path.absolute()) if path.is_file() else entry
         _load(name, "base")
         return Base(entry, name, "yaml", None)
-    raise GarageError(f"base: {entry!r} is neither a .pt detector, a model YAML nor models:/NAME/VERSION", "base")
+    raise GarageError(f"{entry!r} is neither a .pt detector, a model YAML nor models:/NAME/VERSION", "base")
 
 
 def _load(name: str, where: str):

@@ -9,7 +9,9 @@ the lists ultralytics reads (train.txt, val.txt, data.yaml) and the manifest (wh
 from __future__ import annotations
 
 import math
+import os
 import random
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -254,15 +256,41 @@ def assert_split(plan: DataPlan) -> None:
 
 
 def write_data(plan: DataPlan, out: Path) -> Path:
-    """train.txt, val.txt, data.yaml and manifest.csv under out/; returns the data.yaml."""
+    """train.txt, val.txt, data.yaml and manifest.csv under out/; returns the data.yaml. The lists name links
+    under out/frames/, not the inputs: ultralytics writes its labels.cache beside the labels it reads, and the
+    inputs stay untouched (read-only inputs work)."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "train.txt").write_text("".join(f"{f.image}\n" for f in plan.fit_frames))
-    (out / "val.txt").write_text("".join(f"{f.image}\n" for f in plan.val))
+    shutil.rmtree(out / "frames", ignore_errors=True)  # a rerun's links (rmtree removes links, not targets)
+    (out / "train.txt").write_text("".join(f"{p}\n" for p in link_frames(plan.fit_frames, out / "frames" / "train")))
+    (out / "val.txt").write_text("".join(f"{p}\n" for p in link_frames(plan.val, out / "frames" / "val")))
     data_yaml = out / "data.yaml"
     data_yaml.write_text(yaml.safe_dump({"path": str(out), "train": "train.txt", "val": "val.txt",
                                          "names": plan.names}, sort_keys=False))
     manifest(plan).to_csv(out / "manifest.csv", index=False)
     return data_yaml
+
+
+def link_frames(frames: list[Frame], root: Path) -> list[Path]:
+    """Each frame's image and label linked (copied where links cannot be made) under root/sNNN/images and
+    root/sNNN/labels, one sNNN folder per scenario (the split stays visible by folder); returns the images."""
+    scenario_dirs: dict[str, Path] = {}
+    images = []
+    for n, frame in enumerate(frames):
+        folder = scenario_dirs.setdefault(frame.scenario, root / f"s{len(scenario_dirs):03d}")
+        image = folder / "images" / f"{n:06d}_{frame.image.name}"  # numbered: two inputs may share a name
+        _link(frame.image, image)
+        if frame.label.is_file():
+            _link(frame.label, label_of(image))
+        images.append(image)
+    return images
+
+
+def _link(source: Path, target: Path) -> None:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.symlink(source.absolute(), target)
+    except OSError:  # a file system without symbolic links
+        shutil.copyfile(source, target)
 
 
 def manifest(plan: DataPlan):

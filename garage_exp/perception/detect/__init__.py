@@ -1,13 +1,16 @@
-"""Vehicle and person detection with several YOLO models and the target's score.
+"""Vehicle and person detection: the detector interface (base.py), its entry kinds (entries.py), the composite
+every caller builds through one factory (detector.py), and the target's score (matching.py).
 
-Importing this package is cheap: ultralytics (and torch, ~5 s) load only when a `Detector` is made.
+Importing this package is cheap: ultralytics, torch and onnxruntime load only when an entry is checked.
 """
 
-from garage_exp.perception.detect.detector import Detector, ModelDetections, load_model, model_format, resolve_model
+from garage_exp.core.offline import prepare_offline
+from garage_exp.perception.detect.base import Detections, Entry, EntrySettings, Intrinsics
+from garage_exp.perception.detect.detector import Detector, build_detector, make_detector
+from garage_exp.perception.detect.entries import EntryKind, register, resolve
 from garage_exp.perception.detect.matching import (MATCH_MODES, PERSON_CLASSES, VEHICLE_CLASSES, GTBox, TargetScore,
                                                    iou, iou_many, score_target)
-from garage_exp.core.offline import prepare_offline
 
-__all__ = ["Detector", "ModelDetections", "load_model", "model_format", "resolve_model", "MATCH_MODES",
-           "VEHICLE_CLASSES", "PERSON_CLASSES", "GTBox", "TargetScore", "iou", "iou_many", "score_target",
-           "prepare_offline"]
+__all__ = ["Detections", "Entry", "EntrySettings", "Intrinsics", "Detector", "build_detector",
+           "make_detector", "EntryKind", "register", "resolve", "MATCH_MODES", "VEHICLE_CLASSES", "PERSON_CLASSES",
+           "GTBox", "TargetScore", "iou", "iou_many", "score_target", "prepare_offline"]

@@ -84,7 +84,7 @@ def score_target(dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), io
                  fp_conf: float = 0.25, person_classes: Sequence[str] = PERSON_CLASSES) -> TargetScore:
     """Score the target in one frame.
 
-    dets: per-model detections (`ModelDetections`: boxes, confs, classes). target: the target's ground truth,
+    dets: per-model detections (`Detections`: boxes, scores, classes). target: the target's ground truth,
     any object with `full_box` and `visible_box` (a `groundtruth` record or `GTBox`), a bare xyxy box (used as
     both), or None when the target is out of view (scores 0). truth: every ground-truth actor in the frame
     (the target may be among them), for false positives. match: which target box a detection must overlap
@@ -105,7 +105,7 @@ def score_target(dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), io
     per_model, matched, fps = [], [], []
     for model in dets:
         boxes = np.asarray(model.boxes, dtype=float).reshape(-1, 4)
-        confs = np.asarray(model.confs, dtype=float).reshape(-1)
+        confs = np.asarray(model.scores, dtype=float).reshape(-1)
         of = {kind: np.array([c in names for c in model.classes], dtype=bool) for kind, names in groups.items()}
         best, best_index = 0.0, -1
         if target is not None and len(boxes):

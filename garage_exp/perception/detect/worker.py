@@ -24,12 +24,14 @@ import subprocess
 import sys
 from collections import deque
 from multiprocessing.connection import Connection
-from typing import Any
+from dataclasses import replace
 
 import numpy as np
 
-from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
+from garage_exp.perception.detect.base import Detections, Intrinsics, message_of
+from garage_exp.perception.detect.detector import Detector
 
 log = logging.getLogger("garage_exp")
 
@@ -50,18 +52,18 @@ DEFAULT_THREADS = max(1, cores() // 2)
 class InlineDetector:
     """The serial fallback: detection on the calling thread when its result is asked for."""
 
-    def __init__(self, spec: dict[str, Any], threads: int = 0):
-        from garage_exp.perception.detect.detector import Detector
-
-        self._detector = Detector(**spec, threads=threads)
+    def __init__(self, detector: Detector, probe: Intrinsics | None = None, threads: int = 0):
+        self._detector = replace(detector, threads=threads)
+        self._detector.check(probe)
         self.names = self._detector.names
-        self._queue: deque[np.ndarray] = deque()
+        self._queue: deque[tuple[np.ndarray, Intrinsics | None]] = deque()
 
-    def submit(self, rgb: np.ndarray) -> None:
-        self._queue.append(rgb)
+    def submit(self, rgb: np.ndarray, intrinsics: Intrinsics | None = None) -> None:
+        self._queue.append((rgb, intrinsics))
 
-    def result(self) -> list:
-        return self._detector.detect(self._queue.popleft())
+    def result(self) -> list[Detections]:
+        rgb, intrinsics = self._queue.popleft()
+        return self._detector.detect([rgb], [intrinsics])[0]
 
     def drain(self) -> None:
         self._queue.clear()
@@ -70,8 +72,9 @@ class InlineDetector:
 
 
 class DetectorProcess:
-    """A child process holding a `Detector`: `submit(rgb)` sends a frame, `result()` returns the oldest one's
-    detections. Reconfigure with `load(spec)`; the child keeps every model it loaded.
+    """A child process holding a `Detector`: `submit(rgb, intrinsics)` sends a frame, `result()` returns the oldest
+    one's detections (one `Detections` per model). Reconfigure with `load(detector, probe)`: the child checks the
+    detector (every entry loaded and run on a probe frame of the camera `probe`) and keeps every model it loaded.
 
     A child that dies (the OOM killer, `kill -9`, a crash in a native library) is replaced: a new child loads
     the same detectors and gets the frames the dead one had not answered, in order, so the job's results are
@@ -81,11 +84,12 @@ class DetectorProcess:
 
     def __init__(self, threads: int = DEFAULT_THREADS):
         self.threads = threads
-        self._spec: dict[str, Any] | None = None
+        self._spec: tuple[Detector, Intrinsics | None] | None = None
         self._names: list[str] | None = None
         self._loading = False
         self._reloading = False  # a replacement child's answer to the re-sent load is due before any frame's
-        self._flight: deque[np.ndarray] = deque()  # frames sent and not yet answered, oldest first
+        # frames (and their cameras) sent and not yet answered, oldest first
+        self._flight: deque[tuple[np.ndarray, Intrinsics | None]] = deque()
         self.restarts = 0
         self._start()
 
@@ -99,14 +103,15 @@ class DetectorProcess:
         theirs.close()
         self._conn = Connection(ours.detach())
 
-    def load(self, spec: dict[str, Any]) -> None:
-        """Ask the child for these detectors; returns at once (loading overlaps the caller's start-up)."""
+    def load(self, detector: Detector, probe: Intrinsics | None = None) -> None:
+        """Ask the child for this detector; returns at once (`names` waits for the load and raises its error).
+        The same detector again is not checked again."""
         self.drain()
         self.restarts = 0
-        if spec == self._spec and not self._loading and self._names is not None:
+        if self._spec is not None and detector == self._spec[0] and not self._loading and self._names is not None:
             return
-        self._spec, self._names, self._loading = spec, None, True
-        self._send(("load", spec))
+        self._spec, self._names, self._loading = (detector, probe), None, True
+        self._send(("load", self._spec))
 
     @property
     def names(self) -> list[str]:
@@ -120,12 +125,12 @@ class DetectorProcess:
             raise RuntimeError("no detectors loaded: the last load failed")
         return self._names
 
-    def submit(self, rgb: np.ndarray) -> None:
+    def submit(self, rgb: np.ndarray, intrinsics: Intrinsics | None = None) -> None:
         self.names  # noqa: B018 - a loading error surfaces here, not as a frame's result
-        self._flight.append(rgb)
-        self._send(("detect", rgb))
+        self._flight.append((rgb, intrinsics))
+        self._send(("detect", (rgb, intrinsics)))
 
-    def result(self) -> list:
+    def result(self) -> list[Detections]:
         if not self._flight:
             raise RuntimeError("no detection pending")
         try:
@@ -247,8 +252,8 @@ class DetectorProcess:
             self._reloading = not self._loading  # during a load, its answer is the one the caller waits for
             try:
                 self._conn.send(("load", self._spec))
-                for rgb in self._flight:
-                    self._conn.send(("detect", rgb))
+                for frame in self._flight:
+                    self._conn.send(("detect", frame))
                 return
             except (OSError, ValueError) as exc:
                 cause = exc
@@ -269,8 +274,6 @@ def _serve(conn, threads: int) -> None:
     # stops this child itself, and if it dies outright the pipe's end-of-file ends this loop.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    from garage_exp.perception.detect.detector import Detector
-
     records = _Collect()
     log.addHandler(records)
     log.setLevel(logging.INFO)
@@ -285,14 +288,16 @@ def _serve(conn, threads: int) -> None:
         try:
             if kind == "load":
                 detector = None  # a failed load must not leave the previous job's detectors in place
-                detector = Detector(**payload, threads=threads)
-                answer = detector.names
+                wanted, probe = payload
+                loading = replace(wanted, threads=threads)
+                loading.check(probe)
+                detector, answer = loading, loading.names
             else:
-                answer = detector.detect(payload)
+                rgb, intrinsics = payload
+                answer = detector.detect([rgb], [intrinsics])[0]
             reply = ("ok", answer)
         except GarageError as exc:
-            message = str(exc)[len(f"{exc.where}: "):] if exc.where else str(exc)
-            reply = ("error", ("GarageError", message, exc.where))
+            reply = ("error", ("GarageError", message_of(exc), exc.where))
         except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it in the job
             reply = ("error", (type(exc).__name__, str(exc), None))
         conn.send((*reply, records.take()))
@@ -325,22 +330,20 @@ def use_process() -> bool:
     return os.environ.get("GARAGE_EXP_DETECT_PROCESS", "1").strip().lower() not in ("0", "false", "no")
 
 
-def open_detector(spec: dict[str, Any]) -> DetectorProcess | InlineDetector:
-    """The process's detector child, loading `spec` (started on first use, reused by later jobs)."""
-    from garage_exp.perception.detect.detector import model_format
-
-    for path in spec["models"]:
-        model_format(path)  # a bad path fails now, in the parent, as it did before detection had a child
+def open_detector(detector: Detector, probe: Intrinsics | None = None) -> DetectorProcess | InlineDetector:
+    """The process's detector child, loading and checking `detector` (from `build_detector`; probe: the camera
+    of the check's probe frame). The child is started on first use and reused by later jobs; `names` waits for
+    the check and raises its error."""
     threads = configured_threads()
     if not use_process():
-        return InlineDetector(spec, threads=0)  # serial: nothing runs beside it, so OpenVINO takes all cores
+        return InlineDetector(detector, probe, threads=0)  # serial: nothing runs beside it, so all cores
     worker = STATE.detector
     if worker is not None and (not worker.alive() or worker.threads != threads):
         worker.close()
         worker = STATE.detector = None
     if worker is None:
         worker = STATE.detector = DetectorProcess(threads)
-    worker.load(spec)
+    worker.load(detector, probe)
     return worker
 
 

@@ -1,0 +1,224 @@
+"""The detector interface: what every model under test (an *entry* of `detector.models`) gives back, and the
+small contract an entry keeps. docs/perception.md is the user's version of this page.
+
+Contract
+- `Detections`: one model's detections on one frame: `boxes` (N, 4) float32 x1, y1, x2, y2 in the frame's pixels,
+  `scores` (N,) float32 in [0, 1], `classes` N class names (the model's own names; `detector.class_map` says which
+  are vehicles and people). `model` and `ms` are filled in by the composite.
+- `Intrinsics`: the camera a frame came from (pixel size, focal lengths, principal point, lens model).
+- `Entry`: one model. `name` (its column in the frame table), `device` (where it runs: "cpu", "cuda:0", or the
+  server's address), `classes` (its class names, known after `check()`; empty when it cannot say).
+  `check(intrinsics)` loads the model and runs it once on a probe frame of that camera's size, raising a
+  one-line `GarageError` naming the entry on any problem; a job calls it before it writes anything. `detect(frames,
+  intrinsics)` takes a batch (a list of HxWx3 uint8 RGB arrays, or an (B, H, W, 3) array) and returns one
+  `Detections` per frame, in order. An entry computes each frame's result from that frame alone.
+- Entries are made from their config string by `entries.make_entry` (which kind is decided from the string or
+  the file, without loading anything), and combined by `detector.Detector`, the composite every caller gets from
+  the one factory (`detector.make_detector`, the `detector._target_`, built through `core.plugins.build`).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from garage_exp.core.errors import GarageError
+
+WHERE = "detector.models"
+
+
+@dataclass
+class Detections:
+    """One model's detections on one frame, in the frame's pixel coordinates."""
+
+    boxes: np.ndarray  # (N, 4) float32 x1, y1, x2, y2
+    scores: np.ndarray  # (N,) float32 confidences in [0, 1]
+    classes: list[str]  # N class names, the model's own
+    model: str = ""  # the entry's name (set by the composite)
+    ms: float = 0.0  # wall-clock time of the model's call, per frame
+
+    def __len__(self) -> int:
+        return len(self.classes)
+
+    @classmethod
+    def empty(cls, model: str = "") -> Detections:
+        return cls(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), [], model)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """The camera a frame came from. model: "pinhole" (fx, fy, cx, cy), "fisheye" (OpenCV's Kannala-Brandt: f = fx
+    = fy, k the four coefficients, fov degrees across the width) or "cylindrical" (fx pixels per radian of azimuth).
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    model: str = "pinhole"
+    k: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    fov: float = 0.0
+    camera: str = ""
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3x3 camera matrix K."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def of(cls, spec: Any) -> Intrinsics:
+        """A scene camera's (`scene.description.CameraSpec`) intrinsics, as its detector sees the picture: a fisheye
+        camera's raw image, or the perspective / cylindrical view undistorted from it."""
+        from garage_exp.render.fisheye import Cylindrical, lens_of, view_lens
+        from garage_exp.scene.camera import intrinsics_of
+
+        w, h = int(spec.width), int(spec.height)
+        if not spec.fisheye:
+            return cls(w, h, *intrinsics_of(spec), camera=spec.name)
+        view = view_lens(spec)
+        if view is None:
+            lens = lens_of(spec)
+            # the raw image of a lens model (scene/lenses.py; its lens has f, cx, cy and k, as the fisheye's)
+            return cls(w, h, lens.f, lens.f, lens.cx, lens.cy, spec.model, tuple(lens.k), float(spec.fov), spec.name)
+        if isinstance(view, Cylindrical):
+            return cls(w, h, view.f, view.f, view.cx, view.cy, "cylindrical", camera=spec.name)
+        return cls(w, h, view.fx, view.fy, view.cx, view.cy, camera=spec.name)
+
+    @classmethod
+    def default(cls, width: int = 640, height: int = 480, fovy: float = 60.0) -> Intrinsics:
+        """A pinhole camera of the project's default size and vertical FOV (the probe's, when no camera is given)."""
+        f = height / 2.0 / math.tan(math.radians(fovy) / 2.0)
+        return cls(width, height, f, f, width / 2.0, height / 2.0)
+
+
+@dataclass(frozen=True)
+class EntrySettings:
+    """The `detector` group's settings every entry gets: lowest confidence kept, network input size, device
+    (auto | cpu | cuda), OpenVINO inference threads (0: its default)."""
+
+    conf: float = 0.05
+    imgsz: int = 640
+    device: str = "auto"
+    threads: int = 0
+
+
+class Entry(ABC):
+    """One model of the composite detector (see the module's contract)."""
+
+    kind: ClassVar[str] = ""  # the registered kind: "ultralytics", "onnx", "torchvision", "callable", ...
+
+    def __init__(self, entry: str, settings: EntrySettings):
+        self.entry = str(entry)  # as written in detector.models (resolved: a path, a prefix string)
+        self.settings = settings
+        self.name = self.entry  # a short name; subclasses set a better one
+        self.device = "cpu"
+        self.classes: tuple[str, ...] = ()
+
+    @property
+    def where(self) -> str:
+        """The place a message names: the key and the entry."""
+        return f"{WHERE} {self.entry}"
+
+    def fail(self, what: str) -> GarageError:
+        """A one-line GarageError naming this entry."""
+        return GarageError(what.strip().splitlines()[0] if what.strip() else what, self.where)
+
+    @abstractmethod
+    def check(self, intrinsics: Intrinsics | None = None) -> None:
+        """Load the model (once per process) and run it on a probe frame; GarageError naming the entry."""
+
+    @abstractmethod
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+        """One Detections per frame (frames: checked RGB uint8 arrays; intrinsics: one per frame)."""
+
+    def device_note(self) -> str:
+        """Why the entry runs where it does, for the detector's device line ("" when there is nothing to say)."""
+        return ""
+
+
+def message_of(exc: GarageError) -> str:
+    """A GarageError's message without its place."""
+    text = str(exc)
+    return text[len(f"{exc.where}: "):] if exc.where and text.startswith(f"{exc.where}: ") else text
+
+
+def as_batch(frames: Any) -> list[np.ndarray]:
+    """A batch of frames as a list of HxWx3 uint8 RGB arrays; ValueError for anything else (a single frame too:
+    wrap it in a list)."""
+    if isinstance(frames, np.ndarray):
+        if frames.ndim != 4:
+            raise ValueError(f"expected a batch of frames (B, H, W, 3), got an array of shape {frames.shape}")
+        frames = list(frames)
+    out = list(frames)
+    for rgb in out:
+        if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            got = f"{rgb.dtype} {rgb.shape}" if isinstance(rgb, np.ndarray) else type(rgb).__name__
+            raise ValueError(f"expected HxWx3 uint8 RGB frames, got {got}")
+    return out
+
+
+def per_frame(intrinsics: Any, count: int) -> list[Intrinsics | None]:
+    """intrinsics as one entry per frame: None, one Intrinsics for the whole batch, or a sequence of them."""
+    if intrinsics is None or isinstance(intrinsics, Intrinsics):
+        return [intrinsics] * count
+    out = list(intrinsics)
+    if len(out) != count:
+        raise ValueError(f"{len(out)} intrinsics for {count} frames")
+    return out
+
+
+def probe_frame(intrinsics: Intrinsics | None) -> np.ndarray:
+    """The frame an entry's check runs on: mid grey at the camera's size (the default camera without one)."""
+    cam = intrinsics or Intrinsics.default()
+    return np.full((int(cam.height), int(cam.width), 3), 114, np.uint8)
+
+
+def checked(out: Any, frame: np.ndarray, what: str) -> Detections:
+    """A model's answer for one frame as a float32 `Detections`; ValueError (one line saying what is wrong, `what`
+    naming the answer) when it is not one: another type, mismatched lengths, scores outside [0, 1], boxes not
+    x1 <= x2, y1 <= y2 or not finite."""
+    if not isinstance(out, Detections):
+        raise ValueError(f"{what} is {type(out).__name__}, not a garage_exp.perception.detect.Detections")
+    boxes = np.asarray(out.boxes, dtype=np.float32)
+    scores = np.asarray(out.scores, dtype=np.float32).reshape(-1)
+    classes = [c for c in out.classes] if not isinstance(out.classes, str) else None
+    if classes is None or not all(isinstance(c, str) for c in classes):
+        raise ValueError(f"{what}.classes must be a list of class-name strings")
+    if boxes.size == 0:
+        boxes = boxes.reshape(0, 4)
+    if boxes.ndim != 2 or boxes.shape[1] != 4:
+        raise ValueError(f"{what}.boxes has shape {boxes.shape}, not (N, 4) x1, y1, x2, y2")
+    if not len(boxes) == len(scores) == len(classes):
+        raise ValueError(f"{what} holds {len(boxes)} boxes, {len(scores)} scores and {len(classes)} classes")
+    if not (np.isfinite(boxes).all() and np.isfinite(scores).all()):
+        raise ValueError(f"{what} holds a box or score that is not finite")
+    if len(scores) and (scores.min() < 0.0 or scores.max() > 1.0):
+        raise ValueError(f"{what}.scores must lie in [0, 1] (got {scores.min():g}..{scores.max():g})")
+    if len(boxes) and ((boxes[:, 2] < boxes[:, 0]).any() or (boxes[:, 3] < boxes[:, 1]).any()):
+        raise ValueError(f"{what}.boxes must be x1, y1, x2, y2 with x1 <= x2 and y1 <= y2 (pixels)")
+    h, w = frame.shape[:2]
+    if len(boxes) and (boxes.max() > 4 * max(h, w) or (boxes[:, 2:] <= 1.5).all() and max(h, w) > 8):
+        raise ValueError(f"{what}.boxes are not in the frame's pixels ({w}x{h}): normalised or out of range?")
+    return Detections(boxes, scores, classes, out.model, out.ms)
+
+
+@dataclass
+class Loaded:
+    """What a process has loaded, by key (each model is loaded and warmed up once per process)."""
+
+    models: dict[Any, Any] = field(default_factory=dict)
+
+    def get(self, key: Any, load) -> Any:
+        if key not in self.models:
+            self.models[key] = load()
+        return self.models[key]
+
+
+LOADED = Loaded()

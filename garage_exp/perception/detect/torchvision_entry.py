@@ -1,0 +1,104 @@
+"""`torchvision:ARCH:FILE`: a torchvision detection model (Faster R-CNN, RetinaNet, FCOS, SSD, SSDlite) built
+with no downloaded weights and loaded from the user's state dict.
+
+FILE (a path, or a name under the models dir) holds what `torch.save` wrote: the model's `state_dict()`, with
+COCO's 91 categories (torchvision's own label order); or a dict {"state_dict": ..., "names": [...]} for a model
+with its own classes, names indexed by label (index 0 is the background).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from garage_exp.core.errors import did_you_mean
+from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, Intrinsics, checked,
+                                               probe_frame)
+from garage_exp.perception.detect.devices import pick_device
+
+PREFIX = "torchvision:"
+ARCHS = ("fasterrcnn_resnet50_fpn", "fasterrcnn_resnet50_fpn_v2", "fasterrcnn_mobilenet_v3_large_fpn",
+         "fasterrcnn_mobilenet_v3_large_320_fpn", "retinanet_resnet50_fpn", "retinanet_resnet50_fpn_v2",
+         "fcos_resnet50_fpn", "ssd300_vgg16", "ssdlite320_mobilenet_v3_large")
+
+
+def coco_names() -> list[str]:
+    """torchvision's 91 COCO categories by label (0 the background, "N/A" for unused ids)."""
+    from torchvision.models.detection import FasterRCNN_ResNet50_FPN_Weights
+
+    return list(FasterRCNN_ResNet50_FPN_Weights.COCO_V1.meta["categories"])
+
+
+class TorchvisionEntry(Entry):
+    kind = "torchvision"
+
+    def __init__(self, entry: str, settings: EntrySettings):
+        from garage_exp.perception.detect.entries import resolve_path
+
+        super().__init__(entry, settings)
+        arch, sep, file = self.entry[len(PREFIX):].partition(":")
+        if not sep or not file:
+            raise self.fail("a torchvision entry is torchvision:ARCH:STATE_DICT_FILE")
+        if arch not in ARCHS:
+            raise self.fail(f"unknown architecture {arch!r}{did_you_mean(arch, ARCHS)} (one of {', '.join(ARCHS)})")
+        self.arch = arch
+        self.path = resolve_path(file)
+        if not self.path.is_file():
+            raise self.fail(f"state-dict file not found: {self.path}")
+        self.name = Path(file).stem
+        self.device = pick_device(settings.device)
+        self._model = None
+        self._labels: list[str] = []
+
+    def check(self, intrinsics: Intrinsics | None = None) -> None:
+        if self._model is not None:
+            return
+        self._model, self._labels = LOADED.get(("torchvision", self.arch, self.path.resolve(), self.device),
+                                               self._load)
+        self.classes = tuple(dict.fromkeys(n for n in self._labels if n not in ("__background__", "N/A")))
+        self.detect([probe_frame(intrinsics)], [intrinsics])
+
+    def _load(self):
+        import torch
+        from torchvision.models import detection
+
+        try:
+            saved = torch.load(self.path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - pickles, zips, text: one line naming the entry
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise self.fail(f"not a torch state dict ({type(exc).__name__}: {first})"[:300]) from None
+        if not isinstance(saved, dict):
+            raise self.fail(f"holds a {type(saved).__name__}, not a state dict")
+        state = saved.get("state_dict", saved)
+        names = [str(n) for n in saved["names"]] if "names" in saved else coco_names()
+        try:
+            model = getattr(detection, self.arch)(weights=None, weights_backbone=None, num_classes=len(names))
+            model.load_state_dict(state)
+        except Exception as exc:  # noqa: BLE001 - missing or mis-shaped keys: the file is another model's
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise self.fail(f"its state dict does not fit {self.arch} with {len(names)} classes: {first}"[:300]) \
+                from None
+        # torchvision drops boxes under its own thresholds (up to 0.2 for FCOS): keep what the project keeps.
+        for part in (model, getattr(model, "roi_heads", None)):
+            if part is not None and hasattr(part, "score_thresh"):
+                part.score_thresh = min(float(part.score_thresh), self.settings.conf)
+        return model.eval().to(self.device), names
+
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+        import torch
+
+        images = [torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float().div(255.0).to(self.device)
+                  for rgb in frames]
+        with torch.inference_mode():
+            results = self._model(images)
+        out = []
+        for rgb, result in zip(frames, results):
+            scores = result["scores"].cpu().numpy().astype(np.float32)
+            keep = scores >= self.settings.conf
+            labels = result["labels"].cpu().numpy()[keep]
+            names = [self._labels[k] if 0 <= k < len(self._labels) else f"class{k}" for k in labels]
+            out.append(checked(Detections(result["boxes"].cpu().numpy().astype(np.float32)[keep], scores[keep],
+                                          names), rgb, "its output"))
+        return out

@@ -1,0 +1,150 @@
+"""Models ultralytics loads: `.pt` weights (YOLO or RT-DETR, official or fine-tuned), OpenVINO exports (a folder
+named `*_openvino_model` holding the `.xml`/`.bin` IR and `metadata.yaml`), ONNX files ultralytics exported,
+TensorRT engines (`.engine`, CUDA only) and TorchScript files (`.torchscript`).
+
+A bare name such as "yolo11n.pt" that is not an existing file never gets here: ultralytics would download it.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from garage_exp.core.errors import GarageError
+from garage_exp.core.offline import prepare_offline
+from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, Intrinsics
+from garage_exp.perception.detect.devices import cuda_available, pick_device
+from garage_exp.perception.detect.entries import OPENVINO_SUFFIX
+
+log = logging.getLogger("garage_exp")
+FORMATS = {".pt": "pt", ".onnx": "onnx", ".engine": "engine", ".torchscript": "torchscript"}
+
+
+def model_label(path: Path) -> str:
+    """A short name for tables and metrics: the folder name without the export suffix, or the file stem."""
+    name = path.name
+    if name.endswith(OPENVINO_SUFFIX):
+        return name[: -len(OPENVINO_SUFFIX)]
+    return path.stem
+
+
+def model_format(path: Path) -> str:
+    """openvino | pt | onnx | engine | torchscript."""
+    return "openvino" if path.is_dir() else FORMATS[path.suffix]
+
+
+class UltralyticsEntry(Entry):
+    kind = "ultralytics"
+
+    def __init__(self, entry: str, settings: EntrySettings):
+        super().__init__(entry, settings)
+        self.path = Path(entry).expanduser()
+        self.format = model_format(self.path)
+        self.name = model_label(self.path)
+        self.device = pick_device(settings.device, cpu_only=self.format == "openvino")
+        self._model: Any = None
+
+    def device_note(self) -> str:
+        return "OpenVINO export: CPU only" if self.format == "openvino" and self.settings.device != "cpu" else ""
+
+    def check(self, intrinsics: Intrinsics | None = None) -> None:
+        if self._model is not None:
+            return
+        if self.format == "openvino" and not any(self.path.glob("*.xml")):
+            raise self.fail("OpenVINO model folder holds no .xml file")
+        if self.format == "engine" and not cuda_available():
+            raise self.fail("a TensorRT engine runs on a CUDA GPU, and torch sees none (export the model to ONNX "
+                            "or OpenVINO to test it here)")
+        s = self.settings
+        self._model = LOADED.get((self.path.resolve(), s.threads, self.device),
+                                 lambda: load_model(self.path, s.imgsz, self.device, s.threads, self.where))
+        self.classes = tuple(str(v) for v in self._model.names.values())
+
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+        # ultralytics reads numpy images as OpenCV BGR. One frame goes in as an array (as before batches), so a
+        # batch of one gives the same numbers as the single-frame call the golden tables were measured with.
+        bgr = [np.ascontiguousarray(rgb[..., ::-1]) for rgb in frames]
+        s = self.settings
+        results = self._model.predict(bgr[0] if len(bgr) == 1 else bgr, conf=s.conf, imgsz=s.imgsz,
+                                      device=self.device, verbose=False)
+        out = []
+        for result in results:
+            boxes = result.boxes
+            out.append(Detections(boxes=boxes.xyxy.cpu().numpy().astype(np.float32).reshape(-1, 4),
+                                  scores=boxes.conf.cpu().numpy().astype(np.float32).reshape(-1),
+                                  classes=[result.names[int(k)] for k in boxes.cls.cpu().numpy()]))
+        return out
+
+
+def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int = 0, where: str | None = None) -> Any:
+    """The ultralytics model for a path, loaded and warmed up (the caller keeps it: base.LOADED).
+
+    threads > 0 caps OpenVINO's inference threads (0: OpenVINO's default, all cores). With rendering running
+    beside detection on a small machine, one thread each wastes less CPU than two each fighting for the same
+    cores (docs/performance.md). Ignored for other formats.
+    """
+    kind = model_format(path)
+    prepare_offline()
+    from ultralytics import YOLO
+
+    start = time.perf_counter()
+    try:
+        # task="detect" spares ultralytics a guess from the file and a warning; harmless for .pt weights.
+        model = YOLO(str(path), task="detect")
+        if getattr(model, "task", "detect") != "detect":
+            raise GarageError(f"a {model.task} model, not a detector", where or str(path))
+        # The first predict compiles the OpenVINO network (seconds); pay it here, not in the first frame.
+        with _openvino_threads(threads if kind == "openvino" else 0):
+            model.predict(np.zeros((imgsz, imgsz, 3), np.uint8), imgsz=imgsz, device=device, verbose=False)
+    except GarageError:
+        raise
+    except Exception as exc:  # ultralytics raises many types; the user needs one line naming the model
+        first = (str(exc).strip().splitlines() or [""])[0]
+        raise GarageError(f"cannot load {kind} model: {type(exc).__name__}: {first}"[:300],
+                          where or str(path)) from None
+    if threads > 0 and kind == "openvino" and _openvino_thread_count(model) not in (threads, None):
+        log.warning("could not limit OpenVINO to %d threads for %s (ultralytics changed how it compiles)",
+                    threads, path.name)
+    log.info("loaded %s model %s in %.1f s", kind, path.name, time.perf_counter() - start)
+    return model
+
+
+@contextmanager
+def _openvino_threads(threads: int):
+    """Within this block, OpenVINO networks compile with INFERENCE_NUM_THREADS = threads (0: unchanged).
+
+    ultralytics compiles with {"PERFORMANCE_HINT": "LATENCY"} and no thread setting, and an ov.Core's
+    properties belong to that Core, which ultralytics makes itself; so the setting is added to every
+    compile_model call made here. ultralytics keeps the bound method for later recompiles, which keep it too.
+    Compiling twice instead (ultralytics', then ours) cost 1.5 s more per process.
+    """
+    if threads <= 0:
+        yield
+        return
+    import openvino as ov
+
+    original = ov.Core.compile_model
+
+    def compile_model(core, model, device_name=None, config=None, **kwargs):
+        return original(core, model, device_name, {**(config or {}), "INFERENCE_NUM_THREADS": threads}, **kwargs)
+
+    ov.Core.compile_model = compile_model
+    try:
+        yield
+    finally:
+        ov.Core.compile_model = original
+
+
+def _openvino_thread_count(model: Any) -> int | None:
+    """INFERENCE_NUM_THREADS of a loaded OpenVINO model, None when ultralytics' layout hides it."""
+    backend = getattr(getattr(getattr(model, "predictor", None), "model", None), "backend", None)
+    try:
+        return int(backend.ov_compiled_model.get_property("INFERENCE_NUM_THREADS"))
+    except Exception:  # noqa: BLE001 - only a check
+        return None

@@ -1,0 +1,1 @@
+"""`python -m garage_exp.verify data=PATH`: a detector scored on labelled real images (docs/perception.md)."""
