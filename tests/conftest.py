@@ -1,3 +1,4 @@
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -125,18 +126,48 @@ def mlflow_uri(tmp_path) -> str:
     return f"sqlite:///{tmp_path / 'mlflow.db'}"
 
 
-def compose_cfg(*overrides: str, hydra: bool = False):
-    """The job's config as `python -m garage_exp OVERRIDES` composes it (numeric case levels quoted as the CLI
-    does); hydra=True keeps the hydra node (sweeper params, launcher)."""
-    from hydra import compose, initialize_config_dir
+# --- configs composed as the commands compose them -----------------------------------------------------------------
+def compose_cfg(*overrides: str, hydra: bool = False, config: str = "config", config_dir=None):
+    """The config as the command reading conf/<config>.yaml composes it from OVERRIDES (`config`: the main
+    command's "config", or "gym", "train", "loop", "verify"), through the commands' own shell (its schemas, the
+    resolvers, numeric case levels quoted); hydra=True keeps the hydra node (sweeper params, launcher);
+    config_dir: a folder of the user's own levels searched too (hydra.searchpath)."""
+    from garage_exp.core import shell
 
-    from garage_exp.core import schema
-    from garage_exp.cli.app import quote_numeric_choices
+    extra = [f"hydra.searchpath=[file://{config_dir}]"] if config_dir else []
+    return shell.compose(config, [*extra, *overrides], schemas=command_schemas(config), hydra=hydra)
 
-    schema.register()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=quote_numeric_choices(list(overrides)),
-                       return_hydra_config=hydra)
+
+def command_schemas(config: str) -> tuple:
+    """The schemas the command reading conf/<config>.yaml registers (its shell.Command's)."""
+    if config == "config":
+        return ()
+    import importlib
+
+    return importlib.import_module(f"garage_exp.{config}.app").COMMAND.schemas
+
+
+@contextlib.contextmanager
+def hydra_loader(config: str = "config"):
+    """Hydra initialised on conf/ as a command's run has it, for tests that use its config loader (a sweep's
+    jobs, the search's cached composition); cleared after."""
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from garage_exp.core import shell
+
+    shell.register(*command_schemas(config))
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(shell.CONF_DIR), version_base="1.3"):
+        yield GlobalHydra.instance().config_loader()
+
+
+def schema_node(schema, values: dict):
+    """A config group's node as its schema types it (`schema`: the dataclass), with `values` set: what Hydra
+    composes for one level, without composing the whole config."""
+    from omegaconf import OmegaConf
+
+    return OmegaConf.merge(OmegaConf.structured(schema), values)
 
 
 def child_env(env: dict | None = None) -> dict:
@@ -245,3 +276,58 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None, entry=No
         root.handlers[:] = handlers  # Hydra's job logging configured the root logger for the call
         root.setLevel(level)
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
+
+
+# --- a signal in the middle of a command, in this process -----------------------------------------------------------
+def sigterm_here(*args, **kwargs):
+    """Stands in for a command's long part (a training, a step, a scoring): SIGTERM to this process, as a
+    scheduler's time limit sends it. The command's shell turns it into an exception right here (Terminated)."""
+    import signal
+    import time
+
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(30)  # the handler raises before this ends
+    raise AssertionError("SIGTERM was not handled")
+
+
+def run_statuses(uri: str, experiment: str) -> list[str]:
+    """The status of every run in the store's experiment."""
+    from garage_exp.tracking import runs as tracking
+
+    mlc = tracking.client(uri)
+    exp = mlc.get_experiment_by_name(experiment)
+    return [r.info.status for r in mlc.search_runs([exp.experiment_id])] if exp else []
+
+
+# --- a tracking server that does not answer -------------------------------------------------------------------------
+class Refused(Exception):
+    pass
+
+
+REFUSED = Refused("API request to http://127.0.0.1:1/api/2.0/mlflow/runs/create failed with exception "
+                  "HTTPConnectionPool(host='127.0.0.1', port=1): Max retries exceeded with url: ... "
+                  "(Caused by NewConnectionError(...: Failed to establish a new connection: [Errno 111] "
+                  "Connection refused'))")
+
+
+@pytest.fixture
+def fresh_outage(monkeypatch):
+    """retry()'s outage state as in a new process, and sleeps that only count (the list of them)."""
+    from garage_exp.core.state import STATE
+    from garage_exp.tracking import client
+
+    monkeypatch.setattr(STATE, "tracking_down_since", None)
+    monkeypatch.setattr(STATE, "tracking_given_up", False)
+    monkeypatch.setattr(STATE, "stopping", False)
+    monkeypatch.setattr(client, "_uri", lambda: "http://127.0.0.1:1")
+    slept = []
+    clock = [1000.0]
+
+    def sleep(s):
+        slept.append(s)
+        clock[0] += s
+
+    monkeypatch.setattr(client.time, "sleep", sleep)
+    monkeypatch.setattr(client.time, "monotonic", lambda: clock[0])
+    return slept
+

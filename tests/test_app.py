@@ -55,8 +55,9 @@ def test_dry_run_logs_one_run_with_params_tags_and_artifacts(tmp_path, mlflow_ur
 
 
 def test_plan_file_from_anywhere(tmp_path, mlflow_uri):
-    plan = tmp_path / "mine.yaml"
-    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
+    plan = tmp_path / "mine.yaml"  # the tiny plan's cells (a corner with its pillar: case 1's scene builds, as a
+    plan.write_text("S: [[0, 0, 0, -1], [2, 1, 1, 0], [0, 0, 1, 0], [-1, 0, 3, -1]]\n"  # dry run's does too)
+                    "R: [5.0, 6.0, 5.0, 5.0]\nC: [2.6, 2.6, 6.0, 2.6]\n")
     r = run_app(["dry_run=true", f"plan.file={plan}", f"tracking.uri={mlflow_uri}"], tmp_path)
     assert r.returncode == 0, r.stderr
     _, runs = runs_of(mlflow_uri)

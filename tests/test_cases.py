@@ -108,6 +108,9 @@ def test_every_case_is_built_on_every_experiment_plan(library, plan, case):
     assert all(on_lane(classified, s.ego) or case == "2" for s in setup.shots)
 
 
+RIG = {"slots": ["camera=fisheye4"], "cpra": ["camera=rear"]}  # cases scored by a camera the front rig lacks
+
+
 @pytest.mark.render
 @pytest.mark.slow
 def test_every_shipped_case_has_a_fair_frame_on_the_small_plan():
@@ -132,7 +135,7 @@ def test_every_shipped_case_has_a_fair_frame_on_the_small_plan():
     scale, unscored = 0.25, SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
     fair = {}
     for case in CASES:
-        cfg = cheap_config(compose_cfg("plan=small", f"case={case}", *(["camera=fisheye4"] if case == "slots" else [])),
+        cfg = cheap_config(compose_cfg("plan=small", f"case={case}", *RIG.get(case, [])),
                            scale)
         prepared = preflight(cfg, check_space=False)
         renderer = open_renderer(cfg.renderer)

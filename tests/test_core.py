@@ -18,6 +18,100 @@ def test_app_holds_only_the_entry_point_and_the_command_line():
     assert "def run_job" not in source and "def preflight" not in source and "def input_error" not in source
 
 
+def test_every_hydra_command_runs_in_the_one_shell():
+    """Issue 32, item 1: each Hydra command is a thin task plus a `shell.Command`; none registers resolvers or
+    schemas, installs signal handlers or turns errors into exit codes itself."""
+    import importlib
+
+    from garage_exp.core import shell
+
+    for package, config in (("cli", "config"), ("gym", "gym"), ("train", "train"), ("loop", "loop"),
+                            ("verify", "verify")):
+        app = importlib.import_module(f"garage_exp.{package}.app")
+        assert isinstance(app.COMMAND, shell.Command) and app.COMMAND.config_name == config
+        source = (PROJECT_ROOT / "garage_exp" / package / "app.py").read_text()
+        for own in ("register_new_resolver", "signal.signal", "hydra.main", "EXIT_INPUT", "install_error_report",
+                    "def remove_untouched", "sys.exit"):
+            assert own not in source, (package, own)
+
+
+def test_the_console_scripts_are_the_commands():
+    """pyproject's [project.scripts] name importable functions: the five Hydra commands' `cli` and the argparse
+    commands' `main`, each also `python -m garage_exp[.PACKAGE]`."""
+    import importlib
+    import tomllib
+
+    scripts = tomllib.loads((PROJECT_ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert {"garage-exp", "garage-exp-gym", "garage-exp-train", "garage-exp-loop", "garage-exp-verify",
+            "garage-exp-plan", "garage-exp-report", "garage-exp-exports", "garage-exp-assets"} <= set(scripts)
+    for name, target in scripts.items():
+        module, _, function = target.partition(":")
+        assert callable(getattr(importlib.import_module(module), function)), name
+        if module.endswith(".app"):  # the package's `python -m` runs the same function (garage_exp's: cli's)
+            package = module.removesuffix(".app").removesuffix(".cli")
+            main = PROJECT_ROOT / package.replace(".", "/") / "__main__.py"
+            assert f"from {module} import {function}" in main.read_text(), name
+
+
+def test_a_console_script_runs_a_command(tmp_path, capsys):
+    """The entry functions take argv as a console script passes it: `garage-exp-plan check FILE`, and a Hydra
+    command's bad input is its one line and exit 2 (its name first), nothing left of the run dir."""
+    from conftest import run_in_process
+
+    from garage_exp.plan.__main__ import main as plan_main
+    from garage_exp.train.app import cli as train_cli
+
+    assert plan_main(["check", str(PROJECT_ROOT / "plans" / "tiny.yaml")]) == 0
+    assert "plan tiny" in capsys.readouterr().out
+    r = run_in_process([], tmp_path, entry=lambda: train_cli(["epochs=0", f"hydra.run.dir={tmp_path / 'run'}"]))
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == ["garage_exp.train: epochs: 0 is outside 1-10000"]
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_refused_command_removes_only_the_folders_hydra_made(tmp_path, monkeypatch):
+    """One clean-up for every command: the run dir while it holds only Hydra's files, then each folder above it left
+    empty - the date levels under outputs/ (never outputs/ itself), a loop's own `dir` - up to the working directory
+    (gym's rule removed one level anywhere, train's only under outputs/, the loop a third way)."""
+    from garage_exp.core import shell
+
+    def hydra_dir(path):
+        (path / ".hydra").mkdir(parents=True)
+        (path / "app.log").write_text("")
+        return path
+
+    outputs = tmp_path / "outputs"
+    monkeypatch.setattr(shell, "OUTPUTS_DIR", outputs)
+    monkeypatch.chdir(tmp_path)
+    (outputs / "train" / "2026-01-01" / "09-00-00").mkdir(parents=True)  # an earlier run of the same day
+    shell.remove_untouched(hydra_dir(outputs / "train" / "2026-01-01" / "10-00-00"))
+    assert sorted(p.name for p in (outputs / "train" / "2026-01-01").iterdir()) == ["09-00-00"]
+    shell.remove_untouched(hydra_dir(outputs / "gym" / "2026-01-02" / "10-00-00"))
+    assert not (outputs / "gym").exists() and outputs.is_dir()
+    shell.remove_untouched(hydra_dir(tmp_path / "mine" / "loop" / "hydra"))  # a loop's dir=mine/loop
+    assert not (tmp_path / "mine").exists() and tmp_path.is_dir()
+    used = hydra_dir(tmp_path / "b" / "run")
+    (used / "frames.csv").write_text("")
+    shell.remove_untouched(used)
+    assert (used / "frames.csv").is_file()
+
+
+def test_a_stop_is_forgotten_when_the_command_ends(monkeypatch):
+    """SIGINT/SIGTERM make MLflow give up fast (its time-outs in the environment); the next command in the same
+    process (a test session, a benchmark) gets the user's settings back."""
+    from garage_exp.core.state import STATE
+
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "120")
+    monkeypatch.delenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", raising=False)
+    STATE.begin().stop()
+    import os
+
+    assert STATE.stopping and os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] == "3"
+    STATE.end()
+    assert not STATE.stopping and os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] == "120"
+    assert "MLFLOW_HTTP_REQUEST_MAX_RETRIES" not in os.environ
+
+
 FLAT_BACKEND = '''
 """A second backend, written by the test: every camera sees one flat colour and no entity; each call is logged."""
 import json
@@ -125,17 +219,12 @@ def test_sapien_backend_has_every_member_of_the_interface():
 
 def _sweep_jobs(overrides: list[str]):
     """The composed config of every job a `-m` command would run, via Hydra's own sweeper."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
+    from conftest import compose_cfg, hydra_loader
 
-    import garage_exp.cli.app  # noqa: F401  the schema and resolvers
-    from garage_exp.cli.app import quote_numeric_choices
     from garage_exp.cli.callbacks import sweep_jobs
 
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        config = compose("config", overrides=quote_numeric_choices(overrides), return_hydra_config=True)
-        loader = GlobalHydra.instance().config_loader()
+    with hydra_loader() as loader:
+        config = compose_cfg(*overrides, hydra=True)
         return [loader.load_sweep_config(config, job) for job in sweep_jobs(config)]
 
 

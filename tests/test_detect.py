@@ -5,7 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import require
+from conftest import require, schema_node
 
 from garage_exp.perception.detect import Detections, GTBox, iou, score_target
 from garage_exp.perception.detect import entries as entry_kinds
@@ -327,10 +327,8 @@ def test_pt_weights_load_through_the_same_path(tmp_path):
 
 @pytest.mark.detect
 def test_from_config(detector):
-    from omegaconf import OmegaConf
-
     from garage_exp.core.schema import DetectorConf
 
-    conf = OmegaConf.merge(OmegaConf.structured(DetectorConf), {"models": list(detector.models), "registry": None})
+    conf = schema_node(DetectorConf, {"models": list(detector.models), "registry": None})
     made = detector_module.build_detector(conf)
     assert made.names == detector.names and made.classes == ("car", "truck", "bus") and made.conf == 0.05

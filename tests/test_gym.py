@@ -42,11 +42,12 @@ def env(store):
 
 
 def episode(env, action, seed=0):
-    """One episode with a fixed action: (rewards, the final info)."""
+    """One episode with a fixed action (or one drawn each step by `action()`): (rewards, the final info)."""
     env.reset(seed=seed)
     rewards, done, info = [], False, {}
     while not done:
-        _, r, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32))
+        _, r, terminated, truncated, info = env.step(np.asarray(action() if callable(action) else action,
+                                                                dtype=np.float32))
         rewards.append(r)
         done = terminated or truncated
     return rewards, info
@@ -198,11 +199,13 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
     from garage_exp.gym.export import write_suite
     from garage_exp.scenario.asam import validate
 
-    records = [episode(env, [1.0, 0.0])[1]["episode_verdict"], episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
+    rng = np.random.default_rng(3)  # a child running out at uneven speeds, from anywhere in its gap
+    records = [episode(env, lambda: rng.uniform([0.3, -1.0], [1.0, 1.0]))[1]["episode_verdict"],
+               episode(env, [-1.0, -1.0])[1]["episode_verdict"]]
     assert [r["testable"] for r in records] == [True, False]
     root = tmp_path / "suite"
     job = OmegaConf.merge(env.job, {"export": {"openscenario": True}})  # each scenario as OpenSCENARIO too
-    files = write_suite(job, records, root, env.movers, 10 / 3.6, per_band=2)
+    files = write_suite(job, records, root, env.movers, per_band=2)
     manifest = pd.read_csv(files[0])
     assert len(manifest) == 1 and manifest.episode.tolist() == [0] and (root / "README.md").is_file()
     name = manifest.scenario[0]
@@ -216,6 +219,10 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     table = pd.read_csv(tmp_path / "run" / "frames.csv")
     assert table.position.tolist() == records[0]["ego"]  # the episode's drive, frame for frame
+    # The same frames, the same noise, the same detections: the episode's own confidences and verdict (issue 31).
+    assert table.composite.tolist() == pytest.approx(records[0]["confidence"], abs=1e-6)
+    verdict = pd.read_csv(tmp_path / "run" / "late.csv").iloc[0]
+    assert (bool(verdict.late), bool(verdict.testable)) == (records[0]["late"], records[0]["testable"])
 
 
 @pytest.mark.slow
@@ -248,19 +255,51 @@ def test_training_through_the_command_line(store, tmp_path):
     assert (tmp_path / "export" / "suite" / "README.md").is_file()
 
 
-def test_gym_config_keeps_the_experiments_groups():
-    """conf/gym.yaml lists conf/config.yaml's groups (its own case aside): a group added there is added here."""
-    import yaml
+def test_sigterm_ends_the_adversary_run_killed(store, tmp_path, monkeypatch):
+    """SIGTERM during the training: the gym's MLflow run ends KILLED, the command exits 143 with one line (a bare
+    traceback before). The environment and the training are stand-ins: the signal, not the training, is tested."""
+    from conftest import run_statuses, seed_store, sigterm_here
 
-    from conftest import ROOT
+    from garage_exp.gym import env as env_module
+    from garage_exp.gym import train as train_module
+    from garage_exp.gym.app import cli
 
-    def groups(name):
-        d = yaml.safe_load((ROOT / "conf" / name).read_text())["defaults"]
-        return {k: v for item in d if isinstance(item, dict) for k, v in item.items()}
+    class NoEnv:
+        def __init__(self, cfg):
+            pass
 
-    main, gym = groups("config.yaml"), groups("gym.yaml")
-    assert {k: v for k, v in main.items() if k != "case"} == {k: v for k, v in gym.items() if k != "case"}
-    assert gym["case"] == "stepout"
+        def close(self):
+            pass
+
+    monkeypatch.setattr(env_module, "StepOutEnv", NoEnv)
+    monkeypatch.setattr(train_module, "train", sigterm_here)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    seed_store([f"tracking.uri={uri}"], tmp_path)
+    r = run_in_process([*FAST, f"tracking.uri={uri}", f"hydra.run.dir={tmp_path / 'run'}"], tmp_path, entry=cli)
+    assert r.returncode == 143, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines()[-1] == "garage_exp.gym: terminated (SIGTERM)"
+    assert run_statuses(uri, "garage_gym") == ["KILLED"]
+
+
+def test_gym_config_is_the_experiments_with_the_step_out_case():
+    """conf/gym.yaml composes conf/config.yaml (a group or a default added there is here too), typed by GymConf,
+    with the step-out case; an experiment's override works the same in both."""
+    from conftest import compose_cfg
+    from omegaconf import OmegaConf
+
+    from garage_exp.gym.schema import GymConf
+
+    gym = compose_cfg("light=dim", config="gym", hydra=True)
+    job = compose_cfg("light=dim", "case=stepout", hydra=True)
+    assert OmegaConf.get_type(gym) is GymConf and gym.mode == "train" and gym.tracking.experiment == "garage_gym"
+    choices = {k: v for k, v in gym.hydra.runtime.choices.items() if not k.startswith(("hydra", "config_schema"))}
+    assert choices == {k: v for k, v in job.hydra.runtime.choices.items()
+                       if not k.startswith(("hydra", "config_schema"))}
+    assert choices["case"] == "stepout" and choices["light"] == "dim"
+    mine = {k: v for k, v in OmegaConf.to_container(gym).items() if k not in ("hydra", "gym", "mode", "tracking")}
+    assert mine == {k: v for k, v in OmegaConf.to_container(job).items() if k not in ("hydra", "tracking")}
+    # an adversary is no sweep of jobs: the experiment's sweep callback is not run for it
+    assert gym.hydra.callbacks.mlflow_sweep._target_ == "hydra.experimental.callback.Callback"
 
 
 @pytest.mark.slow
@@ -392,7 +431,8 @@ def test_pull_out_bounds_are_checked_before_an_episode(store):
     with pytest.raises(GarageError) as beyond:
         PullOutEnv(overrides=[*base, "gym.movers=[{actor: car, key: gap, low: -6, high: 0.2}]"])
     assert str(beyond.value).startswith("gym.movers.0.low: car.gap cannot be -6 (case.actors.car.gap: gap -6 m")
-    with pytest.raises(GarageError, match=r"^gym.movers.0: car moving its gap between -3 and 0.2 runs into ego"):
+    with pytest.raises(GarageError, match=r"^gym.movers.0.low: car.gap at -3 puts ego and car in one another \(the "
+                                          r"ego's distance 3\): it fits to -2\.\d+ \(give low: -2\.\d+, or null"):
         PullOutEnv(overrides=[*base, "gym.movers=[{actor: car, key: gap, low: -3, high: 0.2}]"])
 
 
@@ -445,9 +485,9 @@ def test_a_suite_readme_says_never_for_a_target_never_confirmed(tmp_path):
     from garage_exp.gym.export import index_text
 
     table = pd.DataFrame([{"scenario": "hard_1", "band": "hard", "difficulty": 1.0, "late": True,
-                           "detection_distance": math.nan, "critical_distance": 5.0, "exact": True},
+                           "detection_distance": math.nan, "critical_distance": 5.0},
                           {"scenario": "easy_1", "band": "easy", "difficulty": 0.1, "late": False,
-                           "detection_distance": 9.04, "critical_distance": 5.0, "exact": True}])
+                           "detection_distance": 9.04, "critical_distance": 5.0}])
     text = index_text(table, 2, 1)
-    assert "| hard_1 | hard | 1.000 | yes | never | 5.0 | yes |" in text
-    assert "| easy_1 | easy | 0.100 | no | 9.0 | 5.0 | yes |" in text and "nan" not in text
+    assert "| hard_1 | hard | 1.000 | yes | never | 5.0 |" in text  # (every export is exact: no `exact` column)
+    assert "| easy_1 | easy | 0.100 | no | 9.0 | 5.0 |" in text and "nan" not in text

@@ -25,7 +25,8 @@ def dry_job(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("dry")
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
     plan = tmp / "big.yaml"
-    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
+    plan.write_text("S: [[0, 0, 0, -1], [2, 1, 1, 0], [0, 0, 1, 0], [-1, 0, 3, -1]]\n"  # the tiny plan's cells: case
+                    "R: [5.0, 6.0, 5.0, 5.0]\nC: [2.6, 2.6, 6.0, 2.6]\n")  # 1's scene builds (a dry run builds it)
     (tmp / "conf" / "light").mkdir(parents=True)
     (tmp / "conf" / "light" / "night.yaml").write_text("coverage: 0.1\nintensity: 0.5\nambient: 0.005\n")
     args = ["--config-dir", str(tmp / "conf"), "dry_run=true", f"plan.file={plan}", "light=night", "occluder=none",

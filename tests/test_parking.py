@@ -88,17 +88,11 @@ def test_bad_occupancy_is_one_line():
 def test_case_3_cars_stand_in_the_bays_beside_the_lane(library):
     from garage_exp.scenario import make_case
 
-    from hydra import compose, initialize_config_dir
-
-    from garage_exp.core import schema
-    from garage_exp.core.paths import PROJECT_ROOT
+    from conftest import compose_cfg
 
     classified = classify(load_plan(PLANS_DIR / "research.yaml"))
-    schema.register()
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[
-            "case='3'", "case.variants=[{show: [far_small], target: far_small},"
-            "{show: [close_large, far_medium], target: far_medium}]"])
+    cfg = compose_cfg("case=3", "case.variants=[{show: [far_small], target: far_small},"
+                      "{show: [close_large, far_medium], target: far_medium}]")
     setup = make_case(cfg, classified, library, np.random.default_rng(0))
     parked = [v for v in setup.vehicles if v.role == "parked"]
     assert {v.name for v in parked} == {"far_small", "close_large", "far_medium"}

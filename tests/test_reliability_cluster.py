@@ -7,18 +7,13 @@ from __future__ import annotations
 import os
 import shutil
 
-from conftest import ROOT, run_app
+from conftest import ROOT, compose_cfg, run_app
 
 from garage_exp.tracking import runs as tracking
 
 
 def hydra_config(*overrides: str):
-    from hydra import compose, initialize_config_dir
-
-    import garage_exp.cli.app  # noqa: F401  registers the config schema
-
-    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
-        return compose("config", overrides=list(overrides), return_hydra_config=True).hydra
+    return compose_cfg(*overrides, hydra=True).hydra
 
 
 def test_slurm_launcher_config_composes():

@@ -23,7 +23,7 @@ CORPUS = Path(__file__).resolve().parent / "bad_inputs"
 CASES = yaml.safe_load((CORPUS / "cases.yaml").read_text())
 BY_ID = {c["id"]: c for c in CASES}
 # `command`: which command an entry runs (default the main one), as its cli's "module:function" ("" = garage_exp's).
-COMMANDS = {"garage_exp": "", "verify": "garage_exp.verify.app:cli"}
+COMMANDS = {"garage_exp": "", **{c: f"garage_exp.{c}.app:cli" for c in ("gym", "train", "loop", "verify")}}
 
 
 def test_corpus_is_large_and_well_formed():
@@ -246,18 +246,18 @@ def test_override_value_is_never_evaluated(tmp_path):
 def test_bad_input_in_a_single_run_leaves_no_run_dir(tmp_path):
     """Hydra makes the run dir before the job starts; a job refused for bad input removes it again (only
     when it holds nothing but Hydra's own files)."""
-    from garage_exp.run.job import _remove_untouched
+    from garage_exp.core.shell import remove_untouched
 
     hydra_only = tmp_path / "a"
     (hydra_only / ".hydra").mkdir(parents=True)
     (hydra_only / ".hydra" / "config.yaml").write_text("x: 1\n")
     (hydra_only / "app.log").write_text("")
-    _remove_untouched(hydra_only)
+    remove_untouched(hydra_only)
     assert not hydra_only.exists()
     used = tmp_path / "b"
     (used / ".hydra").mkdir(parents=True)
     (used / "config.yaml").write_text("x: 1\n")
-    _remove_untouched(used)
+    remove_untouched(used)
     assert (used / "config.yaml").exists()
 
 

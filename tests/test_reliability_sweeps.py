@@ -142,27 +142,6 @@ def test_kill_9_then_sigterm_then_resume(tmp_path, fresh_store):
     assert "3 runs, 0 not finished, 2 skipped" in report and first_id in report
 
 
-def test_resume_identity_includes_the_plan_file_content(tmp_path):
-    """The same config over an edited plan file is a different job: resume does not skip it."""
-    from hydra import compose, initialize_config_dir
-
-    import garage_exp.cli.app  # noqa: F401  registers the config schema
-    from garage_exp.core.paths import PROJECT_ROOT
-
-    plan = tmp_path / "mine.yaml"
-    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
-    with initialize_config_dir(str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=[f"plan.file={plan}", "dry_run=true"])
-        resumed = compose("config", overrides=[f"plan.file={plan}", "dry_run=true", "resume=true",
-                                               "tracking.uri=sqlite:///elsewhere.db"])
-    before = tracking.config_hash(cfg, tracking.file_digest(plan))
-    assert tracking.config_hash(resumed, tracking.file_digest(plan)) == before  # resume/tracking: same job
-    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 4]\n")
-    assert tracking.config_hash(cfg, tracking.file_digest(plan)) != before
-    assert tracking.sweep_key(["light=a,b", "resume=true", "tracking.uri=x"]) == tracking.sweep_key(["light=a,b"])
-    assert tracking.sweep_key(["light=a,b"]) != tracking.sweep_key(["light=a,c"])
-
-
 def test_resume_reruns_a_job_whose_plan_file_was_edited(tmp_path, fresh_store):
     """resume=true skips a finished job; after the plan file is edited, the same command reruns it."""
     plan = tmp_path / "mine.yaml"

@@ -94,7 +94,7 @@ def test_a_bay_offset_moves_the_actor_across_its_bay(library):
 
 @pytest.mark.parametrize("override, where", [("replicates=0", "replicates"), ("replicate.yaw=-1", "replicate.yaw")])
 def test_bad_replicate_values_name_their_key(override, where):
-    from test_scenario import compose_cfg
+    from conftest import compose_cfg
 
     with pytest.raises(GarageError) as err:
         check_config(compose_cfg(override))

@@ -7,10 +7,8 @@ import textwrap
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from conftest import compose_cfg
 
-from garage_exp.core import schema
-from garage_exp.cli.app import quote_numeric_choices
 from garage_exp.core.errors import GarageError
 from garage_exp.scenario.assemble import build_scene
 from garage_exp.core.paths import PROJECT_ROOT
@@ -28,13 +26,6 @@ def library():
     from garage_exp.assets.vehicles import VehicleLibrary
 
     return VehicleLibrary()
-
-
-def compose_cfg(*overrides: str, config_dir=None):
-    schema.register()
-    extra = [f"hydra.searchpath=[file://{config_dir}]"] if config_dir else []
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=quote_numeric_choices([*extra, *overrides]))
 
 
 def build(library, *overrides: str, config_dir=None):

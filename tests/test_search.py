@@ -221,17 +221,13 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
     the config a job sees is Hydra's, key for key (the same values, choices, overrides and dirname)."""
     from types import SimpleNamespace
 
-    from hydra import initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
+    from conftest import hydra_loader
     from hydra.types import RunMode
     from omegaconf import OmegaConf
 
-    from garage_exp.core import schema
     from garage_exp.search.launch import CachedLaunch
 
-    schema.register()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        loader = GlobalHydra.instance().config_loader()
+    with hydra_loader() as loader:
         master = loader.load_configuration("config", ["hydra/sweeper=search", "plan=tiny"], RunMode.MULTIRUN)
         launch = CachedLaunch(SimpleNamespace(config_loader=loader), None, master, set(levels()))
         for trial in (["plan=tiny", "light=dim", "light.intensity=0.3", "palette.target_colours=[black]",

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from conftest import schema_node
 
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.sensor import LEVELS, SensorModel, linear_to_srgb, make_sensor, srgb_to_linear
@@ -130,7 +131,7 @@ def test_unknown_kind_and_config_objects():
 
     from garage_exp.core.schema import SensorConf
 
-    conf = OmegaConf.merge(OmegaConf.structured(SensorConf), {"name": "noisy", **LEVELS["noisy"]})
+    conf = schema_node(SensorConf, {"name": "noisy", **LEVELS["noisy"]})
     from garage_exp.core.plugins import build
 
     sensor = build(conf, "a sensor model", "sensor._target_")  # as the job builds it: `_target_` and the keys

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import compose_cfg
+from conftest import compose_cfg, schema_node
 from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
@@ -22,7 +22,7 @@ SEEDS = range(4)
 
 
 def node(**keys):
-    return OmegaConf.merge(OmegaConf.structured(SlotDetectorConf), keys)
+    return schema_node(SlotDetectorConf, keys)
 
 
 def run_set(wear: float, entrance_line: bool) -> tuple[dict, list]:

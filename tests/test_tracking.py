@@ -1,11 +1,15 @@
-"""The tracking package's parts (issue 32, item 5): the client, provenance, a job's run and the sweep's files,
-each in its own module, the `runs` module the layers above import, and the UI's links as a command."""
+"""The tracking package's parts (issue 32, items 5 and 7): the client and its retry across an absent server,
+provenance (a job's identity, run names, params), a job's run and the sweep's files, each in its own module, the
+`runs` module the layers above import, the store's path, and the UI's links as a command."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+
+import pytest
+from conftest import REFUSED
 
 from garage_exp.core.paths import PROJECT_ROOT
 from garage_exp.tracking import client, jobrun, provenance, runs, sweepfiles, ui
@@ -85,3 +89,113 @@ def test_the_ui_links_are_a_command(tmp_path):
                        text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip() == f"garage_exp: no experiment in {uri} yet (make run, or python -m garage_exp ...)"
+
+
+# -- the client: retry() across a server that went away (moved from test_world_faults.py) -----------------------------
+
+def test_retry_waits_a_bounded_time_for_the_server_and_says_so_once(fresh_outage, monkeypatch, capsys):
+    monkeypatch.setenv("GARAGE_EXP_TRACKING_WAIT", "60")
+    calls = []
+
+    def back_after_five():
+        calls.append(1)
+        if len(calls) <= 5:
+            raise REFUSED
+        return "ok"
+
+    assert runs.retry(back_after_five) == "ok"
+    assert fresh_outage == [1.0, 2.0, 4.0, 8.0, 16.0]  # exponential back-off
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["garage_exp: tracking server http://127.0.0.1:1 not answering; retrying for up to 60 s "
+                   "(GARAGE_EXP_TRACKING_WAIT)", "garage_exp: tracking server http://127.0.0.1:1 answers again after 31 s"]
+
+    def never():
+        raise REFUSED
+
+    fresh_outage.clear()
+    with pytest.raises(runs.TrackingAway, match="away for 60 s"):
+        runs.retry(never)
+    assert sum(fresh_outage) == pytest.approx(60, abs=0.1) and max(fresh_outage) <= 30
+    fresh_outage.clear()
+    with pytest.raises(runs.TrackingAway):  # given up: later calls do not wait again
+        runs.retry(lambda: "never called")
+    assert fresh_outage == []
+
+
+def test_after_a_signal_retry_never_waits(fresh_outage):
+    from garage_exp.core.state import STATE
+
+    STATE.stopping = True
+    calls = []
+
+    def refused():
+        calls.append(1)
+        raise REFUSED
+
+    with pytest.raises(runs.TrackingAway):
+        runs.retry(refused)
+    assert calls == [1] and fresh_outage == []  # one attempt, no sleep
+    with pytest.raises(runs.TrackingAway):  # the server failed once: no attempt at all
+        runs.retry(refused)
+    assert calls == [1]
+
+
+# -- provenance: a job's identity, its run's name and params ------------------------------------------------------------
+
+def test_resume_identity_includes_the_plan_file_content(tmp_path):
+    """The same config over an edited plan file is a different job: resume does not skip it."""
+    from conftest import compose_cfg
+
+    plan = tmp_path / "mine.yaml"
+    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
+    cfg = compose_cfg(f"plan.file={plan}", "dry_run=true")
+    resumed = compose_cfg(f"plan.file={plan}", "dry_run=true", "resume=true", "tracking.uri=sqlite:///elsewhere.db")
+    before = runs.config_hash(cfg, runs.file_digest(plan))
+    assert runs.config_hash(resumed, runs.file_digest(plan)) == before  # resume/tracking: same job
+    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 4]\n")
+    assert runs.config_hash(cfg, runs.file_digest(plan)) != before
+    assert runs.sweep_key(["light=a,b", "resume=true", "tracking.uri=x"]) == runs.sweep_key(["light=a,b"])
+    assert runs.sweep_key(["light=a,b"]) != runs.sweep_key(["light=a,c"])
+
+
+def test_a_run_name_says_what_ran_and_fits_the_database():
+    """resume and tracking.* do not change what runs: not in the name (nor the sweep's key); a name longer than
+    MLflow's column is cut with an ellipsis."""
+    assert provenance.run_name(["light=dim", "resume=true", "tracking.uri=sqlite:///x.db", "+tracking.x=1",
+                                "case=1"]) == "light=dim case=1"
+    assert not provenance.describes_run("~tracking") and provenance.describes_run("+light.intensity=0.3")
+    long = provenance.fit_name("x" * 300)
+    assert len(long) == provenance.NAME_MAX and long.endswith("...")
+    assert provenance.fit_name("short") == "short"
+
+
+def test_params_are_the_config_flattened_without_hydra():
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.create({"light": {"name": "dim", "colour": [1, 0.9]}, "hydra": {"run": {"dir": "x"}},
+                            "case": {"actors": [{"kind": "vehicle"}]}, "seed": 3})
+    assert provenance.config_params(cfg) == {"light.name": "dim", "light.colour": "[1, 0.9]",
+                                             "case.actors.0.kind": "vehicle", "seed": "3"}
+
+
+def test_the_store_is_the_config_then_the_environment_then_the_projects(tmp_path, monkeypatch):
+    from garage_exp.tracking import store
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://elsewhere:5000")
+    assert client.tracking_uri("sqlite:///mine.db") == "sqlite:///mine.db"
+    assert client.tracking_uri(None) == "http://elsewhere:5000"
+    monkeypatch.delenv("MLFLOW_TRACKING_URI")
+    monkeypatch.setattr(client, "OUTPUTS_DIR", tmp_path / "outputs")
+    assert client.tracking_uri(None) == f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}"
+    assert store.sqlite_path(f"sqlite:///{tmp_path}/a.db?timeout=30") == tmp_path / "a.db"
+    assert store.sqlite_path("postgresql://db/mlflow") is None
+
+
+def test_the_wait_for_a_server_is_the_environments_seconds(monkeypatch):
+    monkeypatch.setenv("GARAGE_EXP_TRACKING_WAIT", "12.5")
+    assert client.tracking_wait() == 12.5
+    monkeypatch.setenv("GARAGE_EXP_TRACKING_WAIT", "-3")
+    assert client.tracking_wait() == 0.0
+    monkeypatch.setenv("GARAGE_EXP_TRACKING_WAIT", "soon")
+    assert client.tracking_wait() == 180.0
+

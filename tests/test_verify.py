@@ -166,6 +166,23 @@ def test_verify_on_a_rendered_dataset(tmp_path, mlflow_uri):
     assert yolo["recall"] == pytest.approx(coco["recall"]) and yolo["map50"] == pytest.approx(coco["map50"], abs=0.02)
 
 
+@pytest.mark.detect
+def test_sigterm_ends_the_verify_run_killed(photos, tmp_path, monkeypatch):
+    """SIGTERM while scoring: the run ends KILLED, the command exits 143 with one line (a bare traceback before)."""
+    from conftest import run_statuses, seed_store, sigterm_here
+
+    from garage_exp.verify import score
+
+    monkeypatch.setattr(score, "score", sigterm_here)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    seed_store([f"tracking.uri={uri}"], tmp_path)
+    r = run_verify([f"data={photos / 'coco.json'}", "+label_map.pedestrian=person", f"detector.models=[{YOLO}]"],
+                   tmp_path, uri)
+    assert r.returncode == 143, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines()[-1] == "garage_exp.verify: terminated (SIGTERM)"
+    assert run_statuses(uri, "garage_verify") == ["KILLED"]
+
+
 def test_ap50_is_cocos_and_the_loop_uses_it(tmp_path):
     """results.cocoeval.ap50 (shared by verify and the loop's held-out scoring): 1 when every object is found
     above every false alarm; with a false alarm ranked above the one of two objects found, precision 0.5 up to

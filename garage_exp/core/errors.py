@@ -8,6 +8,10 @@ class GarageError(Exception):
         self.where = where
         super().__init__(f"{where}: {message}" if where else message)
 
+    def again(self, message: str, where: str | None) -> "GarageError":
+        """The same kind of refusal said at another place (a scenario's file, a search's override)."""
+        return type(self)(message, where)
+
 
 def check_range(value, lo: float, hi: float, where: str, what: str = "") -> None:
     """GarageError naming `where` unless lo <= value <= hi (a non-number is out of range too)."""
@@ -26,3 +30,16 @@ def did_you_mean(word: str, options) -> str:
     options = [str(o) for o in options]
     close = difflib.get_close_matches(str(word), options, n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else f" (have: {', '.join(options)})"
+
+
+class Infeasible(GarageError):
+    """Values each fine on their own that together put two actors in one another (scenario/place.py `clash`):
+    a job refuses it as bad input; a search prunes the trial as infeasible and goes on (Scenic rejects such
+    samples too). `actors`: the two actors."""
+
+    def __init__(self, message: str, where: str | None = None, actors: tuple[str, ...] = ()):
+        super().__init__(message, where)
+        self.actors = tuple(actors)
+
+    def again(self, message: str, where: str | None) -> "Infeasible":
+        return Infeasible(message, where, self.actors)

@@ -46,20 +46,13 @@ def stopping() -> bool:
     return STATE.stopping
 
 
-def _stop_now() -> None:
-    STATE.stopping = True
-    # A request already on its way to a server that hangs must not hold the exit either.
-    os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] = "3"
-    os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] = "0"
-
-
 def on_sigterm(signum, frame):
-    _stop_now()
+    STATE.stop()
     raise Terminated(f"signal {signum} (SIGTERM)")
 
 
 def on_sigint(signum, frame):
-    _stop_now()
+    STATE.stop()
     raise KeyboardInterrupt
 
 
@@ -164,14 +157,15 @@ def one_line(text: str) -> str:
                     for k, p in enumerate(parts))
 
 
-def install_error_report() -> None:
+def install_error_report(prog: str = "garage_exp") -> None:
     """Hydra prints its own errors (several lines, exit 1) from `run_and_report`; ours prints input errors as
-    one line and exits 2, and leaves other errors (bugs) to Hydra's traceback. HYDRA_FULL_ERROR=1 bypasses
-    both, as documented by Hydra."""
+    one line starting with the command's name (`prog`) and exits 2, and leaves other errors (bugs) to Hydra's
+    traceback. HYDRA_FULL_ERROR=1 bypasses both, as documented by Hydra."""
     import hydra._internal.utils as hydra_utils
 
     original = hydra_utils.run_and_report
-    if getattr(original, "garage_exp", False):
+    if getattr(original, "garage_exp", None) is not None:
+        original.garage_exp = prog  # installed for an earlier command of this process: now this one's name
         return
 
     def run_and_report(func):
@@ -185,8 +179,8 @@ def install_error_report() -> None:
                 def reraise():
                     raise exc
                 return original(reraise)
-            print(f"garage_exp: {line}", file=sys.stderr)
+            print(f"{run_and_report.garage_exp}: {line}", file=sys.stderr)
             sys.exit(EXIT_INPUT)
 
-    run_and_report.garage_exp = True
+    run_and_report.garage_exp = prog
     hydra_utils.run_and_report = run_and_report

@@ -421,6 +421,8 @@ def __getattr__(name: str):
 
 def register() -> None:
     cs = ConfigStore.instance()
-    cs.store(name="config_schema", node=config_schema())
+    # A group, so that a command whose config composes the experiment's (conf/gym.yaml) types it with its own
+    # subclass of Config: `override config_schema: gym`.
+    cs.store(group="config_schema", name="experiment", node=config_schema(), package="_global_")
     for group, schema in GROUPS.items():
         cs.store(group=group, name=f"{group}_schema", node=schema_of(schema))

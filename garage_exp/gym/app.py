@@ -7,21 +7,16 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, check_range
-from garage_exp.core.exits import EXIT_INPUT, install_error_report
-from garage_exp.core.paths import PROJECT_ROOT
 from garage_exp.gym import schema
 
-if not OmegaConf.has_resolver("garage_root"):
-    OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
-schema.register()
+COMMAND = shell.Command("garage_exp.gym", "gym", (schema.register,))
 
 
 def check_gym(cfg: DictConfig) -> None:
@@ -47,20 +42,6 @@ def check_gym(cfg: DictConfig) -> None:
             raise GarageError("mode=export needs a saved policy (gym.policy=.../policy.zip)", "gym.policy")
         if not Path(str(g.policy)).expanduser().is_file():
             raise GarageError("no such file", f"gym.policy={g.policy}")
-
-
-def remove_untouched(out: Path) -> None:
-    """Hydra's dir of a command refused for bad input: removed while it holds nothing but Hydra's own files, and
-    the date folder above it when that is left empty (as garage_exp/train does; train sits above this layer)."""
-    import shutil
-
-    try:
-        if out.is_dir() and all(p.name == ".hydra" or p.suffix == ".log" for p in out.iterdir()):
-            shutil.rmtree(out)
-            if out.parent.is_dir() and not any(out.parent.iterdir()):
-                out.parent.rmdir()
-    except OSError:
-        pass
 
 
 TITLES = {"stepout": "PPO adversary: a child stepping out between parked cars",
@@ -145,9 +126,7 @@ def run_train(cfg: DictConfig, env, out: Path) -> dict:
         run.log_metrics(summary)
         result["model"].save(out / "policy.zip")
         suite_root = Path(str(g.suite_dir)) if g.suite_dir else out / "suite"
-        files = export.write_suite(env.job, result["after_full"], suite_root, env.movers,
-                                   float(cfg.ego.speed) / 3.6, int(g.per_band),
-                                   slides=env.live.slides_between)
+        files = export.write_suite(env.job, result["after_full"], suite_root, env.movers, int(g.per_band))
         figure = learning_curve(result["train"], before, after, out / "learning_curve.png", str(cfg.case.name))
         for path in (out / "episodes.csv", out / "policy.zip", figure):
             run.log_artifact(path)
@@ -191,24 +170,19 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
     model = PPO.load(str(Path(str(cfg.gym.policy)).expanduser()), env=env, device="cpu")
     rows, full = rollouts(model, env, int(cfg.gym.eval_episodes), int(cfg.gym.seed) + 10_000, "export")
     root = Path(str(cfg.gym.suite_dir)) if cfg.gym.suite_dir else out / "suite"
-    export.write_suite(env.job, full, root, env.movers, float(cfg.ego.speed) / 3.6, int(cfg.gym.per_band),
-                       slides=env.live.slides_between)
+    export.write_suite(env.job, full, root, env.movers, int(cfg.gym.per_band))
     k, n = late_count(rows)
     low, high = wilson(k, n)
     print(f"garage_exp.gym: the policy's episodes: late rate {rate_text(k, n)}")
     return {"late_rate": k / n if n else math.nan, "late_rate_low": low, "late_rate_high": high, "suite": str(root)}
 
 
-def gym_main(cfg: DictConfig) -> dict:
+def main(cfg: DictConfig) -> dict:
     from garage_exp.gym.env import StepOutEnv
 
     out = Path(HydraConfig.get().runtime.output_dir)
-    try:
-        check_gym(cfg)
-        env = StepOutEnv(cfg)
-    except GarageError:
-        remove_untouched(out)
-        raise
+    check_gym(cfg)  # bad input: the shell removes the run dir and says it in one line
+    env = StepOutEnv(cfg)
     try:
         if cfg.mode == "check":
             return run_check(cfg, env)
@@ -219,29 +193,7 @@ def gym_main(cfg: DictConfig) -> dict:
         env.close()
 
 
-@hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="gym")
-def main(cfg: DictConfig) -> dict:
-    try:
-        return gym_main(cfg)
-    except GarageError as exc:
-        print(f"garage_exp.gym: {exc}", file=sys.stderr)
-        sys.exit(EXIT_INPUT)
-
-
 def cli(argv: list[str] | None = None) -> None:
     """`python -m garage_exp.gym overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written);
-    1 a crash (traceback)."""
-    import signal
-
-    from garage_exp.core.overrides import quote_numeric_choices
-    from garage_exp.core.exits import on_sigterm
-    from garage_exp.core.state import STATE
-
-    sys.argv[1:] = quote_numeric_choices(sys.argv[1:] if argv is None else list(argv))
-    STATE.begin()
-    install_error_report()
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
-    try:
-        main()
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    1 a crash (traceback); 130 Ctrl-C, 143 SIGTERM (the training's run ends KILLED)."""
+    COMMAND.run(main, argv)

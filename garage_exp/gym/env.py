@@ -36,6 +36,8 @@ from garage_exp.gym import limits, reward
 
 # Plain bounds of the observation's state entries (time, speeds, distances): wide enough for any garage.
 FAR = 500.0
+YAW_STEP = 2.0  # degrees between the headings a moved yaw's range is checked at
+EXPORTED = 6  # decimals of a moved value: the actors stand where an exported scenario, rerun, puts them
 
 
 def job_config(cfg: DictConfig) -> DictConfig:
@@ -46,28 +48,10 @@ def job_config(cfg: DictConfig) -> DictConfig:
 
 def compose(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
     """The gym config as `python -m garage_exp.gym OVERRIDES` composes it (for gymnasium.make)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-
-    from garage_exp.core.overrides import quote_numeric_choices
-    from garage_exp.core.paths import PROJECT_ROOT
+    from garage_exp.core.shell import compose as compose_config
     from garage_exp.gym import schema
 
-    if not OmegaConf.has_resolver("garage_root"):
-        OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
-    from hydra.core.global_hydra import GlobalHydra
-
-    schema.register()
-    # A caller's own Hydra (a benchmark after a search in its process) is set aside for the call, then restored.
-    global_hydra = GlobalHydra.instance()
-    saved = global_hydra.hydra if global_hydra.is_initialized() else None
-    global_hydra.clear()
-    try:
-        with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-            return hydra_compose(config_name="gym", overrides=quote_numeric_choices(list(overrides)))
-    finally:
-        if saved is not None:
-            GlobalHydra.instance().initialize(saved)
+    return compose_config("gym", overrides, schemas=(schema.register,))
 
 
 class StepOutEnv(gymnasium.Env):
@@ -161,21 +145,15 @@ class StepOutEnv(gymnasium.Env):
         super().reset(seed=seed)
         self._open()
         self._state_reset()
-        self.sensor_rng = np.random.default_rng(int(self.np_random.integers(2**63)))
+        # The sensor's noise as a job draws it (run/frames.py: seed + 1, frame after frame), so that an exported
+        # episode, rerun as a job, sees the same noisy frames and comes to its own verdict.
+        self.sensor_rng = np.random.default_rng(int(self.job.seed) + 1)
         ego_pose, poses = self._poses(self.drive[0])
         self.last["range"] = self._range(ego_pose, poses)
         return self._observation(), {}
 
     def step(self, action):
-        action = np.asarray(action, dtype=float).reshape(-1)
-        self.k += 1
-        for i, m in enumerate(self.movers):
-            if m.once:
-                if self.k == 1:
-                    self.values[m.name] = limits.placed_once(m, action[i])
-            else:
-                self.values[m.name], self.velocity[m.name] = limits.advance(
-                    m, self.values[m.name], self.velocity[m.name], action[i], self.dt)
+        self.move(action)
         ego_pose, poses = self._poses(self.drive[self.k])
         row = self._frame(ego_pose, poses)
         self.frames.append(row)
@@ -200,6 +178,20 @@ class StepOutEnv(gymnasium.Env):
         self.last = row
         return self._observation(), float(r), bool(terminated), False, info
 
+    def move(self, action) -> None:
+        """The step's moves, before its frame: the next frame of the drive, and each mover's value as the action
+        asks, within its limits (limits.py)."""
+        action = np.asarray(action, dtype=float).reshape(-1)
+        self.k += 1
+        for i, m in enumerate(self.movers):
+            if m.once:
+                if self.k == 1:
+                    self.values[m.name] = round(limits.placed_once(m, action[i]), EXPORTED)
+            else:
+                value, self.velocity[m.name] = limits.advance(m, self.values[m.name], self.velocity[m.name],
+                                                              action[i], self.dt)
+                self.values[m.name] = round(value, EXPORTED)
+
     def _poses(self, drive: float, moved: dict[str, float] | None = None):
         """(the ego's pose, the others') with the ego at `drive` and the movers at `moved` (default: this step's)."""
         from garage_exp.scenario.build import EGO
@@ -211,36 +203,49 @@ class StepOutEnv(gymnasium.Env):
         return self.live.poses(values)
 
     def _check_reach(self) -> None:
-        """Each mover's bounds, before any episode: its actor can stand at both (a car's `gap` within its pull-out
-        limit, scenario/place.py), else GarageError naming `gym.movers.K.low` or `.high`. A moved vehicle, driving
-        straight from one bound to the other (the hull of its two footprints), must not run into another actor in
-        any frame of the drive: two cars overlapping is an error as in a job (a person squeezing between two cars'
-        noses is not checked: their footprints are boxes)."""
-        from garage_exp.scenario.build import EGO
-        from garage_exp.scenario.place import footprint, hull, overlap
-
+        """Each mover's bounds, before any episode: its actor can stand at a bound given (a car's `gap` within its
+        pull-out limit, scenario/place.py), else GarageError naming `gym.movers.K.low` or `.high`; then the
+        bounds are held to the job's rule of what may stand (limits.fit_bounds): no value the action space can
+        reach puts two actors in one another in any frame of the drive, so every episode reruns as a job."""
         start = {m.name: m.start for m in self.movers}
-        made = self.live.made
         for k, m in enumerate(self.movers):
             for bound in ("low", "high"):
+                if bound in m.open:
+                    continue
                 try:
                     self._poses(self.drive[0], {**start, m.name: getattr(m, bound)})
                 except GarageError as exc:
                     raise GarageError(f"{m.name} cannot be {getattr(m, bound):g} ({exc})",
                                       f"gym.movers.{k}.{bound}") from None
-            if limits.physical(self.live.actors[m.actor]) != "vehicle" or m.key not in limits.METRES:
-                continue
-            for drive in self.drive:
-                ends = [self._poses(drive, {**start, m.name: v}) for v in (m.low, m.high)]
-                swept = hull(np.vstack([footprint(others[m.actor], made[m.actor].extent) for _, others in ends]))
-                for ego, others in ends:
-                    for name, pose in {EGO: ego, **others}.items():
-                        if name == m.actor or pose is None:
-                            continue
-                        if overlap(swept, footprint(pose, made[name].extent)):
-                            raise GarageError(
-                                f"{m.actor} moving its {m.key} between {m.low:g} and {m.high:g} runs into {name} "
-                                f"(the ego's {self.drive_key} {drive:g}); narrow the bounds", f"gym.movers.{k}")
+        self.movers = limits.fit_bounds(self.movers, self._clash_in)
+
+    def _clash_in(self, box: dict[str, tuple[float, float]]) -> str:
+        """Which two actors some values in `box` (mover name -> (lo, hi)) put in one another, in which frame of
+        the drive ('' when none): place.sweep_clash over the box's corners (a yaw's range sampled every
+        YAW_STEP degrees); a value that cannot be placed at all counts as a clash."""
+        from itertools import product
+
+        from garage_exp.scenario.build import EGO
+        from garage_exp.scenario.place import sweep_clash
+
+        axes = []
+        for m in self.movers:
+            lo, hi = box[m.name]
+            n = int(math.ceil((hi - lo) / YAW_STEP)) + 1 if m.key == "yaw" else 2
+            axes.append(sorted(set(np.linspace(lo, hi, max(n, 2)).tolist())))
+        corners = [dict(zip(box, values)) for values in product(*axes)]
+        moved = {m.actor for m in self.movers}
+        for drive in self.drive:
+            try:
+                frames = [self._poses(drive, c) for c in corners]
+            except GarageError as exc:
+                return f"an actor where it cannot stand ({exc})"
+            poses = [{EGO: ego, **others} for ego, others in frames]
+            varying = {n for n, p in poses[0].items() if any(f[n] != p for f in poses[1:])}
+            pair = sweep_clash(poses, self.live.made, only=(moved | varying) if len(poses) > 1 else None)
+            if pair:
+                return f"{pair[0]} and {pair[1]} in one another (the ego's {self.drive_key} {drive:g})"
+        return ""
 
     def _range(self, ego_pose, poses) -> float:
         """Camera to the target's centre (m), from the poses alone (ground truth's `distance`, also unrendered)."""

@@ -8,18 +8,26 @@ running start's. A vehicle's row is a car pulling out of its bay (`gap`, garage_
 (7 km/h, a brisk walk: a driver leaving a bay in a garage creeps), reached no faster than 2 m/s^2 (a moderate
 start from standstill, not a launch); a car drives no further out than its whole length
 (scenario/place.py's pull-out limit, checked with the mover's bounds when the environment is made).
+
+Where an actor may stand is not the adversary's to decide: the job's rule (scenario/place.py `clash`: no two
+actors' footprints in one another) holds every value the action space can reach, in every frame of the drive
+(`fit_bounds`), so that each episode reruns as a job. A bound left open (null) is as far as the actor fits: a
+child's offset in its gap runs to the parked cars' sides, the gap's width less the child's.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from garage_exp.core.errors import GarageError, check_range
+from garage_exp.scenario.place import farthest
 
 TOP_SPEED = {"child": 3.0, "adult": 3.5, "vehicle": 2.0}  # m/s (vehicle: pulling out of a bay)
 TOP_ACCEL = {"child": 3.0, "adult": 3.0, "vehicle": 2.0}  # m/s^2
 METRES = ("distance", "offset", "out", "gap")  # keys in metres: their speed is the actor's own
 DEGREES_PER_S = 180.0  # `yaw`: a person turning round in a second
+REACH = 3.0  # m: how far from its start an open bound (null) is looked for (a gap's width, half a lane)
+FIT_STEP = 1e-3  # m: an open bound is found to a millimetre, rounded towards the start
 
 
 @dataclass(frozen=True)
@@ -34,6 +42,7 @@ class Mover:
     rate: float  # top |velocity| of the value (m/s, or degrees/s for yaw)
     accel: float  # top |change of velocity| per second
     once: bool
+    open: tuple[str, ...] = ()  # the bounds left open (null): `fit_bounds` finds them
 
     @property
     def name(self) -> str:
@@ -67,8 +76,10 @@ def resolve_movers(movers, actors: dict, movable: tuple[str, ...]) -> list[Mover
         if (m.actor, m.key) in seen:
             raise GarageError(f"{m.actor}.{m.key} is moved twice", where)
         seen.add((m.actor, m.key))
-        if not float(m.low) < float(m.high):
-            raise GarageError(f"low {m.low} is not below high {m.high}", where + ".low")
+        stepped = [n.key for n in out if n.actor == m.actor and not n.once]
+        if stepped and not m.once:  # a scenario moves an actor along by one key (case.motion.along.<actor>)
+            raise GarageError(f"{m.actor} already moves its {stepped[0]} each step: an exported episode moves an "
+                              f"actor by one key; give {m.key} once: true", where + ".once")
         body = physical(actors[m.actor])
         if not body:
             raise GarageError(f"{m.actor} is a {actors[m.actor].kind}: it cannot move by itself", where + ".actor")
@@ -83,10 +94,49 @@ def resolve_movers(movers, actors: dict, movable: tuple[str, ...]) -> list[Mover
                               f"{body} can do", where + ".rate")
         check_range(accel, 1e-6, top_accel, where + ".accel", f"{accel:g} {unit}/s")
         start = float(getattr(actors[m.actor], m.key)) if m.start is None else float(m.start)
-        if not float(m.low) <= start <= float(m.high):
-            raise GarageError(f"{m.actor}'s {m.key} starts at {start:g}, outside {m.low:g}..{m.high:g}",
+        open_ = tuple(side for side in ("low", "high") if getattr(m, side) is None)
+        if open_ and not metres:
+            raise GarageError(f"a {m.key} mover needs both bounds (an open bound is looked for in metres)",
+                              f"{where}.{open_[0]}")
+        low = start - REACH if m.low is None else float(m.low)
+        high = start + REACH if m.high is None else float(m.high)
+        if not low < high:
+            raise GarageError(f"low {m.low} is not below high {m.high}", where + ".low")
+        if not low <= start <= high:
+            raise GarageError(f"{m.actor}'s {m.key} starts at {start:g}, outside {low:g}..{high:g}",
                               where + ".start")
-        out.append(Mover(m.actor, m.key, float(m.low), float(m.high), start, rate, accel, bool(m.once)))
+        out.append(Mover(m.actor, m.key, low, high, start, rate, accel, bool(m.once), open_))
+    return out
+
+
+def fit_bounds(movers: list[Mover], clash_in) -> list[Mover]:
+    """The movers' bounds held to where the actors may stand. `clash_in(box)` (box: mover name -> (lo, hi))
+    says which two actors some values in the box put in one another in some frame of the drive (the job's rule,
+    scenario/place.py), or ''. All values at their starts first; then each mover in turn widens to its bounds:
+    a bound given that clashes is refused, naming it and how far the mover fits; an open one (null) goes as far
+    as it fits. GarageError naming `gym.movers.K.<bound>`."""
+    box = {m.name: (m.start, m.start) for m in movers}
+    hit = clash_in(box)
+    if hit:
+        raise GarageError(f"the movers' starts put {hit}", "gym.movers")
+    out = []
+    for k, m in enumerate(movers):
+        for side in ("low", "high"):
+            bound = getattr(m, side)
+
+            def widened(v: float, side=side, name=m.name) -> dict:
+                lo, hi = box[name]
+                return {**box, name: (v, hi) if side == "low" else (lo, v)}
+
+            fits = farthest(lambda v: not clash_in(widened(v)), m.start, bound, FIT_STEP)
+            if fits != bound and side not in m.open:
+                raise GarageError(f"{m.name} at {bound:g} puts {clash_in(widened(bound))}: it fits to {fits:g} (give "
+                                  f"{side}: {fits:g}, or null: as far as it fits)", f"gym.movers.{k}.{side}")
+            box[m.name] = widened(fits)[m.name]
+        lo, hi = box[m.name]
+        if not lo < hi:
+            raise GarageError(f"{m.name} has no room to move either way from its start {m.start:g}", f"gym.movers.{k}")
+        out.append(replace(m, low=lo, high=hi, open=()))
     return out
 
 

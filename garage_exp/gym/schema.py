@@ -20,12 +20,14 @@ MODES = ("train", "check", "export")
 class MoverConf:
     """One placement value of one actor that the adversary moves each step, within physical limits: the action
     (-1..1) is the value's velocity as a share of `rate`; `accel` caps how fast that velocity changes. With
-    `once` the first step's action picks the value itself (low..high) and it is held: where a person stands."""
+    `once` the first step's action picks the value itself (low..high) and it is held: where a person stands.
+    A bound left null is as far as the actor may stand (no two actors in one another: the job's rule); a bound
+    given beyond that is refused (garage_exp/gym/limits.py `fit_bounds`)."""
 
     actor: str = "child"
     key: str = "out"  # a placement value (distance | offset | yaw | out | gap)
-    low: float = -1.0
-    high: float = 2.0
+    low: Optional[float] = -1.0  # None: as far as the actor may stand (metres keys)
+    high: Optional[float] = 2.0
     start: Optional[float] = None  # None: the case's own value
     rate: Optional[float] = None  # top speed of the value (m/s); None: the actor's physical top (limits.py)
     accel: Optional[float] = None  # top acceleration (m/s^2); None: the actor's physical top
@@ -37,7 +39,7 @@ class AdversaryConf:
     """The environment (garage_exp/gym/env.py), its reward and the PPO training (stable-baselines3)."""
 
     movers: list[MoverConf] = field(default_factory=lambda: [
-        MoverConf("child", "out", -1.0, 2.5), MoverConf("child", "offset", -0.25, 0.25, once=True)])
+        MoverConf("child", "out", -1.0, 2.5), MoverConf("child", "offset", None, None, once=True)])
     objective: str = "late"  # late: rewarded for a late detection | hard: for a hard-and-fair episode (>= 0.6)
     variant: int = 0  # which of the case's variants is the episode (its shown actors and target)
     shaping: float = 0.05  # x (1 - confidence) per fair frame before the critical distance; 0: only `late`
@@ -64,4 +66,5 @@ class GymConf(Config):
 
 
 def register() -> None:
-    ConfigStore.instance().store(name="gym_schema", node=GymConf)
+    # conf/gym.yaml composes the experiment's config (conf/config.yaml) and types it with this subclass of Config.
+    ConfigStore.instance().store(group="config_schema", name="gym", node=GymConf, package="_global_")

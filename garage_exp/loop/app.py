@@ -8,21 +8,17 @@ from other inputs (its command, the files it reads) is refused in one line, neve
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
-import hydra
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, open_dict
 
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, check_range
-from garage_exp.core.exits import EXIT_INPUT, install_error_report
-from garage_exp.core.paths import PROJECT_ROOT
 from garage_exp.loop import budget, schema, steps
 
-if not OmegaConf.has_resolver("garage_root"):
-    OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
-schema.register()
+COMMAND = shell.Command("garage_exp.loop", "loop", (schema.register,),
+                        resume_hint="rerun the same command to go on where it stopped")
 
 
 def check_loop(cfg: DictConfig) -> None:
@@ -176,29 +172,18 @@ def run_loop(cfg: DictConfig) -> dict:
     return report.write(cfg, loop.dir / f"results{suffix}", result, {"D0": round1, **round2}, suites, hard, loop.times)
 
 
-@hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="loop")
 def main(cfg: DictConfig) -> dict:
     from garage_exp.tracking.runs import tracking_uri
 
-    try:
-        check_loop(cfg)
-        with open_dict(cfg):
-            cfg.tracking.uri = tracking_uri(cfg.tracking.uri)  # every step's store, also for models:/ entries
-            cfg.dir = str(Path(str(cfg.dir)).absolute())
-        return run_loop(cfg)
-    except GarageError as exc:
-        from hydra.core.hydra_config import HydraConfig
-
-        from garage_exp.train.app import remove_untouched
-
-        out = Path(HydraConfig.get().runtime.output_dir)
-        remove_untouched(out)  # Hydra's log dir: a refused loop leaves nothing
-        if out.parent.is_dir() and not any(out.parent.iterdir()):
-            out.parent.rmdir()
-        print(f"garage_exp.loop: {exc}", file=sys.stderr)
-        sys.exit(EXIT_INPUT)
+    check_loop(cfg)  # bad input: the shell removes Hydra's log dir (and `dir` if it made it) and says it in one line
+    with open_dict(cfg):
+        cfg.tracking.uri = tracking_uri(cfg.tracking.uri)  # every step's store, also for models:/ entries
+        cfg.dir = str(Path(str(cfg.dir)).absolute())
+    return run_loop(cfg)
 
 
-def cli() -> None:
-    install_error_report()
-    main()
+def cli(argv: list[str] | None = None) -> None:
+    """`python -m garage_exp.loop overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written);
+    1 a failed step or a crash (traceback); 130 Ctrl-C, 143 SIGTERM (the running step is stopped the same way,
+    its run ends KILLED; rerunning the command goes on where it stopped)."""
+    COMMAND.run(main, argv)

@@ -75,6 +75,7 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
         row.update(t.params)
         row["overrides"] = " ".join(overrides(t))
         row["why"] = ("screened as easy by the pre-screen" if t.user_attrs.get("screened") == "easy"
+                      else f"infeasible: {t.user_attrs['placement'].split(': ', 2)[-1]}" if t.user_attrs.get("placement")
                       else f"infeasible: {untestable(study)}" if t.user_attrs.get("infeasible")
                       else str(t.user_attrs.get("error", "")))
         row["run_id"] = t.user_attrs.get("run_id", "")

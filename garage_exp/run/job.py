@@ -17,7 +17,7 @@ from garage_exp.tracking import runs as tracking
 from garage_exp.core.exits import SweepStopped
 from garage_exp.run.diskspace import NotEnoughSpace, full_disk
 from garage_exp.core.errors import GarageError
-from garage_exp.core.paths import OUTPUTS_DIR
+from garage_exp.core.shell import remove_untouched
 from garage_exp.run.preflight import preflight
 
 
@@ -60,20 +60,6 @@ def plan_map(classified, path: Path) -> Path:
 def run_name(cfg: DictConfig) -> str:
     return (tracking.run_name(HydraConfig.get().overrides.task)
             or f"plan={cfg.plan.name} case={cfg.case.name} light={cfg.light.name}")
-
-
-def _remove_untouched(out: Path) -> None:
-    """Hydra makes a job's dir (config copies, log) before the job starts; a job refused for bad input
-    leaves nothing behind. Only a dir holding nothing but Hydra's own files is removed."""
-    try:
-        if not out.is_dir() or any(p.name != ".hydra" and p.suffix != ".log" for p in out.iterdir()):
-            return
-        shutil.rmtree(out)
-        parent = out.parent  # outputs/runs/<date>/<time>: drop the date level too when it is empty
-        if parent.parent == OUTPUTS_DIR / "runs" and not any(parent.iterdir()):
-            parent.rmdir()
-    except OSError:
-        pass
 
 
 def _count_finished() -> None:
@@ -134,9 +120,9 @@ def _run_job(cfg: DictConfig) -> float | dict:
     multirun = hc.mode == RunMode.MULTIRUN
     try:
         prepared = preflight(cfg)  # bad input fails here, before anything is logged
-    except GarageError as exc:
-        _remove_untouched(out)
+    except GarageError as exc:  # the command's shell removes the run dir Hydra made and says it in one line
         if multirun and isinstance(exc, NotEnoughSpace):  # the disk filled since the sweep's own check
+            remove_untouched(out)
             raise SweepStopped(str(exc), "free space and rerun with resume=true") from None
         raise
     name_levels(cfg, prepared.classified.plan.name)

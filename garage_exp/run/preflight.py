@@ -135,33 +135,38 @@ def check_slots(cfg: DictConfig) -> None:
 
 def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
-    on the first problem. A dry run checks the config and the plan; a real job also the detector weights,
-    the vehicle assets, and builds its scene description (garage, case, palette, modifiers, cameras) - all
-    but rendering, in ~0.1 s. Then the disk space the job will write, against the free space unless
-    check_space is false (a sweep adds up all its jobs' estimates and checks them once)."""
+    on the first problem: the config, the plan, the vehicle assets, and the scene description (garage, case,
+    palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also the detector weights. Then the
+    disk space the job will write, against the free space unless check_space is false (a sweep adds up all its
+    jobs' estimates and checks them once)."""
     from garage_exp.core.schema_check import check_schema
 
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
     plan_path = resolve_plan_path(cfg.plan)
     prepared = PreparedJob(plan_path, classified_plan(plan_path))
     check_config(cfg)
-    if not cfg.dry_run:
-        import numpy as np
+    import numpy as np
 
+    from garage_exp.scenario.assemble import build_scene
+
+    detector = None
+    if not cfg.dry_run:
         from garage_exp.perception.detect import build_detector
         from garage_exp.perception.slots.detector import check_slot_weights
-        from garage_exp.scenario.assemble import build_scene
 
         detector = build_detector(cfg.detector)  # a missing file or unknown format fails here (nothing downloaded)
         check_slot_weights(cfg.slot_detector)
-        try:
-            prepared.scene, prepared.setup = build_scene(cfg, prepared.classified, _library(),
-                                                         np.random.default_rng(int(cfg.seed)))
-        except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
-            where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
-            if not where:
-                raise
-            raise GarageError(f"{exc}; {where}") from None
+    # A dry run builds the scene description too (~0.1 s, no rendering): it refuses every job the real run would
+    # refuse at scene build (placements, overlaps, reach), in the same words. It keeps none of it.
+    try:
+        scene, setup = build_scene(cfg, prepared.classified, _library(), np.random.default_rng(int(cfg.seed)))
+    except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
+        where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+        if not where:
+            raise
+        raise exc.again(f"{exc}; {where}", None) from None
+    if not cfg.dry_run:
+        prepared.scene, prepared.setup = scene, setup
         prepared.detector = check_loads(detector, prepared.scene)
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:

@@ -20,8 +20,8 @@ from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
 from garage_exp.scenario.replicate import build_replicate, merge
 from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
-from garage_exp.scenario.place import (check_overlaps, no_room, pose_between, pose_in_bay, pose_on_path,
-                                       pose_relative, site_bay, site_path)
+from garage_exp.scenario.place import (check_overlaps, farthest, no_room, pose_between, pose_in_bay,
+                                       pose_on_path, pose_relative, site_bay, site_path, sweep_clash)
 from garage_exp.scenario.sites import Site, find_site
 from garage_exp.scenario.timing import start_time, travelled
 from garage_exp.scene.camera import scored_camera
@@ -31,6 +31,7 @@ EGO = "ego"
 PALETTE = "palette"  # an actor's colour: one copy per palette target colour, one variant each
 MOVABLE = ("distance", "offset", "yaw", "out", "gap")
 PLACEMENT = (*MOVABLE, "path", "align", "before", "bay", "between", "relative")
+GAP_SEARCH = 3.0  # m each side of a gap's middle that an overlap message looks for a person's room in
 
 
 def check_case(cfg) -> None:
@@ -44,7 +45,7 @@ def check_case(cfg) -> None:
         _check_motion(cfg.case)
         scored_camera(cfg.camera, str(cfg.case.get("camera") or ""))
     except GarageError as exc:
-        raise GarageError(str(exc), level_file(cfg, "case")) from None
+        raise exc.again(str(exc), level_file(cfg, "case")) from None
 
 
 def _check_motion(case) -> None:
@@ -172,23 +173,44 @@ def _check_room(site: Site, actor, name: str, length: float, values: list[tuple[
 
 
 def level_file(cfg, group: str) -> str:
-    """The YAML file of a group's level (named as its `name`), for error messages; else `group=NAME`."""
-    from pathlib import Path
-
+    """The YAML file the group's values came from, for error messages: a scenario file of the command's
+    (`--config-dir SUITE +scenario=NAME`, a `# @package _global_` file that sets the group's keys: an exported
+    scenario) when one set them, else the group's level (named as its `name`); else `group=NAME`."""
     from garage_exp.core.paths import PROJECT_ROOT
 
-    dirs = []
+    dirs, choices = [], {}
     try:
         from hydra.core.hydra_config import HydraConfig
 
-        dirs = [s.path for s in HydraConfig.get().runtime.config_sources if s.schema == "file"]
+        runtime = HydraConfig.get().runtime
+        dirs = [s.path for s in runtime.config_sources if s.schema == "file"]
+        choices = dict(runtime.choices)
     except ValueError:  # composed outside a Hydra app (tests, the sweep's preflight)
         pass
-    for folder in [*dirs, str(PROJECT_ROOT / "conf")]:
-        path = Path(folder) / group / f"{cfg[group].name}.yaml"
-        if path.is_file():
-            return str(path)
-    return f"{group}={cfg[group].name}"
+    folders = [*dirs, str(PROJECT_ROOT / "conf")]
+    setting = [path for other, level in choices.items() if other != group and level
+               for path in [_file_of(folders, other, str(level))] if path and _sets(path, group)]
+    if setting:  # the last one in the defaults list wins, as its values do
+        return str(setting[-1])
+    return str(_file_of(folders, group, str(cfg[group].name)) or f"{group}={cfg[group].name}")
+
+
+def _file_of(folders: list[str], group: str, level: str):
+    from pathlib import Path
+
+    return next((p for p in (Path(f) / group / f"{level}.yaml" for f in folders) if p.is_file()), None)
+
+
+def _sets(path, group: str) -> bool:
+    """Whether a global-package YAML file sets keys of `group` (an exported scenario sets `case`)."""
+    import yaml
+
+    try:
+        text = path.read_text()
+        data = yaml.safe_load(text) if "@package _global_" in text else None
+    except (OSError, yaml.YAMLError):
+        return False
+    return isinstance(data, dict) and isinstance(data.get(group), dict)
 
 
 def make_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
@@ -202,7 +224,7 @@ def make_case(cfg, classified: Classified, library, rng: np.random.Generator) ->
     except GarageError as exc:
         group = (exc.where or "").split(".")[0]
         if group in ("case", "occluder"):
-            raise GarageError(str(exc), level_file(cfg, group)) from None
+            raise exc.again(str(exc), level_file(cfg, group)) from None
         raise
 
 
@@ -257,7 +279,8 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
                 poses = resolve(placed, made, site, bays)
             except GarageError as exc:
                 raise along_error(exc, alongs, placed, made, frame) from None
-            check_overlaps(poses, made, variant.label, value)
+            check_overlaps(poses, made, variant.label, value,
+                           room=lambda pair, placed=placed: gap_room(placed, made, site, bays, pair))
             shot_poses = {n: poses.get(n) for n in made if n != EGO}
             shots.append(Shot(len(shots), variant.label, value, poses[EGO], shot_poses, variant.target,
                               time=round(time, 6)))
@@ -284,6 +307,26 @@ def along_error(exc: GarageError, alongs: list, placed: dict, made: dict, frame:
             return GarageError(f"{name}'s {along.key} reaches {value:g} (frame {frame}): {reason}",
                                f"case.motion.along.{name}.{which}")
     return exc
+
+
+def gap_room(actors: dict, made: dict, site: Site, bays: dict, pair: tuple[str, str]) -> str:
+    """For an overlap message: how far a person between two bays (one of `pair`) may stand off the gap's middle
+    in this frame, by the one rule of what may stand (place.sweep_clash over offsets from the middle)."""
+    for name in pair:
+        a = actors[name]
+        if not a.between:
+            continue
+
+        def fits(offset: float, name=name, a=a) -> bool:
+            ends = [resolve({**actors, name: replace(a, offset=v)}, made, site, bays) for v in (0.0, offset)]
+            return sweep_clash(ends, made, only={name}) is None
+
+        lo, hi = farthest(fits, 0.0, -GAP_SEARCH), farthest(fits, 0.0, GAP_SEARCH)
+        where = f"{made[name].source}.offset"
+        if lo is None:
+            return f"; {name} does not fit its gap here at any {where}"
+        return f"; {where} fits {lo:g} to {hi:g} m here"
+    return ""
 
 
 def _longest(made: dict, source: str) -> float:

@@ -8,13 +8,11 @@ preflight already made, so the scene loaded once keeps its models) and `resolve`
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 from garage_exp.core.errors import GarageError
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.build import EGO, MOVABLE, PLACEMENT, resolve, variants
-from garage_exp.scenario.place import pose_between
 from garage_exp.scenario.shots import CaseSetup, actor_confs
 from garage_exp.scenario.sites import find_site
 from garage_exp.scene.description import Pose
@@ -42,9 +40,6 @@ class LiveScenario:
         missing = [n for n in actors if n not in self.made]
         if missing:
             raise GarageError(f"the scene has no entity for actor(s) {', '.join(missing)}", "case.actors")
-        # build.py's pose_between ignores `offset`; here a person's offset slides it along the gap (to the left of
-        # its heading, as pose_in_bay's does) unless build.py places it itself.
-        self.slides_between = not _between_takes_offset(self.site, self.bays, actors)
 
     def value(self, actor: str, key: str) -> float:
         return float(getattr(self.actors[actor], key))
@@ -52,7 +47,6 @@ class LiveScenario:
     def poses(self, values: dict[str, dict[str, float]]) -> tuple[Pose, dict[str, Pose | None]]:
         """(the ego's pose, every other entity's pose: None for those not in this variant) for these values."""
         placed = dict(self.actors)
-        shifts: dict[str, float] = {}
         for name, keys in values.items():
             if name not in placed:
                 raise GarageError(f"no actor {name!r} in this variant (have {', '.join(placed)})", "gym.movers")
@@ -60,41 +54,6 @@ class LiveScenario:
             if bad:
                 raise GarageError(f"{bad[0]!r} is not a placement value ({' | '.join(MOVABLE)})", "gym.movers")
             placed[name] = replace(placed[name], **{k: float(v) for k, v in keys.items()})
-        if self.slides_between:
-            for name, a in placed.items():
-                if a.between and float(a.offset):
-                    shifts[name] = float(a.offset)
-                    placed[name] = replace(a, offset=0.0)
         poses = resolve(placed, self.made, self.site, self.bays)
-        for name, offset in shifts.items():
-            _slide(poses, placed, name, offset, self.site)
         return poses[EGO], {n: poses.get(n) for n in self.made if n != EGO}
 
-
-def _between_takes_offset(site, bays: dict, actors: dict) -> bool:
-    """Whether build.py's pose_between already moves an actor by its `offset`."""
-    for name, a in actors.items():
-        if a.between:
-            here = pose_between(site, replace(a, offset=0.0), bays, f"case.actors.{name}")
-            there = pose_between(site, replace(a, offset=1.0), bays, f"case.actors.{name}")
-            return (here.x, here.y) != (there.x, there.y)
-    return False
-
-
-def _slide(poses: dict[str, Pose], actors: dict, name: str, offset: float, site) -> None:
-    """Move `name` by `offset` to the left of its heading, and the actors placed from it with it: one counted back
-    from it along a path follows the move's component along that path; one placed relative to it, all of it."""
-    p = poses[name]
-    h = math.radians(p.yaw)
-    dx, dy = -math.sin(h) * offset, math.cos(h) * offset
-    poses[name] = replace(p, x=p.x + dx, y=p.y + dy)
-    for other, a in actors.items():
-        if other == name or other not in poses:
-            continue
-        q = poses[other]
-        if a.relative == name:
-            poses[other] = replace(q, x=q.x + dx, y=q.y + dy)
-        elif a.path and a.before == name:
-            ax, ay = site.paths[a.path].axis
-            along = dx * ax + dy * ay
-            poses[other] = replace(q, x=q.x + along * ax, y=q.y + along * ay)

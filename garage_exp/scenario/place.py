@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, Infeasible
 from garage_exp.scenario.sites import Path, Site, SiteBay, compass
 from garage_exp.scene.description import Pose
 
@@ -183,7 +183,10 @@ def hull(points: np.ndarray) -> np.ndarray:
     return np.array(lower[:-1] + upper[:-1], dtype=float)
 
 
-def overlap(a: np.ndarray, b: np.ndarray, tolerance: float = 0.02) -> bool:
+TOLERANCE = 0.02  # metres two footprints may share: a box is a body's or a car's outline, not its shape
+
+
+def overlap(a: np.ndarray, b: np.ndarray, tolerance: float = TOLERANCE) -> bool:
     """Two convex footprints overlap by more than `tolerance` metres (separating-axis test)."""
     for poly in (a, b):
         for k in range(len(poly)):
@@ -195,14 +198,63 @@ def overlap(a: np.ndarray, b: np.ndarray, tolerance: float = 0.02) -> bool:
     return True
 
 
-def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float, only: set | None = None,
-                   where: str = "case.actors") -> None:
-    """No two actors stand in one another (`only`: pairs with one of these)."""
-    names = list(poses)
-    feet = {n: footprint(poses[n], made[n].extent) for n in names}
+def clash(poses: dict[str, Pose | None], made: dict, only: set | None = None) -> tuple[str, str] | None:
+    """The first two actors standing in one another (footprints overlapping by more than TOLERANCE), or None.
+    This is the rule of what placements are legal: a job holds every frame to it (check_overlaps), and the
+    adversary's action space every value it can reach (`sweep_clash`, garage_exp/gym/limits.py).
+    `only`: pairs with one of these."""
+    return sweep_clash([poses], made, only)
+
+
+def sweep_clash(corners: list[dict[str, Pose | None]], made: dict, only: set | None = None
+                ) -> tuple[str, str] | None:
+    """`clash` for every placement in a box of placement values at once: `corners` are the poses at the box's
+    corners (one frame each). A placement moves an actor straight with each value (a path's distance and
+    offset, a bay's gap, a gap's out and offset), so two actors' relative position over the box is the convex
+    hull of their relative positions at its corners: for each pair, the hull of one's footprints seen from the
+    other is tested against the other's. An actor whose heading changes over the box (a moved yaw) is tested
+    at each corner alone (give such corners densely). One corner is `clash` itself."""
+    ref = corners[0]
+    names = [n for n, p in ref.items() if p is not None]
+    feet = [{n: footprint(c[n], made[n].extent) for n in names} for c in corners]
     for k, a in enumerate(names):
         for b in names[k + 1:]:
             if only is not None and a not in only and b not in only:
                 continue
-            if overlap(feet[a], feet[b]):
-                raise GarageError(f"actors {a} and {b} overlap (variant {label!r}, position {value:g})", where)
+            turned = any(c[n].yaw != ref[n].yaw for c in corners for n in (a, b))
+            if turned:
+                hit = any(overlap(f[a], f[b]) for f in feet)
+            else:  # a's footprint at each corner, shifted by how far b moved from the first corner
+                seen = [f[a] - np.array([c[b].x - ref[b].x, c[b].y - ref[b].y]) for f, c in zip(feet, corners)]
+                swept = hull(np.vstack(seen)) if len(seen) > 1 else seen[0]
+                hit = overlap(swept, feet[0][b])
+            if hit:
+                return a, b
+    return None
+
+
+def farthest(fits, start: float, bound: float, step: float = 1e-4) -> float | None:
+    """How far from `start` towards `bound` a value may go: the farthest v (to `step`, rounded towards start)
+    with fits(v), where fits(v) says whether the whole range start..v is legal (so it fails only further out,
+    and halving finds the edge); `bound` itself when it fits; None when not even `start` does."""
+    if fits(bound):
+        return float(bound)
+    if not fits(start):
+        return None
+    good, bad = float(start), float(bound)
+    while abs(bad - good) > step / 4:
+        mid = (good + bad) / 2
+        good, bad = (mid, bad) if fits(mid) else (good, mid)
+    steps = (good - start) / step
+    return round(start + math.copysign(math.floor(abs(steps) + 1e-9), steps) * step, 6)
+
+
+def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float, only: set | None = None,
+                   where: str = "case.actors", room=None) -> None:
+    """No two actors stand in one another (`only`: pairs with one of these); else Infeasible naming them, with
+    `room(pair)`'s word on how far the placement may go (build.py: a person's offset in its gap)."""
+    pair = clash(poses, made, only)
+    if pair is not None:
+        a, b = pair
+        hint = room(pair) if room is not None else ""
+        raise Infeasible(f"actors {a} and {b} overlap (variant {label!r}, position {value:g}){hint}", where, pair)

@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import Infeasible
 from garage_exp.scenario.shots import CaseSetup
 
 EGO = "ego"
@@ -77,8 +77,8 @@ def build_replicate(build, cfg, classified, library, k: int) -> CaseSetup:
         adjust = jitter(cfg.replicate, rng, cfg, library)
         try:
             return build(cfg, classified, library, rng, adjust=lambda c, t, s=0.5 ** attempt: adjust(c, t, s))
-        except GarageError as exc:
-            if "overlap" not in str(exc) or attempt == ATTEMPTS - 1:
+        except Infeasible:  # two actors in one another: draw again, closer in
+            if attempt == ATTEMPTS - 1:
                 raise
     raise AssertionError("unreachable")
 

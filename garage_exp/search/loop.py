@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import optuna
 from optuna.trial import TrialState
 
+from garage_exp.core.errors import Infeasible
 from garage_exp.core.exits import SweepStopped
 from garage_exp.search import objectives
 from garage_exp.search.objectives import num
@@ -46,7 +47,11 @@ class Outcome:
 def outcome(result, objective: str) -> Outcome:
     """A trial's state and values from its job's return: the summary (run.frames.run_frames), or {"error": ...}.
     The objective judges it (objectives.py); no values -> PRUNED (infeasible): a target nobody could see, in the
-    objective's sense, is untestable, not hard."""
+    objective's sense, is untestable, not hard; nor is a scene whose sampled values put two actors in one another
+    (the job refused it: core.errors.Infeasible)."""
+    if isinstance(result, dict) and result.get("infeasible"):  # its values put actors in one another
+        return Outcome(TrialState.PRUNED, None, {"infeasible": True, "placement": str(result["error"])[:2000],
+                                                 "fair_frames": 0, "frames": 0})
     if not isinstance(result, dict) or "error" in result:
         error = result.get("error") if isinstance(result, dict) else f"the job returned {result!r}"
         return Outcome(TrialState.FAIL, None, {"error": str(error)[:2000]})
@@ -157,6 +162,8 @@ class SearchLoop:
         except (KeyboardInterrupt, SystemExit):
             self.study.tell(trial, state=TrialState.FAIL)
             raise
+        except Infeasible:  # the full job refuses it before rendering, and the trial is pruned
+            return False
         except Exception as exc:  # noqa: BLE001 - the full job will report what is wrong with the trial
             log.warning("trial %d: pre-screen failed (%s); running it in full", trial.number, exc)
             return False
@@ -182,5 +189,7 @@ def line(number: int, out: Outcome, budget: int, objective: str) -> str:
         return f"{head} failed: {out.attrs['error'].splitlines()[0]}"
     goal = objectives.objective(objective)
     if out.state == TrialState.PRUNED:
+        if "placement" in out.attrs:  # its values put two actors in one another (core.errors.Infeasible)
+            return f"{head}: {out.attrs['placement'].split(': ', 2)[-1]}: infeasible"
         return f"{head}: {goal.infeasible(out.attrs)}"
     return f"{head}: {goal.scored(out.values, out.attrs)}"

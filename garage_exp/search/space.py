@@ -11,7 +11,7 @@ each choice are composed and checked like a job, without rendering).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import optuna.distributions as od
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -30,6 +30,7 @@ class Space:
 
     params: dict[str, od.BaseDistribution]
     fixed: list[str]  # overrides as written (key=value), passed to every trial
+    written: dict[str, str] = field(default_factory=dict)  # each searched key's override as written
 
     def overrides(self, values: dict) -> list[str]:
         """A trial's override list: the fixed ones, then each sampled value."""
@@ -95,6 +96,7 @@ def build(arguments: list[str], config: DictConfig, groups: dict[str, list[str]]
     user's --config-dir counts). Checks keys and levels; values are checked by `check_values`."""
     params: dict[str, od.BaseDistribution] = {}
     fixed: list[str] = []
+    written: dict[str, str] = {}
     for override in parse(arguments):
         if not override.is_sweep_override():
             fixed.append(override.input_line)
@@ -116,27 +118,66 @@ def build(arguments: list[str], config: DictConfig, groups: dict[str, list[str]]
         elif OmegaConf.select(config, key, default=_ABSENT) is _ABSENT:
             raise GarageError(f"the config has no key {key}", where)
         params[key] = dist
+        written[key] = override.input_line
     if not params:
         raise GarageError("nothing to search: give at least one key=interval(a,b) or key=choice(a,b)",
                           "search space")
-    return Space(params, fixed)
+    return Space(params, fixed, written)
 
 
 _ABSENT = object()
 
 
 def probe_points(space: Space) -> list[tuple[str, object]]:
-    """The values each parameter's check composes: an interval's two ends, every choice."""
+    """The values each parameter's check composes: an interval's two ends and its middle, every choice."""
     points = []
     for name, dist in space.params.items():
         if isinstance(dist, od.CategoricalDistribution):
             points.extend((name, c) for c in dist.choices)
         else:
-            points.extend([(name, dist.low), (name, dist.high)])
+            points.extend([(name, dist.low), (name, dist.high), (name, middle(dist))])
     return points
+
+
+def middle(dist: od.BaseDistribution):
+    """An interval's middle (an integer one's, rounded down to its step; a log one's, geometric)."""
+    if isinstance(dist, od.IntDistribution):
+        step = dist.step or 1
+        return dist.low + (dist.high - dist.low) // (2 * step) * step
+    if getattr(dist, "log", False):
+        return float((dist.low * dist.high) ** 0.5)
+    return (dist.low + dist.high) / 2
 
 
 def default_point(space: Space) -> dict:
     """A valid point of the space (each interval's low end, each choice's first), to fill in the others."""
     return {name: (d.choices[0] if isinstance(d, od.CategoricalDistribution) else d.low)
             for name, d in space.params.items()}
+
+
+def middle_point(space: Space) -> dict:
+    """The space's middle (each interval's middle, each choice's first): one more point a check probes."""
+    return {name: (d.choices[0] if isinstance(d, od.CategoricalDistribution) else middle(d))
+            for name, d in space.params.items()}
+
+
+def at_fault(lines: list[str], actors) -> list[str]:
+    """Of these overrides, those that place the given actors, most specific first: their own keys
+    (`case.actors.child.offset`); else the case's motion, bays, variants or site; else the case, plan, garage or
+    occluder themselves. What to name when those actors stand in one another."""
+    names = {str(a) for a in actors} | {str(a).rpartition("_")[0] for a in actors}
+
+    def tier(line: str) -> int:
+        parts = line.split("=", 1)[0].lstrip("+~").split(".")
+        if len(parts) > 2 and parts[0] in ("case", "occluder") and parts[1] == "actors" and parts[2] in names:
+            return 1
+        if parts[0] == "case" and len(parts) > 1 and parts[1] in ("motion", "bays", "variants", "site"):
+            return 2
+        return 3 if parts[0] in ("case", "occluder", "plan", "garage") and (len(parts) == 1 or parts[0] in
+                                                                             ("plan", "garage")) else 0
+
+    for level in (1, 2, 3):
+        found = [line for line in lines if tier(line) == level]
+        if found:
+            return found
+    return []

@@ -40,9 +40,12 @@ def group_levels(loader) -> dict[str, list[str]]:
 
 
 def check(config: DictConfig, loader) -> space_mod.Space:
-    """The search's settings and space, each value composed and checked as a job would check it (no
-    rendering): GarageError (one line naming the override) on the first problem."""
-    from garage_exp.core.exits import input_error
+    """The search's settings and space, each value (an interval's ends and middle, each choice) and the space's
+    middle composed and checked as a job would check it (no rendering): GarageError (one line naming the override) on the first problem. A point whose values put two
+    actors in one another (core.errors.Infeasible) is no error of any one value: the search prunes such trials.
+    The space is refused for it only when no probed point is feasible, naming the overrides that place those
+    actors."""
+    from garage_exp.core.errors import Infeasible
     from garage_exp.run.preflight import preflight
 
     arguments = tuple(arguments_of(config))
@@ -54,27 +57,54 @@ def check(config: DictConfig, loader) -> space_mod.Space:
             and not (config.search.mode == "suite" and a.startswith("dataset="))]
     space = space_mod.build(kept, config, group_levels(loader))
     base = space_mod.default_point(space)
+    infeasible: list[Infeasible] = []
     try:  # the fixed part first: a case the plan cannot hold is the command's problem, not a searched value's
         fixed = loader.load_sweep_config(config, space.fixed)
         preflight(fixed, check_space=False)
+    except Infeasible as exc:  # at the searched keys' own defaults: the searched values may move them apart
+        infeasible.append(exc)
     except GarageError as exc:
         raise GarageError(str(exc), "search") from None
     _check_objective(config.search, fixed)
-    for name, value in space_mod.probe_points(space):
-        point = space.overrides({**base, name: value})
-        where = f"search space {name}={space_mod.format_value(value)}"
+    feasible = 0
+    probes = [(name, {**base, name: value}) for name, value in space_mod.probe_points(space)]
+    for name, values in [*probes, (None, space_mod.middle_point(space))]:  # the first probe is `base` itself
+        where = (f"search space {name}={space_mod.format_value(values[name])}" if name
+                 else f"search space {' '.join(space.written.values())}")
         try:
-            job = loader.load_sweep_config(config, point)
-            preflight(job, check_space=False)
-        except GarageError as exc:
-            raise GarageError(str(exc), where) from None
-        except Exception as exc:
-            text = input_error(exc)
-            if text is None:
-                raise
-            raise GarageError(text, where) from None
+            _probe(config, loader, space.overrides(values), where)
+            feasible += 1
+        except Infeasible as exc:
+            infeasible.append(exc)
+    if not feasible:
+        exc = infeasible[-1]
+        searched = list(space.written.values())
+        blamed = space_mod.at_fault(searched, exc.actors) or space_mod.at_fault(space.fixed, exc.actors)
+        raise GarageError(f"no probed point of the space is feasible ({len(probes) + 1} probed), e.g. {exc}",
+                          f"search space {' '.join(blamed or searched)}")
     _CHECKED[arguments] = space
     return space
+
+
+def _probe(config: DictConfig, loader, point: list[str], where: str) -> None:
+    """One point of the space composed and checked as its trial's job would be: GarageError naming `where`
+    when a value is wrong on its own; core.errors.Infeasible as it is (the point's values together are)."""
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.core.exits import input_error
+    from garage_exp.run.preflight import preflight
+
+    try:
+        job = loader.load_sweep_config(config, point)
+        preflight(job, check_space=False)
+    except Infeasible:
+        raise
+    except GarageError as exc:
+        raise GarageError(str(exc), where) from None
+    except Exception as exc:
+        text = input_error(exc)
+        if text is None:
+            raise
+        raise GarageError(text, where) from None
 
 
 def _check_objective(search, job: DictConfig) -> None:

@@ -8,21 +8,16 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, check_range
-from garage_exp.core.exits import EXIT_INPUT, install_error_report
-from garage_exp.core.paths import PROJECT_ROOT
 from garage_exp.train import schema
 
-if not OmegaConf.has_resolver("garage_root"):
-    OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
-schema.register()
+COMMAND = shell.Command("garage_exp.train", "train", (schema.register,))
 
 
 def check_train(cfg: DictConfig) -> None:
@@ -52,21 +47,6 @@ def check_train(cfg: DictConfig) -> None:
         raise GarageError("empty name", "registered_name")
 
 
-def remove_untouched(out: Path) -> None:
-    """Hydra's dir of a training refused for bad input: removed when it holds nothing but Hydra's own files."""
-    from garage_exp.core.paths import OUTPUTS_DIR
-
-    try:
-        if out.is_dir() and all(p.name == ".hydra" or p.suffix == ".log" for p in out.iterdir()):
-            shutil.rmtree(out)
-            parent = out.parent  # outputs/train/<date>/<time>: the date and train levels too when empty
-            while parent != OUTPUTS_DIR and OUTPUTS_DIR in parent.parents and not any(parent.iterdir()):
-                parent.rmdir()
-                parent = parent.parent
-    except OSError:
-        pass
-
-
 def run_name(cfg: DictConfig, plan) -> str:
     if cfg.name:
         return str(cfg.name)
@@ -79,14 +59,10 @@ def train(cfg: DictConfig) -> dict:
     from garage_exp.train.data import plan_data, write_data
 
     out = Path(HydraConfig.get().runtime.output_dir)
-    try:
-        check_train(cfg)
-        plan = plan_data(cfg)
-        base = load_base(str(cfg.base), cfg.tracking.uri)
-        check_names(base, plan.names)
-    except GarageError:
-        remove_untouched(out)
-        raise
+    check_train(cfg)  # bad input: the shell removes the run dir and says it in one line
+    plan = plan_data(cfg)
+    base = load_base(str(cfg.base), cfg.tracking.uri)
+    check_names(base, plan.names)
     from garage_exp.tracking import runs as tracking
     from garage_exp.train.fit import fit, register
 
@@ -136,28 +112,8 @@ def train(cfg: DictConfig) -> dict:
     return summary
 
 
-@hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="train")
-def main(cfg: DictConfig) -> dict:
-    try:
-        return train(cfg)
-    except GarageError as exc:
-        print(f"garage_exp.train: {exc}", file=sys.stderr)
-        sys.exit(EXIT_INPUT)
-
-
 def cli(argv: list[str] | None = None) -> None:
     """`python -m garage_exp.train overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written or
-    registered); 1 a crash (traceback)."""
-    import signal
-
-    from garage_exp.core.exits import on_sigterm
-
-    if argv is not None:
-        sys.argv[1:] = list(argv)
-    install_error_report()
-    # SIGTERM (a scheduler's limit, the loop stopped) ends the training's run KILLED, as Ctrl-C does, not RUNNING.
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
-    try:
-        main()
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    registered); 1 a crash (traceback); 130 Ctrl-C, 143 SIGTERM (a scheduler's limit, the loop stopped: the
+    training's run ends KILLED, not RUNNING)."""
+    COMMAND.run(train, argv)

@@ -7,22 +7,16 @@ one before the task starts; it is removed while it holds only Hydra's files).
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
-from garage_exp.core.exits import EXIT_INPUT, install_error_report
-from garage_exp.core.paths import PROJECT_ROOT
-from garage_exp.train.app import remove_untouched
 from garage_exp.verify import schema
 
-if not OmegaConf.has_resolver("garage_root"):
-    OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
-schema.register()
+COMMAND = shell.Command("garage_exp.verify", "verify", (schema.register,))
 
 
 def check_verify(cfg: DictConfig) -> None:
@@ -62,14 +56,10 @@ def verify(cfg: DictConfig) -> dict:
     from garage_exp.verify.data import read_set
 
     out = Path(HydraConfig.get().runtime.output_dir)
-    try:
-        check_verify(cfg)
-        data = read_set(str(cfg.data), dict(cfg.label_map), str(cfg.split), cfg.images)
-        detector = load_detector(cfg)
-        check_scored(data, detector.scoring())
-    except GarageError:
-        remove_untouched(out)
-        raise
+    check_verify(cfg)  # bad input: the shell removes the run dir and says it in one line
+    data = read_set(str(cfg.data), dict(cfg.label_map), str(cfg.split), cfg.images)
+    detector = load_detector(cfg)
+    check_scored(data, detector.scoring())
     from garage_exp.tracking import runs as tracking
     from garage_exp.verify.report import verdict, write_report
     from garage_exp.verify.score import score, summary
@@ -105,19 +95,7 @@ def verify(cfg: DictConfig) -> dict:
     return summary_
 
 
-@hydra.main(version_base="1.3", config_path=str(PROJECT_ROOT / "conf"), config_name="verify")
-def main(cfg: DictConfig) -> dict:
-    try:
-        return verify(cfg)
-    except GarageError as exc:
-        print(f"garage_exp.verify: {exc}", file=sys.stderr)
-        sys.exit(EXIT_INPUT)
-
-
 def cli(argv: list[str] | None = None) -> None:
     """`python -m garage_exp.verify overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written);
-    1 a crash (traceback)."""
-    if argv is not None:
-        sys.argv[1:] = list(argv)
-    install_error_report()
-    main()
+    1 a crash (traceback); 130 Ctrl-C, 143 SIGTERM (the run ends KILLED)."""
+    COMMAND.run(verify, argv)

@@ -1,0 +1,169 @@
+"""`python -m garage_exp.loop` (issue 22): the arms' equal budgets, the failure count, the held-out plan and its
+suites, a step's result reused only for the same inputs, and the command line's refusals and signals."""
+
+from pathlib import Path
+
+import pytest
+from conftest import compose_cfg, run_in_process
+
+
+def test_the_arms_budgets_are_equal(tmp_path):
+    """The random arm draws exactly the hard arm's frame count; trainings that differ in any budget are refused."""
+    from garage_exp.loop import budget
+
+    pool = [tmp_path / f"s{k // 10}" / "images" / f"{k % 10:04d}_front.png" for k in range(60)]
+    drawn = budget.draw_frames(pool, 23, seed=0)
+    assert len(drawn) == len(set(drawn)) == 23 and drawn == budget.draw_frames(pool, 23, seed=0)
+    with pytest.raises(ValueError, match="fewer than the 61"):
+        budget.draw_frames(pool, 61, seed=0)
+    h = {"train_frames": 23, "replay_frames": 12, "val_frames": 40, "epochs": 8, "imgsz": 320}
+    budget.assert_equal_budget(h, dict(h))
+    for key in budget.BUDGET_KEYS:
+        with pytest.raises(AssertionError, match=key):
+            budget.assert_equal_budget(h, {**h, key: h[key] + 1})
+
+
+def test_failures_per_100_trials_count_only_hard_fair_trials():
+    from garage_exp.loop import budget
+    from garage_exp.loop.steps import Trial
+    from garage_exp.results.stats import wilson
+
+    trials = [Trial("s", 0, "COMPLETE", 0.9, None), Trial("s", 1, "COMPLETE", 0.5, None),
+              Trial("s", 2, "PRUNED", None, None), Trial("s", 3, "COMPLETE", 0.61, None),
+              Trial("s", 4, "RUNNING", None, None)]
+    assert budget.failures(trials, hard_below=0.4) == (2, 4)  # confidence 0.1 and 0.39; the pruned trial counts
+    low, high = wilson(0, 30)
+    assert low == 0.0 and 0.10 < high < 0.13  # Wilson's interval is not empty at 0 / 30
+    low, high = wilson(15, 30)
+    assert low < 0.5 < high and abs((low + high) / 2 - 0.5) < 1e-9
+
+
+def test_the_loop_refuses_a_held_out_plan_it_trains_on(tmp_path):
+    """Held-out means another plan: the loop stops before anything runs."""
+    from garage_exp.loop.app import cli
+
+    r = run_in_process([f"dir={tmp_path}/loop", "eval_plan=research"], tmp_path, entry=cli)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "garage_exp.loop: eval_plan: 'research' is also a training plan: held-out data must come from another plan"]
+    assert not (tmp_path / "loop").exists()
+
+
+def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
+    """A loop rerun with other settings in the same dir is refused, not answered with the old step's result."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop.app import Loop
+
+    loop = Loop(OmegaConf.create({"dir": str(tmp_path)}))
+    assert loop.reuse("arm", ["train", "epochs=6"], done=False) is False  # not done: run it
+    assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
+    with pytest.raises(GarageError, match="epochs=6 -> 8"):
+        Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
+
+
+def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):
+    """Issue 31, item 10: a D0 that scores 0 everywhere puts every held-out trial at difficulty 1; the hard and easy
+    suites were then an arbitrary split, silently."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.loop import report
+    from garage_exp.loop.steps import Trial
+
+    cfg = OmegaConf.create({"heldout_graded_by": "shipped"})
+    for k in range(6):  # each trial left its dataset
+        (tmp_path / str(k) / "dataset").mkdir(parents=True)
+        (tmp_path / str(k) / "dataset" / "data.yaml").write_text("names: {0: person}\n")
+    flat = [Trial("heldout", k, "COMPLETE", 1.0, tmp_path / str(k)) for k in range(6)]
+    suites = report.heldout_suites(cfg, flat, {})
+    assert [t.number for t in suites["hard"]] == [0, 1] and [t.number for t in suites["easy"]] == [4, 5]
+    assert "fair difficulty is 1.00 for all 6 held-out trials" in suites.note and "arbitrary split" in suites.note
+    assert suites.note in capsys.readouterr().out
+    graded = [Trial("heldout", k, "COMPLETE", 1.0 - 0.1 * k, tmp_path / str(k)) for k in range(6)]
+    assert report.heldout_suites(cfg, graded, {}).note == ""
+    tied = [Trial("heldout", k, "COMPLETE", [0.9, 0.5, 0.5, 0.5, 0.5, 0.1][k], tmp_path / str(k)) for k in range(6)]
+    assert "4 held-out trials tie" in report.heldout_suites(cfg, tied, {}).note
+    assert "the same scenarios" in report.heldout_suites(cfg, flat[:1], {}).note
+
+
+def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch, capsys):
+    """Issue 31, item 7: a study begun with 4 trials is not resumed with 5, and a training whose data list now
+    holds another split is not reused, finished or not; the refusal is one line and runs nothing."""
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop import steps
+    from garage_exp.loop.app import Loop
+
+    ran = []
+
+    def fake_run(cmd, log):
+        ran.append(cmd)
+        if "garage_exp.train" in cmd:
+            out = Path(next(a for a in cmd if a.startswith("hydra.run.dir="))[len("hydra.run.dir="):])
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "result.json").write_text("{}")
+
+    monkeypatch.setattr(steps, "run", fake_run)
+    monkeypatch.setattr(steps, "trials", lambda cfg, study: [])
+    monkeypatch.setattr(steps, "study_done", lambda cfg, study, n: False)  # interrupted: 4 of 4 never finished
+    cfg = compose_cfg(f"dir={tmp_path}", "tracking.uri=sqlite:///x.db", config="loop")
+    study = ("base", ["research"], 4, "qmc", 0)
+    loop = Loop(cfg)
+    loop.step("base data", lambda: loop.study(*study))
+    loop.step("base data", lambda: loop.study(*study))  # the same inputs: resumed
+    assert len(ran) == 2
+    with pytest.raises(GarageError, match=r"'base' made from other inputs \(search.trials=4 -> 5\)"):
+        fresh = Loop(cfg)
+        fresh.step("base data", lambda: fresh.study("base", ["research"], 5, "qmc", 0))
+    data = tmp_path / "data" / "base_train.yaml"
+    data.parent.mkdir()
+    data.write_text("train: [a]\n")
+    kw = {"data": [data], "val": [data], "base": "yolov8n.yaml", "epochs": 1, "seed": 0, "lr0": 0.01}
+    loop.step("D0", lambda: loop.train("D0", **kw))
+    loop.step("D0", lambda: loop.train("D0", **kw))  # finished, same inputs: reused
+    assert len(ran) == 3
+    data.write_text("train: [b]\n")  # another split (val_fraction=...) under the same path
+    capsys.readouterr()
+    with pytest.raises(GarageError, match=r"base_train.yaml changed\); give this run another dir"):
+        Loop(cfg).train("D0", **kw)
+    assert len(ran) == 3 and capsys.readouterr().out == ""
+
+
+def test_sigterm_stops_the_loop_and_its_running_step(tmp_path, monkeypatch):
+    """SIGTERM to the loop: exit 143 with one line saying how to go on (the loop had no handler: it died at once);
+    the running step, a child process, gets the SIGTERM too and stops as its command does (its run KILLED), instead
+    of being killed with its run left RUNNING."""
+    import sys
+
+    from garage_exp.loop import steps
+    from garage_exp.loop.app import cli
+
+    child = tmp_path / "child.py"
+    child.write_text("import signal, sys, time\n"
+                     "signal.signal(signal.SIGTERM, lambda s, f: (open(sys.argv[1], 'w').write(str(s)), sys.exit(143)))\n"
+                     "open(sys.argv[2], 'w').write('up')\n"
+                     "time.sleep(60)\n")
+    got, up = tmp_path / "got", tmp_path / "up"
+
+    def step(cmd, log):  # a step that runs, then the loop gets SIGTERM
+        import threading
+
+        def kill_when_up():
+            import os
+            import signal
+            import time
+
+            while not up.exists():
+                time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        threading.Thread(target=kill_when_up, daemon=True).start()
+        real_run([sys.executable, str(child), str(got), str(up)], log)
+
+    real_run = steps.run
+    monkeypatch.setattr(steps, "run", step)
+    r = run_in_process([f"dir={tmp_path / 'loop'}"], tmp_path, entry=cli)
+    assert r.returncode == 143, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines()[-1] == ("garage_exp.loop: terminated (SIGTERM); rerun the same command to go "
+                                                  "on where it stopped")
+    assert got.read_text() == "15"  # the step got SIGTERM and finished its handler
+
