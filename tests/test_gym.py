@@ -96,7 +96,7 @@ def test_limits_bound_every_action():
 def test_reward_on_hand_made_frames():
     """late.judge's verdict as the episode's: fair before the critical distance and never confirmed is late;
     a target never fairly visible before it is untestable, however badly it was detected."""
-    from garage_exp.core.schema import EgoConf
+    from garage_exp.results.late import EgoConf
     from garage_exp.gym.reward import critical, episode
 
     ego = EgoConf()

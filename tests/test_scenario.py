@@ -117,7 +117,7 @@ def test_a_users_own_scenario_and_site_run_with_no_change_to_the_package(library
     (tmp_path / "case").mkdir()
     (tmp_path / "case" / "cut_in.yaml").write_text(textwrap.dedent("""\
         name: cut_in
-        site: my_sites.ramp
+        site: {_target_: my_sites.ramp, lane: lane}
         position_label: lateral offset of the car ahead (m)
         actors:
           ego: {role: ego, model: "${palette.ego}", path: up, distance: 2.0}
@@ -127,8 +127,8 @@ def test_a_users_own_scenario_and_site_run_with_no_change_to_the_package(library
     (tmp_path / "my_sites.py").write_text(textwrap.dedent("""\
         from garage_exp.scenario.sites import Path, Site, straight_run
 
-        def ramp(classified, garage):
-            lane = straight_run(classified, garage).paths["lane"]
+        def ramp(classified, garage, lane):
+            lane = straight_run(classified, garage).paths[lane]
             return Site("ramp", {"up": lane})
         """))
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -141,6 +141,10 @@ def test_a_users_own_scenario_and_site_run_with_no_change_to_the_package(library
     monkeypatch.delenv("GARAGE_EXP_MODIFIER_MODULES")
     with pytest.raises(GarageError, match="cut_in.*case.site: 'my_sites.ramp' is not a site function"):
         build(library, "case=cut_in", config_dir=tmp_path)
+    # the old form, a bare dotted name, is refused with the new one
+    with pytest.raises(GarageError, match=r"case.site: site 'my_sites.ramp' names a function: write it as site: "
+                                          r"\{_target_: my_sites.ramp\}"):
+        build(library, "case=cut_in", "case.site=my_sites.ramp", config_dir=tmp_path)
 
 
 def test_the_docs_scenario_example_builds_as_it_says(library, tmp_path):

@@ -12,7 +12,7 @@ from conftest import compose_cfg, schema_node
 from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
-from garage_exp.core.schema import SlotDetectorConf, SlotLinesConf, SlotMetricsConf
+from garage_exp.perception.slots.schema import SlotDetectorConf, SlotLinesConf, SlotMetricsConf
 from garage_exp.perception.slots.detector import check_slot_detector, check_slot_weights, from_pose, load
 from garage_exp.perception.slots.marks import SlotFrame
 from garage_exp.perception.slots.synthetic import bev_row
@@ -83,27 +83,36 @@ def test_the_callable_kind_loads_the_users_function(tmp_path, monkeypatch):
         def detect(image, mpp):
             return SlotFrame([MarkingPoint(1.0, 2.0, 0.5)], [], mpp, (image.shape[1], image.shape[0]))
 
+        def scaled(image, mpp, factor=1.0):
+            return SlotFrame([MarkingPoint(1.0, 2.0, 0.5 * factor)], [], mpp, (image.shape[1], image.shape[0]))
+
         def wrong(image, mpp):
             return [(1.0, 2.0)]
         """))
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("GARAGE_EXP_MODIFIER_MODULES", "my_slots")
-    for target in ("my_slots:detect", "my_slots.detect"):
-        found = load(node(kind="callable", target=target))(np.zeros((30, 40, 3), np.uint8), 0.05)
-        assert isinstance(found, SlotFrame) and found.points[0].direction == 0.5 and found.size == (40, 30)
-    with pytest.raises(GarageError, match="slot_detector.target my_slots:wrong: returned list, not a SlotFrame"):
-        load(node(kind="callable", target="my_slots:wrong"))(np.zeros((30, 40, 3), np.uint8), 0.05)
+    found = load(node(kind="callable", detect={"_target_": "my_slots.detect"}))(np.zeros((30, 40, 3), np.uint8), 0.05)
+    assert isinstance(found, SlotFrame) and found.points[0].direction == 0.5 and found.size == (40, 30)
+    # the node's other keys are the function's keyword arguments (built by core.plugins.build, as a partial)
+    scaled = load(node(kind="callable", detect={"_target_": "my_slots.scaled", "factor": 3.0}))
+    assert scaled(np.zeros((30, 40, 3), np.uint8), 0.05).points[0].direction == 1.5
+    with pytest.raises(GarageError, match="slot_detector.detect._target_ my_slots.wrong: returned list, not a "):
+        load(node(kind="callable", detect={"_target_": "my_slots.wrong"}))(np.zeros((30, 40, 3), np.uint8), 0.05)
     monkeypatch.delenv("GARAGE_EXP_MODIFIER_MODULES")
     with pytest.raises(GarageError, match="'my_slots.detect' is not a slot detector"):
-        load(node(kind="callable", target="my_slots:detect"))
+        load(node(kind="callable", detect={"_target_": "my_slots.detect"}))
 
 
 @pytest.mark.parametrize("keys, message", [
     ({"kind": "cnn"}, "slot_detector.kind: unknown kind 'cnn'"),
-    ({"kind": "callable", "target": ""}, "slot_detector.target: kind callable needs target"),
-    ({"kind": "callable", "target": "my_slots:"}, "is not \"package.module:function\""),
-    ({"kind": "callable", "target": "os:system"}, "'os.system' is not a slot detector"),
-    ({"kind": "callable", "target": "garage_exp.nowhere:detect"}, "cannot import a slot detector"),
+    ({"kind": "callable"}, "slot_detector.detect._target_: kind callable needs detect._target_"),
+    ({"kind": "callable", "detect": {"_target_": ""}}, "kind callable needs detect._target_"),
+    ({"kind": "callable", "detect": {"_target_": "os.system"}}, "'os.system' is not a slot detector"),
+    ({"kind": "callable", "detect": {"_target_": "garage_exp.nowhere.detect"}}, "cannot import a slot detector"),
+    # the old form is refused with the new one
+    ({"kind": "callable", "target": "my_slots:detect"},
+     "slot_detector.target: slot_detector.target is gone: name the function as "
+     "slot_detector.detect._target_=my_slots.detect"),
     ({"kind": "pose", "model": "x.pt", "keypoints": "edges"}, "slot_detector.keypoints: unknown keypoints 'edges'"),
     ({"lines": {"bay_width": [3.2, 2.2]}}, "slot_detector.lines.bay_width: .* is not a range"),
     ({"lines": {"occupied_fraction": 1.5}}, "slot_detector.lines.occupied_fraction: 1.5 is outside"),

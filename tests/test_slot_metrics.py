@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import pytest
 
-from garage_exp.core.schema import SlotMetricsConf
+from garage_exp.perception.slots.schema import SlotMetricsConf
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 from garage_exp.results.slots import pool, score
 

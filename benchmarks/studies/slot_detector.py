@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from garage_exp.core.schema import SlotDetectorConf
+from garage_exp.perception.slots.schema import SlotDetectorConf
 from garage_exp.perception.slots.detector import load
 from garage_exp.perception.slots.synthetic import bev_row
 from garage_exp.results.slots import pool, score

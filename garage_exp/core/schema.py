@@ -1,10 +1,16 @@
-"""Structured configs: the schema of every config group, registered in Hydra's ConfigStore.
+"""Structured configs: the schemas every layer shares and the registration of the rest, in Hydra's ConfigStore.
 
-A YAML level of a group is validated against its dataclass here (typos and wrong types fail at compose time).
+A YAML level of a group is validated against its dataclass (typos and wrong types fail at compose time). The
+groups of the frame path that several layers read live here; a node that one layer above core owns (`search`,
+`ego`, `slot_detector`, `export`) is declared beside its check in that layer and registered here by dotted name (NODES,
+GROUPS), so that core imports no layer above it. `Config` is the top-level dataclass they make (config_schema).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import importlib
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -216,7 +222,9 @@ class CaseConf:
     """A scenario (one YAML file of the `case` group): a site of the plan, actors, a motion, variants."""
 
     name: str = MISSING
-    site: str = MISSING  # corner | bay_beside_pillar | straight_run (garage_exp/scenario/sites.py)
+    # corner | bay_beside_pillar | straight_run | ... (garage_exp/scenario/sites.py), or your own site function:
+    # {_target_: my_sites.ramp, ...its keyword arguments}
+    site: Any = MISSING
     position_label: str = "position (m)"  # the plot's x axis: what the motion moves
     bays: dict[str, str] = field(default_factory=dict)  # names for the site's bays (far: 3, mine: right:2)
     keep_free: list[str] = field(default_factory=list)  # bays kept free of the palette's parked cars (besides
@@ -298,52 +306,6 @@ class DetectorConf:
 
 
 @dataclass
-class SlotLinesConf:
-    """The `lines` baseline's settings (garage_exp/perception/slots/lines.py), in metres where lengths."""
-
-    line_width: tuple[float, float] = (0.08, 0.25)  # painted line widths it looks for
-    min_contrast: float = 20.0  # paint at least this much brighter than the floor beside it (0-255 grey levels)
-    min_line: float = 1.0  # the shortest painted run kept as a separating line
-    max_gap: float = 0.8  # gaps in worn paint bridged along a line
-    bay_width: tuple[float, float] = (2.2, 3.2)  # entrance width: two marking points this far apart open a slot
-    depth: tuple[float, float] = (4.5, 6.0)  # a slot's depth; the middle when the back of the bay is not seen
-    junction: float = 0.6  # a separating line ending this near an entrance line meets it (a T or an L; worn ends)
-    parallel_deg: float = 10.0  # lines within this angle are parallel
-    border: float = 0.2  # a line end this near the image edge or unseen (black) pixels is cut, not an end
-    occupied_delta: float = 0.35  # not floor: this far from the floor's colour (RGB distance / the colour's length)
-    occupied_fraction: float = 0.3  # a slot is occupied when this share of its inner part is not floor
-
-
-@dataclass
-class SlotMetricsConf:
-    """PS2.0's matching tolerances (garage_exp/results/slots.py). PS2.0 images are 600 px for 10 m, and a
-    marking point matches within 10 px (0.167 m) and 30 degrees."""
-
-    point_tolerance_m: float = 0.17
-    angle_tolerance_deg: float = 30.0
-    min_score: float = 0.0  # found points and slots scoring lower are dropped before matching
-
-
-@dataclass
-class SlotDetectorConf:
-    """The slot detector run on the BEV (garage_exp/perception/slots/detector.py): `lines`, the classical
-    baseline (no weights); `callable`, the user's function `target` ("package.module:function", called with the
-    BEV RGB image and its metres per pixel, returning a SlotFrame); `pose`, an ultralytics pose model `model`
-    (.pt) whose keypoints are a slot's four corners (`keypoints: corners`) or a marking point and a point along
-    its direction (`keypoints: points`)."""
-
-    name: str = "lines"
-    kind: str = "lines"  # lines | callable | pose
-    target: str = ""  # callable
-    model: str = ""  # pose: path to the .pt
-    keypoints: str = "corners"  # pose: corners | points
-    conf: float = 0.25  # pose: the model's confidence threshold
-    imgsz: int = 640  # pose: the model's input size
-    lines: SlotLinesConf = field(default_factory=SlotLinesConf)
-    metrics: SlotMetricsConf = field(default_factory=SlotMetricsConf)
-
-
-@dataclass
 class RendererConf:
     """The renderer: `_target_` names the backend's factory, called with the other keys, returning a
     `garage_exp.render.Renderer`."""
@@ -374,122 +336,93 @@ class ReplicateConf:
     models: bool = True  # each vehicle target's model drawn from its size class and colour
 
 
-@dataclass
-class SuiteConf:
-    """Graded suites (`search.mode=suite`): K fairly visible scenarios per difficulty band."""
+# The top-level config's nodes, in its order. A node of a layer above core is declared beside its check in that
+# layer and registered here by dotted name, resolved when the schema is first used (as a config's `_target_` is),
+# so that core imports no layer above it. A new node: its dataclass beside its check, and one line here (and in
+# GROUPS when it is a config group with YAML levels).
+NODES: dict[str, type | str] = {
+    "plan": PlanConf, "garage": GarageConf, "light": LightConf, "camera": CameraRigConf, "palette": PaletteConf,
+    "occluder": OccluderConf, "case": CaseConf, "ego": "garage_exp.results.late.EgoConf", "sensor": SensorConf,
+    "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf, "detector": DetectorConf,
+    "slot_detector": "garage_exp.perception.slots.schema.SlotDetectorConf", "renderer": RendererConf,
+    "tracking": TrackingConf,
+}
 
-    per_band: int = 3  # K scenarios kept per band
-    # band name -> [low, high) of the composite confidence (1 - difficulty) over the fair frames; empty: easy
-    # >= 0.7, moderate 0.4-0.7, hard < 0.4 (garage_exp/search/suite.py). Empty by default so that
-    # `+search.suite.bands.low=[0,0.5] +search.suite.bands.high=[0.5,1.01]` give exactly those (Hydra merges dicts).
-    bands: dict[str, list[float]] = field(default_factory=dict)
-    dir: Optional[str] = None  # None: outputs/suites/<study>
 
-
-@dataclass
-class PrescreenConf:
-    """A cheap first look at each trial before its full render (garage_exp/search/prescreen.py)."""
-
-    level: str = "none"  # none | truth (ground truth at low resolution) | detector (and one detector on it)
-    scale: float = 0.5  # of each camera's resolution and of the detector's input size
-    easy: float = 0.25  # detector: a fair difficulty under this is screened as easy
-    slack: float = 2.0  # detector, late objective: confirmed this many metres before the critical distance: easy
-    slack_visible: float = 0.1  # the fairness rule's visible fraction loosened by this much
+class ByName(str):
+    """A node registered by dotted name among Shared's values, resolved in its place (config_schema)."""
 
 
 @dataclass
-class SearchConf:
-    """The search for hard scenarios (`hydra/sweeper=search`, garage_exp/search); read by the sweeper."""
+class Shared:
+    """The top-level config's own values, after its nodes (config_schema)."""
 
-    mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
-    trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
-    sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
-    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness) |
-    # slots (1 - recall of the fair slots on the BEV: case=slots camera=fisheye4, docs/slots.md)
-    seed: Optional[int] = None  # the sampler's seed; None: the config's seed
-    startup: int = 10  # tpe, gp, cmaes: random trials before the model guides (Optuna's n_startup_trials)
-    study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)
-    storage: Optional[str] = None  # an Optuna RDB URL; None: sqlite under outputs/search/optuna.db
-    # A frame is a fair test when the target is at least this visible, its box at least this tall and at most
-    # this much of it outside the image (KITTI's "hard" level: 25 px, truncation 0.5).
-    min_visible: float = 0.5
-    min_box: int = 25
-    max_truncation: float = 0.5
-    top: int = 5  # the hardest N scenarios the report lists and shows
-    saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (D + 2) trials)
-    grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)
-    suite: SuiteConf = field(default_factory=SuiteConf)
-    prescreen: PrescreenConf = field(default_factory=PrescreenConf)
-    trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary
-
-
-@dataclass
-class EgoConf:
-    """How the ego drives and when it must know (garage_exp/results/late.py): its stopping distance is
-    speed x reaction + speed^2 / (2 deceleration); a target first confirmed (k hits in n frames) nearer than
-    that plus `margin` (camera to the target's centre) was seen too late to stop. Sources in docs/late.md."""
-
-    speed: float = 10.0  # km/h, an AVP car's manoeuvring speed
-    reaction: float = 0.5  # s, from the confirming frame to full braking (system latency and brake build-up)
-    deceleration: float = 3.4  # m/s^2, AASHTO's braking rate for stopping sight distance
-    margin: float = 2.5  # m, roof camera to front bumper (~1.5 m) and the target's half depth, stopping short
-    k: int = 2  # a target is confirmed at the frame completing k hits ...
-    n: int = 3  # ... within the last n frames
-
-
-@dataclass
-class ExportConf:
-    """Formats a job writes beside its frames for other tools (garage_exp/exports)."""
-
-    # openscenario/scenario.xosc (ASAM OpenSCENARIO 1.2: entities, initial positions, routes, speeds, triggers)
-    # and openscenario/garage.xodr (the plan's driving lanes as ASAM OpenDRIVE); a search writes its hardest
-    # trials', a suite each scenario's (docs/openscenario.md)
-    openscenario: bool = False
-
-
-@dataclass
-class Config:
-    plan: PlanConf = field(default_factory=PlanConf)
-    garage: GarageConf = field(default_factory=GarageConf)
-    light: LightConf = field(default_factory=LightConf)
-    camera: CameraRigConf = field(default_factory=CameraRigConf)
-    palette: PaletteConf = field(default_factory=PaletteConf)
-    occluder: OccluderConf = field(default_factory=OccluderConf)
-    case: CaseConf = field(default_factory=CaseConf)
-    ego: EgoConf = field(default_factory=EgoConf)
-    sensor: SensorConf = field(default_factory=SensorConf)
-    look: LookConf = field(default_factory=LookConf)
-    materials: MaterialsConf = field(default_factory=MaterialsConf)
-    clutter: ClutterConf = field(default_factory=ClutterConf)
-    detector: DetectorConf = field(default_factory=DetectorConf)
-    slot_detector: SlotDetectorConf = field(default_factory=SlotDetectorConf)
-    renderer: RendererConf = field(default_factory=RendererConf)
-    tracking: TrackingConf = field(default_factory=TrackingConf)
     # Extra factors: config groups whose YAML names a scene modifier with `_target_` (see conf/pillar/).
     modifiers: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
     replicates: int = 1  # each cell run this many times with seeded nuisance variation (`replicate` node)
     replicate: ReplicateConf = field(default_factory=ReplicateConf)
-    search: SearchConf = field(default_factory=SearchConf)
+    search: Any = ByName("garage_exp.search.schema.SearchConf")  # the sweeper's settings (search/schema.py)
     blank: bool = False  # the blank control: only the vehicles, background removed
     dataset: bool = False  # also write frames with YOLO, COCO and KITTI labels (garage_exp/exports)
-    export: ExportConf = field(default_factory=ExportConf)
+    export: Any = ByName("garage_exp.exports.openscenario.ExportConf")  # formats beside the frames
     resume: bool = False
     dry_run: bool = False  # plan + map + MLflow only: no rendering or detection
 
 
-GROUPS = {
+GROUPS: dict[str, type | str] = {
     "plan": PlanConf, "garage": GarageConf, "light": LightConf, "camera": CameraRigConf, "palette": PaletteConf,
     "occluder": OccluderConf, "case": CaseConf, "sensor": SensorConf, "detector": DetectorConf,
-    "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf, "slot_detector": SlotDetectorConf,
-    "renderer": RendererConf, "tracking": TrackingConf,
+    "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf,
+    "slot_detector": "garage_exp.perception.slots.schema.SlotDetectorConf", "renderer": RendererConf,
+    "tracking": TrackingConf,
 }
+# Names that moved beside their checks, still importable from here for code written before the move.
+MOVED = {"EgoConf": "garage_exp.results.late.EgoConf", "SearchConf": "garage_exp.search.schema.SearchConf",
+         "SuiteConf": "garage_exp.search.schema.SuiteConf", "PrescreenConf": "garage_exp.search.schema.PrescreenConf",
+         "SlotDetectorConf": "garage_exp.perception.slots.schema.SlotDetectorConf",
+         "SlotLinesConf": "garage_exp.perception.slots.schema.SlotLinesConf",
+         "SlotMetricsConf": "garage_exp.perception.slots.schema.SlotMetricsConf",
+         "ExportConf": "garage_exp.exports.openscenario.ExportConf"}
+
+
+def schema_of(entry: type | str) -> type:
+    """A registered schema: the dataclass, or the one its dotted name names."""
+    if isinstance(entry, type):
+        return entry
+    module, _, name = entry.rpartition(".")
+    return getattr(importlib.import_module(module), name)
+
+
+@functools.cache
+def config_schema() -> type:
+    """The top-level config's dataclass (`Config`): every node of NODES, then Shared's values (a node registered
+    by name among them in its place), in the config's order."""
+    fields = [(name, schema_of(entry)) for name, entry in NODES.items()]
+    for f in dataclasses.fields(Shared):
+        if isinstance(f.default, ByName):
+            fields.append((f.name, schema_of(f.default)))
+        else:
+            fields.append((f.name, f.type, field(default=f.default, default_factory=f.default_factory)))
+    spec = [(n, t, field(default_factory=t)) if not rest else (n, t, *rest) for n, t, *rest in fields]
+    config = dataclasses.make_dataclass("Config", spec)
+    config.__module__ = __name__  # its annotations name this module's types
+    return config
+
+
+def __getattr__(name: str):
+    """`Config` (built once, config_schema) and the names that moved (MOVED)."""
+    if name == "Config":
+        return config_schema()
+    if name in MOVED:
+        return schema_of(MOVED[name])
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def register() -> None:
     cs = ConfigStore.instance()
     # A group, so that a command whose config composes the experiment's (conf/gym.yaml) types it with its own
     # subclass of Config: `override config_schema: gym`.
-    cs.store(group="config_schema", name="experiment", node=Config, package="_global_")
+    cs.store(group="config_schema", name="experiment", node=config_schema(), package="_global_")
     for group, schema in GROUPS.items():
-        cs.store(group=group, name=f"{group}_schema", node=schema)
+        cs.store(group=group, name=f"{group}_schema", node=schema_of(schema))

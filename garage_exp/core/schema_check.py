@@ -19,7 +19,7 @@ from typing import Any, Iterator
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.state import STATE
-from garage_exp.core.schema import Config
+from garage_exp.core.schema import config_schema
 from garage_exp.core.errors import GarageError, did_you_mean
 
 NOT_IN_SCHEMA = ("hydra",)  # top-level nodes that are not the task's config (a sweep job's config carries hydra)
@@ -44,7 +44,7 @@ def unknown_keys(value: Any, schema: Any, path: tuple[str, ...] = ()) -> Iterato
             return
         fields = _fields(schema)
         for key, item in value.items():
-            if not path and key in NOT_IN_SCHEMA and schema is Config:
+            if not path and key in NOT_IN_SCHEMA and schema is config_schema():
                 continue
             if key not in fields:
                 yield path, str(key), schema
@@ -107,7 +107,7 @@ def check_schema(cfg: DictConfig, overrides: list[str] | None = None) -> None:
     the key and the nearest valid key: `+case.bumper_gapp=1: case has no key 'bumper_gapp' (did you mean
     'bumper_gap'?)`."""
     values = OmegaConf.to_container(cfg, resolve=False)
-    for parent, key, schema in unknown_keys(values, Config):
+    for parent, key, schema in unknown_keys(values, config_schema()):
         full = ".".join((*parent, key))
         given = override_of(full, task_overrides(cfg) if overrides is None else overrides)
         where = given or level_file(cfg, parent[0] if parent else "")

@@ -242,6 +242,17 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
     return path
 
 
+@dataclass
+class ExportConf:
+    """The `export` node's schema, beside its check (check_export; core/schema.py registers it by name):
+    formats a job writes beside its frames for other tools (garage_exp/exports)."""
+
+    # openscenario/scenario.xosc (ASAM OpenSCENARIO 1.2: entities, initial positions, routes, speeds, triggers)
+    # and openscenario/garage.xodr (the plan's driving lanes as ASAM OpenDRIVE); a search writes its hardest
+    # trials', a suite each scenario's (docs/openscenario.md)
+    openscenario: bool = False
+
+
 def check_export(cfg) -> None:
     """The `export` group: a dry run builds no scenario to write."""
     if cfg.export.openscenario and cfg.dry_run:

@@ -148,11 +148,14 @@ def bench_records(overrides: list[str], definition: str, seed: int, episodes: in
     episode's renders), failure, value."""
     from garage_exp.gym.env import compose
 
+    from garage_exp.search.objectives import gym_objectives
+
     cfg = compose([*overrides, f"gym.objective={definition}"])
+    goal = gym_objectives()[definition]  # its verdict and value (search/objectives.py)
     out = []
     for r in falsify(cfg, seed, episodes):
-        failure = r["late"] if definition == "late" else r["hard_fair"]
+        failure = r[goal.verdict]
         out.append({"params": {BENCH_PARAMS.get(k, k): v for k, v in r["params"].items()}, "state": "COMPLETE",
                     "screened": "", "full_frames": r["renders"], "cheap_frames": 0, "failure": bool(failure),
-                    "value": r["lateness"] if definition == "late" else r["difficulty"], "cpu_s": r["cpu_s"]})
+                    "value": r[goal.metric], "cpu_s": r["cpu_s"]})
     return out

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from garage_exp.core.schema import SearchConf
+from garage_exp.search.schema import SearchConf
 from garage_exp.exports.coco import CATEGORY_IDS
 from garage_exp.loop.steps import Trial
 from garage_exp.perception.detect import GTBox, score_target

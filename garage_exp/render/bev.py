@@ -27,6 +27,7 @@ from garage_exp.core.errors import GarageError, check_range
 from garage_exp.render.fisheye import lens_of
 from garage_exp.scene.camera import camera_to_world, to_camera
 from garage_exp.scene.description import CameraSpec, Pose
+from garage_exp.scene.lenses import camera_model
 
 SIZE_RANGE = (2.0, 60.0)  # metres per side
 MPP_RANGE = (0.005, 0.5)  # metres per pixel
@@ -131,9 +132,10 @@ class BevMaps:
 
 
 def bev_maps(cameras, spec: BevSpec, ego_extent=None) -> BevMaps:
-    """The maps of a rig's fisheye cameras (CameraSpec, mounted on the ego) for a BEV; cached per (rig, spec,
-    ego extent): they do not depend on where the ego stands."""
-    fisheyes = tuple(c for c in cameras if c.fisheye)
+    """The maps of a rig's fisheye cameras (CameraSpec, mounted on the ego; those whose model stitches into a
+    BEV, scene/lenses.py) for a BEV; cached per (rig, spec, ego extent): they do not depend on where the ego
+    stands."""
+    fisheyes = tuple(c for c in cameras if camera_model(c.model).bev)
     if not fisheyes:
         raise GarageError("a bird's-eye view needs fisheye cameras; this rig has none", "camera.bev")
     extent = None if ego_extent is None else tuple(round(float(v), 6) for v in ego_extent)

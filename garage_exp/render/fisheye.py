@@ -178,8 +178,18 @@ class Fisheye:
         return self.cx + self.f * right * scale, self.cy + self.f * down * scale
 
 
-def lens_of(spec) -> Fisheye:
+def kannala_brandt(spec) -> Fisheye:
+    """The lens of a camera spec of the fisheye model (scene/lenses.py)."""
     return Fisheye(spec.width, spec.height, spec.fov, tuple(spec.k))
+
+
+def lens_of(spec) -> Fisheye:
+    """The lens a cube-mapped camera's model names (scene/lenses.py: `lens`)."""
+    from garage_exp.core.plugins import resolve
+    from garage_exp.scene.lenses import camera_model
+
+    model = camera_model(spec.model)
+    return resolve(model.lens, "a camera lens", f"camera model {model.name}")(spec)
 
 
 def view_lens(spec) -> Pinhole | Cylindrical | None:

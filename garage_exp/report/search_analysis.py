@@ -1,13 +1,13 @@
 """What the user sees of a study (issue 10, §3): figures, tables and a report of the hardest scenarios.
 
-`analyse(study, out_dir)` works on any Optuna study whose trials follow the sweeper's contract (values:
-difficulty, or [difficulty, visible fraction]; user_attrs: overrides, visible_fraction, fair_frames, frames,
-recall, confidence, frame, and "infeasible" on a pruned trial or "error" on a failed one). It writes, into
-out_dir: history.png, importances.png/.csv (fANOVA), slices.png, pareto.png (multi-objective), sensitivity.png/
-.csv (Sobol', see sensitivity), trials.csv, hardest.csv, frames/ (the hardest trials' frames) and
-search_report.md/.html. Only complete trials are ranked; pruned (infeasible) and failed ones are counted and
-listed apart. `python -m garage_exp.report.search_analysis` writes the same for a study in a storage, finished or
-still running.
+`analyse(study, out_dir)` works on any Optuna study whose trials follow the sweeper's contract (values: the search
+objective's, named by the study's user_attr direction_names: difficulty, lateness, ...; user_attrs: overrides,
+visible_fraction, fair_frames, frames, recall, confidence, frame, and "infeasible" on a pruned trial or "error" on
+a failed one). It writes, into out_dir: history.png, importances.png/.csv (fANOVA), slices.png, pareto.png (multi-
+objective), sensitivity.png/.csv (Sobol', see sensitivity), trials.csv, hardest.csv, frames/ (the hardest trials'
+frames) and search_report.md/.html. Only complete trials are ranked; pruned (infeasible) and failed ones are
+counted and listed apart. `python -m garage_exp.report.search_analysis` writes the same for a study in a storage,
+finished or still running.
 
 This module writes the report's sections; what it shows comes from `trials.py` (the sweeper's contract: the
 trial table, the hardest trials, rerun commands), `why_hard.py` (importances, and which side of each parameter
@@ -31,7 +31,7 @@ from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.report import sensitivity
 from garage_exp.report.study_figures import figures
-from garage_exp.report.trials import (ATTRS, LATE_ATTRS, difficulty, distributions, hardest, objective_names,
+from garage_exp.report.trials import (ATTRS, LATE_ATTRS, distributions, first_value, hardest, objective_names,
                                       overrides, rerun_overrides, trial_table, untestable)
 from garage_exp.report.why_hard import FANOVA_SEED, importances, what_makes_it_hard, why_hard
 from garage_exp.tracking.page import html_page
@@ -112,7 +112,7 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
     higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
     for rank, t in enumerate(top_trials, 1):
         command = " ".join(["python -m garage_exp", *map(shlex.quote, rerun_overrides(t))])
-        lines += [f"### {rank}. trial {t.number}: {name} {difficulty(t):.2f}, visible fraction "
+        lines += [f"### {rank}. trial {t.number}: {name} {first_value(t):.2f}, visible fraction "
                   f"{fmt(by_number.loc[t.number, 'visible_fraction'])}", "",
                   "Rerun it:", "", "```bash", command, "```", "",
                   *what_makes_it_hard(why_hard(t, table, dists, importance, higher_is_harder, name))]

@@ -10,7 +10,7 @@ import numpy as np
 import optuna
 from optuna.trial import TrialState
 
-from garage_exp.report.trials import difficulty, objective_names
+from garage_exp.report.trials import first_value, objective_names
 
 
 def _plots():
@@ -46,12 +46,12 @@ def figures(study: optuna.Study, out_dir: Path, importance: dict[str, float]) ->
     if not done:
         return {}
     # one objective: no target, so optuna also draws the best-so-far line; two: the difficulty alone
-    target = difficulty if len(study.directions) > 1 else None
+    target = first_value if len(study.directions) > 1 else None
     out = {"history": save_plot(lambda: vis.plot_optimization_history(
         study, target=target, target_name=names[0]), out_dir / "history.png", (7, 4))}
     params = sorted({p for t in done for p in t.params})
     if params:
-        out["slices"] = save_plot(lambda: vis.plot_slice(study, target=difficulty, target_name=names[0]),
+        out["slices"] = save_plot(lambda: vis.plot_slice(study, target=first_value, target_name=names[0]),
                                   out_dir / "slices.png")  # optuna sizes it to the parameters
     if importance:
         plt, _ = _plots()

@@ -1,9 +1,9 @@
 """A search study's trials as the sweeper left them: the objectives' names, each trial's overrides and the
 command that reruns it, one table row per trial, the hardest complete trials.
 
-The sweeper's contract (values: difficulty, or [difficulty, visible fraction]; user_attrs: overrides,
-visible_fraction, fair_frames, frames, recall, confidence, frame, and "infeasible" on a pruned trial or "error"
-on a failed one) is read here and nowhere else in the report.
+The sweeper's contract (values: the search objective's, named by the study's user_attr direction_names: difficulty,
+lateness, ...; user_attrs: overrides, visible_fraction, fair_frames, frames, recall, confidence, frame, and
+"infeasible" on a pruned trial or "error" on a failed one) is read here and nowhere else in the report.
 """
 
 from __future__ import annotations
@@ -23,12 +23,15 @@ LATE_ATTRS = ("late", "detection_distance", "ttc_at_detection")
 JOB_SEARCH_KEYS = ("search.min_visible=", "search.min_box=", "search.max_truncation=")
 
 
-def difficulty(trial: FrozenTrial) -> float:
-    """The first objective is the difficulty, in single- and multi-objective studies alike."""
+def first_value(trial: FrozenTrial) -> float:
+    """The trial's first value, the one the study ranks by (difficulty, lateness, slot_miss: whatever the search's
+    objective stored as `direction_names`), in single- and multi-objective studies alike."""
     return trial.values[0]
 
 
 def objective_names(study: optuna.Study) -> list[str]:
+    """The study's value names, as the search stored them (search/objectives.py); a study without them was
+    made before the search stored names, when the only objectives were difficulty and pareto."""
     names = study.user_attrs.get("direction_names") or study.metric_names
     if names and len(names) == len(study.directions):
         return list(names)
@@ -64,7 +67,7 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
     rows = []
     for t in study.get_trials(deepcopy=False):
         done = t.state == TrialState.COMPLETE
-        row = {"trial": t.number, "state": t.state.name, name: difficulty(t) if done else np.nan}
+        row = {"trial": t.number, "state": t.state.name, name: first_value(t) if done else np.nan}
         for key in (*ATTRS, *LATE_ATTRS):
             row[key] = t.user_attrs.get(key, np.nan)
         if multi and done and pd.isna(row["visible_fraction"]):
@@ -82,10 +85,10 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
 
 
 def hardest(study: optuna.Study, top: int) -> list[FrozenTrial]:
-    """The top complete trials by difficulty (the study's first direction says which end is hard)."""
+    """The top complete trials by the first value (the study's first direction says which end is hard)."""
     done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     harder_is_higher = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
-    return sorted(done, key=lambda t: (-difficulty(t) if harder_is_higher else difficulty(t), t.number))[:top]
+    return sorted(done, key=lambda t: (-first_value(t) if harder_is_higher else first_value(t), t.number))[:top]
 
 
 def distributions(study: optuna.Study) -> dict[str, BaseDistribution]:

@@ -11,7 +11,7 @@ from optuna.trial import FrozenTrial, TrialState
 from scipy.stats import ttest_ind
 
 from garage_exp.report import sensitivity
-from garage_exp.report.trials import difficulty
+from garage_exp.report.trials import first_value
 
 FANOVA_SEED = 0  # the importances of one study are the same every time they are computed
 THIRDS = ("low third", "middle third", "high third")
@@ -19,13 +19,13 @@ ALPHA = 0.05  # a side is called harder only when Welch's t-test tells it from t
 
 
 def importances(study: optuna.Study) -> tuple[dict[str, float], str]:
-    """fANOVA importances of the parameters for the difficulty (seeded), or {} and the reason they are missing."""
+    """fANOVA importances of the parameters for the first value (seeded), or {} and the reason they are missing."""
     done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     if len(done) < 2:
         return {}, f"Importances skipped: {len(done)} complete trial(s), fANOVA needs at least 2."
     evaluator = optuna.importance.FanovaImportanceEvaluator(seed=FANOVA_SEED)
     try:
-        found = optuna.importance.get_param_importances(study, evaluator=evaluator, target=difficulty)
+        found = optuna.importance.get_param_importances(study, evaluator=evaluator, target=first_value)
     except RuntimeError as exc:  # fANOVA's "zero total variance": every trial equally hard
         return {}, f"Importances skipped: {exc}"
     if not found:

@@ -45,6 +45,21 @@ def critical_distance(ego) -> float:
     return stopping_distance(ego) + float(ego.margin)
 
 
+@dataclass
+class EgoConf:
+    """The `ego` node's schema, beside its check (check_ego; core/schema.py registers it by name): how the ego
+    drives and when it must know. Its stopping distance is speed x reaction + speed^2 / (2 deceleration); a
+    target first confirmed (k hits in n frames) nearer than that plus `margin` (camera to the target's centre)
+    was seen too late to stop. Sources in docs/late.md."""
+
+    speed: float = 10.0  # km/h, an AVP car's manoeuvring speed
+    reaction: float = 0.5  # s, from the confirming frame to full braking (system latency and brake build-up)
+    deceleration: float = 3.4  # m/s^2, AASHTO's braking rate for stopping sight distance
+    margin: float = 2.5  # m, roof camera to front bumper (~1.5 m) and the target's half depth, stopping short
+    k: int = 2  # a target is confirmed at the frame completing k hits ...
+    n: int = 3  # ... within the last n frames
+
+
 def check_ego(ego, moving: bool = True) -> None:
     """The `ego` node's values: one line naming the key on the first bad one."""
     for key in ("speed", "reaction", "margin"):

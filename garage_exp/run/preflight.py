@@ -118,13 +118,14 @@ def check_slots(cfg: DictConfig) -> None:
     raw fisheye pictures over a sane extent. A slot case on a rig without fisheyes runs as an object case
     (run/slots.py)."""
     from garage_exp.render.bev import check_bev
+    from garage_exp.scene.lenses import rig_has
 
     enabled = bool(cfg.camera.bev.enabled)
-    fisheye = any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras)
-    if not enabled and not (cfg.case.get("slots", False) and fisheye):
+    bev = rig_has(cfg.camera, "bev")
+    if not enabled and not (cfg.case.get("slots", False) and bev):
         return
     check_bev(cfg.camera.bev)
-    if not fisheye:
+    if not bev:
         raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {cfg.camera.name} has none "
                           "(camera=fisheye4)", "camera.bev.enabled")
     if cfg.camera.get("view", "raw") != "raw":

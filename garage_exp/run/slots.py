@@ -18,6 +18,8 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
+from garage_exp.scene.lenses import rig_has
+
 # results.slots' names -> the job's metric names
 METRICS = {"point_recall": "slot_point_recall", "point_precision": "slot_point_precision",
            "slot_recall": "slot_recall", "slot_precision": "slot_precision",
@@ -31,7 +33,7 @@ def wanted(cfg: DictConfig) -> bool:
         return True
     if not cfg.case.get("slots", False):
         return False
-    if any(cam.get("model", "pinhole") == "fisheye" for cam in cfg.camera.cameras):
+    if rig_has(cfg.camera, "bev"):
         return True
     print(f"garage_exp: case {cfg.case.name} scores slots on a bird's-eye view of fisheye cameras; rig "
           f"{cfg.camera.name} has none, so no slot frames (camera=fisheye4)")

@@ -225,19 +225,23 @@ SITES = {"corner": corner, "bay_beside_pillar": bay_beside_pillar, "straight_run
          "t_junction": t_junction, "lane_bays": lane_bays}
 
 
-def find_site(name: str, classified: Classified, garage) -> Site:
-    """A shipped site by name, or a user's own: `site: my_sites.ramp` names a function (classified, garage) ->
-    Site in a module allowed by $GARAGE_EXP_MODIFIER_MODULES."""
-    if "." in name:
+def find_site(site, classified: Classified, garage) -> Site:
+    """A shipped site by name (`site: corner`), or a user's own, named by `_target_` like every component a
+    config names: `site: {_target_: my_sites.ramp, ...}` is built through core.plugins.build, called with
+    (classified, garage) and the node's other keys, in a module allowed by $GARAGE_EXP_MODIFIER_MODULES."""
+    if not isinstance(site, str):
         from garage_exp.core.plugins import build
 
-        site = build({"_target_": name}, "a site function", "case.site", classified, garage)
-        if not isinstance(site, Site):
-            raise GarageError(f"{name} returned {type(site).__name__}, not a Site", "case.site")
-        return site
+        made = build(site, "a site function", "case.site", classified, garage)
+        if not isinstance(made, Site):
+            raise GarageError(f"{site.get('_target_')} returned {type(made).__name__}, not a Site", "case.site")
+        return made
+    if "." in site:  # the old form, a function's dotted name as the site's name
+        raise GarageError(f"site {site!r} names a function: write it as site: {{_target_: {site}}} (on the command "
+                          f"line case.site={{_target_:{site}}})", "case.site")
     try:
-        finder = SITES[name]
+        finder = SITES[site]
     except KeyError:
-        raise GarageError(f"unknown site {name!r} (have {', '.join(sorted(SITES))}, or a function "
-                          "module.name)", "case.site") from None
+        raise GarageError(f"unknown site {site!r} (have {', '.join(sorted(SITES))}, or your own function: "
+                          "{_target_: module.name})", "case.site") from None
     return finder(classified, garage)

@@ -14,12 +14,10 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.scene.description import CameraSpec, Pose
+from garage_exp.scene.lenses import DEFAULT, MODELS, check_model, model_of
 
-FOVY_RANGE = (1.0, 170.0)  # degrees, vertical
-FISHEYE_FOV_RANGE = (60.0, 200.0)  # degrees across the image width; the issue's lenses are about 190
 RESOLUTION_RANGE = (16, 4096)  # pixels per side
 FOVY_LEVELS = (30.0, 60.0, 90.0, 120.0)  # the research's range of forward fields of view
-MODELS = ("pinhole", "fisheye")
 VIEWS = ("raw", "perspective", "cylindrical")
 
 
@@ -52,12 +50,12 @@ MOUNTS = {
 
 def check_camera(rig, dataset: bool = False) -> None:
     """The `camera` group: at least one camera, known mounts and lens models, sane fields of view and sizes.
-    `dataset`: the job writes KITTI labels, whose calibration is a pinhole matrix; a fisheye camera's frames
-    then have to be its perspective view."""
+    `dataset`: the job writes KITTI labels, whose calibration is a pinhole matrix; a lens camera's frames (a
+    fisheye's) then have to be its perspective view."""
     if not rig.cameras:
         raise GarageError("the rig has no camera", "camera.cameras")
     if dataset and rig.get("view", "raw") != "perspective" and any(
-            cam.get("model", "pinhole") == "fisheye" for cam in rig.cameras):
+            not model_of(cam).pinhole_frames for cam in rig.cameras if cam.get("model", DEFAULT) in MODELS):
         raise GarageError(f"dataset=true writes KITTI's pinhole calibration, which {rig.view} fisheye frames do"
                           " not have: use camera.view=perspective", "camera.view")
     for key in ("mount", "fovy", "pitch", "z"):
@@ -72,19 +70,7 @@ def check_camera(rig, dataset: bool = False) -> None:
         if mount is not None and mount not in MOUNTS:
             key = "camera.mount" if rig.get("mount") is not None else f"{where}.mount"
             raise GarageError(f"unknown mount {mount!r} ({' | '.join(MOUNTS)})", key)
-        model = cam.get("model", "pinhole")
-        if model not in MODELS:
-            raise GarageError(f"unknown camera model {model!r} ({' | '.join(MODELS)})", f"{where}.model")
-        if model == "fisheye":
-            check_range(cam.fov, *FISHEYE_FOV_RANGE, f"{where}.fov", f"fisheye fov {cam.fov} degrees")
-            if len(cam.k) != 4:
-                raise GarageError(f"a fisheye lens has 4 coefficients k1..k4, not {len(cam.k)}", f"{where}.k")
-            if not _monotonic(cam.fov, cam.k):
-                raise GarageError(f"coefficients {list(cam.k)} fold the image back within fov {cam.fov}",
-                                  f"{where}.k")
-        else:
-            key = "camera.fovy" if rig.get("fovy") is not None else f"{where}.fovy"
-            check_range(cam.fovy, *FOVY_RANGE, key, f"fovy {cam.fovy} degrees")
+        check_model(cam, where).check(cam, rig, where)
         for side in ("width", "height"):
             key = f"camera.{side}" if rig.get(side) is not None else f"{where}.{side}"
             check_range(cam[side], *RESOLUTION_RANGE, key, f"{side} {cam[side]} px")
@@ -126,14 +112,6 @@ class _Values(dict):
             raise AttributeError(key) from exc
 
 
-def _monotonic(fov: float, k) -> bool:
-    """Whether theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8) grows over the lens's field."""
-    theta = np.linspace(0.0, math.radians(fov) / 2.0, 200)
-    t2 = theta * theta
-    theta_d = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
-    return bool(np.all(np.diff(theta_d) > 0))
-
-
 def mount_pose(name: str, extent) -> Pose:
     """A named mount's pose on an ego of this extent (length, width, height)."""
     m = MOUNTS[name]
@@ -152,11 +130,9 @@ def rig_specs(rig, ego_extent) -> list[CameraSpec]:
         pose = mount_pose(mount, ego_extent) if mount else Pose(cam.x, cam.y, roof + cam.z, cam.yaw)
         if cam.get("z_offset") is not None:
             pose = Pose(pose.x, pose.y, pose.z + float(cam.z_offset), pose.yaw)
-        fisheye = cam.get("model", "pinhole") == "fisheye"
+        model = model_of(cam)
         out.append(CameraSpec(cam.name, pose, pitch=cam.pitch, fovy=cam.fovy, width=cam.width, height=cam.height,
-                              model=cam.get("model", "pinhole"), fov=float(cam.fov) if fisheye else 0.0,
-                              k=tuple(float(v) for v in cam.k) if fisheye else (0.0, 0.0, 0.0, 0.0),
-                              view=view if fisheye else "raw"))
+                              model=model.name, **model.spec(cam, view)))
     return out
 
 

@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+from garage_exp.scene.lenses import camera_model
+
 Role = Literal["structure", "marking", "lamp", "parked", "target", "occluder", "ego", "moving"]
 # Roles of actors (vehicles, people, box occluders): each has its own id and pose; vehicles and people get ground
 # truth. The name is older than the people; `Entity.kind` tells them apart.
@@ -146,8 +148,9 @@ class CameraSpec:
     height: int = 480
     near: float = 0.05
     far: float = 100.0
-    # A fisheye camera (model "fisheye"): OpenCV's Kannala-Brandt lens with coefficients k and `fov` degrees
-    # across the image width, rendered from a cube map (render/fisheye.py); fovy is unused. `view` is what the
+    # The camera model (scene/lenses.py). A fisheye camera (model "fisheye"): OpenCV's Kannala-Brandt lens with
+    # coefficients k and `fov` degrees across the image width, rendered from a cube map (render/fisheye.py); fovy
+    # is unused. `view` is what the
     # detector gets: the raw fisheye image, or a perspective / cylindrical view undistorted from it.
     model: str = "pinhole"
     fov: float = 0.0
@@ -156,7 +159,8 @@ class CameraSpec:
 
     @property
     def fisheye(self) -> bool:
-        return self.model == "fisheye"
+        """Drawn from a cube map through its model's lens (scene/lenses.py; the fisheye model's today)."""
+        return camera_model(self.model).cube_map
 
 
 @dataclass

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import os
 import socket
 import threading
@@ -26,6 +25,7 @@ from optuna.trial import TrialState
 from garage_exp.core.errors import Infeasible
 from garage_exp.core.exits import SweepStopped
 from garage_exp.search import objectives
+from garage_exp.search.objectives import num
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
 
@@ -46,8 +46,9 @@ class Outcome:
 
 def outcome(result, objective: str) -> Outcome:
     """A trial's state and values from its job's return: the summary (run.frames.run_frames), or {"error": ...}.
-    No fairly visible frame -> PRUNED (infeasible): a target nobody could see is untestable, not hard; nor is a
-    scene whose sampled values put two actors in one another (the job refused it: core.errors.Infeasible)."""
+    The objective judges it (objectives.py); no values -> PRUNED (infeasible): a target nobody could see, in the
+    objective's sense, is untestable, not hard; nor is a scene whose sampled values put two actors in one another
+    (the job refused it: core.errors.Infeasible)."""
     if isinstance(result, dict) and result.get("infeasible"):  # its values put actors in one another
         return Outcome(TrialState.PRUNED, None, {"infeasible": True, "placement": str(result["error"])[:2000],
                                                  "fair_frames": 0, "frames": 0})
@@ -57,36 +58,16 @@ def outcome(result, objective: str) -> Outcome:
     attrs = {"run_id": result.get("run_id"), "output_dir": result.get("output_dir"),
              "visible_fraction": float(result.get("visible_fraction_mean", 0.0)),
              "fair_frames": int(result.get("fair_frames", 0)), "frames": int(result.get("frames", 0)),
-             "recall": _num(result.get("fair_recall")), "confidence": _num(result.get("fair_confidence"))}
+             "recall": num(result.get("fair_recall")), "confidence": num(result.get("fair_confidence"))}
     if result.get("frame"):
         attrs["frame"] = str(result["frame"])
-    difficulty = result.get("fair_difficulty", math.nan)
     if "late_testable" in result:
-        attrs.update({k: _num(result.get(k)) for k in LATE_ATTRS})
-    if objective == "late":  # untestable: the target was never fairly visible before the critical distance
-        lateness = _num(result.get("lateness"))
-        if not result.get("late_testable") or lateness is None:
-            attrs["infeasible"] = True
-            return Outcome(TrialState.PRUNED, None, attrs)
-        return Outcome(TrialState.COMPLETE, [lateness], attrs)
-    if objective == "slots":  # the hardest fair slot scenarios: most fair slots missed; none fair: untestable
-        recall, fair = _num(result.get("slot_recall")), _num(result.get("slot_truth_fair"))
-        attrs.update({"slot_recall": recall, "slot_fair": fair, "slot_precision": _num(result.get("slot_precision"))})
-        if recall is None or not fair:
-            attrs["infeasible"] = True
-            return Outcome(TrialState.PRUNED, None, attrs)
-        return Outcome(TrialState.COMPLETE, [1.0 - recall], attrs)
-    if attrs["fair_frames"] == 0 or difficulty is None or math.isnan(difficulty):
+        attrs.update({k: num(result.get(k)) for k in LATE_ATTRS})
+    values = objectives.objective(objective).judge(result, attrs)
+    if values is None:
         attrs["infeasible"] = True
         return Outcome(TrialState.PRUNED, None, attrs)
-    values = [float(difficulty)]
-    if objective == "pareto":
-        values.append(attrs["visible_fraction"])
     return Outcome(TrialState.COMPLETE, values, attrs)
-
-
-def _num(value) -> float | None:
-    return None if value is None or (isinstance(value, float) and math.isnan(value)) else float(value)
 
 
 @contextlib.contextmanager

@@ -1,18 +1,29 @@
-"""The search's objectives, one entry each: what the study's values are called, which way is harder, and how a
-trial's result is put in words.
+"""The search's objectives, one entry each: what the study's values are called, which way is harder, how a trial
+is judged (its values, or infeasible), what a job must be to be judged so, how the pre-screen judges it cheaply,
+and how a trial's result is put in words.
 
-Everything that names or words an objective reads it from here: the study's directions and metric names
-(study.open_study, which stores the names in the study, so that the analysis of a study loaded from its storage
-names its columns the same way), the trial line (loop.line), the parent run's `best_<metric>` (sweep.log_on_parent)
-and the summary. Names follow the objective that was asked for, never the values a trial happened to return.
+Everything that names, judges or words an objective reads it from here: the config check (study.check_search:
+known names, a multi-objective sampler for several values, a pre-screen only where the objective has one), the
+composed job's check (sweep.check_space: `needs`), the trial's outcome and line (loop.outcome, loop.line), the
+pre-screen (prescreen.look: `screen`), the study's directions and metric names (study.open_study, which stores
+the names in the study, so that the analysis of a study loaded from its storage, report/search_analysis.py,
+names its columns the same way without knowing the objectives), the parent run's `best_<metric>`
+(sweep.log_on_parent), the suite's manifest and the summary. Names follow the objective that was asked for,
+never the values a trial happened to return.
+
+Adding an objective is one entry in OBJECTIVES (its judge and words below it); docs/architecture.md, "Extension
+points".
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 NOT_VISIBLE = "no fairly visible frame"
+# What the pre-screen's judge returns: run the trial in full, or prune it as infeasible or as clearly easy.
+FULL, INFEASIBLE, EASY = "", "infeasible", "easy"
 
 
 @dataclass(frozen=True)
@@ -20,12 +31,31 @@ class Objective:
     name: str  # `search.objective`
     metrics: tuple[str, ...]  # each of the study's values, in order: trials.csv's columns, best_<metrics[0]>
     directions: tuple[str, ...]  # Optuna's "maximize" | "minimize" for each value (the harder end)
+    # The study's values from a job's summary (run.frames.run_frames) and the trial's attributes so far (which
+    # it may add to); None: the trial is untestable, pruned as infeasible.
+    judge: Callable[[dict, dict], list[float] | None]
     scored: Callable[[list[float], dict], str]  # a complete trial's words, from its values and attributes
     untestable: str  # why a trial is pruned as infeasible (stored in the study for its report)
+    # What the composed job must be for this objective (a driving ego, a slot case on a rig with a BEV): the
+    # reason it is not, else None.
+    needs: Callable[[object], str | None] = lambda job: None
+    # The pre-screen's judge (search/prescreen.py): (frame table, fair mask, case set-up, config, detector
+    # level?, attrs) -> FULL | INFEASIBLE | EASY; None: this objective has no cheap look.
+    screen: Callable | None = None
+    confidence: bool = False  # the first value is 1 - the composite confidence (the suite's confidence column)
+    # The gym's adversary (garage_exp/gym): its name for this objective (`gym.objective`; "": the gym cannot be
+    # rewarded for it) and the episode verdict's key it rewards (gym/reward.judge). An episode's value is its
+    # `metric`.
+    gym: str = ""
+    verdict: str = ""
 
     @property
     def metric(self) -> str:
         return self.metrics[0]
+
+    @property
+    def multi(self) -> bool:
+        return len(self.directions) > 1
 
     def infeasible(self, attrs: dict) -> str:
         """A pruned (untestable) trial's words."""
@@ -34,9 +64,44 @@ class Objective:
         return f"{self.untestable}: infeasible"
 
 
+def num(value) -> float | None:
+    """A summary's number, None when it is missing or NaN."""
+    return None if value is None or (isinstance(value, float) and math.isnan(value)) else float(value)
+
+
+# --- difficulty (and pareto): 1 - the mean composite confidence over the fairly visible frames (results/table.py)
+
+def _judge_difficulty(result: dict, attrs: dict) -> list[float] | None:
+    difficulty = num(result.get("fair_difficulty", math.nan))
+    return None if attrs["fair_frames"] == 0 or difficulty is None else [difficulty]
+
+
+def _judge_pareto(result: dict, attrs: dict) -> list[float] | None:
+    values = _judge_difficulty(result, attrs)
+    return None if values is None else [*values, attrs["visible_fraction"]]
+
+
 def _difficulty(values: list[float], attrs: dict) -> str:
     return (f"difficulty {values[0]:.3f} over {attrs['fair_frames']} fair frame(s), visible fraction "
             f"{attrs['visible_fraction']:.2f}")
+
+
+def _screen_difficulty(table, fair, setup, cfg, detect: bool, attrs: dict) -> str:
+    if not fair.any():
+        return INFEASIBLE
+    if detect:
+        difficulty = 1.0 - float(table[fair].composite.mean())
+        attrs["prescreen_difficulty"] = difficulty
+        if difficulty < float(cfg.search.prescreen.easy):
+            return EASY
+    return FULL
+
+
+# --- late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
+
+def _judge_late(result: dict, attrs: dict) -> list[float] | None:
+    lateness = num(result.get("lateness"))
+    return None if not result.get("late_testable") or lateness is None else [lateness]
 
 
 def _late(values: list[float], attrs: dict) -> str:
@@ -45,23 +110,71 @@ def _late(values: list[float], attrs: dict) -> str:
     return f"lateness {values[0]:.3f} (late {attrs['late']:.2f}, {confirmed_text(attrs.get('detection_distance'))})"
 
 
+def _needs_late(job) -> str | None:
+    from garage_exp.scenario.build import moves_ego
+
+    if moves_ego(job.case):  # a static ego has no stopping distance to be late for
+        return None
+    return (f"the late objective needs a case whose motion drives the ego; case {job.case.name} moves "
+            f"{job.case.motion.actor or 'nothing'!r} (try case=stepout or case=1)")
+
+
+def _screen_late(table, fair, setup, cfg, detect: bool, attrs: dict) -> str:
+    from garage_exp.results import late
+
+    per = late.trajectories(table, {s.index: s.time for s in setup.shots}, fair, cfg.ego, cfg.detector.threshold)
+    if not per.testable.any():
+        return INFEASIBLE
+    if detect:
+        confirmed = per[per.testable].detection_distance
+        margin = late.critical_distance(cfg.ego) + float(cfg.search.prescreen.slack)
+        attrs["prescreen_detection_distance"] = float(confirmed.min()) if confirmed.notna().all() else math.nan
+        if confirmed.notna().all() and (confirmed >= margin).all():
+            return EASY
+    return FULL
+
+
+# --- slots: 1 - recall of the fair slots (a slot case, docs/slots.md)
+
+def _judge_slots(result: dict, attrs: dict) -> list[float] | None:
+    recall, fair = num(result.get("slot_recall")), num(result.get("slot_truth_fair"))
+    attrs.update({"slot_recall": recall, "slot_fair": fair, "slot_precision": num(result.get("slot_precision"))})
+    return None if recall is None or not fair else [1.0 - recall]
+
+
 def _slots(values: list[float], attrs: dict) -> str:
     return (f"slot_miss {values[0]:.3f} (slot recall {attrs['slot_recall']:.3f}, {attrs['slot_fair']:.1f} fair "
             "slots a frame)")
 
 
+def _needs_slots(job) -> str | None:
+    from garage_exp.scene.lenses import rig_has
+
+    if job.case.get("slots", False) and rig_has(job.camera, "bev"):
+        return None
+    return (f"the slots objective needs a slot case on a fisheye rig (case=slots camera=fisheye4), not case "
+            f"{job.case.name} on rig {job.camera.name}")
+
+
 OBJECTIVES: dict[str, Objective] = {o.name: o for o in (
-    # difficulty: 1 - the mean composite confidence over the fairly visible frames (results/table.py)
-    Objective("difficulty", ("difficulty",), ("maximize",), _difficulty, NOT_VISIBLE),
-    # pareto: the difficulty against the target's visible fraction, both maximised
-    Objective("pareto", ("difficulty", "visible_fraction"), ("maximize", "maximize"), _difficulty, NOT_VISIBLE),
-    # late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
-    Objective("late", ("lateness",), ("maximize",), _late, "never fairly visible before the critical distance"),
-    # slots: 1 - recall of the fair slots (a slot case, docs/slots.md)
-    Objective("slots", ("slot_miss",), ("maximize",), _slots, "no fair slot in any BEV frame"),
+    Objective("difficulty", ("difficulty",), ("maximize",), _judge_difficulty, _difficulty, NOT_VISIBLE,
+              screen=_screen_difficulty, confidence=True, gym="hard", verdict="hard_fair"),
+    # the difficulty against the target's visible fraction, both maximised
+    Objective("pareto", ("difficulty", "visible_fraction"), ("maximize", "maximize"), _judge_pareto, _difficulty,
+              NOT_VISIBLE, confidence=True),
+    Objective("late", ("lateness",), ("maximize",), _judge_late, _late,
+              "never fairly visible before the critical distance", needs=_needs_late, screen=_screen_late,
+              gym="late", verdict="late"),
+    Objective("slots", ("slot_miss",), ("maximize",), _judge_slots, _slots, "no fair slot in any BEV frame",
+              needs=_needs_slots),
 )}
 
 
 def objective(name: str) -> Objective:
     """The objective `search.objective` names (check_search has refused unknown names)."""
     return OBJECTIVES[name]
+
+
+def gym_objectives() -> dict[str, Objective]:
+    """The objectives the gym's adversary can be rewarded for, by the gym's name for each (`gym.objective`)."""
+    return {o.gym: o for o in OBJECTIVES.values() if o.gym}

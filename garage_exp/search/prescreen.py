@@ -18,7 +18,6 @@ samplers learn to avoid those regions as they avoid infeasible ones.
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
@@ -28,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from garage_exp.core.errors import GarageError
 from garage_exp.scene.camera import scored_camera
+from garage_exp.search.objectives import objective
 
 LEVELS = ("none", "truth", "detector")
 
@@ -121,7 +121,6 @@ def lenient(search, scale: float, slack_visible: float) -> DictConfig:
 
 def look(cfg: DictConfig) -> Look:
     """The cheap look at one trial's composed config."""
-    from garage_exp.results import late
     from garage_exp.results.table import fair_mask
 
     conf = cfg.search.prescreen
@@ -130,22 +129,5 @@ def look(cfg: DictConfig) -> Look:
     rule = lenient(cfg.search, scale, float(conf.slack_visible))
     fair = fair_mask(table, rule) if len(table) else pd.Series(dtype=bool)
     attrs = {"prescreen_frames": len(table)}
-    if cfg.search.objective == "late":
-        per = late.trajectories(table, {s.index: s.time for s in setup.shots}, fair, cfg.ego, cfg.detector.threshold)
-        if not per.testable.any():
-            return Look(False, "infeasible", len(table), attrs)
-        if detect:
-            confirmed = per[per.testable].detection_distance
-            margin = late.critical_distance(cfg.ego) + float(conf.slack)
-            attrs["prescreen_detection_distance"] = float(confirmed.min()) if confirmed.notna().all() else math.nan
-            if confirmed.notna().all() and (confirmed >= margin).all():
-                return Look(False, "easy", len(table), attrs)
-        return Look(True, "", len(table), attrs)
-    if not fair.any():
-        return Look(False, "infeasible", len(table), attrs)
-    if detect:
-        difficulty = 1.0 - float(table[fair].composite.mean())
-        attrs["prescreen_difficulty"] = difficulty
-        if difficulty < float(conf.easy):
-            return Look(False, "easy", len(table), attrs)
-    return Look(True, "", len(table), attrs)
+    why = objective(str(cfg.search.objective)).screen(table, fair, setup, cfg, detect, attrs)
+    return Look(not why, why, len(table), attrs)

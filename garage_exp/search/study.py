@@ -17,6 +17,7 @@ from garage_exp.search import storage
 from garage_exp.search.objectives import OBJECTIVES
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid")
+MULTI_SAMPLERS = ("nsga2", "tpe", "random", "qmc")  # those that take several values (an objective's `multi`)
 MODES = ("search", "suite")
 # Trials a lost worker left RUNNING are failed once their heartbeat is this old (Optuna's heartbeat).
 HEARTBEAT_S, GRACE_S = 30, 120
@@ -65,14 +66,16 @@ def check_search(search) -> None:
         raise GarageError(f"unknown sampler {search.sampler!r} ({' | '.join(SAMPLERS)})", "search.sampler")
     if search.objective not in OBJECTIVES:
         raise GarageError(f"unknown objective {search.objective!r} ({' | '.join(OBJECTIVES)})", "search.objective")
-    if search.objective == "pareto" and search.sampler not in ("nsga2", "tpe", "random", "qmc"):
-        raise GarageError(f"the pareto objective needs a multi-objective sampler (nsga2, tpe, random, qmc), "
+    goal = OBJECTIVES[search.objective]
+    if goal.multi and search.sampler not in MULTI_SAMPLERS:
+        raise GarageError(f"the {goal.name} objective needs a multi-objective sampler ({', '.join(MULTI_SAMPLERS)}), "
                           f"not {search.sampler}", "search.sampler")
     from garage_exp.search.prescreen import check_prescreen
 
     check_prescreen(search.prescreen)
-    if search.objective in ("pareto", "slots") and search.prescreen.level != "none":
-        raise GarageError(f"the pre-screen serves one objective (difficulty or late), not {search.objective}",
+    if goal.screen is None and search.prescreen.level != "none":
+        screened = " or ".join(o.name for o in OBJECTIVES.values() if o.screen is not None)
+        raise GarageError(f"the pre-screen serves one objective ({screened}), not {search.objective}",
                           "search.prescreen.level")
     if int(search.grid_levels) < 2:
         raise GarageError(f"{search.grid_levels} levels: a grid needs at least 2 (its ends)", "search.grid_levels")

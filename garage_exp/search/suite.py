@@ -93,7 +93,8 @@ def write_suite(config: DictConfig, study, loader, launch=None, name: str = "") 
     root = suite_dir(config, name or study.study_name)
     (root / "scenario").mkdir(parents=True, exist_ok=True)
     rows, paths, reruns = [], [], []
-    metric = objective(str(config.search.objective)).metric  # the manifest's value column: difficulty, lateness, ...
+    goal = objective(str(config.search.objective))
+    metric = goal.metric  # the manifest's value column: difficulty, lateness, ...
     chosen = members(study, config.search)
     for band, trials in chosen.items():
         for k, trial in enumerate(trials, start=1):
@@ -108,7 +109,7 @@ def write_suite(config: DictConfig, study, loader, launch=None, name: str = "") 
 
                 export(job, root / "openscenario" / scenario)
             rows.append({"scenario": scenario, "band": band, metric: round(trial.values[0], 6),
-                         "confidence": round(1.0 - trial.values[0], 6) if metric == "difficulty" else None,
+                         "confidence": round(1.0 - trial.values[0], 6) if goal.confidence else None,
                          "visible_fraction": round(trial.user_attrs.get("visible_fraction", 0.0), 6),
                          "fair_frames": trial.user_attrs.get("fair_frames"), "trial": trial.number,
                          "run_id": trial.user_attrs.get("run_id"), "overrides": " ".join(overrides)})

@@ -109,18 +109,11 @@ def _probe(config: DictConfig, loader, point: list[str], where: str) -> None:
 
 
 def _check_objective(search, job: DictConfig) -> None:
-    """The late objective needs an ego that drives: a static ego has no stopping distance to be late for; the
-    slots objective a slot case on a fisheye rig."""
-    from garage_exp.scenario.build import moves_ego
-
-    if search.objective == "late" and not moves_ego(job.case):
-        raise GarageError(f"the late objective needs a case whose motion drives the ego; case {job.case.name} "
-                          f"moves {job.case.motion.actor or 'nothing'!r} (try case=stepout or case=1)",
-                          "search.objective")
-    fisheye = any(cam.get("model", "pinhole") == "fisheye" for cam in job.camera.cameras)
-    if search.objective == "slots" and not (job.case.get("slots", False) and fisheye):
-        raise GarageError(f"the slots objective needs a slot case on a fisheye rig (case=slots camera=fisheye4), "
-                          f"not case {job.case.name} on rig {job.camera.name}", "search.objective")
+    """The composed job is what the objective needs (objectives.py: a driving ego for late, a slot case on a
+    fisheye rig for slots)."""
+    why = objective(search.objective).needs(job)
+    if why:
+        raise GarageError(why, "search.objective")
 
 
 def study_name_of(config: DictConfig) -> str:
@@ -270,8 +263,11 @@ def summary(result: dict, out_dir: Path) -> str:
 
 
 def ranked(study) -> list:
-    """The complete trials, hardest first (the first objective, difficulty; ties by trial number)."""
+    """The complete trials, hardest first (by the first value, at the end its direction calls hard; ties by
+    trial number)."""
+    from optuna.study import StudyDirection
     from optuna.trial import TrialState
 
     done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-    return sorted(done, key=lambda t: (-t.values[0], t.number))
+    sign = -1.0 if study.directions[0] == StudyDirection.MAXIMIZE else 1.0
+    return sorted(done, key=lambda t: (sign * t.values[0], t.number))

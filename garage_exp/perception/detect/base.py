@@ -86,7 +86,8 @@ class Intrinsics:
         view = view_lens(spec)
         if view is None:
             lens = lens_of(spec)
-            return cls(w, h, lens.f, lens.f, lens.cx, lens.cy, "fisheye", tuple(lens.k), float(spec.fov), spec.name)
+            # the raw image of a lens model (scene/lenses.py; its lens has f, cx, cy and k, as the fisheye's)
+            return cls(w, h, lens.f, lens.f, lens.cx, lens.cy, spec.model, tuple(lens.k), float(spec.fov), spec.name)
         if isinstance(view, Cylindrical):
             return cls(w, h, view.f, view.f, view.cx, view.cy, "cylindrical", camera=spec.name)
         return cls(w, h, view.fx, view.fy, view.cx, view.cy, camera=spec.name)

@@ -2,8 +2,9 @@
 
 `load(conf)` returns `detect(image, meters_per_pixel) -> SlotFrame` (image: BEV RGB uint8 (H, W, 3)):
 - `lines`: the classical baseline (garage_exp/perception/slots/lines.py), no weights;
-- `callable`: the user's function `target` ("package.module:function", or dotted), built the project's one way
-  (core.plugins: the module must lie under garage_exp. or a prefix in $GARAGE_EXP_MODIFIER_MODULES);
+- `callable`: the user's function, named by `detect._target_` like every component a config names and built the
+  project's one way (core.plugins.build, as a partial: the node's other keys are its keyword arguments; the
+  module must lie under garage_exp. or a prefix in $GARAGE_EXP_MODIFIER_MODULES);
 - `pose`: an ultralytics pose model (`model`, a .pt) whose keypoints are mapped by `from_pose` below.
 """
 
@@ -51,7 +52,7 @@ def check_slot_detector(conf: Any) -> None:
     check_range(m.angle_tolerance_deg, 0.0, 180.0, "slot_detector.metrics.angle_tolerance_deg")
     check_range(m.min_score, 0.0, 1.0, "slot_detector.metrics.min_score")
     if kind == "callable":
-        user_function(str(conf.target))
+        user_function(conf)
     elif kind == "pose":
         if str(conf.keypoints) not in KEYPOINTS:
             raise GarageError(f"unknown keypoints {conf.keypoints!r}{did_you_mean(str(conf.keypoints), KEYPOINTS)}",
@@ -69,20 +70,23 @@ def check_slot_weights(conf: Any) -> None:
         raise GarageError(f"{str(conf.model)!r} is not an ultralytics pose model file (.pt)", "slot_detector.model")
 
 
-def user_function(target: str) -> Detect:
-    """The function "package.module:function" names, through the plugin allow-list."""
-    from garage_exp.core.plugins import resolve
+def user_function(conf: Any) -> Detect:
+    """The function `slot_detector.detect` names (`_target_`, through the plugin allow-list), with the node's
+    other keys as its keyword arguments."""
+    from garage_exp.core.plugins import build, resolve
 
+    if str(conf.get("target") or ""):  # the old form, "package.module:function"
+        module, _, name = str(conf.target).partition(":")
+        raise GarageError(f"slot_detector.target is gone: name the function as slot_detector.detect._target_="
+                          f"{module}{'.' if name else ''}{name}", "slot_detector.target")
+    node = conf.get("detect")
+    target = str(node.get("_target_") or "") if node else ""
     if not target:
-        raise GarageError("kind callable needs target: \"package.module:function\"", "slot_detector.target")
-    module, sep, name = target.partition(":")
-    dotted = f"{module}.{name}" if sep else target
-    if not module or (sep and not name) or "." not in dotted:
-        raise GarageError(f"{target!r} is not \"package.module:function\"", "slot_detector.target")
-    function = resolve(dotted, "a slot detector", "slot_detector.target")
-    if not callable(function):
-        raise GarageError(f"{target!r} is not a function", "slot_detector.target")
-    return function
+        raise GarageError("kind callable needs detect._target_ (package.module.function)",
+                          "slot_detector.detect._target_")
+    if not callable(resolve(target, "a slot detector", "slot_detector.detect._target_")):
+        raise GarageError(f"{target!r} is not a function", "slot_detector.detect._target_")
+    return build(node, "a slot detector", "slot_detector.detect", _partial_=True)
 
 
 def load(conf: Any) -> Detect:
@@ -92,21 +96,20 @@ def load(conf: Any) -> Detect:
     kind = str(conf.kind)
     if kind == "lines":
         from garage_exp.perception.slots.lines import detect as detect_lines
-
-        from garage_exp.core.schema import SlotLinesConf
+        from garage_exp.perception.slots.schema import SlotLinesConf
 
         # plain attribute reads in the detector's loops (a config node's are slow); missing keys take the defaults
         params = SlotLinesConf(**OmegaConf.to_container(conf.lines, resolve=True)) \
             if isinstance(conf.lines, DictConfig) else conf.lines
         return lambda image, mpp: detect_lines(image, float(mpp), params)
     if kind == "callable":
-        target = str(conf.target)
-        function = user_function(target)
+        target = str(conf.detect._target_)
+        function = user_function(conf)
 
         def detect_user(image: np.ndarray, mpp: float) -> SlotFrame:
             out = function(image, float(mpp))
             if not isinstance(out, SlotFrame):
-                raise GarageError(f"returned {type(out).__name__}, not a SlotFrame", f"slot_detector.target {target}")
+                raise GarageError(f"returned {type(out).__name__}, not a SlotFrame", f"slot_detector.detect._target_ {target}")
             return out
 
         return detect_user

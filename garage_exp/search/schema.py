@@ -1,0 +1,57 @@
+"""The `search` node's schema (the sweeper's settings), beside its check (search/study.check_search); core's
+config schema registers it by name (core/schema.py, NODES).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+
+@dataclass
+class SuiteConf:
+    """Graded suites (`search.mode=suite`): K fairly visible scenarios per difficulty band."""
+
+    per_band: int = 3  # K scenarios kept per band
+    # band name -> [low, high) of the composite confidence (1 - difficulty) over the fair frames; empty: easy
+    # >= 0.7, moderate 0.4-0.7, hard < 0.4 (garage_exp/search/suite.py). Empty by default so that
+    # `+search.suite.bands.low=[0,0.5] +search.suite.bands.high=[0.5,1.01]` give exactly those (Hydra merges dicts).
+    bands: dict[str, list[float]] = field(default_factory=dict)
+    dir: Optional[str] = None  # None: outputs/suites/<study>
+
+
+@dataclass
+class PrescreenConf:
+    """A cheap first look at each trial before its full render (garage_exp/search/prescreen.py)."""
+
+    level: str = "none"  # none | truth (ground truth at low resolution) | detector (and one detector on it)
+    scale: float = 0.5  # of each camera's resolution and of the detector's input size
+    easy: float = 0.25  # detector: a fair difficulty under this is screened as easy
+    slack: float = 2.0  # detector, late objective: confirmed this many metres before the critical distance: easy
+    slack_visible: float = 0.1  # the fairness rule's visible fraction loosened by this much
+
+
+@dataclass
+class SearchConf:
+    """The search for hard scenarios (`hydra/sweeper=search`, garage_exp/search); read by the sweeper."""
+
+    mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
+    trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
+    sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
+    objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness) |
+    # slots (1 - recall of the fair slots on the BEV: case=slots camera=fisheye4, docs/slots.md)
+    seed: Optional[int] = None  # the sampler's seed; None: the config's seed
+    startup: int = 10  # tpe, gp, cmaes: random trials before the model guides (Optuna's n_startup_trials)
+    study: str = ""  # the study's name; empty: from the command's overrides (the same command continues it)
+    storage: Optional[str] = None  # an Optuna RDB URL; None: sqlite under outputs/search/optuna.db
+    # A frame is a fair test when the target is at least this visible, its box at least this tall and at most
+    # this much of it outside the image (KITTI's "hard" level: 25 px, truncation 0.5).
+    min_visible: float = 0.5
+    min_box: int = 25
+    max_truncation: float = 0.5
+    top: int = 5  # the hardest N scenarios the report lists and shows
+    saltelli_n: int = 16  # sampler=saltelli: N of the Saltelli design (N x (D + 2) trials)
+    grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)
+    suite: SuiteConf = field(default_factory=SuiteConf)
+    prescreen: PrescreenConf = field(default_factory=PrescreenConf)
+    trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary
