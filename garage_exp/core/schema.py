@@ -9,13 +9,14 @@ GROUPS), so that core imports no layer above it. `Config` is the top-level datac
 from __future__ import annotations
 
 import dataclasses
-import functools
 import importlib
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
+
+from garage_exp.core.state import STATE
 
 
 @dataclass
@@ -394,7 +395,7 @@ def schema_of(entry: type | str) -> type:
     return getattr(importlib.import_module(module), name)
 
 
-@functools.cache
+@STATE.memo("process", maxsize=None)
 def config_schema() -> type:
     """The top-level config's dataclass (`Config`): every node of NODES, then Shared's values (a node registered
     by name among them in its place), in the config's order."""
