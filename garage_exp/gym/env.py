@@ -33,6 +33,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.errors import GarageError
 from garage_exp.gym import limits, reward
+from garage_exp.search.objectives import gym_objectives
 
 # Plain bounds of the observation's state entries (time, speeds, distances): wide enough for any garage.
 FAR = 500.0
@@ -165,9 +166,10 @@ class StepOutEnv(gymnasium.Env):
         if not self.confirmed and reward.confirmed_now(self.hits, self.ego):
             self.confirmed = True
         # The dense term counts the fair frames the objective judges: before the critical distance for `late`.
-        counted = row["fair"] and (before or self.objective == "hard")
+        goal = gym_objectives()[self.objective]
+        counted = row["fair"] and (before or not goal.until_critical)
         r = self.shaping * (1.0 - row["composite"]) if counted else 0.0
-        decided = self.objective == "late" and (self.confirmed or not before)
+        decided = goal.until_critical and (self.confirmed or not before)
         terminated = self.k >= len(self.drive) - 1 or (self.stop_when_decided and decided)
         info = {"frame": row}
         if terminated:

@@ -48,6 +48,9 @@ class Objective:
     # `metric`.
     gym: str = ""
     verdict: str = ""
+    # The objective judges only what happens before the ego's critical distance (late detection): the gym's dense
+    # reward counts fair frames before it, and an episode is decided once the target is confirmed or passed.
+    until_critical: bool = False
 
     @property
     def metric(self) -> str:
@@ -164,7 +167,7 @@ OBJECTIVES: dict[str, Objective] = {o.name: o for o in (
               NOT_VISIBLE, confidence=True),
     Objective("late", ("lateness",), ("maximize",), _judge_late, _late,
               "never fairly visible before the critical distance", needs=_needs_late, screen=_screen_late,
-              gym="late", verdict="late"),
+              gym="late", verdict="late", until_critical=True),
     Objective("slots", ("slot_miss",), ("maximize",), _judge_slots, _slots, "no fair slot in any BEV frame",
               needs=_needs_slots),
 )}
