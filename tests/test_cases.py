@@ -154,4 +154,6 @@ def test_a_case_on_a_shipped_plan_it_does_not_fit_names_the_plans_that_fit():
 
     assert set(FITS) <= {p.stem for p in (ROOT / "conf" / "plan").glob("*.yaml")}
     assert hint("3", "tiny", None).startswith("case=3 does not fit plan=tiny; it fits plan=small, research")
-    assert hint("3", "small", None) == hint("3", "tiny", "/my/plan.yaml") == hint("cpra", "tiny", None) == ""
+    assert hint("3", "small", None) == hint("3", "tiny", "/my/plan.yaml") == hint("mine", "tiny", None) == ""
+    # case 1 builds on the tiny plan (no fair frame): a refusal there (missing assets, say) is not about fitting
+    assert hint("1", "tiny", None, refused=True) == "" and hint("1", "tiny", None).startswith("case=1 does not fit")

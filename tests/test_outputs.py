@@ -26,6 +26,8 @@ def test_default_store_is_outputs_mlflow_db_and_jobs_write_only_under_outputs(tm
     before = snapshot(project)
     env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
     env["PYTHONPATH"] = str(project)
+    # the copy has no ../shared beside it, and a dry run builds the scene (its vehicles included)
+    env["GARAGE_EXP_ASSETS"] = str(ROOT.parent / "shared" / "assets")
     r = subprocess.run([PYTHON, "-m", "garage_exp", "dry_run=true", "plan=tiny"], cwd=cwd, env=env,
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]

@@ -145,13 +145,14 @@ def test_kill_9_then_sigterm_then_resume(tmp_path, fresh_store):
 def test_resume_reruns_a_job_whose_plan_file_was_edited(tmp_path, fresh_store):
     """resume=true skips a finished job; after the plan file is edited, the same command reruns it."""
     plan = tmp_path / "mine.yaml"
-    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 3]\n")
+    cells = "S: [[0, 0, 0, -1], [2, 1, 1, 0], [0, 0, 1, 0], [-1, 0, 3, -1]]\nR: [5, 6, 5, 5]\n"  # the tiny plan's
+    plan.write_text(cells + "C: [2.6, 2.6, 6, 2.6]\n")  # (a dry run builds case 1's scene: it needs the corner)
     args = ["-m", "dry_run=true", f"plan.file={plan}", "light=bright", f"tracking.uri={fresh_store}", "resume=true"]
     first = run_app(args, tmp_path)
     assert first.returncode == 0, first.stderr[-3000:]
     again = run_app(args, tmp_path)
     assert "sweep summary: 1 jobs: 0 finished, 1 skipped (finished before), 0 failed" in again.stdout, again.stdout
-    plan.write_text("S: [[2, 1, 3], [0, 0, 0]]\nR: [6, 5]\nC: [3, 3, 4]\n")  # a wider column: another garage
+    plan.write_text(cells + "C: [2.6, 2.6, 6.2, 2.6]\n")  # a wider lane: another garage
     edited = run_app(args, tmp_path)
     assert edited.returncode == 0, edited.stderr[-3000:]
     # Rerun, not skipped. (The summary's "finished" count also holds the old plan's run, still a child of the

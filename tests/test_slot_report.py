@@ -104,8 +104,8 @@ def test_the_slots_search_objective_ranks_by_missed_fair_slots():
     assert out.state == TrialState.COMPLETE and out.values == [0.75] and out.attrs["slot_precision"] == 0.5
     none_fair = outcome({**summary, "slot_recall": float("nan"), "slot_truth_fair": 0.0}, "slots")
     assert none_fair.state == TrialState.PRUNED and none_fair.attrs["infeasible"] is True
-    assert "slot_miss 0.750 (slot recall 0.250, 3.0 fair slots a frame)" in line(0, out, 4)
-    assert "no fair slot" in line(1, none_fair, 4)
+    assert "slot_miss 0.750 (slot recall 0.250, 3.0 fair slots a frame)" in line(0, out, 4, "slots")
+    assert "no fair slot" in line(1, none_fair, 4, "slots")
 
 
 def test_the_slots_objective_needs_a_slot_case_on_fisheye_cameras():

@@ -208,11 +208,11 @@ def make_spec(age_group: str = "adult", height: float | None = None, build: str 
 PREBUILT: tuple[BodySpec, ...] = tuple(
     make_spec(age, height, build, gender, pose, clothing)
     for age, height, build, gender, clothing, poses in (
-        ("adult", 1.78, "average", "male", "default", POSES),
-        ("adult", 1.65, "slim", "female", "bright", POSES),
+        ("adult", 1.78, "average", "male", "default", ("standing", "walking")),
+        ("adult", 1.65, "slim", "female", "bright", ("standing", "walking")),
         ("adult", 1.85, "heavy", "male", "dark", ("standing",)),
         ("adult", 1.60, "average", "female", "green", ("standing",)),
-        ("child", 1.20, "average", "neutral", "bright", POSES),
+        ("child", 1.20, "average", "neutral", "bright", ("standing", "walking")),
         ("child", 1.10, "slim", "female", "pink", ("standing",)),
         ("child", 1.30, "average", "male", "default", ("standing",)),
         ("adult", 1.78, "average", "male", "default", ("crouching",)),  # case=crouch's

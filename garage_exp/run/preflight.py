@@ -161,7 +161,7 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
     try:
         scene, setup = build_scene(cfg, prepared.classified, _library(), np.random.default_rng(int(cfg.seed)))
     except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
-        where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file)
+        where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file, refused=True)
         if not where:
             raise
         raise exc.again(f"{exc}; {where}", None) from None

@@ -124,8 +124,8 @@ def _install(spec: str) -> None:
         def patch(module):
             real_submit = module.DetectorProcess.submit
 
-            def submit(self, rgb):
-                real_submit(self, rgb)
+            def submit(self, rgb, intrinsics=None):
+                real_submit(self, rgb, intrinsics)
                 if _job_num() == job:
                     if sent[0] in kills:
                         import signal
