@@ -196,10 +196,16 @@ def mlflow_server(root: Path, backend: str, artifacts: Path) -> tuple[Process, s
     return proc, uri
 
 
+# Ray 2.60 turns token authentication on for a head started where a token file exists (~/.ray/auth_token, which
+# a local `ray.init()` writes), while its clients default to no token: the throw-away cluster runs without it.
+def ray_env() -> dict:
+    return {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled"}
+
+
 def ray_node(root: Path, name: str, head: str | None = None, core: int | None = None) -> tuple[Process, str]:
     """A Ray node with one CPU, on 127.0.0.1: the head (head=None) or a node joining it. `core`: pin the node
     and every worker it starts to that core (taskset), so that a node is one core as a benchmark's node is."""
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    env = ray_env()
     common = ["--block", "--num-cpus", "1", "--node-ip-address", "127.0.0.1", "--disable-usage-stats"]
     if head is None:
         port = free_port()
@@ -217,7 +223,7 @@ def ray_node(root: Path, name: str, head: str | None = None, core: int | None = 
 def ray_nodes_up(address: str, count: int, timeout: float = 120.0) -> None:
     def up():
         r = subprocess.run([str(BIN / "ray"), "status", "--address", address], capture_output=True, text=True,
-                           timeout=30, env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
+                           timeout=30, env=ray_env())
         active = r.stdout.split("Active:")[1].split("Pending:")[0] if "Active:" in r.stdout else ""
         return active.count("node_") >= count
 
