@@ -6,6 +6,10 @@ research plan at QVGA, two frames a trial, random sampler, and records after eve
 grew less than `--limit` MB (default 50) from the end of the warm-up (`--warmup` trials) to the end.
 
     nice -n 15 python -m benchmarks.studies.soak --trials 300 --out /tmp/soak.json
+    python -m benchmarks.studies.soak --trials 10000 --out soak.json 'detector.models=[yolo11n_int8_openvino_model]'
+
+Further arguments are Hydra overrides of the search (the second line scores one detector instead of three: the
+soak checks the process, whose memory does not depend on how many models the detector's child holds).
 
 The JSON holds the per-trial curve (trial, seconds since start, RSS MB, child RSS MB) and the verdict; the
 docs (docs/performance.md) quote it with the command, commit, date and machine.
@@ -35,12 +39,22 @@ def rss_mb(pid: int) -> float:
         return float("nan")
 
 
+def machine() -> str:
+    """This machine in a few words: its CPU model and core count."""
+    import platform
+
+    model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                  if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
+    return f"{model}, {os.cpu_count()} cores".strip(", ")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=300)
     parser.add_argument("--warmup", type=int, default=20, help="trials before the baseline RSS is taken")
     parser.add_argument("--limit", type=float, default=50.0, help="allowed RSS growth after the warm-up, MB")
     parser.add_argument("--out", default="soak.json")
+    parser.add_argument("overrides", nargs="*", help="more Hydra overrides of the search")
     opts = parser.parse_args()
     command = " ".join(["python -m benchmarks.studies.soak", *sys.argv[1:]])  # before Hydra rewrites sys.argv
     os.environ.setdefault("YOLO_OFFLINE", "1")
@@ -72,7 +86,8 @@ def main() -> int:
                 "camera.width=320", "camera.height=240", "renderer.save_frames=none", *SPACE,
                 f"search.trials={opts.trials}", "search.sampler=random", "search.study=soak",
                 f"search.storage=sqlite:///{tmp}/optuna.db", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
-                f"hydra.sweep.dir={tmp}/sweep", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled"]
+                f"hydra.sweep.dir={tmp}/sweep", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled",
+                *opts.overrides]
         try:
             app.cli(argv)
         except SystemExit as exc:
@@ -85,7 +100,7 @@ def main() -> int:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                             text=True).stdout.strip()
     result = {"command": command, "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
-              "machine": f"{os.cpu_count()} cores", "trials_done": len(curve), "trials_asked": opts.trials,
+              "machine": machine(), "trials_done": len(curve), "trials_asked": opts.trials,
               "error": error, "warmup": opts.warmup, "rss_after_warmup_mb": base, "rss_growth_mb": round(growth, 1),
               "limit_mb": opts.limit, "passed": error is None and len(curve) == opts.trials and growth < opts.limit,
               "curve": curve}

@@ -43,16 +43,24 @@ def tracking_uri(uri: str | None = None) -> str:
     return f"sqlite:///{OUTPUTS_DIR / 'mlflow.db'}"
 
 
+# One client per store for the command: making one costs ~60 ms (MLflow resolves its store and registry), which
+# a search paid on every trial.
+_CLIENTS: dict[str, object] = STATE.cache("tracking.clients", "command")
+
+
 def client(uri: str | None = None):
-    """An MlflowClient of the store `uri` names (see tracking_uri), the store created on first use."""
-    import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
-
-    from garage_exp.tracking.store import open_store
-
+    """An MlflowClient of the store `uri` names (see tracking_uri), the store created on first use; the same
+    client for the rest of the command."""
     uri = tracking_uri(uri)
     prepare_environment(uri)  # $MLFLOW_TRACKING_URI for child processes and the outage messages (the module's doc)
-    # The client opens (and may create) the store: a write, made once under the store's lock.
-    return open_store(uri, lambda: retry(lambda: mlflow.MlflowClient(uri)))
+    if uri not in _CLIENTS:
+        import mlflow  # imported lazily: it costs ~1 s and plan-only commands do not need it
+
+        from garage_exp.tracking.store import open_store
+
+        # The client opens (and may create) the store: a write, made once under the store's lock.
+        _CLIENTS[uri] = open_store(uri, lambda: retry(lambda: mlflow.MlflowClient(uri)))
+    return _CLIENTS[uri]
 
 
 class TrackingAway(Exception):
