@@ -12,7 +12,8 @@ garage (the research plan, case 1, 640x480 unless --width/--height):
   max / mean absolute difference (8-bit levels) and ground truth compared record by record (the goal: equal to
   the pixel).
 - detectors: end to end, the batched pipeline's frames through the project's composite detector
-  (`Detector.detect` on a batch: the three entries of detector.models), frames/s.
+  (`Detector.detect` on a batch: the entries of detector.models, e.g. `--detector official_pt` for .pt
+  networks that run on the card), frames/s with the pictures copied to numpy first and fed as the CUDA tensor.
 - fisheye4: the four-fisheye rig's faces rendered batched and remapped with grid_sample, delivered Mpx/s.
 - search: trials/hour of today's search on this card (benchmarks/studies/search.py's throughput run, --trials).
 - gym: StepOut-v0 env steps/s (random actions).
@@ -102,6 +103,7 @@ def main() -> int:
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--sensor", default="noisy")
     parser.add_argument("--trials", type=int, default=20)
+    parser.add_argument("--detector", default="coco3", help="the detector group's level (official_pt: .pt files)")
     parser.add_argument("--skip", default="", help="comma-separated sections to leave out")
     opts = parser.parse_args()
     os.environ.setdefault("YOLO_OFFLINE", "1")
@@ -124,7 +126,7 @@ def main() -> int:
     results: dict = {"card": torch.cuda.get_device_name(), "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
                      "command": " ".join(sys.argv), "size": f"{opts.width}x{opts.height}"}
     size = [f"camera.width={opts.width}", f"camera.height={opts.height}", f"sensor={opts.sensor}"]
-    job = build_job([*SCENE, *size])
+    job = build_job([*SCENE, *size, f"detector={opts.detector}"])
     shots = job.setup.shots
 
     def ceiling_and_pipeline():
@@ -174,10 +176,14 @@ def main() -> int:
             b = Batched(job, n)
             batch = batch_of(shots, n)
 
-            def step():
+            def step(copied: bool):
                 frames, _, _ = b.frames(batch)
-                detector.detect(list(frames.cpu().numpy()), None)
-            out[f"batch{n}_fps"] = round(timed_rate(step, n, opts.seconds), 1)
+                detector.detect(list(frames.cpu().numpy()) if copied else frames, None)
+            # copied: every picture to numpy first (today's shape); fed: the CUDA tensor batch as it is (entries
+            # run by torch take it on the card, the OpenVINO exports get one host copy a batch)
+            out[f"batch{n}_copied_fps"] = round(timed_rate(lambda: step(True), n, opts.seconds), 1)
+            out[f"batch{n}_fed_fps"] = round(timed_rate(lambda: step(False), n, opts.seconds), 1)
+        out["on_card"] = [e.name for e in detector.entries if e.takes_tensors()]
         return out
 
     def fisheye4():

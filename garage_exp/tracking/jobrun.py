@@ -93,6 +93,20 @@ class JobRun:
 
     def _end(self, status) -> None:
         retry(lambda: self.mlc.set_terminated(self.run_id, status))
+        forget_artifact_repo(self.run_id)
+
+
+def forget_artifact_repo(run_id: str) -> None:
+    """Drop MLflow's cached artifact repository of an ended run: MLflow keeps one (with its logging queue) for
+    each of the last 1,024 runs that logged an artifact, about 20 kB each, which a long search's RSS carried
+    (benchmarks/studies/soak.py). A later call for the run makes a new one."""
+    try:
+        from mlflow.tracking._tracking_service import utils
+    except ImportError:  # MLflow moved it: nothing to forget
+        return
+    cache = getattr(utils, "_artifact_repos_cache", None)
+    if isinstance(cache, dict):
+        cache.pop(run_id, None)
 
 
 def start_job_run(cfg: DictConfig, run_name: str, tags: dict[str, str], parent_run_id: str | None) -> JobRun:
