@@ -123,3 +123,29 @@ def test_spaces_infos_and_make_vec(venv, store):
     assert isinstance(made, PullOutVectorEnv) and made.world.live.target == "car"
     assert made.action_space.shape == (2, 1)
     made.close()
+
+
+@pytest.mark.slow
+def test_stable_baselines3_trains_on_the_batch(venv):
+    """`gym.envs=K`'s adapter (gym/sb3.py): SB3's VecEnv rules over the K episodes: an episode that ends is reset at
+    once, its last observation in `terminal_observation`; PPO collects a rollout from both envs."""
+    import copy
+
+    from garage_exp.gym.sb3 import BatchedVecEnv
+    from garage_exp.gym.train import make_ppo
+
+    adapter = BatchedVecEnv(venv)
+    first = adapter.reset()
+    assert first.shape == (2, *venv.single_observation_space.shape)
+    dones = [False, False]
+    while not dones[0]:
+        adapter.step_async(np.array([OUT, HIDE], dtype=np.float32))
+        obs, rewards, dones, infos = adapter.step_wait()
+    assert not dones[1] and "episode_verdict" in infos[0] and "terminal_observation" in infos[0]
+    assert infos[0]["terminal_observation"][0] > 0  # the episode's last time
+    np.testing.assert_array_equal(obs[0], first[0])  # env 0 already in its next episode
+    cfg = copy.deepcopy(venv.world.cfg)
+    cfg.gym.n_steps, cfg.gym.batch_size, cfg.gym.n_epochs = 2, 4, 1
+    before = venv.renders
+    make_ppo(adapter, cfg).learn(total_timesteps=4)
+    assert venv.renders - before == 4  # two steps of two envs
