@@ -342,6 +342,8 @@ def shoot(envs: list[StepOutEnv]) -> list[dict]:
     if not envs:
         return []
     world = envs[0]
+    if any(env.scene is not world.scene for env in envs):
+        raise ValueError("one batch of frames is one world's: the envs must be forks of one environment")
     pipeline = world.frame_pipeline()
     shots = [env.shot() for env in envs]
     # Only the case's actors are in view (parked cars are scenery here: a step renders no silhouette of them).
