@@ -129,6 +129,47 @@ def test_each_kind_loads_checks_and_detects_a_batch(models, kind, name, loader):
     np.testing.assert_allclose(single.scores, out[1][0].scores, atol=1e-5)
 
 
+@pytest.mark.parametrize("kind", ["pt", "torchscript", "torchvision", "openvino"])
+def test_a_tensor_batch_gives_what_numpy_frames_give(models, kind):
+    """The GPU path's pictures stay on the GPU as a (B, H, W, 3) uint8 torch tensor: an entry run by torch takes it
+    as it is (letterboxed on its device), any other gets it copied to the host once; either way the detections are
+    those of the same frames as numpy arrays (here CPU tensors: a channel swap, a letterbox offset or scale would
+    move the boxes or change the scores)."""
+    import torch
+
+    detector = Detector([models[kind]], conf=0.0, imgsz=320, device="cpu")
+    detector.check(Intrinsics.default(320, 240))
+    rng = np.random.default_rng(3)
+    base = rng.integers(0, 256, (1, 60, 80, 3), dtype=np.uint8).repeat(4, axis=1).repeat(4, axis=2)  # 240 x 320
+    frames = np.concatenate([base, base[:, :, ::-1], np.roll(base, 40, axis=1)])  # three different frames
+    as_numpy = detector.detect(list(frames), Intrinsics.default(320, 240))
+    as_tensor = detector.detect(torch.from_numpy(frames), Intrinsics.default(320, 240))
+    assert detector.entries[0].takes_tensors() == (kind != "openvino")
+    for a, b in zip(as_numpy, as_tensor):
+        assert len(a[0]) == len(b[0]) > 0 and a[0].classes == b[0].classes
+        np.testing.assert_allclose(b[0].scores, a[0].scores, atol=2e-4)
+        np.testing.assert_allclose(b[0].boxes, a[0].boxes, atol=0.05)
+    with pytest.raises(ValueError, match="uint8 tensor"):
+        detector.detect(torch.zeros((1, 240, 320, 3)))
+
+
+def test_a_tensor_is_letterboxed_as_ultralytics_letterboxes_a_frame():
+    """The tensor letterbox pads a 320 x 240 frame to 320 x 256 with 8 rows of grey above and below (a torch
+    model's auto letterbox), and scales a 640 x 480 frame by a half first; Letterbox.unmap inverts it."""
+    import torch
+
+    from garage_exp.perception.detect.ultralytics_entry import letterbox_tensor
+
+    x, box = letterbox_tensor(torch.zeros((2, 240, 320, 3), dtype=torch.uint8), 320, 32)
+    assert tuple(x.shape) == (2, 3, 256, 320) and (box.gain, box.left, box.top) == (1.0, 0, 8)
+    assert float(x[0, 0, 0, 0]) == pytest.approx(114 / 255) and float(x[0, 0, 8, 0]) == 0.0
+    x, box = letterbox_tensor(torch.zeros((1, 480, 640, 3), dtype=torch.uint8), 320, 32)
+    assert tuple(x.shape) == (1, 3, 256, 320) and (box.gain, box.top) == (0.5, 8)
+    np.testing.assert_allclose(box.unmap(np.array([[0.0, 8.0, 320.0, 248.0]]), 640, 480), [[0, 0, 640, 480]])
+    x, box = letterbox_tensor(torch.zeros((1, 240, 320, 3), dtype=torch.uint8), 320, 32, square=True)
+    assert tuple(x.shape) == (1, 3, 320, 320) and box.top == 40  # an export's fixed square input
+
+
 def test_a_fixed_size_onnx_graph_gets_the_frame_resized_and_its_boxes_scaled_back(tmp_path):
     path = constant_onnx(tmp_path / "fixed.onnx", box=(10.0, 20.0, 30.0, 40.0), fixed=(64, 64))
     found = Detector([path], conf=0.0).detect([frame(240, 320)])[0][0]

@@ -196,6 +196,60 @@ def test_infeasible_trials_are_pruned_not_hard(tmp_path):
     assert study.best_trial.params["light.intensity"] >= 0.2  # the hardest fair one, not a hidden target
 
 
+def test_a_batch_of_trials_gives_what_one_at_a_time_gives(tmp_path):
+    """search.batch=K asks K trials, launches them as one batch, tells K: with the random sampler the study is
+    the one a batch of 1 makes (the sampler's stream is drawn in the same order), and the launcher got batches."""
+    batches = []
+
+    def launch(batch, first):
+        batches.append((len(batch), first))
+        return fake_launch(batch, first)
+
+    one = run_loop(tmp_path / "one", 7, sampler="random")
+    three = run_loop(tmp_path / "three", 7, sampler="random", batch=3, launch=launch)
+    assert params_of(three) == params_of(one)
+    assert [t.values for t in three.trials] == [t.values for t in one.trials]
+    assert batches == [(3, 0), (3, 3), (1, 6)]  # the last batch holds what the budget leaves
+
+
+def test_a_failing_job_in_a_batch_fails_its_trial_only(tmp_path):
+    """A job that raises fails its own trial; the batch's others are told their outcomes; a TPE batch (constant
+    liar) runs."""
+    class Raises:
+        @property
+        def return_value(self):
+            raise RuntimeError("boom in the job")
+
+    def launch(batch, first):
+        rets = fake_launch(batch, first)
+        return [Raises() if k == 1 else r for k, r in enumerate(rets)]
+
+    study = run_loop(tmp_path, 4, batch=4, launch=launch)
+    states = [t.state for t in study.trials]
+    assert states[1] == TrialState.FAIL and "boom in the job" in study.trials[1].user_attrs["error"]
+    assert all(s != TrialState.RUNNING for s in states) and states.count(TrialState.FAIL) < 4
+    assert study.sampler._constant_liar
+
+
+def test_a_batch_with_gaps_is_numbered_by_its_trials():
+    """A batch whose trial numbers have gaps (pre-screened trials) reaches a Hydra launcher as one launch per
+    run of consecutive numbers, so each job's dir is its trial's number."""
+    from garage_exp.search.launch import job_numbers, launch_in_runs
+
+    calls = []
+
+    class Launcher:
+        def launch(self, batch, initial_job_idx):
+            calls.append((list(batch), initial_job_idx))
+            return [f"{initial_job_idx + k}:{b}" for k, b in enumerate(batch)]
+
+    assert launch_in_runs(Launcher(), ["a", "b", "c", "d"], [4, 5, 7, 8]) == ["4:a", "5:b", "7:c", "8:d"]
+    assert calls == [(["a", "b"], 4), (["c", "d"], 7)]
+    assert job_numbers(3, 2) == [3, 4] and job_numbers([1, 9], 2) == [1, 9]
+    with pytest.raises(ValueError):
+        job_numbers([1], 2)
+
+
 def _worker(path: str, trials: int) -> None:
     from pathlib import Path
 

@@ -39,7 +39,16 @@ class RaySettings:
     memory_gb: float | None = None  # Ray's scheduling reservation, not a limit
     retries: int = 2  # a job whose node or worker died is run again this many times
     workers: int = 2  # a search's trial loops at once, each a Ray task sharing the study's storage
+    # a sweep's jobs per Ray task: a task (holding its num_gpus) runs its batch in one process, renderer and
+    # detector warm, instead of each job queueing for the GPU on its own (a search batches with search.batch)
+    batch: int = 1
     env: dict[str, str] = field(default_factory=dict)  # environment of the workers (Ray's runtime_env)
+
+    def __post_init__(self) -> None:  # checked with the sweep's inputs, before anything is written
+        from garage_exp.core.errors import GarageError
+
+        if int(self.batch) < 1:
+            raise GarageError(f"a batch of {self.batch} jobs: at least 1", "hydra.launcher.batch")
 
     def options(self) -> dict[str, Any]:
         out: dict[str, Any] = {"num_cpus": self.num_cpus, "num_gpus": self.num_gpus, "max_retries": 0}
@@ -150,15 +159,18 @@ def _prepare_worker(singleton_state, cwd: str) -> None:
         os.chdir(cwd)
 
 
-def run_one(hydra_context, task_function, cfg: DictConfig, singleton_state, cwd: str):
-    """In a Ray worker: one job, as Hydra's launchers run it."""
+def run_batch(hydra_context, task_function, cfgs: list[DictConfig], singleton_state, cwd: str) -> list:
+    """In a Ray worker: a batch of jobs, each as Hydra's launchers run it, one after another in this process."""
     from hydra.core.hydra_config import HydraConfig
     from hydra.core.utils import run_job
 
-    _prepare_worker(singleton_state, cwd)
-    HydraConfig.instance().set_config(cfg)
-    return run_job(hydra_context=hydra_context, task_function=task_function, config=cfg,
-                   job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
+    returns = []
+    for cfg in cfgs:
+        _prepare_worker(singleton_state, cwd)
+        HydraConfig.instance().set_config(cfg)
+        returns.append(run_job(hydra_context=hydra_context, task_function=task_function, config=cfg,
+                               job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir"))
+    return returns
 
 
 def job_config(hydra_context, config: DictConfig, overrides: list[str], idx: int) -> DictConfig:
@@ -188,7 +200,7 @@ def lost_return(cfg: DictConfig, exc: BaseException):
 
 
 def launch(conf: RaySettings, hydra_context, task_function, config: DictConfig, job_overrides, initial_job_idx: int):
-    """Run the batch on the cluster; the JobReturns in the batch's order."""
+    """Run the sweep's jobs on the cluster, `conf.batch` jobs a Ray task; the JobReturns in the jobs' order."""
     import ray
     from hydra.core.singleton import Singleton
     from hydra.core.utils import configure_log, setup_globals
@@ -197,33 +209,41 @@ def launch(conf: RaySettings, hydra_context, task_function, config: DictConfig, 
     configure_log(config.hydra.hydra_logging, config.hydra.verbose)
     Path(str(config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
     connect(conf)
-    remote = ray.remote(run_one).options(**conf.options())
+    remote = ray.remote(run_batch).options(**conf.options())
     state, cwd = Singleton.get_state(), os.getcwd()
-    pending: dict[Any, tuple[int, DictConfig, int]] = {}
+    pending: dict[Any, tuple[list[int], list[DictConfig], int]] = {}
 
-    def submit(k: int, cfg: DictConfig, attempt: int) -> None:
-        pending[remote.remote(hydra_context, task_function, cfg, state, cwd)] = (k, cfg, attempt)
+    def submit(ks: list[int], cfgs: list[DictConfig], attempt: int) -> None:
+        pending[remote.remote(hydra_context, task_function, cfgs, state, cwd)] = (ks, cfgs, attempt)
 
+    cfgs = []
     for k, overrides in enumerate(job_overrides):
         idx = initial_job_idx + k
         log.info(f"\t#{idx} : {' '.join(overrides)}")
-        submit(k, job_config(hydra_context, config, overrides, idx), 0)
+        cfgs.append(job_config(hydra_context, config, overrides, idx))
+    size = int(conf.batch)
+    for start in range(0, len(cfgs), size):
+        submit(list(range(start, min(start + size, len(cfgs)))), cfgs[start:start + size], 0)
     results: list[Any] = [None] * len(job_overrides)
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)
-        k, cfg, attempt = pending.pop(done[0])
+        ks, batch, attempt = pending.pop(done[0])
         try:
-            results[k] = ray.get(done[0])
+            for k, returned in zip(ks, ray.get(done[0])):
+                results[k] = returned
         except Exception as exc:  # noqa: BLE001 - sorted below: a lost node is retried, anything else raised
             if not lost(exc):
                 raise getattr(exc, "cause", None) or exc
-            name = " ".join(cfg.hydra.overrides.task)
+            # Which of the batch's jobs finished is not known here: all run again, resumed, so a finished run
+            # is counted and not rendered again (resume=true), and one left RUNNING is superseded.
+            names = "; ".join(f"job {c.hydra.job.num} ({' '.join(c.hydra.overrides.task)})" for c in batch)
             if attempt < conf.retries:
-                print(f"garage_exp: job {cfg.hydra.job.num} ({name}) lost its Ray worker ({type(exc).__name__}); "
+                print(f"garage_exp: {names} lost its Ray worker ({type(exc).__name__}); "
                       f"running it again as resumed (retry {attempt + 1} of {conf.retries})", flush=True)
-                submit(k, as_resumed(cfg), attempt + 1)
+                submit(ks, [as_resumed(c) for c in batch], attempt + 1)
             else:
-                print(f"garage_exp: job {cfg.hydra.job.num} ({name}) lost its Ray worker {attempt + 1} times; "
-                      "left for resume=true", flush=True)
-                results[k] = lost_return(cfg, exc)
+                print(f"garage_exp: {names} lost its Ray worker {attempt + 1} times; left for resume=true",
+                      flush=True)
+                for k, cfg in zip(ks, batch):
+                    results[k] = lost_return(cfg, exc)
     return results

@@ -5,12 +5,16 @@ trial). A trial differs from the next by a few values, so this launcher composes
 group levels (and structural overrides), then sets the trial's values on a copy, as Hydra's composition sets
 overrides on the composed defaults; `test_search.py` pins that the result equals Hydra's own composition.
 Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging.
+
+A batch's jobs are numbered by Hydra's `initial_job_idx` (consecutive), or by the list of their numbers: a search
+batch's trial numbers, with gaps where the pre-screen pruned a trial (the job's dir is its trial's number).
 """
 
 from __future__ import annotations
 
 import copy
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -52,13 +56,12 @@ class CachedLaunch:
                 exclude_keys=list(job.config.override_dirname.exclude_keys))
         return cfg
 
-    def __call__(self, batch, initial_job_idx: int):
+    def __call__(self, batch, initial_job_idx: int | Sequence[int]):
         setup_globals()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
         runs = []
-        for k, overrides in enumerate(batch):
-            idx = initial_job_idx + k
+        for idx, overrides in zip(job_numbers(initial_job_idx, len(batch)), batch):
             log.info(f"\t#{idx} : {' '.join(overrides)}")
             cfg = self.compose(list(overrides))
             with open_dict(cfg):
@@ -69,3 +72,26 @@ class CachedLaunch:
                                 job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir"))
             configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         return runs
+
+
+def job_numbers(first: int | Sequence[int], n: int) -> list[int]:
+    """The numbers of a batch of `n` jobs: consecutive from `first`, or `first` itself when it lists them."""
+    if isinstance(first, int):
+        return list(range(first, first + n))
+    numbers = [int(k) for k in first]
+    if len(numbers) != n:
+        raise ValueError(f"{len(numbers)} job numbers for a batch of {n}")
+    return numbers
+
+
+def launch_in_runs(launcher, batch, first: int | Sequence[int]) -> list:
+    """A batch through a Hydra launcher, whose API numbers a batch from one index: one launch per run of
+    consecutive numbers (a batch without gaps is one launch), the returns in the batch's order."""
+    numbers = job_numbers(first, len(batch))
+    returns: list = []
+    start = 0
+    for k in range(1, len(batch) + 1):
+        if k == len(batch) or numbers[k] != numbers[k - 1] + 1:
+            returns.extend(launcher.launch(batch[start:k], initial_job_idx=numbers[start]))
+            start = k
+    return returns

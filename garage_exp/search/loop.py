@@ -105,50 +105,80 @@ class SearchLoop:
         self.url = study_mod.storage_url(search)
         self.ran: list[int] = []  # trial numbers this worker ran
 
-    def next_trial(self) -> optuna.Trial | None:
+    def next_trials(self) -> list[optuna.Trial]:
+        """Up to `search.batch` new trials, asked under the workers' lock (so their numbers follow one another),
+        none once the study holds its budget."""
         with study_mod.storage_lock(self.url):
             optuna.storages.fail_stale_trials(self.study)  # a dead worker's trials
             held = len(self.study.get_trials(deepcopy=False, states=COUNTED))
-            if held >= self.budget:
-                return None
-            return self.study.ask(fixed_distributions=self.space.params)
+            wanted = min(int(self.search.get("batch", 1)), self.budget - held)
+            return [self.study.ask(fixed_distributions=self.space.params) for _ in range(max(wanted, 0))]
 
     def run(self) -> list[int]:
+        """Ask a batch, pre-screen each trial, launch the rest as one batch, tell each its outcome; until the
+        budget is spent or `stop` says so (asked between batches: a suite's last batch may overfill a band)."""
         while not self.stop(self.study):
-            trial = self.next_trial()
-            if trial is None:
+            trials = self.next_trials()
+            if not trials:
                 break
-            overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
-            trial.set_user_attr("overrides", overrides)
-            trial.set_user_attr("worker", WORKER)  # which process (which node) ran it: a cluster's trials spread
-            if self.screened(trial, overrides):
-                continue
-            with heartbeat(self.study, trial):
-                try:
-                    # the trial's number is its job's: workers sharing a sweep dir never share a job dir
-                    returns = self.launch([overrides], trial.number)
-                    result = returns[0].return_value
-                except SweepStopped:  # a full disk, a tracking server away: no later trial could run either
+            batch = []
+            for trial in trials:
+                overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
+                trial.set_user_attr("overrides", overrides)
+                trial.set_user_attr("worker", WORKER)  # which process (which node) ran it: a cluster's trials spread
+                if not self.screened(trial, overrides):
+                    batch.append((trial, overrides))
+            if batch:
+                self.run_batch(batch)
+        return self.ran
+
+    def run_batch(self, batch: list[tuple[optuna.Trial, list[str]]]) -> None:
+        """The batch's trials as one launch (each trial's number is its job's: workers sharing a sweep dir never
+        share a job dir), then each told, in order."""
+        trials = [trial for trial, _ in batch]
+        with contextlib.ExitStack() as beats:
+            for trial in trials:
+                beats.enter_context(heartbeat(self.study, trial))
+            try:
+                numbers = [t.number for t in trials]  # the first alone when they follow one another (Hydra's API)
+                consecutive = numbers == list(range(numbers[0], numbers[0] + len(numbers)))
+                returns = self.launch([overrides for _, overrides in batch], numbers[0] if consecutive else numbers)
+            except SweepStopped:  # a full disk, a tracking server away: no later trial could run either
+                for trial in trials:
                     self.study.tell(trial, state=TrialState.FAIL)
-                    raise
-                except Exception as exc:  # the launcher's own failure: this trial fails, the study goes on
+                raise
+            except Exception as exc:  # the launcher's own failure: the batch fails, the study goes on
+                for trial in trials:
                     trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:2000])
                     self.study.tell(trial, state=TrialState.FAIL)
                     log.error("trial %d failed: %s", trial.number, exc)
-                    continue
-                except BaseException:  # Ctrl-C, SIGTERM: the trial is failed, a resume asks for another
+                return
+            except BaseException:  # Ctrl-C, SIGTERM: the batch is failed, a resume asks for others
+                for trial in trials:
                     self.study.tell(trial, state=TrialState.FAIL)
-                    raise
-            out = outcome(result, self.search.objective)
-            for key, value in out.attrs.items():
-                trial.set_user_attr(key, value)
-            if out.state == TrialState.FAIL:
-                log.error("trial %d failed: %s", trial.number, out.attrs["error"])
-            self.study.tell(trial, out.values, state=out.state)
-            self.ran.append(trial.number)
-            print(line(trial.number, out, self.budget, self.search.objective))
-        return self.ran
+                raise
+        for k, (trial, returned) in enumerate(zip(trials, returns)):
+            try:
+                result = returned.return_value  # a job that raised raises here
+            except Exception as exc:  # the job's own failure: this trial fails, the study goes on
+                trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:2000])
+                self.study.tell(trial, state=TrialState.FAIL)
+                log.error("trial %d failed: %s", trial.number, exc)
+                continue
+            except BaseException:  # a stop (SweepStopped, Ctrl-C) from the job: it and the untold ones fail
+                for left in trials[k:]:
+                    self.study.tell(left, state=TrialState.FAIL)
+                raise
+            self.tell(trial, outcome(result, self.search.objective))
 
+    def tell(self, trial: optuna.Trial, out: Outcome) -> None:
+        for key, value in out.attrs.items():
+            trial.set_user_attr(key, value)
+        if out.state == TrialState.FAIL:
+            log.error("trial %d failed: %s", trial.number, out.attrs["error"])
+        self.study.tell(trial, out.values, state=out.state)
+        self.ran.append(trial.number)
+        print(line(trial.number, out, self.budget, self.search.objective))
 
     def screened(self, trial: optuna.Trial, overrides: list[str]) -> bool:
         """The pre-screen's cheap look (search.prescreen): True when it pruned the trial."""

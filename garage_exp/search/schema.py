@@ -37,6 +37,10 @@ class SearchConf:
 
     mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
     trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
+    # trials asked at once and handed to the launcher as one batch (ask K, run K, tell K): a GPU worker renders a
+    # batch's trials together; on the CPU they run one after another, as with 1. TPE then lies constantly about
+    # the trials still running (Optuna's constant_liar), so a batch does not sample one point K times.
+    batch: int = 1
     sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
     objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness) |
     # slots (1 - recall of the fair slots on the BEV: case=slots camera=fisheye4, docs/slots.md)

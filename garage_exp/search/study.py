@@ -81,6 +81,8 @@ def check_search(search) -> None:
         raise GarageError(f"{search.grid_levels} levels: a grid needs at least 2 (its ends)", "search.grid_levels")
     if int(search.startup) < 0:
         raise GarageError(f"{search.startup} startup trials: at least 0", "search.startup")
+    if int(search.get("batch", 1)) < 1:
+        raise GarageError(f"a batch of {search.batch} trials: at least 1", "search.batch")
     if int(search.trials) < 1:
         raise GarageError(f"{search.trials} trials: at least 1", "search.trials")
     if not 0.0 <= float(search.min_visible) <= 1.0:
@@ -130,7 +132,10 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
         return _Grid(grid(params or {}, int(search.grid_levels)), seed=seed)
     if name == "tpe":
         # multivariate: factors of a scenario interact (a dark garage and a far target), as TPE's docs advise
-        return optuna.samplers.TPESampler(seed=seed, multivariate=True, n_startup_trials=int(search.startup))
+        # constant_liar: trials asked before the running ones are told (search.batch > 1, or several workers)
+        # are kept away from those, as Optuna advises for batch and distributed optimisation
+        return optuna.samplers.TPESampler(seed=seed, multivariate=True, n_startup_trials=int(search.startup),
+                                          constant_liar=int(search.get("batch", 1)) > 1)
     if name == "cmaes":
         # CMA-ES samples the continuous factors; categorical ones fall back to TPE (warn_independent off: said here)
         return optuna.samplers.CmaEsSampler(seed=seed, warn_independent_sampling=False,

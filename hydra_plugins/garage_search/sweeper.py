@@ -35,13 +35,13 @@ class SearchSweeper(Sweeper):
     def launch_function(self):
         """Trials in this process compose their config once per combination of group levels (Hydra's basic
         launcher, made cheaper: garage_exp.search.launch); other launchers (joblib, submitit) get the batch."""
-        from garage_exp.search.launch import CachedLaunch
+        from garage_exp.search.launch import CachedLaunch, launch_in_runs
         from garage_exp.search.sweep import group_levels
 
         if OmegaConf.select(self.config, "hydra.launcher._target_") == BASIC_LAUNCHER:
             groups = set(group_levels(self.hydra_context.config_loader))
             return CachedLaunch(self.hydra_context, self.task_function, self.config, groups)
-        return lambda batch, idx: self.launcher.launch(batch, initial_job_idx=idx)
+        return lambda batch, first: launch_in_runs(self.launcher, batch, first)
 
     def sweep(self, arguments: list[str]) -> Any:
         from garage_exp.tracking import runs as tracking

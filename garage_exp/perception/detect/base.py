@@ -12,6 +12,9 @@ Contract
   one-line `GarageError` naming the entry on any problem; a job calls it before it writes anything. `detect(frames,
   intrinsics)` takes a batch (a list of HxWx3 uint8 RGB arrays, or an (B, H, W, 3) array) and returns one
   `Detections` per frame, in order. An entry computes each frame's result from that frame alone.
+- A batch may also be a torch tensor (B, H, W, 3) uint8 on any device (the GPU path's pictures, which stay on the
+  GPU). An entry whose `takes_tensors()` is true gets it as it is (an ultralytics network run by torch, a
+  torchvision model: letterboxed and normalised on that device); every other entry gets it copied to the host once.
 - Entries are made from their config string by `entries.make_entry` (which kind is decided from the string or
   the file, without loading anything), and combined by `detector.Detector`, the composite every caller gets from
   the one factory (`detector.make_detector`, the `detector._target_`, built through `core.plugins.build`).
@@ -143,6 +146,10 @@ class Entry(ABC):
         """Why the entry runs where it does, for the detector's device line ("" when there is nothing to say)."""
         return ""
 
+    def takes_tensors(self) -> bool:
+        """Whether `detect` takes a torch (B, H, W, 3) uint8 batch as it is (else it gets numpy frames)."""
+        return False
+
 
 def message_of(exc: GarageError) -> str:
     """A GarageError's message without its place."""
@@ -150,9 +157,24 @@ def message_of(exc: GarageError) -> str:
     return text[len(f"{exc.where}: "):] if exc.where and text.startswith(f"{exc.where}: ") else text
 
 
-def as_batch(frames: Any) -> list[np.ndarray]:
-    """A batch of frames as a list of HxWx3 uint8 RGB arrays; ValueError for anything else (a single frame too:
-    wrap it in a list)."""
+def is_tensor(frames: Any) -> bool:
+    """A torch tensor (without importing torch where nobody made one)."""
+    return type(frames).__module__.startswith("torch") and hasattr(frames, "device")
+
+
+def on_host(frames: Any) -> list[np.ndarray]:
+    """A batch as numpy frames: a tensor batch copied to the host once, anything else as `as_batch` gives it."""
+    return list(frames.detach().cpu().numpy()) if is_tensor(frames) else as_batch(frames)
+
+
+def as_batch(frames: Any) -> Any:
+    """A batch of frames as a list of HxWx3 uint8 RGB arrays, or a torch (B, H, W, 3) uint8 tensor kept as it is;
+    ValueError for anything else (a single frame too: wrap it in a list)."""
+    if is_tensor(frames):
+        if frames.ndim != 4 or frames.shape[-1] != 3 or str(frames.dtype) != "torch.uint8":
+            raise ValueError(f"expected a (B, H, W, 3) uint8 tensor of RGB frames, got {frames.dtype} "
+                             f"{tuple(frames.shape)}")
+        return frames
     if isinstance(frames, np.ndarray):
         if frames.ndim != 4:
             raise ValueError(f"expected a batch of frames (B, H, W, 3), got an array of shape {frames.shape}")

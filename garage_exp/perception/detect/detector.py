@@ -29,7 +29,7 @@ from garage_exp.core.errors import GarageError, check_range
 from garage_exp.core.state import STATE
 from garage_exp.perception.detect import entries as entry_kinds
 from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, as_batch,
-                                               per_frame)
+                                               is_tensor, on_host, per_frame)
 from garage_exp.perception.detect.devices import check_device, device_line
 from garage_exp.perception.detect.matching import PERSON_CLASSES, VEHICLE_CLASSES
 
@@ -132,18 +132,23 @@ class Detector:
 
     def detect(self, frames: Any, intrinsics: Intrinsics | Sequence[Intrinsics | None] | None = None
                ) -> list[list[Detections]]:
-        """Every model's detections on each frame of the batch (frames: a list of HxWx3 uint8 RGB arrays or a
-        (B, H, W, 3) array; intrinsics: None, one camera for all, or one per frame): one list per frame, one
+        """Every model's detections on each frame of the batch (frames: a list of HxWx3 uint8 RGB arrays, a
+        (B, H, W, 3) array, or a (B, H, W, 3) uint8 torch tensor on any device; intrinsics: None, one camera for all, or one per frame): one list per frame, one
         `Detections` per model in `names` order. All classes are kept (non-target classes count as false
         positives)."""
         if not self.checked:
             self.check()
         batch = as_batch(frames)
         cams = per_frame(intrinsics, len(batch))
-        out: list[list[Detections]] = [[] for _ in batch]
+        out: list[list[Detections]] = [[] for _ in range(len(batch))]
+        host = None  # a tensor batch copied to the host once, for the entries that take numpy frames
         for name, entry in zip(self.names, self.entries):
             start = time.perf_counter()
-            found = entry.detect(batch, cams)
+            if is_tensor(batch) and not entry.takes_tensors():
+                host = on_host(batch) if host is None else host
+                found = entry.detect(host, cams)
+            else:
+                found = entry.detect(batch, cams)
             ms = (time.perf_counter() - start) * 1000.0 / max(len(batch), 1)
             if len(found) != len(batch):
                 raise GarageError(f"answered {len(found)} results for {len(batch)} frames", entry.where)

@@ -15,7 +15,7 @@ import numpy as np
 
 from garage_exp.core.errors import did_you_mean
 from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, Intrinsics, checked,
-                                               probe_frame)
+                                               is_tensor, probe_frame)
 from garage_exp.perception.detect.devices import pick_device
 
 PREFIX = "torchvision:"
@@ -86,11 +86,17 @@ class TorchvisionEntry(Entry):
                 part.score_thresh = min(float(part.score_thresh), self.settings.conf)
         return model.eval().to(self.device), names
 
+    def takes_tensors(self) -> bool:
+        return True  # a torch model: a tensor batch goes in on its device
+
     def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
         import torch
 
-        images = [torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float().div(255.0).to(self.device)
-                  for rgb in frames]
+        if is_tensor(frames):
+            images = list(frames.to(self.device).permute(0, 3, 1, 2).float().div(255.0))  # `checked`: its shape
+        else:
+            images = [torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float().div(255.0).to(self.device)
+                      for rgb in frames]
         with torch.inference_mode():
             results = self._model(images)
         out = []

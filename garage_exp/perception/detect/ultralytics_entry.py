@@ -18,12 +18,15 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.environment import prepare_environment
-from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, Intrinsics
+from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, Intrinsics, is_tensor
 from garage_exp.perception.detect.devices import cuda_available, pick_device
 from garage_exp.perception.detect.entries import OPENVINO_SUFFIX
+from garage_exp.perception.detect.tensors import PAD_VALUE, Letterbox
 
 log = logging.getLogger("garage_exp")
 FORMATS = {".pt": "pt", ".onnx": "onnx", ".engine": "engine", ".torchscript": "torchscript"}
+TORCH_FORMATS = ("pt", "torchscript", "engine")  # run by torch (or TensorRT on CUDA memory): fed tensors as they are
+STRIDE = 32  # the YOLO and RT-DETR networks' largest stride: an input's sides are its multiples
 
 
 def model_label(path: Path) -> str:
@@ -66,20 +69,64 @@ class UltralyticsEntry(Entry):
                                  lambda: load_model(self.path, s.imgsz, self.device, s.threads, self.where))
         self.classes = tuple(str(v) for v in self._model.names.values())
 
+    def takes_tensors(self) -> bool:
+        return self.format in TORCH_FORMATS
+
     def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+        if is_tensor(frames):
+            return self._detect_tensor(frames)
         # ultralytics reads numpy images as OpenCV BGR. One frame goes in as an array (as before batches), so a
         # batch of one gives the same numbers as the single-frame call the golden tables were measured with.
         bgr = [np.ascontiguousarray(rgb[..., ::-1]) for rgb in frames]
         s = self.settings
         results = self._model.predict(bgr[0] if len(bgr) == 1 else bgr, conf=s.conf, imgsz=s.imgsz,
                                       device=self.device, verbose=False)
+        return [detections(result) for result in results]
+
+    def _detect_tensor(self, frames) -> list[Detections]:
+        """A (B, H, W, 3) uint8 RGB tensor batch, on its way to the network without leaving the device: letterboxed
+        there as ultralytics letterboxes a numpy frame for a torch model (scaled to fit imgsz, then padded with grey
+        to the stride's multiple, centred), as floats in [0, 1]; the boxes mapped back to the frame's pixels.
+        Only the detections' numbers leave the device."""
+        s = self.settings
+        # a .pt network takes any multiple of the stride; an exported one (TorchScript, TensorRT) its fixed square
+        x, box = letterbox_tensor(frames.to(self.device), s.imgsz, STRIDE, square=self.format != "pt")
+        results = self._model.predict(x, conf=s.conf, imgsz=s.imgsz, device=self.device, verbose=False)
+        h, w = int(frames.shape[1]), int(frames.shape[2])
         out = []
         for result in results:
-            boxes = result.boxes
-            out.append(Detections(boxes=boxes.xyxy.cpu().numpy().astype(np.float32).reshape(-1, 4),
-                                  scores=boxes.conf.cpu().numpy().astype(np.float32).reshape(-1),
-                                  classes=[result.names[int(k)] for k in boxes.cls.cpu().numpy()]))
+            dets = detections(result)
+            dets.boxes = box.unmap(dets.boxes, w, h)
+            out.append(dets)
         return out
+
+
+def detections(result) -> Detections:
+    """An ultralytics result's boxes as `Detections` (the model's class names)."""
+    boxes = result.boxes
+    return Detections(boxes=boxes.xyxy.cpu().numpy().astype(np.float32).reshape(-1, 4),
+                      scores=boxes.conf.cpu().numpy().astype(np.float32).reshape(-1),
+                      classes=[result.names[int(k)] for k in boxes.cls.cpu().numpy()])
+
+
+def letterbox_tensor(frames, imgsz: int, stride: int, square: bool = False):
+    """(B, H, W, 3) uint8 -> ((B, 3, H', W') float32 in [0, 1], its `tensors.Letterbox`): scaled by
+    min(imgsz / H, imgsz / W) (bilinear, as OpenCV's INTER_LINEAR), padded with 114 grey to a multiple of `stride`
+    each way (ultralytics' LetterBox(auto=True), a .pt model's) or to imgsz x imgsz (`square`: an export's fixed
+    input), centred as ultralytics centres it."""
+    import torch.nn.functional as F
+
+    b, h, w, _ = frames.shape
+    gain = min(imgsz / h, imgsz / w)
+    new_h, new_w = int(round(h * gain)), int(round(w * gain))
+    x = frames.permute(0, 3, 1, 2).float()
+    if (new_h, new_w) != (h, w):
+        x = F.interpolate(x, size=(new_h, new_w), mode="bilinear", align_corners=False)
+    dh, dw = ((imgsz - new_h) / 2, (imgsz - new_w) / 2) if square else (((-new_h) % stride) / 2, ((-new_w) % stride) / 2)
+    top, bottom = int(round(dh - 0.1)), int(round(dh + 0.1))
+    left, right = int(round(dw - 0.1)), int(round(dw + 0.1))
+    x = F.pad(x, (left, right, top, bottom), value=float(PAD_VALUE))
+    return x.div_(255.0), Letterbox(gain if (new_h, new_w) != (h, w) else 1.0, left, top)
 
 
 def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int = 0, where: str | None = None) -> Any:
