@@ -3,6 +3,7 @@
 `garage_exp/StepOut-v0` (env.py) is a Gymnasium environment: the ego drives a case's path and an adversary moves
 a person within physical limits (limits.py) so that the detectors confirm it too late to stop (reward.py, on
 garage_exp/results/late.py); `garage_exp/PullOut-v0` times a car pulling out of its bay instead (case=pullout).
+Either is also a Gymnasium vector env (vector.py, `gymnasium.make_vec`): K episodes stepped as one batch.
 A stable-baselines3 PPO agent learns it (train.py); a trained adversary's episodes export as scenario YAMLs and a
 graded suite (export.py); `falsify` runs it for the falsification benchmark.
 """
@@ -14,10 +15,14 @@ import gymnasium
 ENV_ID = "garage_exp/StepOut-v0"
 PULLOUT_ID = "garage_exp/PullOut-v0"  # a car pulling out of its bay (case=pullout, the car's gap moved)
 
+# gymnasium.make(ID, overrides=[...]) makes one environment; gymnasium.make_vec(ID, num_envs=K, overrides=[...])
+# the vector env of vector.py (K episodes, their frames rendered and detected as one batch).
 if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="garage_exp.gym.env:StepOutEnv")
+    gymnasium.register(id=ENV_ID, entry_point="garage_exp.gym.env:StepOutEnv",
+                       vector_entry_point="garage_exp.gym.vector:StepOutVectorEnv")
 if PULLOUT_ID not in gymnasium.registry:
-    gymnasium.register(id=PULLOUT_ID, entry_point="garage_exp.gym.env:PullOutEnv")
+    gymnasium.register(id=PULLOUT_ID, entry_point="garage_exp.gym.env:PullOutEnv",
+                       vector_entry_point="garage_exp.gym.vector:PullOutVectorEnv")
 
 
 def falsify(cfg, seed: int, episodes: int) -> list[dict]:

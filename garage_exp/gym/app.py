@@ -22,6 +22,7 @@ COMMAND = shell.Command("garage_exp.gym", "gym", (schema.register,))
 def check_gym(cfg: DictConfig) -> None:
     """`mode` and the `gym` node (the schema checked the types; keys forced past it are refused here)."""
     from garage_exp.core.schema_check import unknown_keys
+    from garage_exp.gym.vector import MAX_ENVS
 
     gym = OmegaConf.to_container(cfg.gym, resolve=False)
     for path, key, owner in unknown_keys(gym, schema.AdversaryConf, ("gym",)):
@@ -33,6 +34,7 @@ def check_gym(cfg: DictConfig) -> None:
                     ("eval_episodes", 10**5), ("per_band", 1000)):
         check_range(g[key], 1, hi, f"gym.{key}")
     check_range(g.seed, 0, 2**31 - 1, "gym.seed")
+    check_range(g.envs, 1, MAX_ENVS, "gym.envs")
     check_range(g.learning_rate, 1e-8, 1.0, "gym.learning_rate")
     check_range(g.gamma, 0.0, 1.0, "gym.gamma")
     check_range(g.ent_coef, 0.0, 1.0, "gym.ent_coef")
@@ -98,7 +100,7 @@ def rates_line(before: tuple[int, int], after: tuple[int, int]) -> str:
     return text if p < 0.05 else text + f"; no clear change at this many episodes (Fisher's exact p = {p:.2f})"
 
 
-def run_train(cfg: DictConfig, env, out: Path) -> dict:
+def run_train(cfg: DictConfig, env, out: Path, venv=None) -> dict:
     import pandas as pd
 
     from garage_exp.gym import export
@@ -110,7 +112,7 @@ def run_train(cfg: DictConfig, env, out: Path) -> dict:
     tags = {"kind": "gym", "case": str(cfg.case.name), "output_dir": str(out)}
     run = tracking.start_job_run(cfg, f"adversary on {cfg.case.name}, {g.timesteps} steps, seed {g.seed}", tags, None)
     try:
-        result = train(cfg, env)
+        result = train(cfg, env, venv)
         rows = result["before"] + result["train"] + result["after"]
         table = pd.DataFrame(rows)
         table.to_csv(out / "episodes.csv", index=False)
@@ -179,18 +181,24 @@ def run_export(cfg: DictConfig, env, out: Path) -> dict:
 
 def main(cfg: DictConfig) -> dict:
     from garage_exp.gym.env import StepOutEnv
+    from garage_exp.gym.vector import StepOutVectorEnv
 
     out = Path(HydraConfig.get().runtime.output_dir)
     check_gym(cfg)  # bad input: the shell removes the run dir and says it in one line
-    env = StepOutEnv(cfg)
+    # gym.envs > 1: PPO trains on K episodes at a time (one batch of frames a step); the evaluations and the
+    # export play the vector env's world, a StepOutEnv like the lone one.
+    venv = StepOutVectorEnv(int(cfg.gym.envs), cfg) if cfg.mode == "train" and int(cfg.gym.envs) > 1 else None
+    env = venv.world if venv is not None else StepOutEnv(cfg)
     try:
         if cfg.mode == "check":
             return run_check(cfg, env)
         if cfg.mode == "export":
             return run_export(cfg, env, out)
-        return run_train(cfg, env, out)
+        return run_train(cfg, env, out, venv)
     finally:
         env.close()
+        if venv is not None:
+            venv.close()
 
 
 def cli(argv: list[str] | None = None) -> None:

@@ -5,8 +5,9 @@ pulls out of its bay towards the ego's path. Any actor's placement value can be 
 
 Each step is one frame: time advances by the ego's step over its speed, the adversary's action moves its values
 within physical limits (limits.py), the ego's front camera renders the scene and the detectors score the target,
-through the frame pipeline a job uses (garage_exp/run/pipeline.py) but one frame at a time, in the process's warm renderer and
-detector child. The scene is built once per environment with every actor in it; a step only moves them.
+through the frame pipeline a job uses (garage_exp/run/pipeline.py), in the process's warm renderer and detector
+child: a step is a batch of one frame (`shoot`), waited for; the vector env (vector.py) steps K episodes' frames as
+one batch. The scene is built once per environment with every actor in it; a step only moves them.
 
 Observation (a Box, not pixels): time, the ego's speed, its distance before the target's spot, the critical
 distance, the camera's range to the target, the last frame's confidence, the share of the last n frames that
@@ -22,6 +23,7 @@ time earns nothing, hidden or not. `gym.objective=hard` rewards a hard-and-fair 
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import asdict
@@ -156,8 +158,12 @@ class StepOutEnv(gymnasium.Env):
 
     def step(self, action):
         self.move(action)
-        ego_pose, poses = self._poses(self.drive[self.k])
-        row = self._frame(ego_pose, poses)
+        (row,) = shoot([self])  # a batch of one (the vector env, vector.py, shoots K episodes' frames at once)
+        return self.finish(row)
+
+    def finish(self, row: dict):
+        """The step's end once its frame is judged (`row`, from `shoot`): (observation, reward, terminated,
+        truncated, info), the episode's verdict in the info of its last step."""
         self.frames.append(row)
         self.hits.append(row["detected"])
         before = row["range"] > self.critical
@@ -180,6 +186,16 @@ class StepOutEnv(gymnasium.Env):
         self.ret += r
         self.last = row
         return self._observation(), float(r), bool(terminated), False, info
+
+    def fork(self) -> StepOutEnv:
+        """Another episode in this environment's world: the same scene, scenario, movers and limits, renderer and
+        detector (shared: a step never changes them), its own episode state and sensor stream. The vector env
+        (vector.py) keeps K forks of one environment: one preflight, one scene in the process's renderer."""
+        self._open()  # opened once, here: each fork reopening would reload the detector (and drain its queue)
+        twin = copy.copy(self)
+        twin.pipeline, twin.renders = None, 0
+        twin._state_reset()
+        return twin
 
     def move(self, action) -> None:
         """The step's moves, before its frame: the next frame of the drive, and each mover's value as the action
@@ -260,25 +276,29 @@ class StepOutEnv(gymnasium.Env):
         height = self.live.made[self.live.target].extent[2]
         return float(np.linalg.norm(position - np.array([target.x, target.y, height / 2])))
 
-    def _frame(self, ego_pose, poses) -> dict:
-        """Render the ego's first camera, detect and score the target (the frame pipeline, run.pipeline, one frame
-        waited for: the next step depends on it): one frame table row and its verdicts."""
-        from garage_exp.run.pipeline import FramePipeline, in_view
+    def shot(self):
+        """This step's shot (`scenario.Shot`): the ego at this step's point of the drive, the movers at their values."""
         from garage_exp.scenario import Shot
+
+        ego_pose, poses = self._poses(self.drive[self.k])
+        return Shot(self.k, "", 0.0, ego_pose, poses, self.live.target)
+
+    def frame_pipeline(self):
+        """The frame pipeline (run.pipeline) over this episode's renderer, detector and sensor stream."""
+        from garage_exp.run.pipeline import FramePipeline
 
         if self.pipeline is None or self.pipeline.renderer is not self.renderer:
             self.pipeline = FramePipeline(self.job, self.scene, self.renderer, self.sensor, self.sensor_rng,
                                           self.detector, self.checked_detector.scoring())
-        shot = Shot(self.k, "", 0.0, ego_pose, poses, self.live.target)
-        self.pipeline.pose(shot)
-        # Only the case's actors are in view (parked cars are scenery here: a step renders no silhouette of them).
-        item = self.pipeline.shoot(shot, self.scene.cameras[0].name, in_view(self.scene, poses, placed_only=True))
-        score = self.pipeline.score(item, self.pipeline.detect_now(item))
+        return self.pipeline
+
+    def row(self, item, score) -> dict:
+        """This step's frame table row and its verdicts, from its rendered frame and the target's score."""
         self.renders += 1
         target = item.target
         row = {"frame": self.k, "time": round(self.k * self.dt, 6), "ego": self.drive[self.k],
                **{m.name: round(self.values[m.name], 6) for m in self.movers},
-               "range": self._range(ego_pose, poses),
+               "range": self._range(item.shot.ego, item.shot.poses),
                "distance": round(target.distance, 4) if target else math.nan,
                "visible_fraction": round(target.visible_fraction, 6) if target else 0.0,
                "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
@@ -310,6 +330,26 @@ class StepOutEnv(gymnasium.Env):
     def close(self) -> None:
         # The renderer and the detector child belong to the process (core.state.STATE): later envs and jobs reuse them.
         self.renderer = self.detector = self.pipeline = None
+
+
+def shoot(envs: list[StepOutEnv]) -> list[dict]:
+    """The frames of `envs`' current steps (after `move`): the ego's first camera rendered, detected and the
+    target scored, as ONE batch through the frame pipeline of the first env (the envs are forks of one world,
+    `StepOutEnv.fork`: one scene, renderer and detector), each env's camera model drawing from its own sensor
+    stream; their rows, env by env. A lone env's step is a batch of one."""
+    from garage_exp.run.pipeline import in_view
+
+    if not envs:
+        return []
+    world = envs[0]
+    if any(env.scene is not world.scene for env in envs):
+        raise ValueError("one batch of frames is one world's: the envs must be forks of one environment")
+    pipeline = world.frame_pipeline()
+    shots = [env.shot() for env in envs]
+    # Only the case's actors are in view (parked cars are scenery here: a step renders no silhouette of them).
+    actors = [in_view(world.scene, s.poses, placed_only=True) for s in shots]
+    done = pipeline.detect_shots(shots, world.scene.cameras[0].name, actors, [env.sensor_rng for env in envs])
+    return [env.row(item, pipeline.score(item, dets)) for env, (item, dets) in zip(envs, done)]
 
 
 # `garage_exp/PullOut-v0`: case=pullout with the car's `gap` as the adversary's one mover, from parked (0.2 m behind

@@ -44,8 +44,9 @@ class AdversaryConf:
     variant: int = 0  # which of the case's variants is the episode (its shown actors and target)
     shaping: float = 0.05  # x (1 - confidence) per fair frame before the critical distance; 0: only `late`
     stop_when_decided: bool = True  # objective late: end an episode once its verdict cannot change
-    timesteps: int = 1024  # PPO's training steps (each one a rendered, detected frame)
-    n_steps: int = 128  # steps per PPO rollout
+    envs: int = 1  # episodes PPO trains on at a time (vector.py: their frames render and detect as one batch)
+    timesteps: int = 1024  # PPO's training steps, all episodes together (each one a rendered, detected frame)
+    n_steps: int = 128  # steps per PPO rollout and episode in flight (a rollout: n_steps x envs steps)
     batch_size: int = 32
     n_epochs: int = 4
     learning_rate: float = 3e-4

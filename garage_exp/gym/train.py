@@ -14,6 +14,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
 from garage_exp.gym.env import StepOutEnv
+from garage_exp.gym.vector import StepOutVectorEnv
 
 
 def cpu_seconds(env: StepOutEnv) -> float:
@@ -61,9 +62,10 @@ class Episodes(BaseCallback):
         return self.stop_after is None or len(self.records) < self.stop_after
 
 
-def make_ppo(env: StepOutEnv, cfg: DictConfig) -> PPO:
-    """PPO with an MLP policy on the state observation, seeded; on the CPU with one thread (the renderer and
-    the detector child have the other cores, and one thread keeps a seeded run repeatable)."""
+def make_ppo(env, cfg: DictConfig) -> PPO:
+    """PPO with an MLP policy on the state observation (env: a StepOutEnv, or sb3.BatchedVecEnv over K episodes),
+    seeded; on the CPU with one thread (the renderer and the detector child have the other cores, and one thread
+    keeps a seeded run repeatable)."""
     import torch
 
     torch.set_num_threads(1)
@@ -100,9 +102,12 @@ def late_rate(rows: list[dict]) -> float:
     return k / n if n else math.nan
 
 
-def train(cfg: DictConfig, env: StepOutEnv) -> dict:
-    """Evaluate the untrained policy, train, evaluate again: every episode's row and record, the model."""
-    model = make_ppo(env, cfg)
+def train(cfg: DictConfig, env: StepOutEnv, venv: StepOutVectorEnv | None = None) -> dict:
+    """Evaluate the untrained policy, train, evaluate again: every episode's row and record, the model. venv: the
+    K episodes PPO trains on as one batch (gym.envs), `env` its world, on which the evaluations play."""
+    from garage_exp.gym.sb3 import BatchedVecEnv
+
+    model = make_ppo(env if venv is None else BatchedVecEnv(venv), cfg)
     g = cfg.gym
     eval_seed = int(g.seed) + 10_000
     start = time.perf_counter()
@@ -111,7 +116,8 @@ def train(cfg: DictConfig, env: StepOutEnv) -> dict:
     model.learn(total_timesteps=int(g.timesteps), callback=log)
     after, after_full = rollouts(model, env, int(g.eval_episodes), eval_seed, "after")
     return {"model": model, "before": before, "train": log.records, "after": after, "after_full": after_full,
-            "train_full": log.full, "wall_s": time.perf_counter() - start, "renders": env.renders}
+            "train_full": log.full, "wall_s": time.perf_counter() - start,
+            "renders": env.renders + (venv.renders if venv is not None else 0)}
 
 
 def falsify(cfg: DictConfig, seed: int, episodes: int) -> list[dict]:

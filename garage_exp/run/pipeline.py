@@ -1,7 +1,8 @@
 """The one frame pipeline: pose the actors -> render -> ground truth -> camera model -> detect -> score.
 
 Every caller goes through it: a job's frame loop (`run.frames`, hence a search's trials, which run as jobs), the
-search's pre-screen (`search.prescreen`), the gym's steps (`gym.env`) and the benchmarks (`benchmarks/jobkit.py`).
+search's pre-screen (`search.prescreen`), the gym's steps (`gym.env` and `gym.vector`: `detect_shots`) and the
+benchmarks (`benchmarks/jobkit.py`).
 Nothing else strings these stages together.
 
 The stages, and the order that fixes the sensor's random stream (hence the golden tables):
@@ -108,22 +109,24 @@ class FramePipeline:
         for name, pose in shot.poses.items():
             self.renderer.set_pose(name, pose if pose is not None else HIDDEN)
 
-    def shoot(self, shot: Shot, camera: str, actors: Sequence[str] | None = None) -> Rendered:
+    def shoot(self, shot: Shot, camera: str, actors: Sequence[str] | None = None,
+              rng: np.random.Generator | None = None) -> Rendered:
         """One camera of the posed shot: rendered, its ground truth (of `actors`, default `in_view`), the camera
-        model applied (one draw from `sensor_rng`)."""
+        model applied (one draw from `rng`, default `sensor_rng`)."""
         from garage_exp.perception.groundtruth import ground_truth
         from garage_exp.render.composite import blank_composite
 
         renderer, scene = self.renderer, self.scene
+        rng = self.sensor_rng if rng is None else rng
         frame = renderer.render(camera)
         names = in_view(scene, shot.poses) if actors is None else list(actors)
         truth = ground_truth(frame, renderer.unoccluded_ids(camera, names), scene, renderer.ids)
         if not scene.background and str(self.cfg.look.name) != "flat":
             # The blank control is a scene (the car alone on grey) that the camera then sees: exposure, blur
             # and noise act on the grey too. The flat look keeps the order its published tables used.
-            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, renderer.ids, [shot.target]), self.sensor_rng)
+            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, renderer.ids, [shot.target]), rng)
         else:
-            rgb = self.sensor.apply(frame.rgb, self.sensor_rng)
+            rgb = self.sensor.apply(frame.rgb, rng)
             if not scene.background:
                 rgb = blank_composite(rgb, frame, renderer.ids, [shot.target])
         target = next((t for t in truth if t.name == shot.target), None)
@@ -149,10 +152,21 @@ class FramePipeline:
         """Each frame with its detections, in order, detection overlapping rendering (`overlapped`)."""
         return overlapped(frames, self.detector, self.intrinsics)
 
-    def detect_now(self, item: Rendered) -> list:
-        """One frame's detections, waited for (the gym's step: the next frame depends on this one's score)."""
-        self.detector.submit(item.rgb, self.intrinsics.get(item.camera))
-        return self.detector.result()
+    def detect_shots(self, shots: Sequence[Shot], camera: str, actors: Sequence[Sequence[str]],
+                     rngs: Sequence[np.random.Generator]) -> Iterator[tuple[Rendered, list]]:
+        """A batch of shots from independent episodes (the gym's vector env: one shot per episode, each with the
+        ground truth of its `actors` and its own sensor stream in `rngs`), one camera each: each frame with its
+        detections, in order. On the CPU renderer the shots are posed and rendered one after another, detection
+        overlapping rendering (`overlapped`). The batch is one call so that the GPU path can take it whole: a
+        `render.batch.BatchRenderer` would pose the shots in its sub-scenes and render them together
+        (`shoot_batch`), the detector taking the batch at once."""
+
+        def frames():
+            for shot, names, rng in zip(shots, actors, rngs, strict=True):
+                self.pose(shot)
+                yield self.shoot(shot, camera, names, rng)
+
+        return self.detected(frames())
 
     def score(self, item: Rendered, dets: list):
         """The target's score in one frame (`perception.detect.score_target` with the job's matching rule)."""
