@@ -77,6 +77,8 @@ def main() -> int:
                           "child_rss_mb": round(rss_mb(child), 1) if child else None})
             if len(curve) % 10 == 0:
                 print(json.dumps(curve[-1]), flush=True)
+            if len(curve) % 500 == 0:  # a long soak stopped half-way still leaves its curve
+                Path(opts.out).write_text(json.dumps({"command": command, "partial": True, "curve": curve}))
 
     launch.CachedLaunch.__call__ = call
     error = None
