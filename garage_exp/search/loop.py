@@ -27,6 +27,7 @@ from garage_exp.core.exits import SweepStopped
 from garage_exp.search import objectives
 from garage_exp.search.objectives import num
 from garage_exp.search import space as space_mod
+from garage_exp.search import storage as storage_mod
 from garage_exp.search import study as study_mod
 
 log = logging.getLogger("garage_exp")
@@ -110,7 +111,7 @@ class SearchLoop:
         none once the study holds its budget."""
         with study_mod.storage_lock(self.url):
             optuna.storages.fail_stale_trials(self.study)  # a dead worker's trials
-            held = len(self.study.get_trials(deepcopy=False, states=COUNTED))
+            held = storage_mod.count_trials(self.study, COUNTED)
             wanted = min(int(self.search.get("batch", 1)), self.budget - held)
             return [self.study.ask(fixed_distributions=self.space.params) for _ in range(max(wanted, 0))]
 
