@@ -16,7 +16,7 @@ garage (the research plan, case 1, 640x480 unless --width/--height):
   networks that run on the card), frames/s with the pictures copied to numpy first and fed as the CUDA tensor.
 - fisheye4: the four-fisheye rig's faces rendered batched and remapped with grid_sample, delivered Mpx/s.
 - search: trials/hour of today's search on this card (benchmarks/studies/search.py's throughput run, --trials).
-- gym: StepOut-v0 env steps/s (random actions).
+- gym: StepOut-v0 env steps/s (random actions), alone and as a vector env of 4 and 16 episodes.
 Each section records its error instead of its numbers when it fails, so one run gives every figure it can.
 """
 
@@ -213,7 +213,7 @@ def main() -> int:
         rows = [line.split("|")[1:-1] for line in done.stdout.splitlines() if line.startswith("| ")]
         row = next(r for r in rows if r[0].strip().isdigit())
         return {"trials": int(row[0]), "trials_per_hour": int(row[3]),
-                "note": "today's per-frame search on this card (no K trials in flight yet)"}
+                "note": "the search on this card, one trial after another (a batch's trials are not yet rendered together)"}
 
     def gym():
         from garage_exp.gym.env import StepOutEnv, compose
@@ -226,7 +226,19 @@ def main() -> int:
             steps += 1
             if done:
                 env.reset()
-        return {"steps_per_s": round(steps / (time.perf_counter() - t0), 1)}
+        out = {"steps_per_s": round(steps / (time.perf_counter() - t0), 1)}
+        from garage_exp.gym.vector import StepOutVectorEnv
+
+        for k in (4, 16):  # K episodes' frames a vector step: one batch through the pipeline
+            venv = StepOutVectorEnv(k, compose(["renderer.device=cuda"]))
+            venv.reset(seed=0)
+            venv.step(venv.action_space.sample())
+            before, t0 = venv.renders, time.perf_counter()
+            while time.perf_counter() - t0 < opts.seconds:
+                venv.step(venv.action_space.sample())
+            out[f"vector{k}_steps_per_s"] = round((venv.renders - before) / (time.perf_counter() - t0), 1)
+            venv.close()
+        return out
 
     for name, fn in (("batched", ceiling_and_pipeline), ("agreement", agreement), ("detectors", detectors),
                      ("fisheye4", fisheye4), ("search", search), ("gym", gym)):

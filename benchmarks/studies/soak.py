@@ -39,15 +39,6 @@ def rss_mb(pid: int) -> float:
         return float("nan")
 
 
-def machine() -> str:
-    """This machine in a few words: its CPU model and core count."""
-    import platform
-
-    model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                  if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
-    return f"{model}, {os.cpu_count()} cores".strip(", ")
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=300)
@@ -59,6 +50,7 @@ def main() -> int:
     command = " ".join(["python -m benchmarks.studies.soak", *sys.argv[1:]])  # before Hydra rewrites sys.argv
     os.environ.setdefault("YOLO_OFFLINE", "1")
 
+    from benchmarks.jobkit import machine
     from garage_exp.cli import app
     from garage_exp.core.state import STATE
     from garage_exp.search import launch
