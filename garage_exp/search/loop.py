@@ -100,7 +100,8 @@ class SearchLoop:
 
     def __init__(self, search, space: space_mod.Space, study: optuna.Study, launch, budget: int,
                  stop=lambda study: False, compose=None):
-        self.search, self.space, self.study, self.launch, self.budget = search, space, study, launch, budget
+        self.search, self.space, self.launch, self.budget = search, space, launch, budget
+        self.study = study_mod.lean(study, search)  # a random search's loop keeps no trial in memory
         self.stop = stop  # asked before each trial (a suite stops once its bands are full)
         self.compose = compose  # overrides -> the trial's config, for the pre-screen
         self.url = study_mod.storage_url(search)

@@ -168,6 +168,21 @@ def _write_ahead(storage) -> None:
     storage.engine.dispose()  # connections opened before the listener get the pragmas too
 
 
+def lean(study: optuna.Study, search) -> optuna.Study:
+    """The study as a trial loop should hold it. Optuna's cache (which it puts over every database storage) keeps
+    every trial in the process, ~5 kB each, for samplers that read the history; the random sampler reads none and
+    the loop counts in the database (storage.count_trials), so its loop gets a twin of the study that talks to the
+    database directly, and a search of 10,000 trials keeps none of them in memory (benchmarks/studies/soak.py).
+    The study itself keeps its cache: the analysis after the loop reads every trial several times."""
+    import copy
+
+    if search.sampler != "random" or search.mode != "search":
+        return study
+    twin = copy.copy(study)
+    twin._storage = getattr(study._storage, "_backend", study._storage)
+    return twin
+
+
 def open_study(search, name: str, seed: int, params: dict | None = None) -> optuna.Study:
     """Create the study, or load it when it exists (resume, a second worker). A study made with other
     directions (another objective under the same name) is refused."""
@@ -197,12 +212,6 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
         made = f"{', '.join(held)}" if held else f"{len(study.directions)} values"
         raise GarageError(f"study {name!r} was made for another objective ({made}, not {', '.join(goal.metrics)}); "
                           "give another search.study", "search.objective")
-    if search.sampler == "random" and search.mode == "search":
-        # Optuna's cache of the study (which it puts over every database storage) keeps every trial in this
-        # process, ~5 kB each, for samplers that read the history; the random sampler reads none and the loop
-        # counts in the database (storage.count_trials), so this study talks to the database directly and a
-        # search of 10,000 trials keeps none of them in memory (benchmarks/studies/soak.py).
-        study._storage = getattr(study._storage, "_backend", study._storage)
     study.set_user_attr("direction_names", list(goal.metrics))  # the analysis names its columns from these
     study.set_user_attr("untestable", goal.untestable)  # and says why a pruned trial was infeasible
     study.set_metric_names(list(goal.metrics))  # optuna-dashboard's axis labels
