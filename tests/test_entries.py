@@ -355,3 +355,31 @@ def test_every_caller_gets_its_detector_from_the_one_factory():
         assert "build_detector(" in (here / caller).read_text(), caller
     assert "prepared.detector" in (here / "run/frames.py").read_text()
     assert "prepared.detector" in (here / "gym/env.py").read_text()
+
+
+def test_class_names_from_the_config_and_an_unnamed_function(tmp_path):
+    """Issue 42: a function that does not declare `classes` is refused in preflight (it could answer names the
+    job cannot score, a column of zeros); its names given in the config (a list, or a file as an ultralytics
+    dataset YAML or plain text holds them) are checked against the scored classes, and a name it answers that it
+    was not given fails the job rather than scoring 0."""
+    from garage_exp.perception.detect.detector import given_class_names
+
+    walker = "callable:user_detectors:unnamed_walker"
+    with pytest.raises(GarageError, match="its class names are unknown.*class_names.unnamed_walker=") as err:
+        Detector([walker]).check()
+    assert err.value.where == f"detector.models {walker}"
+    with pytest.raises(GarageError, match=r"none of its classes \(Pedestrian, Cyclist\)"):
+        Detector([walker], class_names={"unnamed_walker": ["Pedestrian", "Cyclist"]}).check()
+    named = Detector([walker], class_names={"unnamed_walker": ["Pedestrian"]}, class_map={"Pedestrian": "person"})
+    assert named.detect([frame(240, 320)])[0][0].classes == ["Pedestrian"]
+    with pytest.raises(GarageError, match=r"returned class\(es\) \['Cyclist'\], not among its classes \(Pedestrian\)"):
+        named.detect([frame(value=255)])
+    (tmp_path / "data.yaml").write_text("path: x\nnames:\n  0: person\n  1: bicycle\n  2: car\n")
+    (tmp_path / "names.txt").write_text("person\nbicycle\n\ncar\n")
+    (tmp_path / "gaps.json").write_text('{"0": "person", "2": "car"}')
+    for file in ("data.yaml", "names.txt"):
+        assert given_class_names({"m": str(tmp_path / file)}) == {"m": ("person", "bicycle", "car")}
+    with pytest.raises(GarageError, match="detector.class_names.m: class indices"):
+        given_class_names({"m": str(tmp_path / "gaps.json")})
+    with pytest.raises(GarageError, match="detector.class_names.m: give a list of class-name strings"):
+        given_class_names({"m": [1, 2]})

@@ -14,7 +14,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, did_you_mean
 
 PROJECT_MODULES = ("garage_exp.",)
 
@@ -39,9 +39,39 @@ def resolve(target: str, what: str, where: str) -> Callable:
     check_target(target, what, where)
     module, _, attr = target.rpartition(".")
     try:
-        return getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError):
-        raise GarageError(f"cannot import {what} {target!r}", where) from None
+        loaded = importlib.import_module(module)
+    except Exception as exc:  # noqa: BLE001 - the user's module: which import failed and why, in one line
+        raise GarageError(f"cannot import {what} {target!r}: {import_failure(module, exc)}", where) from None
+    try:
+        return getattr(loaded, attr)
+    except AttributeError:
+        names = [n for n in vars(loaded) if not n.startswith("_") and callable(getattr(loaded, n))]
+        hint = did_you_mean(attr, names) if names else " (it defines no functions)"
+        raise GarageError(f"cannot import {what} {target!r}: module {module!r} ({source_of(loaded)}) has no "
+                          f"{attr!r}{hint}", where) from None
+
+
+def import_failure(module: str, exc: Exception) -> str:
+    """Why `import module` failed, said so that a user can act on it: a syntax error (file and line), the module
+    itself not found (with the Python path it was looked for on), a dependency it imports not installed, or an
+    error its code raised while being imported."""
+    if isinstance(exc, SyntaxError):
+        return f"its file {exc.filename}, line {exc.lineno}, has a syntax error: {exc.msg}"
+    if isinstance(exc, ModuleNotFoundError) and exc.name and (module == exc.name or module.startswith(exc.name + ".")):
+        top = module.split(".")[0]
+        if exc.name != top:
+            return f"package {exc.name.rpartition('.')[0]!r} has no module {exc.name!r}"
+        path = os.environ.get("PYTHONPATH", "")
+        return (f"no module {top!r} on the Python path (PYTHONPATH "
+                + (f"is {path!r}" if path else "is not set") + f"; put the folder that holds {top}/ or {top}.py on it)")
+    if isinstance(exc, ModuleNotFoundError):
+        return f"its module imports {exc.name!r}, which is not installed"
+    first = (str(exc).strip().splitlines() or [""])[0]
+    return f"importing {module!r} raised {type(exc).__name__}: {first}"[:300]
+
+
+def source_of(module) -> str:
+    return getattr(module, "__file__", None) or "a namespace package"
 
 
 def build(node: Any, what: str, where: str, *args: Any, **kwargs: Any) -> Any:

@@ -293,6 +293,9 @@ class DetectorConf:
     person_classes: list[str] = field(default_factory=lambda: ["person"])  # a pedestrian target's classes
     # A model's own class names -> vehicle | person, for models whose names are not COCO's ({Pedestrian: person}).
     class_map: dict[str, str] = field(default_factory=dict)
+    # A model's class names by index, for models that cannot give their own (a stock KServe server, a function
+    # without `classes`): its name (the frame table's conf_<name>) -> a list, or a YAML/JSON/text file of them.
+    class_names: dict[str, Any] = field(default_factory=dict)
     conf: float = 0.05  # keep low detections: a miss scores 0, a weak hit its confidence
     iou: float = 0.5
     match: str = "full"  # full | visible | either

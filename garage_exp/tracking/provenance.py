@@ -61,6 +61,8 @@ def config_hash(cfg: DictConfig, plan_digest: str = "") -> str:
         container.pop(key, None)
     if isinstance(container.get("detector"), dict):  # where `models:/` entries are looked up: the tracking store
         container["detector"].pop("registry", None)
+        if not container["detector"].get("class_names"):  # added later: an empty one keeps older jobs' identity
+            container["detector"].pop("class_names", None)
     if plan_digest:
         container["plan_sha256"] = plan_digest
     return hashlib.sha256(json.dumps(container, sort_keys=True, default=str).encode()).hexdigest()[:16]

@@ -124,6 +124,8 @@ class Entry(ABC):
         self.name = self.entry  # a short name; subclasses set a better one
         self.device = "cpu"
         self.classes: tuple[str, ...] = ()
+        # its class names by index as the config gives them (detector.class_names), for a model that cannot say
+        self.given_classes: tuple[str, ...] = ()
 
     @property
     def where(self) -> str:

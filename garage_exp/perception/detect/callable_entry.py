@@ -3,8 +3,11 @@
 The function is called with a batch: `function(frames, intrinsics)`, frames a list of HxWx3 uint8 RGB arrays,
 intrinsics a list of the same length (one `base.Intrinsics` per frame, or None where the caller has no camera),
 and returns a list of one `Detections` per frame (boxes x1, y1, x2, y2 in the frame's pixels, scores in [0, 1],
-class names). It may declare its class names as an attribute, `function.classes = ["car", "person"]`, so that
-preflight checks them against `detector.class_map`. Its module must lie under an allowed prefix (core.plugins:
+class names). Its class names are declared as an attribute, `function.classes = ["car", "person"]`, or given in
+the config (`detector.class_names.FUNCTION`): preflight checks them against the scored classes and
+`detector.class_map`, and refuses a function whose names are unknown (it would score 0 on every frame, without a
+word, if it answered only names the job cannot score); a name answered that is not among them fails the job.
+Its module must lie under an allowed prefix (core.plugins:
 garage_exp., or $GARAGE_EXP_MODIFIER_MODULES), as other user code does.
 """
 
@@ -49,8 +52,12 @@ class CallableEntry(Entry):
         declared = getattr(function, "classes", ())
         if isinstance(declared, str) or not all(isinstance(c, str) for c in declared):
             raise self.fail("its `classes` attribute must be a list of class-name strings")
+        self.classes = tuple(declared) or self.given_classes
+        if not self.classes:
+            raise self.fail(f"its class names are unknown, so preflight cannot check that the job can score them: "
+                            f"declare them ({self.name}.classes = [\"car\", \"person\"]) or give them, "
+                            f"+detector.class_names.{self.name}=[car,person]")
         self._function = function
-        self.classes = tuple(declared)
         try:
             self.detect([probe_frame(intrinsics)], [intrinsics or Intrinsics.default()])
         except GarageError as exc:
@@ -69,6 +76,10 @@ class CallableEntry(Entry):
             got = f"{type(out).__name__} of {len(out)}" if isinstance(out, (list, tuple)) else type(out).__name__
             raise self.fail(f"returned {got}, not a list of one Detections per frame ({len(frames)})")
         try:
-            return [checked(d, rgb, f"result[{k}]") for k, (d, rgb) in enumerate(zip(out, frames))]
+            found = [checked(d, rgb, f"result[{k}]") for k, (d, rgb) in enumerate(zip(out, frames))]
         except ValueError as exc:
             raise self.fail(f"returned {exc}") from None
+        stray = sorted({c for d in found for c in d.classes} - set(self.classes))
+        if stray:  # the checked names are what preflight held against the scored classes: no others
+            raise self.fail(f"returned class(es) {stray}, not among its classes ({', '.join(self.classes)})")
+        return found

@@ -14,6 +14,8 @@ detection models; the user's own `callable:`. One detector may mix them.
 Classes: a model's own class names are kept in its detections. The vehicle classes are `classes` plus every
 name `class_map` maps to "vehicle"; the person classes `person_classes` plus those it maps to "person"
 (`scoring()` gives both to `score_target`). A model none of whose names is a vehicle or person class is refused.
+A model that cannot say its own names (a stock KServe server, a function without `classes`, an ONNX graph without
+`names` metadata) is given them by `class_names` (its name -> a list of names, or a file holding them).
 """
 
 from __future__ import annotations
@@ -44,7 +46,8 @@ class Detector:
 
     models: resolved entries (paths, `torchvision:`/`callable:` strings, ...). classes / person_classes: the
     vehicle / person class names a target is matched with; class_map: a model's own class names -> "vehicle" |
-    "person". conf: lowest confidence kept (low, so that a weak hit scores its confidence instead of 0). imgsz:
+    "person". class_names: a model's name (its column) -> its class names, by index (a list, or a YAML, JSON or
+    text file holding them), for models that cannot give their own. conf: lowest confidence kept (low, so that a weak hit scores its confidence instead of 0). imgsz:
     network input size in pixels. device: auto | cpu | cuda (each entry's pick is in `devices`). threads: OpenVINO
     inference threads (0: its default; the detector's process sets it).
     """
@@ -57,6 +60,7 @@ class Detector:
     threads: int = field(default=0, compare=False)
     person_classes: Sequence[str] = ("person",)
     class_map: Mapping[str, str] = field(default_factory=dict)
+    class_names: Mapping[str, Any] = field(default_factory=dict)
     names: list[str] = field(init=False, compare=False)
     entries: list[Entry] = field(init=False, compare=False, repr=False)
     checked: bool = field(init=False, compare=False, repr=False, default=False)
@@ -76,6 +80,9 @@ class Detector:
         # Each entry's kind is decided now (a missing file or an unknown format fails here); nothing is loaded.
         self.entries = [entry_kinds.make_entry(m, settings) for m in self.models]
         self.names = unique([e.name for e in self.entries])
+        self.class_names = given_class_names(self.class_names, [e.name for e in self.entries])
+        for entry in self.entries:
+            entry.given_classes = tuple(self.class_names.get(entry.name, ()))
 
     def __reduce__(self):
         """Pickled as its settings: the other side makes its own entries (loaded models do not travel)."""
@@ -109,7 +116,7 @@ class Detector:
         wanted = set(groups["classes"]) | set(groups["person_classes"])
         known: set[str] = set()
         for entry in self.entries:
-            if not entry.classes:  # a callable that does not declare its names: checked on its answers only
+            if not entry.classes:  # every kind refuses a model whose names it cannot learn; defensive
                 continue
             known |= set(entry.classes)
             if not wanted & set(entry.classes):
@@ -174,13 +181,14 @@ def check_class_map(class_map: Mapping[str, str]) -> None:
 
 def make_detector(*, models: Sequence[str], classes: Sequence[str] = ("car", "truck", "bus"),
                   person_classes: Sequence[str] = ("person",), class_map: Mapping[str, str] | None = None,
-                  conf: float = 0.05, imgsz: int = 640, device: str = "auto", name: str = "", iou: float = 0.5,
+                  class_names: Mapping[str, Any] | None = None, conf: float = 0.05, imgsz: int = 640, device: str = "auto", name: str = "", iou: float = 0.5,
                   match: str = "full", threshold: float = 0.5, registry: str | None = None) -> Detector:
     """The default `detector._target_`, called with the `detector` group's keys: the composite `Detector`, model
     entries resolved (entries.resolve; `models:/` from the registry of the store `registry`), nothing loaded.
     name is the level's; iou, match and threshold are the scoring's (score_target)."""
     return Detector(models=[entry_kinds.resolve(m, registry) for m in models], classes=tuple(classes),
-                    person_classes=tuple(person_classes), class_map=dict(class_map or {}), conf=float(conf),
+                    person_classes=tuple(person_classes), class_map=dict(class_map or {}),
+                    class_names=dict(class_names or {}), conf=float(conf),
                     imgsz=int(imgsz), device=str(device))
 
 
@@ -210,6 +218,55 @@ def check_detector(conf: Any) -> None:
     check_match(conf.match, conf.iou, conf.threshold)
     check_device(conf.device)
     check_class_map(dict(conf.get("class_map") or {}))
+    given_class_names(conf.get("class_names") or {})
+
+
+def given_class_names(given: Mapping[str, Any], models: Sequence[str] | None = None) -> dict[str, tuple[str, ...]]:
+    """`detector.class_names` read: each model's names as a tuple (a file's read now, so that the detector's
+    process gets plain data). GarageError naming the key for a value that is neither a list of names nor a
+    readable file of them, and (models given) for a key that is no model's name."""
+    out = {}
+    for key, value in dict(given).items():
+        where = f"detector.class_names.{key}"
+        if models is not None and key not in models:
+            raise GarageError(f"no model is named {key!r} (the models: {', '.join(models)})", where)
+        names = read_names_file(str(value), where) if isinstance(value, (str, Path)) else value
+        if isinstance(names, Mapping):
+            names = index_mapping(names, where)
+        if not isinstance(names, (list, tuple, Sequence)) or isinstance(names, str) or not names or not all(
+                isinstance(n, str) and n for n in names):
+            raise GarageError("give a list of class-name strings, by class index, or a file holding one", where)
+        out[str(key)] = tuple(names)
+    return out
+
+
+def read_names_file(text: str, where: str) -> Any:
+    """Class names from a file: YAML or JSON (a list, an {index: name} mapping, or either under a `names` key, as
+    in an ultralytics dataset YAML), or plain text with one name a line."""
+    import yaml
+
+    path = Path(text).expanduser()
+    if not path.is_file():
+        raise GarageError(f"{text!r} is neither a list of class names nor a file of them", where)
+    try:
+        raw = path.read_text()
+        value = yaml.safe_load(raw) if path.suffix in (".yaml", ".yml", ".json") else None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise GarageError(f"cannot read class names from {path}: {str(exc).splitlines()[0]}", where) from None
+    if value is None:  # a text file: one name a line
+        return [line.strip() for line in raw.splitlines() if line.strip()]
+    return value.get("names") if isinstance(value, Mapping) and "names" in value else value
+
+
+def index_mapping(names: Mapping, where: str) -> list[str]:
+    """{0: 'person', 1: 'bicycle', ...} as a list by index; GarageError unless the keys are 0..N-1."""
+    try:
+        by_index = {int(k): v for k, v in names.items()}
+    except (TypeError, ValueError):
+        raise GarageError("a mapping of class names must be {index: name}", where) from None
+    if sorted(by_index) != list(range(len(by_index))):
+        raise GarageError(f"class indices {sorted(by_index)[:5]}... are not 0..{len(by_index) - 1}", where)
+    return [by_index[k] for k in range(len(by_index))]
 
 
 def unique(names: Iterable[str]) -> list[str]:
