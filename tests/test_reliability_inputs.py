@@ -52,6 +52,11 @@ def generate(kind: str, work: Path) -> None:
         row = "[" + ", ".join(["1"] * 500) + "]"
         (work / "alias.yaml").write_text("S: [&r " + row + ", " + ", ".join(["*r"] * 100_000)
                                          + "]\nR: [6]\nC: [3]\n")
+    elif kind == "onnx_truncated":  # the graph below cut in half, as a download that stopped
+        generate("onnx_not_detections", work)
+        whole = (work / "not_detections.onnx").read_bytes()
+        (work / "not_detections.onnx").unlink()
+        (work / "truncated.onnx").write_bytes(whole[:len(whole) // 2])
     elif kind == "onnx_not_detections":  # a valid ONNX graph, with class names, whose output is an image
         import onnx
         from onnx import TensorProto, helper

@@ -28,23 +28,36 @@ NAME_HINTS = {"boxes": ("box", "bbox"), "scores": ("score", "conf"), "labels": (
 
 def onnx_metadata(path: str | Path) -> dict[str, str]:
     """The graph's metadata (key -> value), read without its external weights; {} for a file that is not ONNX."""
+    return dict(_read(path)[1])
+
+
+def onnx_unreadable(path: str | Path) -> str:
+    """Why the file is not a readable ONNX model ("" when it is one): not protobuf, cut short, or no graph."""
+    return _read(path)[0]
+
+
+def _read(path: str | Path) -> tuple[str, tuple[tuple[str, str], ...]]:
     p = Path(path)
     try:
         stat = p.stat()
-    except OSError:
-        return {}
-    return dict(_metadata(str(p.resolve()), stat.st_mtime_ns, stat.st_size))
+    except OSError as exc:
+        return f"cannot read it ({exc.strerror})", ()
+    return _parsed(str(p.resolve()), stat.st_mtime_ns, stat.st_size)
 
 
 @STATE.memo("process", maxsize=64)
-def _metadata(path: str, mtime: int, size: int) -> tuple[tuple[str, str], ...]:
+def _parsed(path: str, mtime: int, size: int) -> tuple[str, tuple[tuple[str, str], ...]]:
+    """(why it is unreadable or "", its metadata), the file parsed once per version of it."""
     import onnx
 
     try:
         model = onnx.load(path, load_external_data=False)
-    except Exception:  # noqa: BLE001 - not an ONNX file: the loader says so when it is checked
-        return ()
-    return tuple((p.key, p.value) for p in model.metadata_props)
+    except Exception as exc:  # noqa: BLE001 - a text file, a truncated download: protobuf's DecodeError and kin
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        return f"it does not parse as ONNX ({first})"[:300], ()
+    if not model.graph.node or not model.graph.output:  # a protobuf cut at a field boundary parses, emptied
+        return "it holds no complete graph (no nodes or no outputs: a truncated or empty file?)", ()
+    return "", tuple((p.key, p.value) for p in model.metadata_props)
 
 
 def parse_names(text: str) -> list[str]:
@@ -74,10 +87,16 @@ class OnnxEntry(Entry):
     def check(self, intrinsics: Intrinsics | None = None) -> None:
         if self._session is not None:
             return
+        unreadable = onnx_unreadable(self.path)
+        if unreadable:
+            raise self.fail(f"not a readable ONNX model: {unreadable}")
         meta = onnx_metadata(self.path)
+        if not meta.get("names") and self.given_classes:  # names given in the config (detector.class_names)
+            meta["names"] = json.dumps(list(self.given_classes))
         if not meta.get("names"):
             raise self.fail("the ONNX graph has no `names` metadata (its class names, indexed by label; "
-                            "docs/perception.md shows how to add them)")
+                            f"docs/perception.md shows how to add them, or give them: +detector.class_names."
+                            f"{self.name}=[...])")
         try:
             self._labels = parse_names(meta["names"])
         except (ValueError, SyntaxError, TypeError):
