@@ -383,3 +383,26 @@ def test_class_names_from_the_config_and_an_unnamed_function(tmp_path):
         given_class_names({"m": str(tmp_path / "gaps.json")})
     with pytest.raises(GarageError, match="detector.class_names.m: give a list of class-name strings"):
         given_class_names({"m": [1, 2]})
+
+
+def test_the_onnx_export_installs_nothing(models, tmp_path):
+    """Issue 42: ultralytics' ONNX export simplifies with onnxslim and pip-installed it on first use. The set-up
+    ships it (pyproject.toml), and the project's environment turns ultralytics' auto-install off, so the export
+    the docs show runs as it is, with pip unable to reach any index (PIP_NO_INDEX)."""
+    import subprocess
+    import sys
+    from shutil import copyfile
+
+    copyfile(models["pt"], tmp_path / "m.pt")
+    script = ("from garage_exp.core.environment import prepare_environment\n"
+              "prepare_environment(offline=True)\n"
+              "import os\nprint('YOLO_AUTOINSTALL', os.environ['YOLO_AUTOINSTALL'])\n"
+              "from ultralytics import YOLO\nYOLO('m.pt').export(format='onnx', imgsz=160, dynamic=True)\n")
+    env = {**os.environ, "PIP_NO_INDEX": "1", "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
+    said = proc.stdout + proc.stderr
+    assert proc.returncode == 0, said[-3000:]
+    assert "YOLO_AUTOINSTALL False" in said and "slimming with onnxslim" in said, said[-3000:]
+    assert "AutoUpdate" not in said and "not found" not in said, said[-3000:]
+    assert (tmp_path / "m.onnx").stat().st_size > 1_000_000

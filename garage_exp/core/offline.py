@@ -26,19 +26,23 @@ def prepare_offline() -> Path:
     """Set the environment for offline ultralytics/OpenVINO; return ultralytics' settings dir. Idempotent.
 
     YOLO_CONFIG_DIR defaults to <cache_dir>/ultralytics (a user's own setting is kept), so ultralytics'
-    settings and fonts stay out of ~/.config; YOLO_OFFLINE is forced to 1."""
+    settings and fonts stay out of ~/.config; YOLO_OFFLINE is forced to 1 and YOLO_AUTOINSTALL to False."""
     config_root = Path(os.environ.setdefault("YOLO_CONFIG_DIR", str(cache_dir() / "ultralytics")))
     settings_dir = config_root / "Ultralytics"  # ultralytics appends this sub-dir to YOLO_CONFIG_DIR
     if _PREPARED:
         return settings_dir
     os.environ["YOLO_OFFLINE"] = "1"  # skips ultralytics' DNS check, hub calls and analytics
+    # ultralytics pip-installs a missing requirement (onnxslim for an ONNX export) when it finds the network; the
+    # set-up ships what the project's exports need, so nothing is installed behind the user's back.
+    os.environ["YOLO_AUTOINSTALL"] = "False"
     _opt_out_of_openvino_telemetry()
     _install_fonts(settings_dir)
     if "ultralytics" in sys.modules:
         # Imported earlier by someone else: YOLO_CONFIG_DIR came too late, so the fonts go where it looks now.
-        from ultralytics.utils import USER_CONFIG_DIR
+        from ultralytics.utils import USER_CONFIG_DIR, checks
 
         _install_fonts(Path(USER_CONFIG_DIR))
+        checks.AUTOINSTALL = False  # read from the environment at its import
     _PREPARED["done"] = True
     return settings_dir
 
