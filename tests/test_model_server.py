@@ -166,6 +166,14 @@ def test_unreachable_server_and_server_killed_mid_run(models, tmp_path, mlflow_u
     (run,) = mlc.search_runs([mlc.get_experiment_by_name("garage_exp").experiment_id])
     assert run.info.status == "FAILED"
     assert f"model server {dying.url('yolo')}: the connection failed" in run.data.tags["error"]
+    # An expected fault is one line (issue 42: a 20-line traceback through the detector's process), naming the
+    # server, the run that ended and the frames kept.
+    assert "Traceback" not in r.stderr, r.stderr[-3000:]
+    (line,) = [ln for ln in r.stderr.splitlines() if ln.startswith("garage_exp: ")]
+    table = tmp_path / "killed" / "run" / "frames.csv"
+    assert line.startswith(f"garage_exp: model server {dying.url('yolo')}: the connection failed 4 times"), line
+    assert f"its run {run.info.run_id} ended FAILED, the 1 frame(s) scored before it kept in {table}" in line, line
+    assert len(table.read_text().splitlines()) == 2  # the header and the frame scored before the server died
 
 
 def test_output_layouts_and_the_letterbox():

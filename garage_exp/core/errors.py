@@ -13,6 +13,12 @@ class GarageError(Exception):
         return type(self)(message, where)
 
 
+class JobFault(RuntimeError):
+    """An expected fault of the world a job depends on, met mid-job (a model server that died): the job's run ends
+    FAILED with it and keeps the frames scored before it; the command says it in one line, without a traceback,
+    and exits 1 (docs/reliability.md). Unlike a GarageError nothing was wrong with the input."""
+
+
 def check_range(value, lo: float, hi: float, where: str, what: str = "") -> None:
     """GarageError naming `where` unless lo <= value <= hi (a non-number is out of range too)."""
     try:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.core.exits import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, Terminated, install_error_report,
                                    on_sigint, on_sigterm)
 from garage_exp.core.overrides import quote_numeric_choices
@@ -124,6 +124,11 @@ class Command:
                 if not sweeping:
                     sys.exit(EXIT_INPUT)
                 error = str(exc)
+            except JobFault as exc:  # the job's run ended FAILED, its partial outputs kept: one line, no traceback
+                print(f"{self.prog}: {exc}", file=sys.stderr)
+                if not sweeping:
+                    sys.exit(EXIT_FAILED_JOBS)
+                error = f"{type(exc).__name__}: {exc}"
             except Exception as exc:
                 if not sweeping:
                     raise

@@ -16,7 +16,7 @@ from garage_exp.core.state import STATE
 from garage_exp.tracking import runs as tracking
 from garage_exp.core.exits import SweepStopped
 from garage_exp.run.diskspace import NotEnoughSpace, full_disk
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.core.shell import remove_untouched
 from garage_exp.run.preflight import preflight
 
@@ -104,6 +104,16 @@ def _close_on_full_disk(run, out: Path, where: str) -> None:
 AWAY_HINT = "rerun the same command with resume=true once the server is back"
 
 
+def kept_frames(out: Path) -> str:
+    """What a job that failed mid-way kept of its frames, for its one line."""
+    table = out / "frames.csv"
+    try:
+        rows = max(0, len(table.read_text().splitlines()) - 1)
+    except OSError:
+        return "no frame scored"
+    return f"the {rows} frame(s) scored before it kept in {table}"
+
+
 def run_job(cfg: DictConfig) -> float | dict:
     """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job; a
     search trial (`search.trial` set) returns its summary metrics with its run id and dir instead. A tracking
@@ -183,6 +193,8 @@ def _run_job(cfg: DictConfig) -> float | dict:
             run.log_text(traceback.format_exc(), "error.txt")
         finally:
             run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
+        if isinstance(exc, JobFault):  # an expected fault: its one line says what ended and what is kept
+            raise JobFault(f"{exc}; its run {run.run_id} ended FAILED, {kept_frames(out)}") from None
         raise
     run.end("FINISHED")
     if run.kept:

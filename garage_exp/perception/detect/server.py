@@ -30,7 +30,7 @@ from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.perception.detect import tensors
 from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, checked,
                                                probe_frame)
@@ -39,8 +39,9 @@ DATATYPES = {"UINT8": np.uint8, "FP32": np.float32}
 RETRIES = 3  # a dropped connection is tried again this many times (0.5 s, 1 s, 2 s apart)
 
 
-class ServerError(RuntimeError):
-    """The server failed during a run (after the check passed): down for good, an error answer, bad tensors."""
+class ServerError(JobFault):
+    """The server failed during a run (after the check passed): down for good, an error answer, bad tensors. An
+    expected fault: the job ends FAILED with this one line, not a traceback."""
 
     def __init__(self, entry: str, reason: str):
         super().__init__(f"model server {entry}: {reason}")

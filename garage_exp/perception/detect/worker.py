@@ -28,7 +28,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.core.state import STATE
 from garage_exp.perception.detect.base import Detections, Intrinsics, as_batch, message_of, per_frame
 from garage_exp.perception.detect.detector import Detector
@@ -244,6 +244,8 @@ class DetectorProcess:
             kind, message, where = payload
             if kind == "GarageError":
                 raise GarageError(message, where)
+            if kind == "JobFault":  # an expected fault (a model server gone): its one line, no traceback
+                raise JobFault(message)
             raise RuntimeError(f"detector process: {kind}: {message}")
 
     def _exit_code(self) -> int | None:
@@ -315,6 +317,8 @@ def _serve(conn, threads: int) -> None:
             reply = ("ok", answer)
         except GarageError as exc:
             reply = ("error", ("GarageError", message_of(exc), exc.where))
+        except JobFault as exc:
+            reply = ("error", ("JobFault", str(exc), None))
         except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it in the job
             reply = ("error", (type(exc).__name__, str(exc), None))
         conn.send((*reply, records.take()))
