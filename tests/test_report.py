@@ -121,11 +121,39 @@ def test_anova_finds_the_real_effect_and_not_the_null_ones(runs):
 
 
 def test_anova_without_replicates_drops_the_interaction_it_cannot_test(runs):
-    obs = units(runs, pd.DataFrame(), factors_of(runs))  # 2 x 2 cells, one unit each: saturated with a x b
+    """2 x 2 cells, one unit each: saturated with a x b, so the interaction is left out and is the error term;
+    the report says that the test then assumes no interaction (issue 42, item 8)."""
+    runs = runs.assign(confidence_mean=[0.8, 0.75, 0.6, 0.45], recall=[0.8, 0.75, 0.6, 0.45])  # not additive
+    obs = units(runs, pd.DataFrame(), factors_of(runs))
     table = significance(obs, factors_of(runs))
-    assert set(table.term) == {"light", "blank"}
+    assert set(table.term) == {"light", "blank"} and (table.significant != "-").all()
+    assert "the test assumes the factors do not interact" in table.attrs["notes"]["confidence_mean"]
     one = runs.iloc[:1]
     assert significance(units(one, pd.DataFrame(), []), []).empty
+
+
+def test_anova_of_an_exact_fit_or_a_constant_response_prints_no_p_value(runs):
+    """A 2 x 2 sweep of one replicate whose responses add up exactly (the fixture's: light + blank) leaves a
+    residual of zero: statsmodels says F = 1e30, p = 0.000, and the report said "significant". There is no
+    error to test against: no rows, the reason, no p-value (issue 42, item 8). The same for a response that is
+    the same in every unit (statsmodels gave F = 0.014, p = 0.93 from rounding noise) and for a model with no
+    residual degrees of freedom."""
+    factors = factors_of(runs)
+    obs = units(runs, pd.DataFrame(), factors)
+    assert stats.anova(obs, factors, "confidence_mean", block="replicate").empty
+    table = significance(obs, factors)
+    assert table.empty and set(table.attrs["untestable"]) == {"confidence_mean", "recall"}
+    assert "fits every unit exactly (zero residual variance)" in table.attrs["untestable"]["recall"]
+    text = markdown(runs, obs, main_effects(obs, factors), pair_effects(obs, factors), table)
+    section = text.split("## Significance")[1].split("## Pairs")[0]
+    assert "recall: not testable: the model fits every unit exactly" in section
+    assert "| yes |" not in section and "1e+30" not in section and "0.000" not in section, section
+    flat = units(runs.assign(recall=1.0), frames_for(runs.assign(recall=1.0), replicates=3), factors)
+    flat["recall"] = 1.0  # every trajectory detected: nothing varies
+    assert "recall is 1 in every unit" in significance(flat, factors).attrs["untestable"]["recall"]
+    assert set(significance(flat, factors).response) == {"confidence_mean"}  # the other response is tested
+    assert "no residual degrees of freedom" in stats.anova(
+        obs.assign(replicate=[0, 1, 2, 3]), factors, "confidence_mean", block="replicate").attrs["untestable"]
 
 
 def test_breakdowns_per_label_and_model_with_intervals(runs):

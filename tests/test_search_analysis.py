@@ -271,3 +271,24 @@ def test_the_trial_table_names_its_column_by_the_objective_and_the_rerun_keeps_t
     assert "### 1. trial 2: lateness 0.70" in report
     assert "1 pruned as infeasible (never fairly visible before the critical distance)" in report
     assert "python -m garage_exp case=stepout search.min_visible=0.3 light.intensity=0.5\n" in report
+
+
+def test_sides_without_spread_get_no_test_and_no_p_value():
+    """Every trial on each side scoring the same makes Welch's t infinite (p = 0, "the harder side") or undefined
+    (p = nan): no test is made and no p-value printed (issue 42, item 8)."""
+    study = study_of(30)
+    table = trial_table(study)
+    low = table["light.intensity"] < 0.1 + 0.9 / 3
+    table["difficulty"] = np.where(low, 0.9, 0.1)
+    dark = next(t for t in study.trials if t.state == TrialState.COMPLETE and t.params["light.intensity"] < 0.3)
+    light = next(text for param, _, text in why_hard(dark, table, distributions(study), {})
+                 if param == "light.intensity")
+    assert ": no test (every trial on either side scores the same: difficulty 0.90 there" in light, light
+    assert "p = " not in light
+
+
+def test_a_rate_without_episodes_gets_no_fisher_p_value():
+    from garage_exp.gym.app import rates_line
+
+    assert rates_line((0, 0), (2, 4)).endswith("; no test (no episodes on one side)")
+    assert "Fisher's exact p = 1.00" in rates_line((2, 4), (2, 4))

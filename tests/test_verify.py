@@ -85,9 +85,12 @@ def test_yolo11n_on_the_two_photos(photos, tmp_path):
         in report
     assert "tie 2" in report and "| yolo11n_int8 | 0.857 |" in report and "Good on these real images" in report
     assert report.startswith("# Detector check on real images") and result["rendered"] is False
+    # detector.models replaced coco3's models: the title names what was run, not the group (issue 42, item 7)
+    assert report.splitlines()[0] == "# Detector check on real images: yolo11n_int8", report.splitlines()[0]
     client = mlflow.MlflowClient(tracking_uri=uri)
     (run,) = client.search_runs([client.get_experiment_by_name("garage_verify").experiment_id])
     assert run.info.status == "FINISHED" and run.data.metrics["recall"] == pytest.approx(6 / 7)
+    assert run.info.run_name.startswith("yolo11n_int8 on ")
     assert {"report/report.md", "report/report.html", "report/objects.csv"} <= {
         a.path for a in client.list_artifacts(run.info.run_id, "report")}
     assert "recall 0.857, mAP50 1.000" in r.stdout
@@ -138,6 +141,33 @@ def test_bad_data_is_one_line_and_writes_nothing(tmp_path):
         assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("garage_exp.verify: "), r.stderr
         assert all(s in lines[0] for s in said), lines[0]
         assert not (tmp_path / "verify_run").exists() and not (tmp_path / "mlflow.db").exists()
+
+
+def test_a_state_dict_of_another_shape_says_which_keys_in_one_line(tmp_path):
+    """torch's message starts "Error(s) in loading state_dict for FasterRCNN:" and names the keys on the lines
+    after; the refusal is one line with the keys, both shapes, and the class count the file was trained for
+    (issue 42, item 7)."""
+    import torch
+    from torchvision.models import detection
+
+    from garage_exp.core.errors import GarageError
+    from garage_exp.perception.detect.base import EntrySettings
+    from garage_exp.perception.detect.torchvision_entry import TorchvisionEntry
+
+    arch = "fasterrcnn_mobilenet_v3_large_320_fpn"
+    model = getattr(detection, arch)(weights=None, weights_backbone=None, num_classes=3)
+    torch.save(model.state_dict(), tmp_path / "three.pth")  # a 3-class model saved without its names
+    with pytest.raises(GarageError) as err:
+        TorchvisionEntry(f"torchvision:{arch}:{tmp_path / 'three.pth'}", EntrySettings()).check()
+    text = str(err.value)
+    assert "\n" not in text and "Error(s) in loading" not in text, text
+    assert f"does not fit {arch} with 91 classes: 4 of another shape (roi_heads.box_predictor.cls_score.weight: " \
+           "[3, 1024] in the file, [91, 1024] here" in text, text
+    assert "the file's model has 3 classes" in text, text
+    torch.save(getattr(detection, "ssdlite320_mobilenet_v3_large")(weights=None, weights_backbone=None).state_dict(),
+               tmp_path / "ssd.pth")  # another architecture's keys
+    with pytest.raises(GarageError, match="keys missing .*; no key in common: a state dict of another architecture"):
+        TorchvisionEntry(f"torchvision:{arch}:{tmp_path / 'ssd.pth'}", EntrySettings()).check()
 
 
 @pytest.mark.render

@@ -65,21 +65,32 @@ def check_sweep(config: DictConfig) -> list[list[str]] | None:
     from hydra.core.global_hydra import GlobalHydra
 
     from garage_exp.run.diskspace import check_free
-    from garage_exp.run.preflight import preflight, store_dir
+    from garage_exp.run.preflight import load_models, preflight, store_dir
 
     loader = GlobalHydra.instance().config_loader()
-    needs: list[tuple[int, int]] = []
+    prepared_jobs = []
     for k, job in enumerate(jobs):
         job_cfg = loader.load_sweep_config(config, job)  # Hydra's errors (unknown level, wrong type) raise here
-        try:
-            prepared = preflight(job_cfg, check_space=False)
-            needs.append((prepared.bytes_out, prepared.bytes_store))
-        except GarageError as exc:
-            shown = " ".join(o for o in job if not o.lstrip("+~").startswith("tracking."))
-            raise GarageError(str(exc), f"sweep job {k} ({shown})") from None
+        with in_job(k, job):
+            prepared_jobs.append(preflight(job_cfg, check_space=False, load=False))  # no model loaded yet
+    needs = [(p.bytes_out, p.bytes_store) for p in prepared_jobs]
+    # What needs no model first: a sweep that cannot fit on the disk is refused before any model is loaded.
     check_free([(config.hydra.sweep.dir, sum(n[0] for n in needs)), (store_dir(config), sum(n[1] for n in needs))],
                f"the sweep ({len(jobs)} jobs)")
+    for k, prepared in enumerate(prepared_jobs):  # each detector is loaded once per process (worker.open_detector)
+        with in_job(k, jobs[k]):
+            load_models(prepared)
     return jobs
+
+
+@contextlib.contextmanager
+def in_job(k: int, job: list[str]):
+    """A job's refusal names the job of the sweep."""
+    try:
+        yield
+    except GarageError as exc:
+        shown = " ".join(o for o in job if not o.lstrip("+~").startswith("tracking."))
+        raise GarageError(str(exc), f"sweep job {k} ({shown})") from None
 
 
 def _fatal(method):

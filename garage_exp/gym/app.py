@@ -97,6 +97,8 @@ def rates_line(before: tuple[int, int], after: tuple[int, int]) -> str:
 
     text = f"late rate {rate_text(*before)} untrained -> {rate_text(*after)} trained"
     p = rates_differ(*before, *after)
+    if p != p:  # a side without episodes: no test was made, so no p-value is printed
+        return text + "; no test (no episodes on one side)"
     return text if p < 0.05 else text + f"; no clear change at this many episodes (Fisher's exact p = {p:.2f})"
 
 

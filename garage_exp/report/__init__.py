@@ -22,7 +22,7 @@ from garage_exp.tracking import runs as tracking
 from garage_exp.report import plots, slots, visibility
 from garage_exp.report.tables import (breakdown, by_camera, child_runs, factors_of, late_table, main_effects,
                                       markdown_table, number, pair_effects, parse_overrides, pivot, significance,
-                                      summary, units)
+                                      significance_text, summary, units)
 
 __all__ = ["child_runs", "factors_of", "main_effects", "markdown", "pair_effects", "parse_overrides",
            "summary", "sweep_report", "latest_parent", "main"]
@@ -47,8 +47,7 @@ def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs
             "not independent, so they are averaged first). `[-]`: one unit, no interval; `-`: no data.\n",
             "## Main effects (mean over the other factors)\n", markdown_table(effects),
             "## Significance (type-II ANOVA; partial eta squared; replicate as a block)\n",
-            markdown_table(anova) if not anova.empty else
-            "(not testable: no residual degrees of freedom; run more replicates, `replicates=N`)\n",
+            significance_text(anova),
             "## Pairs\n", markdown_table(pairs)]
     if not obs.empty:
         ranked = runs[runs.status == "FINISHED"][["run_id", "run_name"]].merge(

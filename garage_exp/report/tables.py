@@ -118,15 +118,35 @@ def pair_effects(obs: pd.DataFrame, factors: list[str]) -> pd.DataFrame:
 
 
 def significance(obs: pd.DataFrame, factors: list[str]) -> pd.DataFrame:
-    """The ANOVA of composite confidence and of recall on the swept factors (replicate as a block)."""
-    parts = []
+    """The ANOVA of composite confidence and of recall on the swept factors (replicate as a block). A response
+    that cannot be tested has no rows; `attrs["untestable"]` ({response: why}) and `attrs["notes"]` say why, and
+    what a test assumed."""
+    parts, untestable, notes = [], {}, {}
     for response in RESPONSES:
         table = stats.anova(obs, factors, response, block="replicate")
+        if "untestable" in table.attrs:
+            untestable[response] = table.attrs["untestable"]
+        if "note" in table.attrs:
+            notes[response] = table.attrs["note"]
         if not table.empty:
             table.insert(0, "response", response)
             table["units"] = table.attrs["units"]
             parts.append(table)
-    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+    out.attrs.update(untestable=untestable, notes=notes)
+    return out
+
+
+def significance_text(anova: pd.DataFrame) -> str:
+    """The report's significance section: the table, and each response that was not tested with the reason."""
+    why = anova.attrs.get("untestable") or {}
+    notes = anova.attrs.get("notes") or {}
+    lines = [markdown_table(anova)] if not anova.empty else []
+    lines += [f"{r}: not testable: {w}.\n" for r, w in why.items()]
+    lines += [f"{r}: {n}.\n" for r, n in notes.items()]
+    if not lines:
+        lines = ["(not testable: no factor with two levels or more)\n"]
+    return "\n".join(lines)
 
 
 def breakdown(frames: pd.DataFrame, runs: pd.DataFrame, factors: list[str], what: str) -> pd.DataFrame:

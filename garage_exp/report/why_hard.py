@@ -82,11 +82,16 @@ def why_hard(trial: FrozenTrial, table: pd.DataFrame, dists: dict, importance: d
         pick = max if higher_is_harder else min
         best = pick(others, key=lambda k: others[k].mean())  # the hardest of the other sides
         rest = others[best]
+        there = f"with {param}={best}" if isinstance(dist, CategoricalDistribution) else f"in the {best}"
+        if np.ptp(mine) == 0 and np.ptp(rest) == 0:  # no spread: Welch's t is infinite or undefined, p meaningless
+            lines.append((param, where, f"{head}: no test (every trial on either side scores the same: {name} "
+                                        f"{mine.mean():.2f} there, {len(mine)} trials, against {rest.mean():.2f} "
+                                        f"{there}, {len(rest)})."))
+            continue
         p = ttest_ind(mine, rest, equal_var=False).pvalue
         harder = mine.mean() >= rest.mean() if higher_is_harder else mine.mean() <= rest.mean()
         verdict = ("no clear harder side" if not p < ALPHA
                    else "the harder side" if harder else "not the harder side")
-        there = f"with {param}={best}" if isinstance(dist, CategoricalDistribution) else f"in the {best}"
         lines.append((param, where, f"{head}: {verdict} (p = {p:.2g}): {name} {mine.mean():.2f} on average "
                                     f"there ({len(mine)} trials) against {rest.mean():.2f} {there} ({len(rest)})."))
     return lines

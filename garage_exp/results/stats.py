@@ -61,9 +61,10 @@ def rate_text(k: int, n: int) -> str:
 
 
 def rates_differ(k1: int, n1: int, k2: int, n2: int) -> float:
-    """Fisher's exact test (two-sided) of k1/n1 against k2/n2: its p-value (1.0 when either side is empty)."""
+    """Fisher's exact test (two-sided) of k1/n1 against k2/n2: its p-value; nan (no test) when either side is
+    empty."""
     if n1 == 0 or n2 == 0:
-        return 1.0
+        return math.nan
     from scipy.stats import fisher_exact
 
     return float(fisher_exact([[k1, n1 - k1], [k2, n2 - k2]]).pvalue)
@@ -101,11 +102,27 @@ def group_cis(obs: pd.DataFrame, by: list[str], responses: list[str]) -> pd.Data
     return pd.DataFrame(rows, columns=cols)
 
 
+EXACT_FIT = 1e-10  # residual sum of squares below this share of the total: a perfect fit, no error to test against
+
+
+def untestable(reason: str, units: int) -> pd.DataFrame:
+    """An ANOVA that was not run: no rows, and why (the report prints the reason, never a p-value)."""
+    df = pd.DataFrame()
+    df.attrs.update(untestable=reason, units=units)
+    return df
+
+
 def anova(obs: pd.DataFrame, factors: list[str], response: str, block: str | None = None) -> pd.DataFrame:
     """Main effects and two-way interactions of `factors` on `response` (one row per unit: a cell's replicate):
     a type-II ANOVA of an OLS model (statsmodels), with partial eta squared as the effect size and a
     "significant at 0.05" column. `block`: a blocking factor (the replicate: replicate k shares its draws across
-    cells) entered as a main effect only. Interactions are kept only while residual degrees of freedom remain."""
+    cells) entered as a main effect only. Interactions are kept only while residual degrees of freedom remain.
+
+    No test is made, and no p-value given, where there is no error to test against: a response that is the same
+    in every unit, no residual degrees of freedom, or a model that fits every unit exactly (F would divide by a
+    zero residual; statsmodels then says F = 1e30, p = 0). The empty table's `attrs["untestable"]` says which.
+    With one unit per cell the residual is the interaction left out of the model: `attrs["note"]` says that the
+    test then assumes the factors do not interact."""
     import statsmodels.formula.api as smf
     from statsmodels.stats.anova import anova_lm
 
@@ -117,6 +134,9 @@ def anova(obs: pd.DataFrame, factors: list[str], response: str, block: str | Non
     usable = [names[f] for f in factors if data[names[f]].nunique() > 1]
     if not usable:
         return pd.DataFrame()
+    if data[response].nunique() < 2:
+        return untestable(f"{response} is {float(data[response].iloc[0]):.3g} in every unit: nothing varies",
+                          len(data))
     terms = [f"C({c})" for c in usable]
     if block and block in data and data[block].nunique() > 1:
         terms.append(f"C({block})")
@@ -128,22 +148,32 @@ def anova(obs: pd.DataFrame, factors: list[str], response: str, block: str | Non
             break
         pairs.pop()  # a saturated model has no error term: drop interactions from the last
     if model.df_resid <= 0:
-        return pd.DataFrame()
+        return untestable("no residual degrees of freedom (as many model terms as units); run more replicates, "
+                          "`replicates=N`", len(data))
+    if float(model.ssr) <= EXACT_FIT * float(model.centered_tss):
+        return untestable("the model fits every unit exactly (zero residual variance): there is no error to test "
+                          "the effects against; run more replicates, `replicates=N`", len(data))
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # statsmodels warns on a perfect fit (zero residual): p is then 0 or nan
+        warnings.simplefilter("ignore")  # statsmodels warns on terms it cannot estimate (F nan): said below
         table = anova_lm(model, typ=2)
     back = {v: k.removeprefix("factor.") for k, v in names.items()}
     resid = float(table.loc["Residual", "sum_sq"])
     out = []
     for term, r in table.drop(index="Residual").iterrows():
         label = " x ".join(back.get(part[2:-1], part[2:-1]) for part in term.split(":"))
-        ss = float(r["sum_sq"])
-        out.append({"term": label, "df": int(r["df"]), "F": float(r["F"]), "p": float(r["PR(>F)"]),
+        ss, f = float(r["sum_sq"]), float(r["F"])
+        tested = int(r["df"]) > 0 and math.isfinite(f)  # a term the data cannot estimate has no test
+        out.append({"term": label, "df": int(r["df"]), "F": f if tested else math.nan,
+                    "p": float(r["PR(>F)"]) if tested else math.nan,
                     "partial_eta2": ss / (ss + resid) if ss + resid > 0 else math.nan})
     df = pd.DataFrame(out)
-    df["significant"] = np.where(df.p < ALPHA, "yes", "no")
+    df["significant"] = np.where(df.p.isna(), "-", np.where(df.p < ALPHA, "yes", "no"))
+    cells = data.groupby(usable).ngroups
     df.attrs["units"] = len(data)
     df.attrs["df_resid"] = int(model.df_resid)
+    if cells == len(data):
+        df.attrs["note"] = ("one unit per cell: the error term is the interaction the model leaves out, so the test "
+                            "assumes the factors do not interact; replicates give it an error of its own")
     return df
 
 

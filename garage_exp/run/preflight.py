@@ -31,6 +31,7 @@ class PreparedJob:
     bytes_out: int = 0  # estimated bytes the job writes under its output dir
     bytes_store: int = 0  # estimated bytes into a local sqlite store and its artifacts (0 for a server)
     detector: Any = None  # garage_exp.perception.detect.Detector, checked (every entry loaded); None for a dry run
+    loaded: bool = False  # the detector's models were loaded (load_models); a job runs only a loaded one
 
 
 def resolve_plan_path(plan_cfg) -> Path:
@@ -133,12 +134,14 @@ def check_slots(cfg: DictConfig) -> None:
                           "(camera.view=raw)", "camera.view")
 
 
-def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
+def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem: the config, the plan, the vehicle assets, and the scene description (garage, case,
-    palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also the detector weights. Then the
-    disk space the job will write, against the free space unless check_space is false (a sweep adds up all its
-    jobs' estimates and checks them once)."""
+    palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also that the detector's files exist.
+    Then the disk space the job will write, against the free space unless check_space is false (a sweep adds up
+    all its jobs' estimates and checks them once). Last, the one check that needs the models (seconds): every
+    detector entry loads and answers a probe frame - unless load is false (a sweep loads them after its disk
+    check: load_models). Checks that need no model come first, so that their refusal costs no model loading."""
     from garage_exp.core.schema_check import check_schema
 
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
@@ -166,8 +169,7 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
             raise
         raise exc.again(f"{exc}; {where}", None) from None
     if not cfg.dry_run:
-        prepared.scene, prepared.setup = scene, setup
-        prepared.detector = check_loads(detector, prepared.scene)
+        prepared.scene, prepared.setup, prepared.detector = scene, setup, detector
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig
@@ -176,6 +178,15 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
 
         out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
         check_free([(out, prepared.bytes_out), (store_dir(cfg), prepared.bytes_store)], "this job")
+    return load_models(prepared) if load else prepared
+
+
+def load_models(prepared: PreparedJob) -> PreparedJob:
+    """The preflight's last check, the only one that loads models: every detector entry loads and answers a
+    probe frame of the job's first camera (nothing to load in a dry run)."""
+    if prepared.detector is not None and not prepared.loaded:
+        check_loads(prepared.detector, prepared.scene)
+        prepared.loaded = True
     return prepared
 
 

@@ -51,6 +51,14 @@ def check_scored(data, groups: dict) -> None:
                           str(data.source))
 
 
+def detector_title(group: str, models: list[str]) -> str:
+    """What was run: the detector group's name with its models, or only the models when the command line replaced
+    the group's (`detector.models=[...]`: the group's name would name models that were not run)."""
+    task = HydraConfig.get().overrides.task if HydraConfig.initialized() else []
+    replaced = any(o.lstrip("+~").split("=")[0] == "detector.models" for o in task)
+    return ", ".join(models) if replaced else f"{group} ({', '.join(models)})"
+
+
 def verify(cfg: DictConfig) -> dict:
     """Check, then score, log and report; returns what result.json holds."""
     from garage_exp.verify.data import read_set
@@ -65,7 +73,8 @@ def verify(cfg: DictConfig) -> dict:
     from garage_exp.verify.score import score, summary
 
     d = cfg.detector
-    name = str(cfg.name) or f"{d.name} on {Path(str(data.source)).parent.name}/{Path(str(data.source)).name}"
+    what = detector_title(str(d.name), list(detector.names))
+    name = str(cfg.name) or f"{what} on {Path(str(data.source)).parent.name}/{Path(str(data.source)).name}"
     run = tracking.start_job_run(cfg, name, {"kind": "verify", "data": str(data.source), "output_dir": str(out),
                                              "rendered": str(data.rendered).lower()}, None)
     try:
@@ -75,7 +84,7 @@ def verify(cfg: DictConfig) -> dict:
         metrics = summary(scored, float(d.threshold))
         report = out / "report"
         report.mkdir(parents=True, exist_ok=True)
-        write_report(report / "report.md", data, str(d.name), scored, metrics, float(d.threshold), float(d.iou))
+        write_report(report / "report.md", data, what, scored, metrics, float(d.threshold), float(d.iou))
         scored.objects.to_csv(report / "objects.csv", index=False)
         scored.images.to_csv(report / "images.csv", index=False)
         run.log_metrics({k: v for k, v in metrics.items() if v == v})  # NaN (an empty band) is left out

@@ -78,8 +78,13 @@ def read_coco(path: Path, label_map: dict[str, str], images: str | None) -> Labe
         raise GarageError("data: a COCO file needs `images` and `categories` lists", str(path))
     try:
         categories = {int(c["id"]): str(c["name"]) for c in coco["categories"]}
+        check_label_map(label_map, categories.values(), path)
+        image_ids = {int(im["id"]) for im in coco["images"]}
         by_image: dict[int, list[dict]] = {}
         for ann in coco.get("annotations") or []:
+            if int(ann["image_id"]) not in image_ids:  # its object would silently go unscored
+                raise GarageError(f"data: annotation {ann.get('id')} has image_id {ann['image_id']}, not among "
+                                  "`images`", str(path))
             by_image.setdefault(int(ann["image_id"]), []).append(ann)
         roots = [Path(images).expanduser()] if images else [path.parent, path.parent / "images"]
         out = LabelledSet(path, "coco", rendered=is_rendered(coco))
@@ -96,6 +101,7 @@ def read_coco(path: Path, label_map: dict[str, str], images: str | None) -> Labe
                     raise GarageError(f"data: annotation {ann.get('id')} has category {ann['category_id']}, "
                                       "not among `categories`", str(path))
                 x, y, w, h = (float(v) for v in ann["bbox"])
+                check_box(ann.get("id"), (x, y, w, h), int(im["width"]), int(im["height"]), path)
                 boxes.append((x, y, x + w, y + h))
                 name = categories[int(ann["category_id"])]
                 classes.append(label_map.get(name, name))
@@ -117,6 +123,7 @@ def read_yolo(data_yaml: Path, label_map: dict[str, str], split: str) -> Labelle
     if not isinstance(spec, dict) or "names" not in spec or not (spec.get(split) or spec.get("train")):
         raise GarageError(f"data: a data.yaml needs `names` and `{split}` (or `train`)", str(data_yaml))
     names = read_names(spec["names"], "data", data_yaml)
+    check_label_map(label_map, names.values(), data_yaml)
     root = Path(str(spec.get("path") or data_yaml.parent)).expanduser()
     root = root if root.is_absolute() else data_yaml.parent / root
     entries = spec.get(split) or spec["train"]
@@ -130,6 +137,7 @@ def read_yolo(data_yaml: Path, label_map: dict[str, str], split: str) -> Labelle
     except (OSError, ValueError):
         rendered = False
     out = LabelledSet(data_yaml, "yolo", rendered=rendered)
+    check_orphan_labels(files)
     for image in files:
         if not image.is_file():
             raise GarageError("data: image listed but missing", str(image))
@@ -143,6 +151,41 @@ def read_yolo(data_yaml: Path, label_map: dict[str, str], split: str) -> Labelle
         classes = [label_map.get(names[int(c)], names[int(c)]) for c, *_ in rows]
         out.images.append(Labelled(image, width, height, np.asarray(boxes, dtype=float).reshape(-1, 4), classes))
     return out
+
+
+def check_label_map(label_map: dict[str, str], classes, source: Path) -> None:
+    """Every label_map key is a class of the data: a misspelt key would rename nothing, silently."""
+    known = sorted(set(classes))
+    for key in label_map:
+        if key not in known:
+            shown = ", ".join(known[:12]) + (", ..." if len(known) > 12 else "")
+            raise GarageError(f"{key!r} is not a class of the data (its classes: {shown}; {source})",
+                              f"label_map.{key}")
+
+
+def check_box(ann_id, xywh: tuple[float, float, float, float], width: int, height: int, source: Path) -> None:
+    """A COCO box that has an area and overlaps its image: one wholly outside would be a target nobody can
+    detect (scored as a miss), one with no area is a typo."""
+    x, y, w, h = xywh
+    if not all(np.isfinite(xywh)) or w <= 0 or h <= 0:
+        raise GarageError(f"data: annotation {ann_id}'s bbox {list(xywh)} has no area or is not finite", str(source))
+    if x >= width or y >= height or x + w <= 0 or y + h <= 0:
+        raise GarageError(f"data: annotation {ann_id}'s bbox [x {x:g}-{x + w:g}, y {y:g}-{y + h:g}] lies wholly "
+                          f"outside its {width}x{height} image", str(source))
+
+
+def check_orphan_labels(images) -> None:
+    """A YOLO label file beside the scored images whose image is missing: its objects would go unscored."""
+    from garage_exp.train.data import IMAGE_SUFFIXES
+
+    folders = {label_of(image).parent: image.parent for image in images}
+    for labels, pictures in sorted(folders.items()):
+        if not labels.is_dir():
+            continue
+        for label in sorted(labels.glob("*.txt")):
+            if not any((pictures / (label.stem + s)).is_file() for s in (*IMAGE_SUFFIXES, *(
+                    x.upper() for x in IMAGE_SUFFIXES))):
+                raise GarageError(f"data: label file without its image (no {label.stem}.* in {pictures})", str(label))
 
 
 def is_rendered(coco: dict) -> bool:

@@ -31,6 +31,38 @@ def coco_names() -> list[str]:
     return list(FasterRCNN_ResNet50_FPN_Weights.COCO_V1.meta["categories"])
 
 
+def mismatch(expected: dict, given, shown: int = 2) -> str:
+    """Why a state dict does not load, in one line: torch's own message spans a line per key, and its first line
+    ("Error(s) in loading state_dict for FasterRCNN:") says nothing. Counts of missing, unexpected and mis-shaped
+    keys with the first few of each; a mis-shaped class head says how many classes the file was trained for."""
+    if not isinstance(given, dict):
+        return f"it holds a {type(given).__name__}, not a state dict"
+    missing = [k for k in expected if k not in given]
+    unexpected = [k for k in given if k not in expected]
+    shaped = [(k, tuple(getattr(given[k], "shape", ())), tuple(expected[k].shape)) for k in expected
+              if k in given and tuple(getattr(given[k], "shape", ())) != tuple(expected[k].shape)]
+    parts = []
+    if missing:
+        parts.append(f"{len(missing)} of its {len(expected)} keys missing ({', '.join(missing[:shown])}"
+                     f"{', ...' if len(missing) > shown else ''})")
+    if unexpected:
+        parts.append(f"{len(unexpected)} keys it does not have ({', '.join(unexpected[:shown])}"
+                     f"{', ...' if len(unexpected) > shown else ''})")
+    if shaped:
+        parts.append(f"{len(shaped)} of another shape (" + ", ".join(
+            f"{k}: {list(a)} in the file, {list(b)} here" for k, a, b in shaped[:shown])
+                     + (", ..." if len(shaped) > shown else "") + ")")
+    if not parts:
+        return ""
+    if missing and len(missing) == len(expected):
+        parts.append("no key in common: a state dict of another architecture")
+    head = [a[0] for k, a, _ in shaped if k.endswith("box_predictor.cls_score.weight") and a]
+    if head:  # Faster R-CNN's class head: the file was trained for this many classes, the background included
+        parts.append(f"the file's model has {head[0]} classes: save it as {{'state_dict': ..., 'names': [...]}} with "
+                     f"its {head[0]} names, the background first")
+    return "; ".join(parts)
+
+
 class TorchvisionEntry(Entry):
     kind = "torchvision"
 
@@ -73,13 +105,12 @@ class TorchvisionEntry(Entry):
             raise self.fail(f"holds a {type(saved).__name__}, not a state dict")
         state = saved.get("state_dict", saved)
         names = [str(n) for n in saved["names"]] if "names" in saved else coco_names()
+        model = getattr(detection, self.arch)(weights=None, weights_backbone=None, num_classes=len(names))
         try:
-            model = getattr(detection, self.arch)(weights=None, weights_backbone=None, num_classes=len(names))
             model.load_state_dict(state)
         except Exception as exc:  # noqa: BLE001 - missing or mis-shaped keys: the file is another model's
-            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            raise self.fail(f"its state dict does not fit {self.arch} with {len(names)} classes: {first}"[:300]) \
-                from None
+            why = mismatch(model.state_dict(), state) or (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise self.fail(f"its state dict does not fit {self.arch} with {len(names)} classes: {why}") from None
         # torchvision drops boxes under its own thresholds (up to 0.2 for FCOS): keep what the project keeps.
         for part in (model, getattr(model, "roi_heads", None)):
             if part is not None and hasattr(part, "score_thresh"):

@@ -18,6 +18,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.environment import prepare_environment
+from garage_exp.core.logfile import FILE_LOG
 from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, Intrinsics, is_tensor
 from garage_exp.perception.detect.devices import cuda_available, pick_device
 from garage_exp.perception.detect.entries import OPENVINO_SUFFIX
@@ -143,12 +144,13 @@ def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int =
     start = time.perf_counter()
     try:
         # task="detect" spares ultralytics a guess from the file and a warning; harmless for .pt weights.
-        model = YOLO(str(path), task="detect")
-        if getattr(model, "task", "detect") != "detect":
-            raise GarageError(f"a {model.task} model, not a detector", where or str(path))
-        # The first predict compiles the OpenVINO network (seconds); pay it here, not in the first frame.
-        with _openvino_threads(threads if kind == "openvino" else 0):
-            model.predict(np.zeros((imgsz, imgsz, 3), np.uint8), imgsz=imgsz, device=device, verbose=False)
+        with quiet_ultralytics():  # "Loading ... for OpenVINO inference": the log file's, not the terminal's
+            model = YOLO(str(path), task="detect")
+            if getattr(model, "task", "detect") != "detect":
+                raise GarageError(f"a {model.task} model, not a detector", where or str(path))
+            # The first predict compiles the OpenVINO network (seconds); pay it here, not in the first frame.
+            with _openvino_threads(threads if kind == "openvino" else 0):
+                model.predict(np.zeros((imgsz, imgsz, 3), np.uint8), imgsz=imgsz, device=device, verbose=False)
     except GarageError:
         raise
     except Exception as exc:  # ultralytics raises many types; the user needs one line naming the model
@@ -158,8 +160,34 @@ def load_model(path: Path, imgsz: int = 640, device: str = "cpu", threads: int =
     if threads > 0 and kind == "openvino" and _openvino_thread_count(model) not in (threads, None):
         log.warning("could not limit OpenVINO to %d threads for %s (ultralytics changed how it compiles)",
                     threads, path.name)
-    log.info("loaded %s model %s in %.1f s", kind, path.name, time.perf_counter() - start)
+    FILE_LOG.info("loaded %s model %s in %.1f s", kind, path.name, time.perf_counter() - start)
     return model
+
+
+class _Relay(logging.Handler):
+    """ultralytics' info lines to the log file (core.logfile); its warnings still reach the terminal."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno < logging.WARNING:
+            FILE_LOG.log(record.levelno, "%s", record.getMessage().strip())
+
+
+@contextmanager
+def quiet_ultralytics():
+    """Within this block ultralytics' info lines go to the log file, not to stdout."""
+    from ultralytics.utils import LOGGER
+
+    saved = [(h, h.level) for h in LOGGER.handlers]
+    relay = _Relay()
+    for handler, _ in saved:
+        handler.setLevel(max(handler.level, logging.WARNING))
+    LOGGER.addHandler(relay)
+    try:
+        yield
+    finally:
+        LOGGER.removeHandler(relay)
+        for handler, level in saved:
+            handler.setLevel(level)
 
 
 @contextmanager

@@ -29,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 
 from garage_exp.core.errors import GarageError, JobFault
+from garage_exp.core.logfile import FILE_LOG
 from garage_exp.core.state import STATE
 from garage_exp.perception.detect.base import Detections, Intrinsics, as_batch, message_of, per_frame
 from garage_exp.perception.detect.detector import Detector
@@ -232,8 +233,8 @@ class DetectorProcess:
             except BaseException:  # Ctrl-C half-way through an answer
                 self._discard()
                 raise
-            for level, message in records:  # the child's log lines go to the job's log, as they did in-process
-                log.log(level, message)
+            for name, level, message in records:  # the child's log lines go where they would have in-process
+                logging.getLogger(name).log(level, message)
             if self._reloading:  # the replacement loaded the job's detectors; the frames' answers follow
                 self._reloading = False
                 if status != "ok":
@@ -296,6 +297,7 @@ def _serve(conn, threads: int) -> None:
     records = _Collect()
     log.addHandler(records)
     log.setLevel(logging.INFO)
+    FILE_LOG.addHandler(records)  # the loaders' lines, for the parent's log file (core.logfile)
     detector = None
     while True:
         try:
@@ -329,12 +331,12 @@ class _Collect(logging.Handler):
 
     def __init__(self):
         super().__init__(logging.INFO)
-        self._records: list[tuple[int, str]] = []
+        self._records: list[tuple[str, int, str]] = []
 
     def emit(self, record: logging.LogRecord) -> None:
-        self._records.append((record.levelno, record.getMessage()))
+        self._records.append((record.name, record.levelno, record.getMessage()))
 
-    def take(self) -> list[tuple[int, str]]:
+    def take(self) -> list[tuple[str, int, str]]:
         out, self._records = self._records, []
         return out
 
