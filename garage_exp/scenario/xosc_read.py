@@ -112,6 +112,9 @@ class Reader:
     def entities(self) -> None:
         for obj in self.root.findall("Entities/ScenarioObject"):
             name = obj.get("name")
+            for controller in obj.findall("ObjectController"):  # a driver model: a case's actors follow its motion
+                self.leave(controller, f"{name}'s controller ({_controller_name(controller)}): a case's actors "
+                           "move as its motion says, with no driver model")
             element, pushed = next((c for c in obj if c.tag in ENTITY_TYPES), None), False
             ref = obj.find("CatalogReference")
             if element is None and ref is not None:
@@ -217,6 +220,14 @@ class Reader:
         """The entity's bounding-box centre (our actors' reference) from its reference point."""
         cx = self.things[name].centre_x if name in self.things else 0.0
         return x + cx * math.cos(h), y + cx * math.sin(h), h
+
+
+def _controller_name(controller) -> str:
+    ref = controller.find("CatalogReference")
+    if ref is not None:
+        return f"{ref.get('catalogName')}/{ref.get('entryName')}"
+    inline = controller.find("Controller")
+    return inline.get("name", "inline") if inline is not None else "inline"
 
 
 def along_polyline(pts: list[tuple[float, float]], s: float) -> tuple[float, float]:
