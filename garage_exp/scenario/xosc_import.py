@@ -235,7 +235,7 @@ def check_runs(case: dict, r: Read) -> None:
         _check_motion(conf)
         variants(conf, dict(conf.actors), [])
     except GarageError as exc:
-        hint = " (name one with --target ENTITY)" if str(exc).startswith("no target") else ""
+        hint = " (name one with --target ENTITY)" if "no target" in str(exc) else ""
         raise GarageError(f"the case would not run: {exc}{hint}", str(r.path)) from None
 
 
@@ -257,6 +257,19 @@ def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego
     key, get = ("offset", offset) if across else ("distance", distance)
     spec = {"key": key, "start": get(sx, sy), "end": get(ex, ey), "speed": round(abs(m.speed), 4)}
     length = math.hypot(ex - sx, ey - sy)
+    if m.meet is None:  # every vertex of its route or polyline, not only the last
+        points = [(sx, sy)]
+        for x, y in route:
+            x, y, _ = transform(x, y, 0.0)
+            if math.hypot(x - points[-1][0], y - points[-1][1]) > 0.01:
+                points.append((x, y))
+        legs = [[distance(x, y), offset(x, y)] for x, y in points]
+        bent = len(legs) > 2 or (len(legs) == 2 and min(abs(legs[1][0] - legs[0][0]),
+                                                         abs(legs[1][1] - legs[0][1])) > 0.01)
+        if bent:  # more than one leg, or one that is not straight along or across the lane
+            spec["path"] = legs
+            spec["start"], spec["end"] = legs[0][0 if key == "distance" else 1], legs[-1][0 if key == "distance" else 1]
+            notes.append(f"{n}: its route of {len(legs) - 1} leg(s) kept as a path of [distance, offset] points")
     if m.rate > 0:
         spec["accelerate"] = round(m.speed * m.speed / (2 * m.rate), 4)
     if m.meet is not None:
@@ -348,3 +361,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"garage_exp.scenario.import: wrote {out} ({len(case['actors'])} actors; {len(r.left_out)} element(s) "
           "left out)")
     return 0
+
+
+def cli() -> None:
+    """The command line's entry (`python -m garage_exp.scenario.import`): main's exit code."""
+    sys.exit(main())
