@@ -23,7 +23,9 @@ CORPUS = Path(__file__).resolve().parent / "bad_inputs"
 CASES = yaml.safe_load((CORPUS / "cases.yaml").read_text())
 BY_ID = {c["id"]: c for c in CASES}
 # `command`: which command an entry runs (default the main one), as its cli's "module:function" ("" = garage_exp's).
-COMMANDS = {"garage_exp": "", **{c: f"garage_exp.{c}.app:cli" for c in ("gym", "train", "loop", "verify")}}
+COMMANDS = {"garage_exp": "", **{c: f"garage_exp.{c}.app:cli" for c in ("gym", "train", "loop", "verify")},
+            "scenario.import": "garage_exp.scenario.xosc_import:cli"}
+NOT_HYDRA = {"scenario.import"}  # commands of plain arguments: no hydra.run.dir or tracking.uri appended
 
 
 def test_corpus_is_large_and_well_formed():
@@ -83,9 +85,12 @@ def forked_cli(batch: list[tuple[list[str], Path, dict]], scratch: Path, entries
 
     requests, results = [], []
     for k, (args, cwd, env) in enumerate(batch):
+        entry = (entries or [""] * len(batch))[k]
         argv = [*args, f"hydra.run.dir={cwd}/run", f"hydra.sweep.dir={cwd}/sweep"]  # as conftest.run_app
+        if entry in {COMMANDS[c] for c in NOT_HYDRA}:
+            argv = list(args)
         requests.append({"argv": argv, "cwd": str(cwd), "env": env, "stdout": str(scratch / f"{k}.out"),
-                         "stderr": str(scratch / f"{k}.err"), "entry": (entries or [""] * len(batch))[k]})
+                         "stderr": str(scratch / f"{k}.err"), "entry": entry})
     proc = subprocess.run([PYTHON, str(Path(__file__).with_name("cli_forkserver.py"))], cwd=scratch,
                           input="".join(json.dumps(r) + "\n" for r in requests), capture_output=True, text=True,
                           env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, timeout=600)
@@ -104,7 +109,9 @@ def prepare(case: dict, work: Path, server: str = "") -> tuple[list[str], dict, 
         "{server}", server)
     if case.get("generate"):
         generate(case["generate"], work)
-    args = [fill(a) for a in case["args"]] + [f"tracking.uri=sqlite:///{work}/mlflow.db"]
+    args = [fill(a) for a in case["args"]]
+    if case.get("command") not in NOT_HYDRA:
+        args.append(f"tracking.uri=sqlite:///{work}/mlflow.db")
     env = {k: fill(v) for k, v in (case.get("env") or {}).items()}
     if "PYTHONPATH" in env and os.environ.get("PYTHONPATH"):  # the case's code first, then the test's own
         env["PYTHONPATH"] += os.pathsep + os.environ["PYTHONPATH"]

@@ -119,6 +119,23 @@ def size_class_of(length: float, height: float) -> str:
     return "large"
 
 
+# The size classes the library files each kind under (its models, above): cars are small or medium (none is over
+# 5.0 m long or 1.9 m tall), SUVs medium, and everything large is a pickup, van, bus or truck. An importer asking
+# for a vehicle by its size and kind asks for one of these (garage_exp/scenario/xosc_import.py).
+SIZES_OF_KIND = {"car": ("small", "medium"), "suv": ("medium",), "pickup": ("large",), "van": ("large",),
+                 "bus": ("large",), "truck": ("large",)}
+
+
+def size_class_for(kind: str, length: float, height: float) -> str:
+    """The size class a vehicle of `kind` and this size is drawn from: its own (size_class_of), else the nearest
+    one the library holds of that kind."""
+    own = size_class_of(length, height)
+    held = SIZES_OF_KIND[kind]
+    if own in held:
+        return own
+    return min(held, key=lambda c: abs(SIZE_CLASSES.index(c) - SIZE_CLASSES.index(own)))
+
+
 def source_hash(source: Path) -> str:
     """Hash of the .ac, the textures it names and the converter version (what a GLB is made of)."""
     data = source.read_bytes()

@@ -192,6 +192,9 @@ class AlongConf:
     # Euro NCAP's pedestrian targets reach theirs after 1 m)
     meet: Optional[float] = None  # instead of `at`: start so as to reach `end` when the motion's value passes
     # `meet` (a synchronised arrival, as OpenSCENARIO's SynchronizeAction and the Euro NCAP protocols time it)
+    path: list[list[float]] = field(default_factory=list)  # instead of start/end: the [distance, offset] points
+    # it walks through at `speed`, the first where it stands (an imported polyline trajectory's vertices); it
+    # turns as each leg turns from the first (key: distance or offset, the one an exported file reads)
 
 
 @dataclass

@@ -65,6 +65,12 @@ def _check_motion(case) -> None:
             raise GarageError(f"{along.speed} m/s is negative", where + ".speed")
         if float(along.get("accelerate") or 0.0) < 0:
             raise GarageError(f"{along.accelerate} m is negative", where + ".accelerate")
+        path = along.get("path") or []
+        if path and (len(path) < 2 or any(len(p) != 2 for p in path)):
+            raise GarageError("a path is two or more [distance, offset] points, the first where it stands",
+                              where + ".path")
+        if path and along.key not in ("distance", "offset"):
+            raise GarageError(f"an actor on a path moves its distance and offset, not {along.key!r}", where + ".key")
         if along.get("meet") is not None and along.at is not None:
             raise GarageError("give `at` (when it sets off) or `meet` (when it arrives), not both", where + ".meet")
         # (`meet` may lie past the motion's end: the last frames come before the arrival the walk is timed for)
@@ -87,14 +93,42 @@ def frame_times(values: list[float], speed_kmh: float) -> list[float]:
 
 
 def along_value(along, t: float, t_at: float, frame: int = 0) -> float:
-    """An along-moving actor's value at time t (frame `frame`): its listed values, else from start towards end
-    at its speed, from t_at on."""
+    """An along-moving actor's value of its `key` at time t (frame `frame`): its listed values, else from start
+    towards end (or along its `path`) at its speed, from t_at on."""
     listed = along.get("values")  # (a DictConfig's `.values` is its method, not the key)
     if listed:
         return float(listed[min(frame, len(listed) - 1)])
+    if along.get("path"):
+        return along_placement(along, 0.0, t, t_at)[along.key]
     start, end = float(along.start), float(along.end)
     moved = travelled(along, t - t_at)
     return min(start + moved, end) if end >= start else max(start - moved, end)
+
+
+def along_placement(along, yaw: float, t: float, t_at: float, frame: int = 0) -> dict:
+    """The placement values an along-moving actor (placed with yaw `yaw`) takes at time t: its `key`'s value; or,
+    with a `path` of [distance, offset] points, both, and its yaw turned as each leg turns from the first."""
+    if not along.get("path") or along.get("values"):
+        return {along.key: along_value(along, t, t_at, frame)}
+    points = [(float(d), float(o)) for d, o in along.path]
+    moved = travelled(along, t - t_at)
+    legs = list(zip(points, points[1:]))
+    first = _leg_heading(*legs[0])
+    for (d0, o0), (d1, o1) in legs:
+        length = math.hypot(d1 - d0, o1 - o0)
+        if moved <= length or (d1, o1) == points[-1]:
+            k = min(moved / length, 1.0) if length > 0 else 1.0
+            turn = _leg_heading((d0, o0), (d1, o1)) - first
+            return {"distance": round(d0 + k * (d1 - d0), 6), "offset": round(o0 + k * (o1 - o0), 6),
+                    "yaw": round(float(yaw) + turn, 6)}
+        moved -= length
+    raise AssertionError("unreachable: the last leg returns")
+
+
+def _leg_heading(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Degrees of a leg of [distance, offset] points, from the path's heading (distance counts back along it,
+    offset to its left)."""
+    return math.degrees(math.atan2(b[1] - a[1], -(b[0] - a[0])))
 
 
 def steps(start: float, end: float, step: float) -> list[float]:
@@ -274,7 +308,7 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
             if mover:
                 placed[mover] = replace(actors[mover], **{case.motion.key: value})
             for name, along, t_at in alongs:
-                placed[name] = replace(placed[name], **{along.key: along_value(along, time, t_at, frame)})
+                placed[name] = replace(placed[name], **along_placement(along, actors[name].yaw, time, t_at, frame))
             try:
                 poses = resolve(placed, made, site, bays)
             except GarageError as exc:
@@ -300,12 +334,15 @@ def along_error(exc: GarageError, alongs: list, placed: dict, made: dict, frame:
     named by the co-motion's key that asked for it (its `start` when the first frame fails, else its `end`, or
     its `values`); any other refusal as it was."""
     for name, along, _ in alongs:
-        if exc.where == f"{made[name].source}.{along.key}":
-            value = float(getattr(placed[name], along.key))
-            which = "values" if along.get("values") else "start" if frame == 0 else "end"
-            reason = str(exc)[len(exc.where) + 2:]
-            return GarageError(f"{name}'s {along.key} reaches {value:g} (frame {frame}): {reason}",
-                               f"case.motion.along.{name}.{which}")
+        keys = ("distance", "offset") if along.get("path") else (along.key,)
+        for key in keys:
+            if exc.where == f"{made[name].source}.{key}":
+                value = float(getattr(placed[name], key))
+                which = "values" if along.get("values") else "path" if along.get("path") else \
+                    "start" if frame == 0 else "end"
+                reason = str(exc)[len(exc.where) + 2:]
+                return GarageError(f"{name}'s {key} reaches {value:g} (frame {frame}): {reason}",
+                                   f"case.motion.along.{name}.{which}")
     return exc
 
 

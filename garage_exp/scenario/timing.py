@@ -43,5 +43,12 @@ def start_time(along, time_at) -> float:
     ego's `meet` (negative: it was already on its way at the first frame). `time_at(value)`: the ego's time at a
     motion value."""
     if along.get("meet") is not None:
-        return time_at(float(along.meet)) - travel_time(along, abs(float(along.end) - float(along.start)))
+        metres = path_length(along) if along.get("path") else abs(float(along.end) - float(along.start))
+        return time_at(float(along.meet)) - travel_time(along, metres)
     return time_at(float(along.at)) if along.at is not None else 0.0
+
+
+def path_length(along) -> float:
+    """Metres along a co-motion's `path` of [distance, offset] points."""
+    points = [(float(d), float(o)) for d, o in along.path]
+    return sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(points, points[1:]))

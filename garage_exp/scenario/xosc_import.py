@@ -25,6 +25,7 @@ from pathlib import Path
 
 import yaml
 
+from garage_exp.assets.vehicles import SIZES_OF_KIND, size_class_for, size_class_of
 from garage_exp.core.errors import GarageError
 from garage_exp.scenario.xosc_read import Read, read
 
@@ -32,6 +33,8 @@ STEP = 0.5  # m a frame of the ego's motion (the case's default)
 SWEEP = 0.25  # m a frame of a static case's sweep (the pedestrian case's)
 SHORT = 0.5  # m: an imported ego stops this far before a synchronised meeting (a collision test's impact)
 OWN = "garage_exp "
+# vehicleCategory -> the body (vehicle kind) the library draws it as; any other category is refused
+BODIES = {"car": "car", "van": "van", "bus": "bus", "truck": "truck", "semitrailer": "truck", "trailer": "truck"}
 
 
 def load_site(plan: str, site_name: str):
@@ -76,7 +79,7 @@ def own_plan(r: Read) -> str | None:
     return own(r, "plan")
 
 
-def _actor(r: Read, name: str, role: str, moving: bool) -> dict:
+def _actor(r: Read, name: str, role: str, moving: bool, notes: list[str]) -> dict:
     t = r.things[name]
     p = t.properties
     length, width, height = t.extent
@@ -92,19 +95,33 @@ def _actor(r: Read, name: str, role: str, moving: bool) -> dict:
                 "height": round(height, 3)}
     if p.get("garage_exp.model"):
         return {"role": role, "model": p["garage_exp.model"]}
-    body = {"van": "van", "bus": "bus", "truck": "truck", "semitrailer": "truck", "trailer": "truck"}.get(t.category,
-                                                                                                        "car")
-    size = "small" if length < 4.2 else "medium" if length < 4.8 else "large"
+    body = BODIES[t.category]  # (a category we cannot render is refused in `vehicles_we_render`)
+    size = size_class_for(body, length, height)
+    if size != size_class_of(length, height):
+        notes.append(f"{name}: a {t.category} {length:g} m long, {height:g} m tall; the vehicle library's "
+                     f"{body}s are {' or '.join(SIZES_OF_KIND[body])}: taken as {size}")
     return {"role": role, "size": size, "body": body}
 
 
-def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, list[str]]:
+def vehicles_we_render(r: Read) -> None:
+    """Refuse a vehicle of a category the vehicle library has nothing like (a bicycle, a motorbike, a train): it
+    would otherwise become a car."""
+    for name, t in r.things.items():
+        if t.type == "Vehicle" and not t.properties.get("garage_exp.model") and t.category not in BODIES:
+            raise GarageError(f"{name} is a {t.category or 'vehicle of no category'}: the vehicle library renders "
+                              f"{', '.join(sorted(set(BODIES.values())))} (vehicleCategory "
+                              f"{', '.join(BODIES)})", f"{r.path}: {r.tree.getpath(t.element)}")
+
+
+def to_case(r: Read, classified, site, name: str, margin: float, target: str | None = None
+            ) -> tuple[dict, list[str]]:
     """The case (a dict for its YAML) and the lines saying what it took and what it left out."""
     lane = site.paths["lane"]
     ax, ay = lane.axis
     bay0 = site.bays[0].bay
     t0 = lane.along(bay0.x, bay0.y)
     ego = ego_of(r)
+    vehicles_we_render(r)
     notes: list[str] = []
     transform = _identity if own_plan(r) else _onto_lane(r, ego, lane, margin)
 
@@ -134,14 +151,17 @@ def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, 
     names = {n: ("ego" if n == ego else _key(n)) for n in placed}
     movers = {n for n in placed if any(m.speed != 0 for m in r.moves.get(n, []))}
     people = [n for n in placed if r.things[n].type == "Pedestrian" and n != ego]
-    target = next((n for n in placed if n == own(r, "target")), None) \
+    if target is not None and target not in placed:
+        raise GarageError(f"--target {target}: no entity of that name the file places ({', '.join(placed)})",
+                          str(r.path))
+    target = target or next((n for n in placed if n == own(r, "target")), None) \
         or next((n for n in placed if r.things[n].properties.get("garage_exp.role") == "target"), None) \
         or (people[0] if people else next((n for n in placed if n != ego and n in movers), None))
     actors = {}
     for n, (x, y, h) in placed.items():
         role = r.things[n].properties.get("garage_exp.role") or (
             "ego" if n == ego else "target" if n == target else "moving" if n in movers else "parked")
-        actor = _actor(r, n, role, n in movers)
+        actor = _actor(r, n, role, n in movers, notes)
         actor.update({"path": "lane", "before": "ref", "distance": distance(x, y), "offset": offset(x, y),
                       "yaw": round((math.degrees(h) - lane.heading + 180) % 360 - 180, 4)})
         actors[names[n]] = actor
@@ -202,6 +222,23 @@ def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, 
     return case, notes
 
 
+def check_runs(case: dict, r: Read) -> None:
+    """What a job asks of the case before it has a plan (the scenario's own checks: its schema, its motion, each
+    variant's target), so that a case that would fail as a job is refused here, naming the file."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.schema import CaseConf
+    from garage_exp.scenario.build import _check_motion, variants
+
+    try:
+        conf = OmegaConf.merge(OmegaConf.structured(CaseConf), case)
+        _check_motion(conf)
+        variants(conf, dict(conf.actors), [])
+    except GarageError as exc:
+        hint = " (name one with --target ENTITY)" if "no target" in str(exc) else ""
+        raise GarageError(f"the case would not run: {exc}{hint}", str(r.path)) from None
+
+
 def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego_speed, notes) -> dict | None:
     """A moving actor's co-motion; its `at` and `meet` are values of the ego's motion (`motion`)."""
     ego_value = offset if motion.get("key") == "offset" else distance
@@ -220,6 +257,19 @@ def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego
     key, get = ("offset", offset) if across else ("distance", distance)
     spec = {"key": key, "start": get(sx, sy), "end": get(ex, ey), "speed": round(abs(m.speed), 4)}
     length = math.hypot(ex - sx, ey - sy)
+    if m.meet is None:  # every vertex of its route or polyline, not only the last
+        points = [(sx, sy)]
+        for x, y in route:
+            x, y, _ = transform(x, y, 0.0)
+            if math.hypot(x - points[-1][0], y - points[-1][1]) > 0.01:
+                points.append((x, y))
+        legs = [[distance(x, y), offset(x, y)] for x, y in points]
+        bent = len(legs) > 2 or (len(legs) == 2 and min(abs(legs[1][0] - legs[0][0]),
+                                                         abs(legs[1][1] - legs[0][1])) > 0.01)
+        if bent:  # more than one leg, or one that is not straight along or across the lane
+            spec["path"] = legs
+            spec["start"], spec["end"] = legs[0][0 if key == "distance" else 1], legs[-1][0 if key == "distance" else 1]
+            notes.append(f"{n}: its route of {len(legs) - 1} leg(s) kept as a path of [distance, offset] points")
     if m.rate > 0:
         spec["accelerate"] = round(m.speed * m.speed / (2 * m.rate), 4)
     if m.meet is not None:
@@ -279,6 +329,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--site", default="straight_run", help="a site with a lane and bays (default straight_run)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="set one of the file's parameters (repeatable), e.g. Ego_speed_kph=10")
+    ap.add_argument("--target", metavar="ENTITY", help="the entity the case is scored on (default: the file's "
+                    "garage_exp.role target, else its first pedestrian, else its first moving actor)")
     ap.add_argument("--margin", type=float, default=0.5,
                     help="a foreign file is placed with its rearmost actor's back this far past the lane's start (m)")
     args = ap.parse_args(argv)
@@ -292,7 +344,8 @@ def main(argv: list[str] | None = None) -> int:
         r = read(args.xosc, params)
         name = _key(args.name or args.xosc.stem)
         classified, site = load_site(args.plan or own_plan(r) or "research", args.site)
-        case, notes = to_case(r, classified, site, name, args.margin)
+        case, notes = to_case(r, classified, site, name, args.margin, args.target)
+        check_runs(case, r)
     except GarageError as exc:
         print(f"garage_exp.scenario.import: {exc}", file=sys.stderr)
         return 2
@@ -308,3 +361,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"garage_exp.scenario.import: wrote {out} ({len(case['actors'])} actors; {len(r.left_out)} element(s) "
           "left out)")
     return 0
+
+
+def cli() -> None:
+    """The command line's entry (`python -m garage_exp.scenario.import`): main's exit code."""
+    sys.exit(main())

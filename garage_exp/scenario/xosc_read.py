@@ -112,6 +112,9 @@ class Reader:
     def entities(self) -> None:
         for obj in self.root.findall("Entities/ScenarioObject"):
             name = obj.get("name")
+            for controller in obj.findall("ObjectController"):  # a driver model: a case's actors follow its motion
+                self.leave(controller, f"{name}'s controller ({_controller_name(controller)}): a case's actors "
+                           "move as its motion says, with no driver model")
             element, pushed = next((c for c in obj if c.tag in ENTITY_TYPES), None), False
             ref = obj.find("CatalogReference")
             if element is None and ref is not None:
@@ -177,6 +180,11 @@ class Reader:
 
     def trajectory(self, holder) -> list[tuple[float, float]]:
         """The vertices (x, y) of the polyline trajectory an element holds (inline, or from a catalog)."""
+        return self.timed_trajectory(holder)[0]
+
+    def timed_trajectory(self, holder) -> tuple[list[tuple[float, float]], list[float] | None]:
+        """The vertices (x, y) of the polyline trajectory an element holds (inline, or from a catalog), and their
+        times (None unless every vertex has one)."""
         ref = holder.find("CatalogReference") if holder is not None else None
         element = self.catalog_entry(ref) if ref is not None else (
             holder.find("Trajectory") if holder is not None else None)
@@ -185,7 +193,9 @@ class Reader:
             if not vertices:
                 raise GarageError("a trajectory other than a polyline (clothoid, NURBS) we cannot place",
                                   self.where(holder))
-            return [self.position(vx.find("Position"))[:2] for vx in vertices]
+            times = [self.values.get(vx, "time") for vx in vertices]
+            return ([self.position(vx.find("Position"))[:2] for vx in vertices],
+                    None if None in times else [self.values.num(vx, "time") for vx in vertices])
         finally:
             if ref is not None:
                 self.values.scopes.pop()
@@ -217,6 +227,14 @@ class Reader:
         """The entity's bounding-box centre (our actors' reference) from its reference point."""
         cx = self.things[name].centre_x if name in self.things else 0.0
         return x + cx * math.cos(h), y + cx * math.sin(h), h
+
+
+def _controller_name(controller) -> str:
+    ref = controller.find("CatalogReference")
+    if ref is not None:
+        return f"{ref.get('catalogName')}/{ref.get('entryName')}"
+    inline = controller.find("Controller")
+    return inline.get("name", "inline") if inline is not None else "inline"
 
 
 def along_polyline(pts: list[tuple[float, float]], s: float) -> tuple[float, float]:
@@ -304,7 +322,7 @@ def _private_action(r: Reader, name: str, action, trigger, moves, routes) -> Non
     elif trajectory is not None:
         holder = trajectory.find("TrajectoryRef")
         try:
-            pts = r.trajectory(holder if holder is not None else trajectory)
+            pts, times = r.timed_trajectory(holder if holder is not None else trajectory)
         except GarageError:
             r.leave(trajectory, "a trajectory other than a polyline (clothoid, NURBS)")
             return
@@ -312,10 +330,47 @@ def _private_action(r: Reader, name: str, action, trigger, moves, routes) -> Non
         if name not in r.start:  # a trajectory in the Init places its entity at its first vertex, heading along it
             (x0, y0), (x1, y1) = pts[0], pts[1]
             r.start[name] = (x0, y0, math.atan2(y1 - y0, x1 - x0))
+        timed = _timed_move(r, trajectory, pts, times, trigger)
+        if timed is not None:
+            moves[name].append(timed)
     elif sync is not None:
         _synchronize(r, name, sync, trigger, moves)
     else:
         r.leave(action, f"{first.tag if first is not None else 'an empty action'} has no counterpart in a case")
+
+
+def _timed_move(r: Reader, action, pts, times, trigger) -> Move | None:
+    """A FollowTrajectoryAction whose polyline's vertices have times (TimeReference Timing) moves its entity on
+    its own (no SpeedAction): at the polyline's length over its duration, from its first vertex's time (after
+    the trigger, or on the simulation's clock with domainAbsoluteRelative absolute)."""
+    timing = action.find("TimeReference/Timing")
+    if timing is None or times is None or len(pts) < 2:
+        return None
+    v = r.values
+    scale, shift = v.num(timing, "scale", 1.0), v.num(timing, "offset", 0.0)
+    duration = (times[-1] - times[0]) * scale
+    legs = [math.hypot(x1 - x0, y1 - y0) for (x0, y0), (x1, y1) in zip(pts, pts[1:])]
+    if duration <= 0 or sum(legs) <= 0:
+        r.leave(timing, "a timed trajectory of no duration or no length: left standing")
+        return None
+    speed = sum(legs) / duration
+    paces = [legs[k] / ((times[k + 1] - times[k]) * scale) for k in range(len(legs)) if times[k + 1] > times[k]]
+    if paces and max(paces) - min(paces) > 0.05 * speed:
+        r.leave(timing, f"its legs' speeds ({min(paces):.2f}-{max(paces):.2f} m/s): walked at their mean, "
+                f"{speed:.2f} m/s")
+    begin = times[0] * scale + shift  # when it leaves its first vertex
+    (kind, value), by = trigger
+    if timing.get("domainAbsoluteRelative") == "absolute":
+        if kind == "travel":
+            r.leave(timing, "vertex times on the simulation's clock after a travelled-distance trigger: taken as "
+                    "starting with the trigger")
+        else:
+            kind, value = "time", max(value, begin)
+    elif kind in ("init", "time"):
+        kind, value = ("time", value + begin) if value + begin > 0 else (kind, value)
+    elif begin:
+        r.leave(timing, f"its first vertex {begin:g} s after a travelled-distance trigger: taken as 0 s")
+    return Move(speed, 0.0, (kind, value), by)
 
 
 def _synchronize(r: Reader, name: str, sync, trigger, moves) -> None:

@@ -1,6 +1,4 @@
-import sys
-
-from garage_exp.scenario.xosc_import import main
+from garage_exp.scenario.xosc_import import cli
 
 if __name__ == "__main__":
-    sys.exit(main())
+    cli()
