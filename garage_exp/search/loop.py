@@ -174,6 +174,10 @@ class SearchLoop:
             self.tell(trial, outcome(result, self.search.objective))
 
     def tell(self, trial: optuna.Trial, out: Outcome) -> None:
+        if out.state == TrialState.COMPLETE and self.search.get("descriptors"):
+            measured = describe(out.attrs, self.search)
+            if measured is not None:
+                out.attrs["descriptors"] = measured
         for key, value in out.attrs.items():
             trial.set_user_attr(key, value)
         if out.state == TrialState.FAIL:
@@ -212,6 +216,21 @@ class SearchLoop:
               f"{'never fairly visible: infeasible' if seen.why == 'infeasible' else 'clearly easy'}; not rendered "
               "in full")
         return True
+
+
+def describe(attrs: dict, search) -> dict | None:
+    """A complete difficulty trial's descriptors, measured from its own outputs (its frame table and picture:
+    search/archive.py) for the archive of failure kinds; None for other objectives or a job whose directory is not
+    here."""
+    if not objectives.objective(search.objective).confidence:
+        return None
+    from garage_exp.search import archive
+
+    try:
+        return archive.measure_trial(attrs.get("output_dir"), attrs.get("frame"), search)
+    except Exception as exc:  # noqa: BLE001 - bookkeeping: the trial's own outcome stands
+        log.warning("descriptors of %s not measured: %s", attrs.get("output_dir"), exc)
+        return None
 
 
 def line(number: int, out: Outcome, budget: int, objective: str) -> str:

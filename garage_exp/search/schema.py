@@ -32,6 +32,40 @@ class PrescreenConf:
 
 
 @dataclass
+class DescriptorConf:
+    """One axis of the archive of failure kinds (garage_exp/search/archive.py): a quantity measured from each
+    trial's own outputs (`source`, one of archive.SOURCES), binned by `values` (a categorical source: one cell
+    per value) or `edges` (a numeric source: bins between increasing edges, values outside go to the end bins)."""
+
+    source: str = ""
+    values: list[str] = field(default_factory=list)
+    edges: list[float] = field(default_factory=list)
+
+
+def default_descriptors() -> list[DescriptorConf]:
+    """The failure kinds of the shipped space (conf/loop.yaml: cases 1, 2, 3 and pedestrian, four lights, two
+    plans): who the target is, how dark its picture is, how far it is and how much of it is hidden when first
+    fairly visible (3 x 3 x 3 x 3 = 81 cells). The edges come from a random pilot of 8 trials on that space
+    (docs/search.md): the real look's camera exposes for the scene, so a picture's mean luma spans only about
+    0.41-0.46 over the four lights; the targets are first fair at about 6 m (case 2), 14 m (case 3) and 21 m
+    (case 1), 1.0, 0.74 and 0.5 visible."""
+    return [DescriptorConf("kind", values=["car", "adult", "child"]),
+            DescriptorConf("luminance", edges=[0.0, 0.43, 0.45, 1.0]),
+            DescriptorConf("distance", edges=[0.0, 8.0, 16.0, 100.0]),
+            DescriptorConf("visible", edges=[0.0, 0.6, 0.9, 1.0])]
+
+
+@dataclass
+class ArchiveConf:
+    """The quality-diversity search (`search.sampler=archive`, garage_exp/search/archive.py)."""
+
+    emitter: str = "gaussian"  # gaussian (MAP-Elites) | iso_line (MAP-Elites with the Iso+LineDD operator)
+    sigma: float = 0.15  # the mutation's spread in the space normalised to [0, 1] per parameter
+    failure: float = 0.6  # a cell holds a hard-and-fair failure when its elite's difficulty is at least this
+    # (the gym's HARD and the loop's hard_below 0.4 on the confidence)
+
+
+@dataclass
 class SearchConf:
     """The search for hard scenarios (`hydra/sweeper=search`, garage_exp/search); read by the sweeper."""
 
@@ -41,7 +75,7 @@ class SearchConf:
     # batch's trials together; on the CPU they run one after another, as with 1. TPE then lies constantly about
     # the trials still running (Optuna's constant_liar), so a batch does not sample one point K times.
     batch: int = 1
-    sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid
+    sampler: str = "tpe"  # tpe | cmaes | gp | random | qmc | nsga2 | saltelli | grid | archive
     objective: str = "difficulty"  # difficulty | pareto (difficulty against visible fraction) | late (lateness) |
     # slots (1 - recall of the fair slots on the BEV: case=slots camera=fisheye4, docs/slots.md)
     seed: Optional[int] = None  # the sampler's seed; None: the config's seed
@@ -58,4 +92,8 @@ class SearchConf:
     grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)
     suite: SuiteConf = field(default_factory=SuiteConf)
     prescreen: PrescreenConf = field(default_factory=PrescreenConf)
+    # the archive of failure kinds: each complete trial's descriptors (difficulty objective), its cells and
+    # elites (archive.csv, archive.png), and `sampler=archive`'s quality-diversity search over them
+    descriptors: list[DescriptorConf] = field(default_factory=default_descriptors)
+    archive: ArchiveConf = field(default_factory=ArchiveConf)
     trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary

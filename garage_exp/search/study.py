@@ -16,7 +16,7 @@ from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.search import storage
 from garage_exp.search.objectives import OBJECTIVES
 
-SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid")
+SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid", "archive")
 MULTI_SAMPLERS = ("nsga2", "tpe", "random", "qmc")  # those that take several values (an objective's `multi`)
 MODES = ("search", "suite")
 # Trials a lost worker left RUNNING are failed once their heartbeat is this old (Optuna's heartbeat).
@@ -91,9 +91,30 @@ def check_search(search) -> None:
         raise GarageError(f"{search.max_truncation} is outside 0-1", "search.max_truncation")
     if int(search.min_box) < 0:
         raise GarageError(f"{search.min_box} is negative", "search.min_box")
+    _check_archive(search, goal)
     for band, edges in search.suite.bands.items():
         if len(edges) != 2 or not float(edges[0]) < float(edges[1]):
             raise GarageError(f"a band is [low, high) with low < high, not {list(edges)}", f"search.suite.bands.{band}")
+
+
+def _check_archive(search, goal) -> None:
+    """The descriptors (garage_exp/search/archive.py) and the archive sampler's settings."""
+    from garage_exp.search.archive import EMITTERS, check_descriptors
+
+    check_descriptors(search.descriptors)
+    if search.sampler == "archive":
+        if not goal.confidence or goal.multi:
+            raise GarageError(f"the archive's cells keep the hardest trial by difficulty: search.objective=difficulty,"
+                              f" not {goal.name}", "search.sampler")
+        if not search.descriptors:
+            raise GarageError("the archive needs at least one descriptor", "search.descriptors")
+    if search.archive.emitter not in EMITTERS:
+        raise GarageError(f"unknown emitter {search.archive.emitter!r} ({' | '.join(EMITTERS)})",
+                          "search.archive.emitter")
+    if not float(search.archive.sigma) > 0:
+        raise GarageError(f"{search.archive.sigma}: the mutation's spread must be positive", "search.archive.sigma")
+    if not 0.0 <= float(search.archive.failure) <= 1.0:
+        raise GarageError(f"{search.archive.failure} is outside 0-1", "search.archive.failure")
 
 
 def grid(params: dict, levels: int) -> dict[str, list]:
@@ -146,6 +167,11 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
                                          independent_sampler=optuna.samplers.RandomSampler(seed=seed))
     if name == "nsga2":
         return optuna.samplers.NSGAIISampler(seed=seed)
+    if name == "archive":  # quality diversity: ribs' MAP-Elites over the descriptors' cells (search/archive.py)
+        from garage_exp.search.archive import ArchiveSampler
+
+        return ArchiveSampler(params or {}, search.descriptors, seed, int(search.startup),
+                              str(search.archive.emitter), float(search.archive.sigma))
     if name == "qmc":
         return optuna.samplers.QMCSampler(qmc_type="sobol", scramble=True, seed=seed, warn_independent_sampling=False)
     return optuna.samplers.RandomSampler(seed=seed)  # random; saltelli enqueues its design, random fills the rest

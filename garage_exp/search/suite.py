@@ -55,6 +55,10 @@ def members(study, search) -> dict[str, list]:
     k = int(search.suite.per_band)
     out = {}
     for band, trials in by_band.items():
+        if search.sampler == "archive":  # the archive's suite: one scenario per cell of a band, many failure kinds
+            from garage_exp.search.archive import spread_over_cells
+
+            trials = spread_over_cells(trials, search)
         trials.sort(key=lambda t: (t.values[0], t.number))
         if len(trials) > k:
             picks = [round(i * (len(trials) - 1) / max(k - 1, 1)) for i in range(k)] if k > 1 else [len(trials) // 2]

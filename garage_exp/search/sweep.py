@@ -188,8 +188,12 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
     """The study's analysis (and suite) into out_dir; returns the files to log on the parent run."""
     from garage_exp.report.search_analysis import analyse
 
+    from garage_exp.search import archive
+
     search = config.search
     paths = list(analyse(result["study"], out_dir, top=int(search.top)))
+    files, result["archive"] = archive.write(result["study"], search, out_dir)
+    paths.extend(files)
     if config.export.openscenario:
         paths.extend(export_hardest(config, result["study"], out_dir / "openscenario", loader))
     if search.mode == "suite":
@@ -236,6 +240,8 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
         run_id = trial.user_attrs.get("run_id")
         if run_id:
             tracking.retry(lambda r=run_id, k=rank: mlc.set_tag(r, "search_rank", str(k)))
+    for key, value in (result.get("archive") or {}).items():  # coverage and QD score (search/archive.py)
+        tracking.retry(lambda k=key, v=value: mlc.log_metric(parent_run_id, k, float(v)))
     if best:  # named by the objective: best_difficulty, best_lateness, best_slot_miss
         metric = f"best_{objective(config.search.objective).metric}"
         tracking.retry(lambda: mlc.log_metric(parent_run_id, metric, float(best[0].values[0])))
@@ -258,6 +264,11 @@ def summary(result: dict, out_dir: Path) -> str:
         searched = " ".join(o for o in top.user_attrs.get("overrides", []) if o.split("=")[0] in top.params)
         name = (study.user_attrs.get("direction_names") or ["difficulty"])[0]
         lines.append(f"  hardest fair scenario: trial {top.number}, {name} {top.values[0]:.3f}: {searched}")
+    numbers = result.get("archive")
+    if numbers:
+        lines.append(f"  archive: {numbers['archive_failure_cells']} of {numbers['archive_cells']} cells hold a "
+                     f"hard-and-fair failure ({numbers['archive_filled']} filled, QD score "
+                     f"{numbers['archive_qd_score']:.2f}): {out_dir / 'archive.csv'}")
     lines.append(f"  report: {out_dir / 'search_report.md'}")
     return "\n".join(lines)
 

@@ -1,0 +1,230 @@
+"""The archive of failure kinds (issue 39, item 1; garage_exp/search/archive.py): descriptors measured from a
+frame table and a picture, cells, elites replaced only by harder trials, the archive sampler's asks (seeded by
+the trial, resumable, distinct within a batch), suites drawn across cells, and the command line end to end with
+a few tiny trials whose archive.csv rerun commands reproduce their trials' frame tables."""
+
+from __future__ import annotations
+
+import math
+import shlex
+
+import numpy as np
+import optuna
+import pandas as pd
+import pytest
+from conftest import require, run_app
+from omegaconf import OmegaConf
+from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
+from optuna.trial import TrialState, create_trial
+from PIL import Image
+
+from garage_exp.search import archive
+from garage_exp.search.schema import SearchConf
+
+
+# The tests' own cells (3 x 4 x 3 x 2 = 72), so that they do not follow the shipped edges.
+DESCRIPTORS = [{"source": "kind", "values": ["car", "adult", "child"]},
+               {"source": "luminance", "edges": [0.0, 0.12, 0.2, 0.3, 1.0]},
+               {"source": "distance", "edges": [0.0, 6.0, 10.0, 100.0]},
+               {"source": "visible", "edges": [0.0, 0.9, 1.0]}]
+
+
+def search_conf(**kw):
+    conf = OmegaConf.merge(OmegaConf.structured(SearchConf), {"descriptors": DESCRIPTORS})
+    for key, value in kw.items():
+        OmegaConf.update(conf, key, value, merge=False)
+    return conf
+
+
+def row(**kw) -> dict:
+    base = {"shot": 0, "camera": "front", "target": "target_black", "distance": 9.0, "visible_fraction": 1.0,
+            "box_height": 60, "truncation": 0.0, "composite": 0.5}
+    return {**base, **kw}
+
+
+def test_descriptors_are_measured_at_the_first_fair_frame_of_the_table_and_from_the_picture(tmp_path):
+    frame = tmp_path / "hardest.png"
+    Image.fromarray(np.full((20, 30, 3), 64, np.uint8)).save(frame)  # luma 64/255
+    table = pd.DataFrame([
+        row(shot=0, target="child_walking", target_kind="person", distance=12.0, visible_fraction=0.2),  # hidden
+        row(shot=1, target="child_walking", target_kind="person", distance=8.5, visible_fraction=0.7),  # first fair
+        row(shot=2, target="child_walking", target_kind="person", distance=6.0, visible_fraction=1.0)])
+    search = search_conf()
+    got = archive.measure(table, tmp_path, str(frame), search)
+    assert got["kind"] == "child" and got["distance"] == 8.5 and got["visible"] == 0.7
+    assert got["luminance"] == pytest.approx(64 / 255, abs=1e-6)
+    adult = table.assign(target="walker")
+    assert archive.measure(adult, tmp_path, str(frame), search)["kind"] == "adult"
+    cars = table.drop(columns="target_kind")  # a vehicle-only table has no target_kind column
+    assert archive.measure(cars, tmp_path, str(frame), search)["kind"] == "car"
+    # only the first camera's frames are scored, as the search scores them
+    other = pd.concat([pd.DataFrame([row(camera="rear", distance=3.0)]), table.assign(camera="front")])
+    assert archive.measure(other, tmp_path, str(frame), search)["distance"] == 3.0
+    # no fair frame: no descriptors (the trial is pruned as infeasible, never placed in a cell)
+    assert archive.measure(table.assign(visible_fraction=0.1), tmp_path, str(frame), search) is None
+    assert math.isnan(archive.measure(table, tmp_path, None, search)["luminance"])
+
+
+def test_cells_bin_categories_by_value_and_numbers_by_edges():
+    grid = archive.Grid([{"source": "kind", "values": ["car", "adult", "child"]},
+                         {"source": "distance", "edges": [0.0, 6.0, 10.0, 100.0]}])
+    assert grid.dims == [3, 3]
+    assert grid.index({"kind": "adult", "distance": 5.9}) == (1, 0)
+    assert grid.index({"kind": "child", "distance": 6.0}) == (2, 1)  # an inner edge opens the upper bin
+    assert grid.index({"kind": "car", "distance": 250.0}) == (0, 2)  # past the last edge: the last bin
+    assert grid.index({"kind": "car", "distance": -1.0}) == (0, 0)
+    assert grid.index({"kind": "truck", "distance": 5.0}) is None  # not one of the category's values
+    assert grid.index({"kind": "car", "distance": math.nan}) is None
+    assert grid.name((2, 1)) == "child | 6-10"
+
+
+def trial(number: int, difficulty: float, descriptors: dict | None, params: dict | None = None, x=None):
+    params = params if params is not None else {"a": 0.5}
+    return create_trial(state=TrialState.COMPLETE, values=[difficulty], params=params,
+                        distributions={k: FloatDistribution(0.0, 1.0) for k in params},
+                        user_attrs={"descriptors": descriptors, "overrides": [f"a={params.get('a')}"]},
+                        system_attrs={archive.X_ATTR: x} if x is not None else {})
+
+
+def numbered(trials: list) -> list:
+    """The trials as a study numbers them (0, 1, ... in the order given)."""
+    study = optuna.create_study(direction="maximize")
+    study.add_trials(trials)
+    return study.get_trials(deepcopy=False)
+
+
+def cell(kind: str, distance: float = 5.0, luminance: float = 0.1, visible: float = 1.0) -> dict:
+    return {"kind": kind, "distance": distance, "luminance": luminance, "visible": visible}
+
+
+def test_a_cells_elite_is_replaced_only_by_a_harder_trial_and_ribs_keeps_the_same_elites():
+    search = search_conf()
+    trials = numbered([trial(0, 0.5, cell("car")), trial(1, 0.4, cell("car")), trial(2, 0.5, cell("car")),  # none harder
+                       trial(3, 0.7, cell("car")), trial(4, 0.65, cell("car")),  # 3 replaces 0; 4 does not replace 3
+                       trial(5, 0.3, cell("child", distance=8.0)), trial(6, 0.9, None)])  # 6: no descriptors
+    grid = archive.Grid(search.descriptors)
+    elites = archive.elite_trials(trials, grid)
+    assert {c: t.number for c, t in elites.items()} == {(0, 0, 0, 1): 3, (2, 0, 1, 1): 5}
+    numbers = archive.summary(trials, search)
+    assert numbers == {"archive_cells": 72, "archive_filled": 2, "archive_failure_cells": 1,
+                       "archive_coverage": pytest.approx(1 / 72), "archive_qd_score": pytest.approx(1.0)}
+    ribs = archive.ribs_archive(trials, grid, {"a": FloatDistribution(0.0, 1.0)}, seed=0)
+    data = ribs.data()
+    assert sorted(data["objective"].tolist()) == pytest.approx([0.3, 0.7])
+    table = archive.archive_table(trials, search)
+    assert list(table.trial) == [3, 5] and list(table.failure) == [True, False]
+    assert table.rerun[0] == "python -m garage_exp a=0.5" and table.cell[0] == "car | 0-0.12 | 0-6 | 0.9-1"
+
+
+def test_the_space_maps_to_the_unit_cube_and_back():
+    params = {"case": CategoricalDistribution(["1", "2", "3", "pedestrian"]), "seed": IntDistribution(0, 9999),
+              "light.intensity": FloatDistribution(0.1, 1.0), "far": FloatDistribution(1.0, 100.0, log=True)}
+    assert archive.decode([0.0, 0.0, 0.0, 0.0], params) == {"case": "1", "seed": 0, "light.intensity": 0.1,
+                                                            "far": pytest.approx(1.0)}
+    values = archive.decode([0.6, 1.0, 0.5, 0.5], params)
+    assert values["case"] == "3" and values["seed"] == 9999 and values["light.intensity"] == pytest.approx(0.55)
+    assert values["far"] == pytest.approx(10.0)
+    assert archive.decode(archive.encode(values, params), params) == pytest.approx(values)  # a choice: its bin's middle
+
+
+def test_the_sampler_mutates_elites_after_startup_seeded_by_the_trial_number():
+    params = {"a": FloatDistribution(0.0, 1.0), "b": FloatDistribution(0.0, 1.0)}
+    search = search_conf()
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=3, startup=2, sigma=0.05)
+    elite = numbered([trial(0, 0.8, cell("adult"), {"a": 0.9, "b": 0.1}, x=[0.9, 0.1])])[0]
+    assert archive.ribs_archive([elite], sampler.grid, params, 0).stats.num_elites == 1
+    # after the startup trials, every ask is the one elite plus the emitter's noise (sigma 0.05)
+    asked = np.array([sampler.ask_point([elite], n) for n in range(2, 12)])
+    assert np.abs(asked - [0.9, 0.1]).max() < 0.3 and len({tuple(p) for p in asked}) == len(asked)
+    # the same trial number on the same archive asks the same point: a resume, another worker
+    again = archive.ArchiveSampler(params, search.descriptors, seed=3, startup=2, sigma=0.05)
+    assert np.array_equal(again.ask_point([elite], 5), asked[3])
+    # the startup trials are uniform, whatever the archive holds
+    first = sampler.ask_point([elite], 0)
+    assert first.shape == (2,) and np.all((0 <= first) & (first <= 1))
+
+
+def test_a_batch_asked_before_any_tell_is_distinct_and_its_points_are_kept_on_the_trials():
+    params = {"a": FloatDistribution(0.0, 1.0)}
+    search = search_conf()
+    study = optuna.create_study(direction="maximize",
+                                sampler=archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1))
+    first = study.ask(fixed_distributions=params)
+    first.set_user_attr("descriptors", cell("car"))
+    study.tell(first, 0.7)
+    batch = [study.ask(fixed_distributions=params) for _ in range(3)]
+    values = [t.params["a"] for t in batch]
+    assert len(set(values)) == 3
+    for t in batch:
+        kept = study._storage.get_trial(t._trial_id).system_attrs[archive.X_ATTR]
+        assert archive.decode(kept, params)["a"] == t.params["a"]
+
+
+def test_an_archive_suite_takes_one_scenario_per_cell_of_a_band():
+    from garage_exp.search.suite import members
+
+    study = optuna.create_study(direction="maximize")
+    study.add_trials([trial(0, 0.9, cell("car")), trial(1, 0.95, cell("car")), trial(2, 0.85, cell("car")),
+                      trial(3, 0.8, cell("child")), trial(4, 0.7, cell("adult", distance=20.0))])
+    band = {"hard": [0.0, 0.4]}
+    spread = members(study, search_conf(sampler="archive", **{"suite.per_band": 3, "suite.bands": band}))
+    assert sorted(t.number for t in spread["hard"]) == [1, 3, 4]  # the car cell's hardest, and the two others
+    plain = members(study, search_conf(sampler="tpe", **{"suite.per_band": 3, "suite.bands": band}))
+    assert len({archive.Grid(DESCRIPTORS).index(t.user_attrs["descriptors"])
+                for t in plain["hard"]}) < 3  # without the archive, a band may take three scenarios of one cell
+
+
+# A few tiny trials (2 frames at 320x240 on plan=tiny); the fairness rule loosened for the small picture.
+TINY = ["-m", "hydra/sweeper=search", "search.sampler=archive", "search.trials=5", "search.startup=2",
+        "search.batch=2", "search.min_box=10", "search.max_truncation=1.0", "plan=tiny", "camera.width=320",
+        "camera.height=240", "palette.target_colours=[black]", "case.motion.start=5", "case.motion.end=4",
+        "case.motion.step=1", "light=choice(bright,dim)", "case.actors.target.distance=interval(4.0,6.0)",
+        "search.descriptors=[{source:kind,values:[car,adult,child]},{source:distance,edges:[0,7,7.3,100]}]"]
+
+
+@pytest.mark.render
+@pytest.mark.detect
+@pytest.mark.slow
+def test_the_archive_search_writes_its_archive_and_each_elites_rerun_reproduces_its_trial(tmp_path):
+    require("vulkan", "vehicles", "models")
+    from garage_exp.core.state import STATE
+    from garage_exp.tracking import runs as tracking
+
+    stores = [f"search.storage=sqlite:///{tmp_path / 'optuna.db'}", f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}"]
+    r = run_app([*TINY, *stores], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = tmp_path / "sweep" / "search"
+    storage = f"sqlite:///{tmp_path / 'optuna.db'}"
+    study = optuna.load_study(study_name=optuna.get_all_study_names(storage)[0], storage=storage)
+    done = study.get_trials(states=(TrialState.COMPLETE,))
+    assert len(study.trials) == 5 and done
+    assert all(set(t.user_attrs["descriptors"]) == {"kind", "distance"} for t in done)
+    assert all(archive.X_ATTR in t.system_attrs for t in study.trials)  # every trial asked by the archive
+    table = pd.read_csv(out / "archive.csv")
+    assert len(table) == len(set(table.cell)) >= 1 and set(table.kind) == {"car"}
+    best_per_cell = {}
+    grid = archive.Grid(OmegaConf.create({"d": [{"source": "kind", "values": ["car", "adult", "child"]},
+                                                {"source": "distance", "edges": [0, 7, 7.3, 100]}]}).d)
+    for t in done:
+        c = grid.name(grid.index(t.user_attrs["descriptors"]))
+        best_per_cell[c] = max(best_per_cell.get(c, 0.0), t.values[0])
+    assert dict(zip(table.cell, table.difficulty)) == pytest.approx(best_per_cell)  # each cell's hardest
+    assert (out / "archive.png").stat().st_size > 0
+    mlc = tracking.client(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    exp = mlc.get_experiment_by_name("garage_exp")
+    parent = next(run for run in mlc.search_runs([exp.experiment_id]) if run.data.tags.get("sweep") == "parent")
+    assert parent.data.metrics["archive_cells"] == 9
+    assert parent.data.metrics["archive_filled"] == len(table)
+    assert parent.data.metrics["archive_failure_cells"] == int(table.failure.sum())
+    assert parent.data.metrics["archive_qd_score"] == pytest.approx(table.difficulty.sum(), abs=1e-5)
+    assert "archive:" in r.stdout
+    for _, elite in table.iterrows():  # each elite's rerun command gives its trial's frame table
+        STATE.renderer = None  # a fresh renderer, as a new process has
+        rerun_dir = tmp_path / f"rerun_{elite.trial}"
+        rerun_dir.mkdir()
+        command = shlex.split(elite.rerun)
+        assert command[:3] == ["python", "-m", "garage_exp"]
+        rerun = run_app([*command[3:], f"tracking.uri=sqlite:///{tmp_path / 'rerun.db'}"], rerun_dir)
+        assert rerun.returncode == 0, rerun.stderr[-3000:]
+        theirs = pd.read_csv(f"{study.trials[int(elite.trial)].user_attrs['output_dir']}/frames.csv")
+        pd.testing.assert_frame_equal(pd.read_csv(rerun_dir / "run" / "frames.csv"), theirs)
