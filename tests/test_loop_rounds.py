@@ -246,19 +246,19 @@ def test_the_cost_model_adds_up():
     from garage_exp.loop.schema import ArmConf
 
     cfg = small(["rounds=1", "seeds=[0]", "base_trials=4", "heldout_trials=2", "trials=3", "train_frames=10",
-                 "epochs=2", "replay_fraction=1.0", "val_fraction=0.5", "photos=true", "cost.render_s_per_frame=1",
-                 "cost.trial_overhead_s=2", "cost.command_s=10", "cost.train_s_per_image_epoch=0.5",
-                 "cost.val_s_per_image=0.1", "cost.detect_s_per_frame=0.1", "cost.frames_per_trial=5",
-                 "cost.verify_s=4"], protocol={"p": ["case=crossing", "light=bright,dim"]},
-                arms={"R": ArmConf("random", "all")})
+                 "epochs=2", "replay_fraction=1.0", "val_fraction=0.5", "photos=true", "cost.search_s=20",
+                 "cost.render_s_per_frame=1", "cost.trial_overhead_s=2", "cost.command_s=10",
+                 "cost.train_s_per_image_epoch=0.5", "cost.val_s_per_image=0.1", "cost.detect_s_per_frame=0.1",
+                 "cost.frames_per_trial=5", "cost.verify_s=4", "cost.load_s=3"],
+                protocol={"p": ["case=crossing", "light=bright,dim"]}, arms={"R": ArmConf("random", "all")})
     parts = cost.estimate(cfg)
-    assert parts["base data"] == 10 + 4 * (2 + 5)
-    assert parts["held-out sample"] == 10 + 2 * 7
+    assert parts["base data"] == 20 + 4 * (2 + 5)
+    assert parts["held-out sample"] == 20 + 2 * 7
     assert parts["protocol suite"] == 10 + 2 * 7
-    assert parts["generators"] == 10 + 3 * 7
-    assert parts["fine-tunings"] == pytest.approx(10 + 2 * (20 * 0.5 + 10 * 0.1))  # 10 val frames: half of 4 x 5
-    assert parts["evaluation"] == pytest.approx(2 * (2 + 2) * 5 * 0.1)  # D0 and R's detector, 4 "trials"
-    assert parts["real photos"] == 2 * 4
+    assert parts["generators"] == 20 + 3 * 7
+    assert parts["fine-tunings"] == pytest.approx(10 + 2 * 20 * 0.5 + 3 * 10 * 0.1)  # 10 val frames: half of 4 x 5
+    assert parts["evaluation"] == pytest.approx(2 * (3 + 2 * 5 * 0.1) + 2 * 2 * 5 * 0.1)  # D0 and R's: both suites
+    assert parts["real photos"] == 10 + 2 * 4  # one command, D0 and R's detector
     assert parts["total"] == pytest.approx(sum(v for k, v in parts.items() if k != "total"))
 
 

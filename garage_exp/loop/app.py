@@ -43,6 +43,7 @@ def check_budgets(cfg: DictConfig) -> None:
 def check_loop(cfg: DictConfig) -> None:
     from garage_exp.search.study import SAMPLERS
 
+    check_range(cfg.startup, 0, 100_000, "startup")
     for key in ("base_trials", "trials", "train_frames", "heldout_trials", "epochs", "base_epochs", "batch",
                 "rounds"):
         check_range(cfg[key], 1, 100_000, key)
@@ -131,9 +132,9 @@ class Loop:
         print(f"garage_exp.loop: {self.name} ...", flush=True)  # said once its inputs passed the check
         steps.run(cmd, self.log)
 
-    def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None, before=None):
+    def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None, before=None, startup=None):
         """A search (`before`: called once its inputs passed the check and before it runs, e.g. to enqueue)."""
-        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models)
+        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models, startup)
         if not self.reuse(name, cmd, steps.study_done(self.cfg, name, trials), [Path(m) for m in models or ()]):
             if before is not None:
                 before()
@@ -157,10 +158,10 @@ class Loop:
             self._run(cmd)
         return json.loads((out / "result.json").read_text())
 
-    def verify(self, name: str, data: str, weights: str) -> dict:
+    def verify(self, name: str, data: str, weights: list[str]) -> dict:
         out = self.dir / "verify" / name
         cmd = steps.verify_command(self.cfg, out, data, weights)
-        if not self.reuse(f"verify_{name}", cmd, (out / "result.json").is_file(), [Path(weights)]):
+        if not self.reuse(f"verify_{name}", cmd, (out / "result.json").is_file(), [Path(w) for w in weights]):
             self._run(cmd)
         return json.loads((out / "result.json").read_text())
 
@@ -217,7 +218,7 @@ def run_loop(cfg: DictConfig) -> dict:
                 name = f"{arm}_r{k}_s{seed}{suffix}"
                 found = loop.step(f"round {k} arm {arm} seed {seed}: search", lambda name=name, arm=arm, b=b, p=prev:
                                   loop.study(f"gen_{name}", plans, int(b["trials"]), cfg.arms[arm].sampler,
-                                             1000 * k + seed, [p["model"]]))
+                                             1000 * k + seed, [p["model"]], startup=int(cfg.startup)))
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
                 frames, topped = budget.round_frames(suite, found, int(b["train_frames"]), seed * 100 + k)
@@ -248,7 +249,10 @@ def run_loop(cfg: DictConfig) -> dict:
 
 
 def real_photos(loop: Loop, detectors: dict) -> list[dict]:
-    """Each detector through `python -m garage_exp.verify` on the real-photo sets: recall and mAP50."""
+    """The detectors through one `python -m garage_exp.verify` per real-photo set (every detector one of its
+    models, linked under its loop name, so each gets its own recall and mAP50): D0 and the last round's."""
+    import os
+
     from garage_exp.verify.photos import write_photos
 
     sets = []
@@ -258,12 +262,22 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
             write_photos(root)
         sets.append(("photos", str(root / "coco.json")))
     sets += [(f"real{k}", str(p)) for k, p in enumerate(loop.cfg.real_sets)]
-    rows = []
+    models = loop.dir / "verify" / "models"
+    models.mkdir(parents=True, exist_ok=True)
+    linked = {}
     for name, d in detectors.items():
-        for label, data in sets:
-            m = loop.verify(f"{label}_{name}", data, d["weights"])["metrics"]
+        link = models / f"{name}.pt"  # the detector's name in verify's metrics is its file's stem
+        if link.is_symlink() and os.readlink(link) != str(Path(d["weights"]).absolute()):
+            link.unlink()
+        if not link.exists():
+            link.symlink_to(Path(d["weights"]).absolute())
+        linked[name] = link
+    rows = []
+    for label, data in sets:
+        m = loop.verify(label, data, [str(p) for p in linked.values()])["metrics"]
+        for name, d in detectors.items():
             rows.append({"detector": name, "arm": d["arm"], "round": d["round"], "seed": d["seed"], "set": label,
-                         "recall": m["recall"], "map50": m["map50"]})
+                         "recall": m[f"recall/{name}"], "map50": m[f"map50/{name}"]})
     return rows
 
 

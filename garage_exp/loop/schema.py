@@ -29,16 +29,19 @@ class ArmConf:
 
 @dataclass
 class CostConf:
-    """The cost model's rates, measured on the machine the loop is sized for (docs/loop.md, "Budget")."""
+    """The cost model's rates, measured on the machine the loop is sized for (docs/loop.md, "Budget"); the defaults
+    are a shared 2-core CPU's (2026-11-28)."""
 
-    render_s_per_frame: float = 1.0  # a search trial's frame: render, ground truth, detection, its dataset files
-    trial_overhead_s: float = 3.0  # per trial: composing, building and tearing down its scene
-    command_s: float = 25.0  # per child command: start-up, imports, the renderer's first frame, the models' load
-    train_s_per_image_epoch: float = 0.3  # one training image for one epoch (fit and that epoch's validation share)
-    val_s_per_image: float = 0.05  # one validation frame, each epoch
-    detect_s_per_frame: float = 0.05  # scoring one held-out frame with one detector (evaluation)
-    frames_per_trial: float = 10.0  # a trial's frames, mean over the space (case.motion.step fixed)
-    verify_s: float = 15.0  # one `python -m garage_exp.verify` on the photos
+    search_s: float = 85.0  # per search command: imports, the model's load, the space's check, the analysis after
+    command_s: float = 25.0  # per other child command (a sweep, a training, verify): start-up and imports
+    render_s_per_frame: float = 1.0  # a trial's frame: render, ground truth, detection, its dataset files
+    trial_overhead_s: float = 6.0  # per trial or job: composing, building and tearing down its scene
+    frames_per_trial: float = 22.0  # a trial's frames, mean over the space at the loop's case.motion.step
+    train_s_per_image_epoch: float = 0.22  # one training image for one epoch
+    val_s_per_image: float = 0.15  # one validation frame, each epoch and once after
+    detect_s_per_frame: float = 0.06  # scoring one held-out frame with one detector (evaluation)
+    load_s: float = 8.0  # loading one detector for the evaluation
+    verify_s: float = 10.0  # one detector in `python -m garage_exp.verify` on a real set: its load and its images
 
 
 @dataclass
@@ -69,6 +72,7 @@ class LoopConf:
         "R": ArmConf("random", "all"), "T": ArmConf("tpe"), "Q": ArmConf("archive")})
     # Each arm's budget per round and training seed (an arm may repeat them, never change them).
     trials: int = 8  # its generator's trials (scenarios rendered and scored by the arm's detector)
+    startup: int = 10  # the generators' search.startup: random trials before TPE's (or GP's) model guides
     train_frames: int = 64  # frames of its suite it is fine-tuned on
     epochs: int = 3
     imgsz: int = 320

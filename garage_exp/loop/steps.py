@@ -37,7 +37,7 @@ def storage(cfg: DictConfig) -> str:
 
 
 def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, sampler: str, seed: int,
-                   models: list[str] | None = None) -> list[str]:
+                   models: list[str] | None = None, startup: int | None = None) -> list[str]:
     """`python -m garage_exp -m hydra/sweeper=search ...` over the loop's space on `plans`, each trial with its
     dataset; scored by `models` (None: the shipped detectors)."""
     plan = f"plan=choice({','.join(plans)})" if len(plans) > 1 else f"plan={plans[0]}"
@@ -48,6 +48,8 @@ def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, s
            f"tracking.experiment={cfg.tracking.experiment}", f"hydra.sweep.dir={Path(cfg.dir) / 'studies' / study}"]
     if models:
         cmd += [f"detector.models=[{','.join(models)}]", f"detector.imgsz={cfg.imgsz}"]
+    if startup is not None:
+        cmd.append(f"search.startup={startup}")
     return cmd
 
 
@@ -76,12 +78,12 @@ def sweep_command(cfg: DictConfig, out: Path, overrides: list[str]) -> list[str]
             f"tracking.experiment={cfg.tracking.experiment}", f"hydra.sweep.dir={out}"]
 
 
-def verify_command(cfg: DictConfig, out: Path, data: str, weights: str) -> list[str]:
-    """`python -m garage_exp.verify` of one detector (its .pt, at the loop's image size) on a labelled real set;
-    the shipped photos' "pedestrian" labels are people."""
+def verify_command(cfg: DictConfig, out: Path, data: str, weights: list[str]) -> list[str]:
+    """`python -m garage_exp.verify` of detectors (their .pt files, each scored on its own, at the loop's image
+    size) on a labelled real set; the shipped photos' "pedestrian" labels are people."""
     from garage_exp.verify.photos import LABEL_MAP
 
-    return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP, f"detector.models=[{weights}]",
+    return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP, f"detector.models=[{','.join(weights)}]",
             f"detector.imgsz={cfg.imgsz}", f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
             f"tracking.experiment={cfg.tracking.experiment}", f"hydra.run.dir={out}"]
 
