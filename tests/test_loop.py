@@ -18,7 +18,7 @@ def test_the_arms_budgets_are_equal(tmp_path):
     pool = [tmp_path / f"s{k // 10}" / "images" / f"{k % 10:04d}_front.png" for k in range(60)]
     drawn = budget.draw_frames(pool, 23, seed=0)
     assert len(drawn) == len(set(drawn)) == 23 and drawn == budget.draw_frames(pool, 23, seed=0)
-    with pytest.raises(ValueError, match="fewer than the 61"):
+    with pytest.raises(ValueError, match="fewer than the 61 asked"):
         budget.draw_frames(pool, 61, seed=0)
     h = {"train_frames": 23, "replay_frames": 12, "val_frames": 40, "epochs": 8, "imgsz": 320}
     budget.assert_equal_budget({"R": h, "T": dict(h), "Q": dict(h)})

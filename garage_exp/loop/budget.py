@@ -61,8 +61,7 @@ def images(datasets: list[Path]) -> list[Path]:
 def draw_frames(pool: list[Path], n: int, seed: int) -> list[Path]:
     """n frames drawn at random (seeded) from the pool; ValueError when it holds fewer."""
     if n > len(pool):
-        raise ValueError(f"the random pool holds {len(pool)} frames, fewer than the {n} of the hard arm: "
-                         "raise random_trials")
+        raise ValueError(f"the pool holds {len(pool)} frames, fewer than the {n} asked")
     return sorted(random.Random(seed).sample(sorted(pool), n))
 
 
