@@ -1,10 +1,14 @@
-"""`python -m garage_exp.loop` (issue 22): the arms' equal budgets, the failure count, the held-out plan and its
-suites, a step's result reused only for the same inputs, and the command line's refusals and signals."""
+"""`python -m garage_exp.loop` (issues 22 and 39): the arms' equal budgets (configured and trained), the failure
+count, the held-out sample's determinism, the rounds' bookkeeping and resume, the statistics on known numbers,
+the cost model, a step's result reused only for the same inputs, and the command line's refusals and signals."""
 
 from pathlib import Path
 
 import pytest
 from conftest import compose_cfg, run_in_process
+
+# Until the archive sampler (issue 39, item 1) is merged, the search refuses it: the Q arm searches with TPE here.
+NO_ARCHIVE = ["arms.Q.sampler=tpe"]
 
 
 def test_the_arms_budgets_are_equal(tmp_path):
@@ -14,13 +18,13 @@ def test_the_arms_budgets_are_equal(tmp_path):
     pool = [tmp_path / f"s{k // 10}" / "images" / f"{k % 10:04d}_front.png" for k in range(60)]
     drawn = budget.draw_frames(pool, 23, seed=0)
     assert len(drawn) == len(set(drawn)) == 23 and drawn == budget.draw_frames(pool, 23, seed=0)
-    with pytest.raises(ValueError, match="fewer than the 61"):
+    with pytest.raises(ValueError, match="fewer than the 61 asked"):
         budget.draw_frames(pool, 61, seed=0)
     h = {"train_frames": 23, "replay_frames": 12, "val_frames": 40, "epochs": 8, "imgsz": 320}
-    budget.assert_equal_budget(h, dict(h))
+    budget.assert_equal_budget({"R": h, "T": dict(h), "Q": dict(h)})
     for key in budget.BUDGET_KEYS:
-        with pytest.raises(AssertionError, match=key):
-            budget.assert_equal_budget(h, {**h, key: h[key] + 1})
+        with pytest.raises(AssertionError, match=rf"\(R, Q\): \{{'{key}'"):
+            budget.assert_equal_budget({"R": h, "T": dict(h), "Q": {**h, key: h[key] + 1}})
 
 
 def test_failures_per_100_trials_count_only_hard_fair_trials():
@@ -42,7 +46,7 @@ def test_the_loop_refuses_a_held_out_plan_it_trains_on(tmp_path):
     """Held-out means another plan: the loop stops before anything runs."""
     from garage_exp.loop.app import cli
 
-    r = run_in_process([f"dir={tmp_path}/loop", "eval_plan=research"], tmp_path, entry=cli)
+    r = run_in_process([f"dir={tmp_path}/loop", "eval_plan=research", *NO_ARCHIVE], tmp_path, entry=cli)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "garage_exp.loop: eval_plan: 'research' is also a training plan: held-out data must come from another plan"]
     assert not (tmp_path / "loop").exists()
@@ -60,30 +64,6 @@ def test_the_loop_never_reuses_a_step_made_by_another_command(tmp_path):
     assert loop.reuse("arm", ["train", "epochs=6"], done=True) is True  # done by the same command: reuse
     with pytest.raises(GarageError, match="epochs=6 -> 8"):
         Loop(OmegaConf.create({"dir": str(tmp_path)})).reuse("arm", ["train", "epochs=8"], done=True)
-
-
-def test_a_held_out_split_that_cannot_grade_says_so(capsys, tmp_path):
-    """Issue 31, item 10: a D0 that scores 0 everywhere puts every held-out trial at difficulty 1; the hard and easy
-    suites were then an arbitrary split, silently."""
-    from omegaconf import OmegaConf
-
-    from garage_exp.loop import report
-    from garage_exp.loop.steps import Trial
-
-    cfg = OmegaConf.create({"heldout_graded_by": "shipped"})
-    for k in range(6):  # each trial left its dataset
-        (tmp_path / str(k) / "dataset").mkdir(parents=True)
-        (tmp_path / str(k) / "dataset" / "data.yaml").write_text("names: {0: person}\n")
-    flat = [Trial("heldout", k, "COMPLETE", 1.0, tmp_path / str(k)) for k in range(6)]
-    suites = report.heldout_suites(cfg, flat, {})
-    assert [t.number for t in suites["hard"]] == [0, 1] and [t.number for t in suites["easy"]] == [4, 5]
-    assert "fair difficulty is 1.00 for all 6 held-out trials" in suites.note and "arbitrary split" in suites.note
-    assert suites.note in capsys.readouterr().out
-    graded = [Trial("heldout", k, "COMPLETE", 1.0 - 0.1 * k, tmp_path / str(k)) for k in range(6)]
-    assert report.heldout_suites(cfg, graded, {}).note == ""
-    tied = [Trial("heldout", k, "COMPLETE", [0.9, 0.5, 0.5, 0.5, 0.5, 0.1][k], tmp_path / str(k)) for k in range(6)]
-    assert "4 held-out trials tie" in report.heldout_suites(cfg, tied, {}).note
-    assert "the same scenarios" in report.heldout_suites(cfg, flat[:1], {}).note
 
 
 def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch, capsys):
@@ -161,7 +141,7 @@ def test_sigterm_stops_the_loop_and_its_running_step(tmp_path, monkeypatch):
 
     real_run = steps.run
     monkeypatch.setattr(steps, "run", step)
-    r = run_in_process([f"dir={tmp_path / 'loop'}"], tmp_path, entry=cli)
+    r = run_in_process([f"dir={tmp_path / 'loop'}", *NO_ARCHIVE], tmp_path, entry=cli)
     assert r.returncode == 143, r.stderr[-2000:]
     assert r.stderr.strip().splitlines()[-1] == ("garage_exp.loop: terminated (SIGTERM); rerun the same command to go "
                                                   "on where it stopped")

@@ -166,12 +166,13 @@ def bad_inputs(tmp: Path, jobs: list[Path]) -> dict[str, tuple[list[str], list[s
         "one-scenario": ([f"data=[{jobs[0]}]"], ["data", "at least 2"]),
         "imgsz-not-stride": ([data, "imgsz=100"], ["imgsz", "multiple of 32"]),
         "unknown-key": ([data, "+epochz=3"], ["epochz"]),
+        "bn-calibrate-yaml-base": ([data, "bn_calibrate=8"], ["bn_calibrate", "a model YAML has none trained"]),
     }
 
 
 BAD = ["missing-suite", "empty-suite", "suite-without-dataset", "label-outside-image", "pt-not-a-detector",
        "class-map-mismatch", "registry-name-unknown", "registry-version-unknown", "one-scenario",
-       "imgsz-not-stride", "unknown-key"]
+       "imgsz-not-stride", "unknown-key", "bn-calibrate-yaml-base"]
 
 
 @pytest.fixture(scope="module")

@@ -1,9 +1,11 @@
-"""The closed loop (issue 22), one command: `python -m garage_exp.loop`.
+"""The closed loop (issues 22 and 39), one command: `python -m garage_exp.loop`.
 
-Base data from a quasi-random sample of scenarios (rendered with dataset=true), a base detector D0 trained on it,
-D0's failures found by a search against D0 itself, two fine-tuned arms with equal images and epochs (H: D0's
-hard scenarios; R: as many frames drawn at random from the same space), both with the same replay of base data,
-evaluated on held-out scenarios of a plan no training frame came from, and a second search against the fine-tuned
-detectors. Each step is a command of the project (`python -m garage_exp -m hydra/sweeper=search ...`,
-`python -m garage_exp.train ...`), run as a child process; a step whose result is on disk is not run again.
+D0 is a COCO-pretrained detector; base data from a quasi-random sample of the space on the training plans gives the
+replay and the validation scenarios. In each of `rounds` rounds, each arm's generator (R: random scenarios, T: TPE
+failures, Q: the archive's failures) searches the arm's detector of the round before; what it finds joins the arm's
+suite, and that detector is fine-tuned on it with replay, every arm at the same budget, for each training seed.
+Every detector is scored on held-out suites: the failure rate on a fixed quasi-random sample of the space on a plan
+no training frame came from, an easy suite, the protocol cases and real photos. Each step is a command of the
+project (`python -m garage_exp -m hydra/sweeper=search ...`, `python -m garage_exp.train ...`,
+`python -m garage_exp.verify ...`), run as a child process; a step whose result is on disk is not run again.
 """

@@ -1,8 +1,8 @@
-"""`python -m garage_exp.loop`: the closed-loop experiment, step by step (garage_exp/loop/__init__.py says which).
+"""`python -m garage_exp.loop`: the closed-loop experiment in rounds (garage_exp/loop/__init__.py says which).
 
 Every step's result stays under `dir`; rerunning the command skips the steps already done (a study that holds its
-trials, a training with its result.json), so an interrupted loop goes on where it stopped; a step made or begun
-from other inputs (its command, the files it reads) is refused in one line, never reused.
+trials, a training with its result.json, a detector's scores), so an interrupted loop goes on where it stopped; a
+step made or begun from other inputs (its command, the files it reads) is refused in one line, never reused.
 """
 
 from __future__ import annotations
@@ -21,18 +21,52 @@ COMMAND = shell.Command("garage_exp.loop", "loop", (schema.register,),
                         resume_hint="rerun the same command to go on where it stopped")
 
 
+def arm_budget(cfg: DictConfig, arm: str) -> dict:
+    """An arm's budget per round and seed: its own keys where set, else the loop's shared ones."""
+    own = cfg.arms[arm]
+    return {k: (own[k] if own.get(k) is not None else cfg[k]) for k in schema.BUDGET_KEYS}
+
+
+def check_budgets(cfg: DictConfig) -> None:
+    """Every arm spends the same per round: generator trials, training frames, epochs, image size and replay."""
+    arms = list(cfg.arms)
+    first = arm_budget(cfg, arms[0])
+    for arm in arms[1:]:
+        mine = arm_budget(cfg, arm)
+        for key in schema.BUDGET_KEYS:
+            if mine[key] != first[key]:
+                raise GarageError(f"unequal budgets: arm {arm} has {key}={mine[key]}, arm {arms[0]} {first[key]} "
+                                  "(every arm gets the same generator trials, training frames, epochs, image size "
+                                  "and replay per round)", f"arms.{arm}.{key}")
+
+
 def check_loop(cfg: DictConfig) -> None:
-    for key in ("base_trials", "failure_trials", "hard_scenarios", "random_trials", "eval_trials", "epochs",
-                "base_epochs", "batch"):
+    from garage_exp.search.study import SAMPLERS
+
+    check_range(cfg.startup, 0, 100_000, "startup")
+    for key in ("base_trials", "trials", "train_frames", "heldout_trials", "epochs", "base_epochs", "batch",
+                "rounds"):
         check_range(cfg[key], 1, 100_000, key)
+    check_range(cfg.bn_calibrate, 0, 100_000, "bn_calibrate")
     check_range(cfg.replay_fraction, 0, 10, "replay_fraction")
     check_range(cfg.hard_below, 0, 1, "hard_below")
-    if cfg.heldout_graded_by not in ("d0", "shipped"):
-        raise GarageError(f"{cfg.heldout_graded_by!r}: d0 | shipped", "heldout_graded_by")
     if cfg.variant and not str(cfg.variant).replace("_", "").replace("-", "").isalnum():
         raise GarageError(f"{cfg.variant!r}: letters, digits, - and _ only (it names folders and studies)", "variant")
-    if not cfg.seeds:
-        raise GarageError("no training seeds", "seeds")
+    if not cfg.arms:
+        raise GarageError("no arms", "arms")
+    for arm, conf in cfg.arms.items():
+        if not str(arm).isalnum():
+            raise GarageError(f"{arm!r}: an arm's name is letters and digits (it names studies)", "arms")
+        if conf.sampler not in SAMPLERS:
+            raise GarageError(f"{conf.sampler!r} is not a sampler of the search ({' | '.join(SAMPLERS)})",
+                              f"arms.{arm}.sampler")
+        if conf.keep not in ("failures", "all"):
+            raise GarageError(f"{conf.keep!r}: failures | all", f"arms.{arm}.keep")
+    check_budgets(cfg)
+    if not cfg.seeds or len(set(cfg.seeds)) != len(cfg.seeds):
+        raise GarageError("give distinct training seeds", "seeds")
+    if cfg.heldout_method not in ("sobol", "halton"):
+        raise GarageError(f"{cfg.heldout_method!r}: sobol | halton", "heldout_method")
     if int(cfg.imgsz) % 32:
         raise GarageError(f"{cfg.imgsz} is not a multiple of 32", "imgsz")
     if cfg.eval_plan in cfg.train_plans:
@@ -43,7 +77,7 @@ def check_loop(cfg: DictConfig) -> None:
 
 
 # Steps every variant shares: a change to them needs another dir, not a variant.
-SHARED_STEPS = ("base", "D0", "failures_D0", "random", "heldout")
+SHARED_STEPS = ("base", "D0", "heldout") + tuple(f"protocol_{k}" for k in ("cpnco", "cpra", "crossing", "crouch"))
 
 
 class Loop:
@@ -69,10 +103,11 @@ class Loop:
         known = self.commands.get(name)
         if known is not None and known != key:
             hint = ("give this run another dir" if name in SHARED_STEPS else
-                    "give this run its own variant=NAME (its arms and second round apart) or another dir")
+                    "give this run its own variant=NAME (its rounds and results apart) or another dir")
             raise GarageError(f"{self.dir} holds step {name!r} made from other inputs ({steps.changes(known, key)}); "
                               f"{hint}", "dir")
         self.commands[name] = key
+        self.commands_file.parent.mkdir(parents=True, exist_ok=True)
         self.commands_file.write_text(json.dumps(self.commands, indent=1))
         return done
 
@@ -97,11 +132,23 @@ class Loop:
         print(f"garage_exp.loop: {self.name} ...", flush=True)  # said once its inputs passed the check
         steps.run(cmd, self.log)
 
-    def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None):
-        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models)
+    def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None, before=None, startup=None):
+        """A search (`before`: called once its inputs passed the check and before it runs, e.g. to enqueue)."""
+        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models, startup)
         if not self.reuse(name, cmd, steps.study_done(self.cfg, name, trials), [Path(m) for m in models or ()]):
+            if before is not None:
+                before()
             self._run(cmd)
         return steps.trials(self.cfg, name)
+
+    def sweep(self, name: str, overrides: list[str]) -> list[steps.Trial]:
+        """A plain sweep of the main command (a protocol's jobs), each job with its dataset."""
+        out = self.dir / "studies" / name
+        cmd = steps.sweep_command(self.cfg, out, overrides)
+        if not self.reuse(name, cmd, (out / "done").is_file()):
+            self._run(cmd)
+            (out / "done").write_text("")
+        return steps.jobs(name, out)
 
     def train(self, name: str, **kw) -> dict:
         out = self.dir / "train" / name
@@ -111,71 +158,139 @@ class Loop:
             self._run(cmd)
         return json.loads((out / "result.json").read_text())
 
+    def verify(self, name: str, data: str, weights: list[str]) -> dict:
+        out = self.dir / "verify" / name
+        cmd = steps.verify_command(self.cfg, out, data, weights)
+        if not self.reuse(f"verify_{name}", cmd, (out / "result.json").is_file(), [Path(w) for w in weights]):
+            self._run(cmd)
+        return json.loads((out / "result.json").read_text())
+
 
 def run_loop(cfg: DictConfig) -> dict:
-    from garage_exp.loop import report
+    from garage_exp.loop import cost, evaluate, heldout, report
     from garage_exp.results.labels import coco_names
     from garage_exp.train.data import split_scenarios
 
     loop = Loop(cfg)
     loop.dir.mkdir(parents=True, exist_ok=True)
+    print(f"garage_exp.loop: the cost model's estimate on a fresh dir: {cost.describe(cost.estimate(cfg))}",
+          flush=True)
     names = coco_names()
     data = loop.dir / "data"
     plans = list(cfg.train_plans)
-    # 1. Base data: a QMC sample of the space on the training plans, each scenario with its dataset.
-    base = loop.step("base data", lambda: loop.study("base", plans, cfg.base_trials, "qmc", 0))
+    base_pt = str(Path(str(cfg.base)).expanduser().absolute()) if str(cfg.base).endswith(".pt") else None
+    # 1. Base data: a QMC sample of the space on the training plans: the replay pool and the validation scenarios.
+    base = loop.step("base data", lambda: loop.study("base", plans, cfg.base_trials, "qmc", 0,
+                                                     [base_pt] if base_pt else None))
     base_sets = [t.dataset for t in base if t.dataset is not None]
     train_s, val_s = split_scenarios([str(d) for d in base_sets], float(cfg.val_fraction), 0)
     base_train = budget.write_dirs(data / "base_train.yaml", [Path(d) for d in train_s], names)
     base_val = budget.write_dirs(data / "base_val.yaml", [Path(d) for d in val_s], names)
-    # 2. D0: from scratch on the base data, or the user's .pt.
-    if str(cfg.base).endswith(".pt"):
-        d0 = {"model": str(Path(str(cfg.base)).expanduser().absolute()), "weights": str(cfg.base)}
+    # 2. D0: the COCO-pretrained detector as given (its BatchNorms are calibrated by each fine-tuning), or trained
+    # from scratch on the base data.
+    if base_pt:
+        d0 = {"model": base_pt, "weights": base_pt}
     else:
         d0 = loop.step("D0", lambda: loop.train("D0", data=[base_train], val=[base_val], base=str(cfg.base),
                                                 epochs=int(cfg.base_epochs), seed=0, lr0=float(cfg.base_lr0),
-                                                study="base"))
-    # 3. D0's failures: a search against D0 itself; its hardest fair scenarios are H's training data.
-    round1 = loop.step("D0's failures", lambda: loop.study("failures_D0", plans, cfg.failure_trials, "tpe", 1,
-                                                           [d0["model"]]))
-    hard = budget.hardest(round1, int(cfg.hard_scenarios))
-    hard_yaml = budget.write_dirs(data / "hard.yaml", [t.dataset for t in hard], names)
-    n_hard = len(budget.images([t.dataset for t in hard]))
-    # 4. R's pool: random scenarios of the same space; exactly as many frames as H's, drawn at random.
-    pool = loop.step("random pool", lambda: loop.study("random", plans, cfg.random_trials, "random", 2,
-                                                       [d0["model"]]))
-    random_frames = budget.draw_frames(budget.images([t.dataset for t in pool if t.dataset is not None]), n_hard, 0)
-    random_yaml = budget.write_list(data / "random.yaml", random_frames, names)
-    suffix = f"_{cfg.variant}" if cfg.variant else ""  # a variant's arms, second round and results stand apart
-    arms: dict[str, dict[int, dict]] = {"H": {}, "R": {}}
-    for seed in cfg.seeds:
-        for arm, arm_data in (("H", hard_yaml), ("R", random_yaml)):
-            arms[arm][int(seed)] = loop.step(
-                f"arm {arm} seed {seed}{suffix}", lambda arm=arm, arm_data=arm_data, seed=seed: loop.train(
-                    f"{arm}_seed{seed}{suffix}", data=[arm_data], val=[base_val], base=d0["model"],
-                    epochs=int(cfg.epochs),
-                    seed=int(seed), lr0=float(cfg.lr0), replay=[base_train],
-                    study="failures_D0" if arm == "H" else "random"))
-        budget.assert_equal_budget(arms["H"][int(seed)], arms["R"][int(seed)])
-    # 5. Held-out: scenarios of a plan no training frame came from (scored in the study by the shipped detectors);
-    # the hardest and the easiest third, graded by D0 itself (heldout_graded_by=d0) or by the shipped detectors.
-    held = loop.step("held-out suites", lambda: loop.study("heldout", [cfg.eval_plan], cfg.eval_trials, "qmc", 3))
-    suites = report.heldout_suites(cfg, held, d0)
-    # 6. A second round: search the fine-tuned detectors again (seed 0 of each arm), as D0 was searched.
-    first = int(cfg.seeds[0])
-    round2 = {arm: loop.step(f"{arm}'s failures{suffix}", lambda arm=arm: loop.study(
-        f"failures_{arm}{suffix}", plans, cfg.failure_trials, "tpe", 1, [arms[arm][first]["model"]]))
-        for arm in ("H", "R")}
-    models = {"D0": {0: d0}, **arms}
-    result = loop.step(f"evaluation{suffix}", lambda: report.evaluate_all(cfg, models, suites), always=True)
+                                                study="base", calibrate=False))
+    # 3. The held-out suites, rendered once: the failure-rate sample (a fixed QMC sample of the space on eval_plan),
+    # the protocol cases, and (scored later) the real photos.
+    points = heldout.sample(list(cfg.space), int(cfg.heldout_trials), int(cfg.heldout_seed), str(cfg.heldout_method))
+    held = loop.step("held-out sample", lambda: loop.study(
+        "heldout", [cfg.eval_plan], cfg.heldout_trials, "random", 0, [d0["model"]],
+        before=lambda: heldout.enqueue(steps.storage(cfg), "heldout", points)))
+    protocol = {name: loop.step(f"protocol {name}", lambda name=name, o=overrides: loop.sweep(
+        f"protocol_{name}", [*o, *cfg.protocol_fixed])) for name, overrides in cfg.protocol.items()}
+    # 4. Rounds: each arm's generator searches the arm's detector of the round before; its failures join the arm's
+    # suite; that detector is fine-tuned on as many of the suite's frames as every other arm's, with replay.
+    suffix = f"_{cfg.variant}" if cfg.variant else ""
+    detectors: dict[str, dict] = {"D0": {"arm": "D0", "round": 0, "seed": -1, **d0}}
+    book = []  # the rounds' bookkeeping: per arm, round and seed, what the generator found and what was trained
+    suites: dict[tuple[str, int], list] = {}
+    for k in range(1, int(cfg.rounds) + 1):
+        for seed in cfg.seeds:
+            seed = int(seed)
+            trained = {}
+            for arm in cfg.arms:
+                b = arm_budget(cfg, arm)
+                prev = detectors["D0"] if k == 1 else detectors[f"{arm}_r{k - 1}_s{seed}{suffix}"]
+                name = f"{arm}_r{k}_s{seed}{suffix}"
+                found = loop.step(f"round {k} arm {arm} seed {seed}: search", lambda name=name, arm=arm, b=b, p=prev:
+                                  loop.study(f"gen_{name}", plans, int(b["trials"]), cfg.arms[arm].sampler,
+                                             1000 * k + seed, [p["model"]], startup=int(cfg.startup)))
+                new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
+                suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
+                frames, topped = budget.round_frames(suite, found, int(b["train_frames"]), seed * 100 + k)
+                listing = budget.write_list(data / f"{name}.yaml", frames, names)
+                trained[arm] = loop.step(f"round {k} arm {arm} seed {seed}: fine-tune", lambda name=name, b=b, p=prev,
+                                         listing=listing, arm=arm: loop.train(
+                    name, data=[listing], val=[base_val], base=p["weights"], epochs=int(b["epochs"]), seed=seed,
+                    lr0=float(cfg.lr0), replay=[base_train], study=f"gen_{name}", imgsz=int(b["imgsz"]),
+                    replay_fraction=float(b["replay_fraction"]), calibrate=bool(base_pt)))
+                detectors[name] = {"arm": arm, "round": k, "seed": seed, **trained[arm]}
+                book.append({"arm": arm, "round": k, "seed": seed, "sampler": cfg.arms[arm].sampler,
+                             "trials": len(found), "rendered_frames": budget.rendered(found),
+                             "failures": budget.failures(found, float(cfg.hard_below))[0],
+                             "joined": len(new), "suite_scenarios": len(suite),
+                             "train_frames": trained[arm]["train_frames"], "topped_up_frames": topped,
+                             "replay_frames": trained[arm]["replay_frames"], "epochs": trained[arm]["epochs"],
+                             "imgsz": trained[arm]["imgsz"]})
+            budget.assert_equal_budget(trained)
+    # 5. Evaluation: every detector on the failure-rate sample (and its easy third), D0 and the last round on the
+    # protocol suite and the real photos.
+    last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
+    easy = loop.step("easy suite", lambda: evaluate.easy_suite(loop.dir / "eval", held, d0, cfg))
+    scores = loop.step("evaluation", lambda: evaluate.score_all(loop.dir / "eval", cfg, detectors, held, easy,
+                                                               protocol, last), always=True)
+    photos = loop.step("real photos", lambda: real_photos(loop, last), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
-    return report.write(cfg, loop.dir / f"results{suffix}", result, {"D0": round1, **round2}, suites, hard, loop.times)
+    return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times)
+
+
+def real_photos(loop: Loop, detectors: dict) -> list[dict]:
+    """The detectors through one `python -m garage_exp.verify` per real-photo set (every detector one of its
+    models, linked under its loop name, so each gets its own recall and mAP50): D0 and the last round's."""
+    import os
+
+    from garage_exp.verify.photos import write_photos
+
+    sets = []
+    if loop.cfg.photos:
+        root = loop.dir / "photos"
+        if not (root / "coco.json").is_file():
+            write_photos(root)
+        sets.append(("photos", str(root / "coco.json")))
+    sets += [(f"real{k}", str(p)) for k, p in enumerate(loop.cfg.real_sets)]
+    models = loop.dir / "verify" / "models"
+    models.mkdir(parents=True, exist_ok=True)
+    linked = {}
+    for name, d in detectors.items():
+        link = models / f"{name}.pt"  # the detector's name in verify's metrics is its file's stem
+        if link.is_symlink() and os.readlink(link) != str(Path(d["weights"]).absolute()):
+            link.unlink()
+        if not link.exists():
+            link.symlink_to(Path(d["weights"]).absolute())
+        linked[name] = link
+    rows = []
+    for label, data in sets:
+        m = loop.verify(label, data, [str(p) for p in linked.values()])["metrics"]
+        for name, d in detectors.items():
+            rows.append({"detector": name, "arm": d["arm"], "round": d["round"], "seed": d["seed"], "set": label,
+                         "recall": m[f"recall/{name}"], "map50": m[f"map50/{name}"]})
+    return rows
 
 
 def main(cfg: DictConfig) -> dict:
     from garage_exp.tracking.runs import tracking_uri
 
     check_loop(cfg)  # bad input: the shell removes Hydra's log dir (and `dir` if it made it) and says it in one line
+    if cfg.estimate:
+        from garage_exp.loop.cost import describe, estimate
+
+        parts = estimate(cfg)
+        print(f"garage_exp.loop: estimate: {describe(parts)}")
+        return parts
     with open_dict(cfg):
         cfg.tracking.uri = tracking_uri(cfg.tracking.uri)  # every step's store, also for models:/ entries
         cfg.dir = str(Path(str(cfg.dir)).absolute())

@@ -1,6 +1,8 @@
-"""The arms' data, with equal budgets: H's frames are its hard scenarios' frames, R's exactly as many frames drawn at
-random from scenarios of the same space; both get the same replay (same base pool, fraction and seed) and the same
-epochs and image size, and the trainings' own counts are compared afterwards (`assert_equal_budget`)."""
+"""The arms' data, with equal budgets: in each round an arm's generator (a search of the same number of trials over
+the same space) finds scenarios; those that join its suite (its hard-and-fair failures, or every scenario for the
+random arm) add to the suites of the rounds before, and the arm is fine-tuned on exactly `train_frames` frames of
+its suite, with the same replay fraction, epochs and image size as every other arm; the trainings' own counts are
+compared afterwards (`assert_equal_budget`)."""
 
 from __future__ import annotations
 
@@ -12,18 +14,44 @@ import yaml
 from garage_exp.loop.steps import Trial
 
 
-def hardest(trials: list[Trial], k: int) -> list[Trial]:
-    """The k hardest fairly visible trials (COMPLETE, highest difficulty first) that left a dataset."""
-    done = [t for t in trials if t.state == "COMPLETE" and t.dataset is not None]
-    return sorted(done, key=lambda t: (-t.difficulty, t.number))[:k]
-
-
 def failures(trials: list[Trial], hard_below: float) -> tuple[int, int]:
     """(hard-and-fair failures, trials): a failure is a COMPLETE trial (some fair frame) whose mean confidence over
     its fair frames is below `hard_below`; every trial that ran counts in the denominator."""
     ran = [t for t in trials if t.state in ("COMPLETE", "PRUNED", "FAIL")]
     hard = [t for t in ran if t.state == "COMPLETE" and 1.0 - t.difficulty < hard_below]
     return len(hard), len(ran)
+
+
+def joining(found: list[Trial], keep: str, hard_below: float) -> list[Trial]:
+    """The trials of a round's search that join the arm's suite: its hard-and-fair failures (keep=failures), or
+    every trial that left a dataset (keep=all: the random arm's scenarios)."""
+    with_data = [t for t in found if t.dataset is not None]
+    if keep == "all":
+        return with_data
+    return [t for t in with_data if t.state == "COMPLETE" and 1.0 - t.difficulty < hard_below]
+
+
+def rendered(found: list[Trial]) -> int:
+    """Frames a search rendered (the generator's cost), from each trial's own count."""
+    return sum(t.frames for t in found)
+
+
+def round_frames(suite: list[Trial], found: list[Trial], n: int, seed: int) -> tuple[list[Path], int]:
+    """(exactly n frames to fine-tune on, how many of them topped the suite up). n frames are drawn at random
+    (seeded) from the suite's frames; a suite holding fewer is used whole and topped up with frames of this round's
+    other scenarios, hardest first (a generator that found few failures still spends its arm's budget, on the
+    nearest misses). ValueError when even that is short: raise `trials` or lower `train_frames`."""
+    pool = images([t.dataset for t in suite])
+    if len(pool) >= n:
+        return draw_frames(pool, n, seed), 0
+    members = {t.dataset for t in suite}
+    rest = sorted((t for t in found if t.dataset is not None and t.dataset not in members),
+                  key=lambda t: (t.difficulty is None, -(t.difficulty or 0.0), t.number))
+    extra = [f for t in rest for f in images([t.dataset])][:n - len(pool)]
+    if len(pool) + len(extra) < n:
+        raise ValueError(f"the suite and this round's scenarios hold {len(pool) + len(extra)} frames, fewer than "
+                         f"train_frames={n}: raise trials or lower train_frames")
+    return sorted(pool) + extra, len(extra)
 
 
 def images(datasets: list[Path]) -> list[Path]:
@@ -33,8 +61,7 @@ def images(datasets: list[Path]) -> list[Path]:
 def draw_frames(pool: list[Path], n: int, seed: int) -> list[Path]:
     """n frames drawn at random (seeded) from the pool; ValueError when it holds fewer."""
     if n > len(pool):
-        raise ValueError(f"the random pool holds {len(pool)} frames, fewer than the {n} of the hard arm: "
-                         "raise random_trials")
+        raise ValueError(f"the pool holds {len(pool)} frames, fewer than the {n} asked")
     return sorted(random.Random(seed).sample(sorted(pool), n))
 
 
@@ -59,8 +86,12 @@ def write_dirs(path: Path, datasets: list[Path], names: dict[int, str]) -> Path:
 BUDGET_KEYS = ("train_frames", "replay_frames", "val_frames", "epochs", "imgsz")
 
 
-def assert_equal_budget(h: dict, r: dict) -> None:
-    """The arms' trainings (their result.json) read as many frames, for as many epochs, at one image size."""
-    unequal = {k: (h.get(k), r.get(k)) for k in BUDGET_KEYS if h.get(k) != r.get(k)}
-    if unequal:
-        raise AssertionError(f"unequal budgets between the arms (H, R): {unequal}")
+def assert_equal_budget(trained: dict[str, dict]) -> None:
+    """The arms' trainings of one round and seed (their result.json, by arm) read as many frames, for as many
+    epochs, at one image size."""
+    arms = list(trained)
+    first = trained[arms[0]]
+    for arm in arms[1:]:
+        unequal = {k: (first.get(k), trained[arm].get(k)) for k in BUDGET_KEYS if first.get(k) != trained[arm].get(k)}
+        if unequal:
+            raise AssertionError(f"unequal budgets between the arms ({arms[0]}, {arm}): {unequal}")

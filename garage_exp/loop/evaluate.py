@@ -109,3 +109,69 @@ def evaluate(model: Path, imgsz: int, trials: list[Trial], threshold: float) -> 
     detections: list = []
     frames = score_frames(model, imgsz, trials, threshold, detections)
     return summarise(frames, map50(trials, detections)), frames
+
+
+def scored(eval_dir: Path, name: str, suite: str, weights: str, imgsz: int, trials: list[Trial], threshold: float
+           ) -> tuple[pd.DataFrame, list]:
+    """A detector's frames of a suite and its detections, scored once and kept under eval_dir/name/ (a rerun of the
+    loop reads them back; other weights under the same name are scored again)."""
+    import hashlib
+
+    folder = eval_dir / name
+    digest = hashlib.sha256(Path(weights).read_bytes()).hexdigest()[:16]
+    meta = folder / f"{suite}.json"
+    if meta.is_file():
+        kept = json.loads(meta.read_text())
+        if kept["weights"] == digest and kept["trials"] == [f"{t.study}#{t.number}" for t in trials]:
+            frames = pd.read_csv(folder / f"{suite}.csv") if kept["frames"] else pd.DataFrame()
+            return frames, [tuple(d) for d in kept["detections"]]
+    detections: list = []
+    frames = score_frames(Path(weights), imgsz, trials, threshold, detections)
+    folder.mkdir(parents=True, exist_ok=True)
+    frames.to_csv(folder / f"{suite}.csv", index=False)
+    meta.write_text(json.dumps({"weights": digest, "trials": [f"{t.study}#{t.number}" for t in trials],
+                                "frames": len(frames), "detections": detections}))
+    return frames, detections
+
+
+def easy_suite(eval_dir: Path, held: list[Trial], d0: dict, cfg) -> list[Trial]:
+    """The easy held-out suite: the easiest third of the failure-rate sample's fairly visible scenarios, by D0's
+    own fair difficulty on them."""
+    done = [t for t in held if t.state == "COMPLETE" and t.dataset is not None]
+    frames, _ = scored(eval_dir, "D0", "heldout", d0["weights"], int(cfg.imgsz), done, float(cfg.threshold))
+    fair = frames[frames.fair].groupby("trial").confidence.mean() if len(frames) else pd.Series(dtype=float)
+    ranked = sorted((t for t in done if t.number in fair.index), key=lambda t: (float(fair[t.number]), -t.number),
+                    reverse=True)
+    return ranked[:max(1, len(ranked) // 3)]
+
+
+def score_all(eval_dir: Path, cfg, detectors: dict, held: list[Trial], easy: list[Trial],
+              protocol: dict[str, list[Trial]], last: dict) -> pd.DataFrame:
+    """One row per detector and suite: the failure rate on the held-out sample (every detector), fair recall and
+    mAP50 on the easy suite and the protocol suite (D0 and the last round's detectors)."""
+    from garage_exp.loop import heldout
+
+    done = [t for t in held if t.state == "COMPLETE" and t.dataset is not None]
+    easy_ids = {t.number for t in easy}
+    rows = []
+    for name, d in detectors.items():
+        who = {"detector": name, "arm": d["arm"], "round": d["round"], "seed": d["seed"]}
+        frames, dets = scored(eval_dir, name, "heldout", d["weights"], int(cfg.imgsz), done, float(cfg.threshold))
+        rows.append({**who, "suite": "heldout", **heldout.failures(frames, held, float(cfg.hard_below)),
+                     "fair_recall": float(frames[frames.fair].detected.mean()) if len(frames) else float("nan")})
+        if name not in last:
+            continue
+        part = frames[frames.trial.isin(easy_ids)]
+        rows.append({**who, "suite": "easy", **summarise(part, map50(easy, [x for x in dets if x[0] in easy_ids]))})
+        pooled, pooled_trials, pooled_dets = [], [], []
+        for label, trials in protocol.items():
+            f, p = scored(eval_dir, name, f"protocol_{label}", d["weights"], int(cfg.imgsz), trials,
+                          float(cfg.threshold))
+            rows.append({**who, "suite": f"protocol:{label}", **summarise(f, map50(trials, p))})
+            pooled.append(f)
+        if pooled:
+            everything = pd.concat(pooled, ignore_index=True)
+            fair = everything[everything.fair]
+            rows.append({**who, "suite": "protocol", "frames": len(everything), "fair_frames": len(fair),
+                         "fair_recall": float(fair.detected.mean()) if len(fair) else float("nan")})
+    return pd.DataFrame(rows)

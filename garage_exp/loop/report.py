@@ -1,8 +1,7 @@
-"""The loop's results: every detector scored on the held-out suites, summarised per arm with intervals over the
-training seeds, failures per 100 trials before and after, a figure and a page (results/loop.md).
-
-Intervals: for an arm, the mean over its seeds +- Student's t (n - 1 degrees of freedom) x the standard error;
-H - R is paired by seed (the same seed draws the same replay); failures per 100 trials are Wilson intervals.
+"""The loop's results: the failure rate on the held-out sample per detector, per round and arm (mean over the
+training seeds with a t interval; the seeds pooled with a Wilson interval), the easy, protocol and real-photo
+suites, the comparisons that decide (paired by seed, Holm-corrected as one family), a power estimate from this
+run's own variance (for the next), the rounds' bookkeeping and a figure.
 """
 
 from __future__ import annotations
@@ -11,163 +10,107 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from garage_exp.loop import budget
-from garage_exp.loop.evaluate import evaluate
-from garage_exp.results.stats import wilson
+from garage_exp.loop import stats
 
-METRICS = ("fair_recall", "fair_difficulty", "map50")
+DELTA = 5.0  # the difference in failures per 100 scenarios the power estimate is for (issue 39: 0.05)
 
 
-def weights_of(result: dict) -> Path:
-    return Path(result["weights"])
-
-
-class Suites(dict):
-    """The held-out suites by name (a dict, as the evaluation reads them) and `note`: why the split into hard and
-    easy means little or nothing ("" when the hard suite's trials are all harder than the easy suite's)."""
-
-    note: str = ""
-
-
-def heldout_suites(cfg, held: list, d0: dict) -> Suites:
-    """The held-out hard and easy suites: the hardest and the easiest third of the held-out study's fairly visible
-    trials, by D0's fair difficulty (scored here on the trials' frames) or by the shipped detectors' (the study's)."""
-    from garage_exp.loop.evaluate import score_frames
-
-    done = [t for t in held if t.state == "COMPLETE" and t.dataset is not None]
-    if cfg.heldout_graded_by == "d0":
-        frames = score_frames(weights_of(d0), int(cfg.imgsz), done, float(cfg.threshold))
-        fair = frames[frames.fair].groupby("trial").confidence.mean()
-        done = [t for t in done if t.number in fair.index]
-        key = {t.number: 1.0 - float(fair[t.number]) for t in done}
-    else:
-        key = {t.number: t.difficulty for t in done}
-    done.sort(key=lambda t: (-key[t.number], t.number))
-    third = max(1, len(done) // 3)
-    suites = Suites(hard=done[:third], easy=done[-third:])
-    suites.note = split_note([key[t.number] for t in done], third,
-                             "D0's" if cfg.heldout_graded_by == "d0" else "the shipped detectors'")
-    if suites.note:
-        print(f"garage_exp.loop: {suites.note}")
-    return suites
-
-
-def split_note(keys: list[float], third: int, whose: str) -> str:
-    """Why a split of `keys` (hardest first) into its first and last `third` cannot mean much: too few trials,
-    or ties across it (D0 finding nothing in any trial puts every one at difficulty 1). "" when it can."""
-    if len(keys) < 2:
-        return (f"{len(keys)} fairly visible held-out trial(s): the hard and the easy suite are the same "
-                "scenarios, not a split")
-    hard, easy = keys[:third], keys[-third:]
-    if min(hard) > max(easy):
-        return ""
-    tied = sum(1 for k in keys if k == min(hard))
-    if max(keys) == min(keys):
-        return (f"{whose} fair difficulty is {keys[0]:.2f} for all {len(keys)} held-out trials: the hard and the "
-                "easy suite are an arbitrary split (by trial number), not a graded one; their results do not compare "
-                "hard with easy")
-    return (f"{tied} held-out trials tie at {whose} fair difficulty {min(hard):.2f} across the split: the hard "
-            "and the easy suite are partly an arbitrary split (by trial number)")
-
-
-def evaluate_all(cfg, models: dict[str, dict[int, dict]], suites: dict) -> dict:
-    """{"scores": one row per (model, seed, suite), "frames": every scored frame}."""
-    rows, frames = [], []
-    for arm, by_seed in models.items():
-        for seed, result in by_seed.items():
-            for suite, trials in suites.items():
-                summary, table = evaluate(weights_of(result), int(cfg.imgsz), trials, float(cfg.threshold))
-                rows.append({"arm": arm, "seed": seed, "suite": suite, **summary})
-                frames.append(table.assign(arm=arm, seed=seed, suite=suite))
-    return {"scores": pd.DataFrame(rows), "frames": pd.concat(frames, ignore_index=True)}
-
-
-def t_interval(values) -> tuple[float, float, float]:
-    """(mean, low, high) of a 95 % Student's t interval; a single value has no interval (NaN ends)."""
-    from scipy import stats
-
-    v = np.asarray([x for x in values if not (isinstance(x, float) and math.isnan(x))], dtype=float)
-    if len(v) == 0:
-        return math.nan, math.nan, math.nan
-    mean = float(v.mean())
-    if len(v) < 2:
-        return mean, math.nan, math.nan
-    half = float(stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
-    return mean, mean - half, mean + half
-
-
-def arm_table(scores: pd.DataFrame) -> pd.DataFrame:
+def round_table(scores: pd.DataFrame) -> pd.DataFrame:
+    """Failures per 100 held-out scenarios per round and arm: the seeds' mean with its t interval, and the seeds
+    pooled (every seed's scenarios counted) with a Wilson interval."""
+    held = scores[scores.suite == "heldout"]
     rows = []
-    for (suite, arm), g in scores.groupby(["suite", "arm"], sort=False):
-        row = {"suite": suite, "arm": arm, "seeds": len(g)}
-        for m in METRICS:
-            row[m], row[f"{m}_low"], row[f"{m}_high"] = t_interval(g[m])
-        rows.append(row)
+    for (k, arm), g in held.groupby(["round", "arm"], sort=True):
+        mean, low, high = stats.t_interval(g.per_100)
+        f, n = int(g.failures.sum()), int(g.scenarios.sum())
+        wl, wh = stats.wilson(f, n)
+        rows.append({"round": int(k), "arm": arm, "seeds": len(g), "per_100": mean, "low": low, "high": high,
+                     "pooled_failures": f, "pooled_scenarios": n, "pooled_low": 100 * wl, "pooled_high": 100 * wh})
     return pd.DataFrame(rows)
 
 
-def paired(scores: pd.DataFrame) -> pd.DataFrame:
-    """H - R per seed, by suite and metric, with its t interval."""
+def by_seed(frame: pd.DataFrame, arm: str, k: int, column: str) -> dict[int, float]:
+    part = frame[(frame.arm == arm) & (frame["round"] == k)]
+    return {int(s): float(v) for s, v in zip(part.seed, part[column])}
+
+
+def comparisons(scores: pd.DataFrame, photos: pd.DataFrame, arms: list[str], k: int) -> pd.DataFrame:
+    """The comparisons reported, after round k, as one Holm family: every pair of arms on the failure rate (paired
+    by seed), each arm against D0 on the failure rate, the protocol suite's recall and the real photos' recall."""
+    held = scores[scores.suite == "heldout"]
+    d0 = held[held.arm == "D0"]
     rows = []
-    for suite, g in scores.groupby("suite", sort=False):
-        h = g[g.arm == "H"].set_index("seed")
-        r = g[g.arm == "R"].set_index("seed")
-        seeds = sorted(set(h.index) & set(r.index))
-        for m in METRICS:
-            mean, low, high = t_interval([h.loc[s, m] - r.loc[s, m] for s in seeds])
-            rows.append({"suite": suite, "metric": m, "H_minus_R": mean, "low": low, "high": high, "seeds": len(seeds)})
-    return pd.DataFrame(rows)
+    for i, a in enumerate(arms):
+        for b in arms[i + 1:]:
+            rows.append({"metric": "failures per 100 (held-out)", "a": a, "b": b,
+                         **stats.paired(by_seed(held, a, k, "per_100"), by_seed(held, b, k, "per_100"))})
+    for a in arms:
+        if len(d0):
+            rows.append({"metric": "failures per 100 (held-out)", "a": a, "b": "D0",
+                         **stats.paired(by_seed(held, a, k, "per_100"), float(d0.per_100.iloc[0]))})
+        proto = scores[scores.suite == "protocol"]
+        base = proto[proto.arm == "D0"]
+        if len(base):
+            rows.append({"metric": "protocol recall", "a": a, "b": "D0",
+                         **stats.paired(by_seed(proto, a, k, "fair_recall"), float(base.fair_recall.iloc[0]))})
+        if len(photos):
+            real = photos.groupby(["arm", "round", "seed"], as_index=False).recall.mean()
+            base = real[real.arm == "D0"]
+            rows.append({"metric": "real-photo recall", "a": a, "b": "D0",
+                         **stats.paired(by_seed(real, a, k, "recall"), float(base.recall.iloc[0]))})
+    return stats.compare(rows)
 
 
-def failure_table(rounds: dict, hard_below: float) -> pd.DataFrame:
-    rows = []
-    for name, trials in rounds.items():
-        k, n = budget.failures(trials, hard_below)
-        low, high = wilson(k, n)
-        rows.append({"detector": name, "failures": k, "trials": n, "per_100": 100.0 * k / n if n else math.nan,
-                     "low": 100.0 * low, "high": 100.0 * high})
-    return pd.DataFrame(rows)
+def power(scores: pd.DataFrame, arms: list[str], k: int) -> dict:
+    """How many seeds and held-out scenarios would detect a 5-per-100 difference, from this run's variance: the
+    per-seed differences between arms (seeds), and D0's failure rate (scenarios per detector)."""
+    held = scores[scores.suite == "heldout"]
+    out = {"delta_per_100": DELTA, "alpha": 0.05, "power": 0.8}
+    sds = {}
+    for i, a in enumerate(arms):
+        for b in arms[i + 1:]:
+            x, y = by_seed(held, a, k, "per_100"), by_seed(held, b, k, "per_100")
+            diffs = [x[s] - y[s] for s in sorted(set(x) & set(y))]
+            if len(diffs) >= 2:
+                sds[f"{a}-{b}"] = float(pd.Series(diffs).std(ddof=1))
+    out["sd_of_paired_differences"] = sds
+    out["seeds_needed"] = {pair: math.ceil(stats.seeds_needed(sd, DELTA)) for pair, sd in sds.items()}
+    d0 = held[held.arm == "D0"]
+    if len(d0):
+        p = float(d0.per_100.iloc[0]) / 100
+        q = max(0.0, p - DELTA / 100) if p >= DELTA / 100 else p + DELTA / 100
+        out["d0_rate"] = p
+        out["scenarios_needed"] = math.ceil(stats.scenarios_needed(p, q))
+    return out
 
 
-def missed_then_found(frames: pd.DataFrame, threshold: float, n: int = 3) -> pd.DataFrame:
-    """Fair frames of the held-out hard suite that D0 missed and H (its first seed) found."""
-    hard = frames[(frames.suite == "hard") & frames.fair]
-    d0 = hard[hard.arm == "D0"].set_index("image").confidence
-    h = hard[hard.arm == "H"]
-    h = h[h.seed == h.seed.min()].set_index("image").confidence
-    both = pd.DataFrame({"d0": d0, "h": h}).dropna()
-    pick = both[(both.d0 < threshold) & (both.h >= threshold)].sort_values("h", ascending=False)
-    return pick.head(n).reset_index()
-
-
-def write(cfg, out: Path, result: dict, rounds: dict, suites: dict, hard: list, times: dict) -> dict:
+def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[dict], detectors: dict,
+          times: dict) -> dict:
     from garage_exp.loop.figure import draw
 
     out.mkdir(parents=True, exist_ok=True)
-    scores, frames = result["scores"], result["frames"]
+    arms = list(cfg.arms)
+    k = int(cfg.rounds)
+    photo_table = pd.DataFrame(photos)
     scores.to_csv(out / "scores.csv", index=False)
-    frames.to_csv(out / "frames.csv", index=False)
-    arms = arm_table(scores)
-    arms.to_csv(out / "arms.csv", index=False)
-    diff = paired(scores)
-    diff.to_csv(out / "h_minus_r.csv", index=False)
-    fails = failure_table(rounds, float(cfg.hard_below))
-    fails.to_csv(out / "failures.csv", index=False)
-    found = missed_then_found(frames, float(cfg.threshold))
-    found.to_csv(out / "missed_then_found.csv", index=False)
-    draw(arms, fails, scores, found, out / "loop.png")
-    note = getattr(suites, "note", "")
-    summary = {"suites": {k: [f"{t.study}#{t.number}" for t in v] for k, v in suites.items()},
-               "suite_split": note or "graded: every hard-suite trial harder than every easy-suite one",
-               "hard_training_scenarios": [t.number for t in hard], "times_s": times}
+    photo_table.to_csv(out / "photos.csv", index=False)
+    pd.DataFrame(book).to_csv(out / "rounds_bookkeeping.csv", index=False)
+    rounds = round_table(scores)
+    rounds.to_csv(out / "failure_rate.csv", index=False)
+    family = comparisons(scores, photo_table, arms, k)
+    family.to_csv(out / "comparisons.csv", index=False)
+    estimate = power(scores, arms, k)
+    (out / "power.json").write_text(json.dumps(estimate, indent=1))
+    draw(rounds, scores, photo_table, out / "loop.png")
+    summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms}, "seeds": list(cfg.seeds),
+               "detectors": {n: d.get("weights") for n, d in detectors.items()}, "power": estimate,
+               "times_s": times}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    print(f"garage_exp.loop: results in {out} (scores.csv, arms.csv, h_minus_r.csv, failures.csv, loop.png)")
-    if note:
-        print(f"garage_exp.loop: held-out suites: {note}")
-    print(arms.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
-    print(diff.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
-    print(fails.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
+    print(f"garage_exp.loop: results in {out} (failure_rate.csv, comparisons.csv, scores.csv, photos.csv, "
+          "rounds_bookkeeping.csv, power.json, loop.png)")
+    print(rounds.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
+    if len(family):
+        print(family.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     return summary

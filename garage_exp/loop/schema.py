@@ -9,13 +9,46 @@ from hydra.core.config_store import ConfigStore
 
 from garage_exp.core.schema import TrackingConf
 
+# What an arm spends per round and training seed; every arm must spend the same (app.check_budgets).
+BUDGET_KEYS = ("trials", "train_frames", "epochs", "imgsz", "replay_fraction")
+
+
+@dataclass
+class ArmConf:
+    """One arm: its generator (the search's sampler) and what joins its suite. A budget key left null takes the
+    loop's shared value; one set here must equal every other arm's (the loop refuses unequal budgets)."""
+
+    sampler: str = "random"  # the search's sampler that finds the arm's scenarios (random | tpe | archive | ...)
+    keep: str = "failures"  # failures: the hard-and-fair failures join the suite | all: every scenario (arm R)
+    trials: Optional[int] = None
+    train_frames: Optional[int] = None
+    epochs: Optional[int] = None
+    imgsz: Optional[int] = None
+    replay_fraction: Optional[float] = None
+
+
+@dataclass
+class CostConf:
+    """The cost model's rates, measured on the machine the loop is sized for (docs/loop.md, "Budget"); the defaults
+    are a shared 2-core CPU's (2026-11-28)."""
+
+    search_s: float = 85.0  # per search command: imports, the model's load, the space's check, the analysis after
+    command_s: float = 25.0  # per other child command (a sweep, a training, verify): start-up and imports
+    render_s_per_frame: float = 1.0  # a trial's frame: render, ground truth, detection, its dataset files
+    trial_overhead_s: float = 6.0  # per trial or job: composing, building and tearing down its scene
+    frames_per_trial: float = 22.0  # a trial's frames, mean over the space at the loop's case.motion.step
+    train_s_per_image_epoch: float = 0.22  # one training image for one epoch
+    val_s_per_image: float = 0.15  # one validation frame, each epoch and once after
+    detect_s_per_frame: float = 0.06  # scoring one held-out frame with one detector (evaluation)
+    load_s: float = 8.0  # loading one detector for the evaluation
+    verify_s: float = 10.0  # one detector in `python -m garage_exp.verify` on a real set: its load and its images
+
 
 @dataclass
 class LoopConf:
     dir: str = "outputs/loop/default"  # every study, dataset, training and result of the loop
-    # A name for a run of the arms with other settings (replay_fraction=1, epochs=10, ...) in the same dir: its
-    # trainings, second round and results/ get this suffix; base data, D0, its failures and the held-out suites
-    # are shared. Empty: the first run's names. A step is never reused for another command.
+    # A name for another run of the arms (other replay, epochs ...) in the same dir, sharing its base data, D0 and
+    # held-out suites; its studies, trainings and results get this suffix. Empty: the first run's names.
     variant: str = ""
     # The declared scenario space, in the search's override grammar (docs/search.md), shared by every study.
     space: list[str] = field(default_factory=lambda: ["case=choice('1','2','3',pedestrian)",
@@ -24,25 +57,43 @@ class LoopConf:
     fixed: list[str] = field(default_factory=lambda: ["case.motion.step=2.0"])  # set on every job
     train_plans: list[str] = field(default_factory=lambda: ["research", "realistic"])
     eval_plan: str = "obstacles"  # no training frame comes from it
-    base: str = "yolov8n.yaml"  # a model YAML: D0 trained from scratch; a .pt: D0 is that detector
-    base_trials: int = 32  # QMC scenarios of base data
+    # D0: a .pt detector (the COCO-pretrained yolo11n rebuilt from INT8), or a model YAML trained from scratch on
+    # the base data (base_epochs, base_lr0).
+    base: str = "../shared/models/yolo11n_fp32_from_int8.pt"
     base_epochs: int = 25
-    optimizer: str = "AdamW"  # for D0 and the arms (ultralytics' auto would pick lr 0.00012: see TrainConf)
     base_lr0: float = 0.002
-    lr0: float = 0.001  # the arms' fine-tuning
-    failure_trials: int = 30  # each search for failures (D0's, then the fine-tuned detectors')
-    hard_scenarios: int = 8  # D0's hardest fair scenarios: arm H's training data
-    random_trials: int = 16  # random scenarios from the same space: arm R's pool
-    eval_trials: int = 24  # QMC scenarios on eval_plan; the hardest and the easiest third are the held-out suites
-    heldout_graded_by: str = "d0"  # d0 | shipped: who grades the held-out scenarios into the hard and easy third
-    epochs: int = 6  # each arm's fine-tuning
-    imgsz: int = 320
+    bn_calibrate: int = 64  # each fine-tuning calibrates its base's BatchNorms on this many of its frames (0: not)
+    base_trials: int = 16  # QMC scenarios on the training plans: the replay pool and the validation scenarios
+    optimizer: str = "AdamW"
+    lr0: float = 0.0005  # the arms' fine-tuning
     batch: int = 16
-    replay_fraction: float = 0.5
-    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
-    val_fraction: float = 0.2  # of the base scenarios, held out to validate every training
-    hard_below: float = 0.4  # a failure: a fair trial whose confidence is below this (the suites' hard band)
+    rounds: int = 2
+    arms: dict[str, ArmConf] = field(default_factory=lambda: {
+        "R": ArmConf("random", "all"), "T": ArmConf("tpe"), "Q": ArmConf("archive")})
+    # Each arm's budget per round and training seed (an arm may repeat them, never change them).
+    trials: int = 8  # its generator's trials (scenarios rendered and scored by the arm's detector)
+    startup: int = 10  # the generators' search.startup: random trials before TPE's (or GP's) model guides
+    train_frames: int = 64  # frames of its suite it is fine-tuned on
+    epochs: int = 3
+    imgsz: int = 320
+    replay_fraction: float = 1.0  # replay frames of the base data per training frame
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
+    val_fraction: float = 0.25  # of the base scenarios, held out to validate every training
+    heldout_trials: int = 48  # the failure-rate sample: scenarios of eval_plan, quasi-random
+    heldout_seed: int = 0
+    heldout_method: str = "sobol"  # sobol | halton
+    # The protocol suite: each entry one sweep of the main command (its overrides), rendered once, every detector
+    # scored on its fair frames.
+    protocol: dict[str, list[str]] = field(default_factory=lambda: {
+        "cpnco": ["+experiment=cpnco"], "cpra": ["+experiment=cpra"], "crossing": ["case=crossing", "light=bright,dim"],
+        "crouch": ["case=crouch", "light=bright,dim"]})
+    protocol_fixed: list[str] = field(default_factory=lambda: ["case.motion.step=2.0"])
+    photos: bool = True  # the real-photo suite: the two hand-labelled photos ultralytics ships, through verify
+    real_sets: list[str] = field(default_factory=list)  # more labelled real sets (verify's data=), e.g. your own
+    hard_below: float = 0.4  # a failure: a fair scenario whose mean confidence is below this
     threshold: float = 0.5  # composite confidence counted as detected
+    estimate: bool = False  # print the cost model's estimate of this config and stop
+    cost: CostConf = field(default_factory=CostConf)
     tracking: TrackingConf = field(default_factory=lambda: TrackingConf(experiment="garage_loop"))
 
 

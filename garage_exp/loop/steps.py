@@ -22,6 +22,7 @@ class Trial:
     state: str  # COMPLETE | PRUNED (no fair frame) | FAIL
     difficulty: float | None  # 1 - mean confidence over the fair frames (COMPLETE only)
     output_dir: Path | None
+    frames: int = 0  # frames the trial rendered (its job's count)
 
     @property
     def dataset(self) -> Path | None:
@@ -36,7 +37,7 @@ def storage(cfg: DictConfig) -> str:
 
 
 def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, sampler: str, seed: int,
-                   models: list[str] | None = None) -> list[str]:
+                   models: list[str] | None = None, startup: int | None = None) -> list[str]:
     """`python -m garage_exp -m hydra/sweeper=search ...` over the loop's space on `plans`, each trial with its
     dataset; scored by `models` (None: the shipped detectors)."""
     plan = f"plan=choice({','.join(plans)})" if len(plans) > 1 else f"plan={plans[0]}"
@@ -47,20 +48,51 @@ def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, s
            f"tracking.experiment={cfg.tracking.experiment}", f"hydra.sweep.dir={Path(cfg.dir) / 'studies' / study}"]
     if models:
         cmd += [f"detector.models=[{','.join(models)}]", f"detector.imgsz={cfg.imgsz}"]
+    if startup is not None:
+        cmd.append(f"search.startup={startup}")
     return cmd
 
 
 def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: list[Path], base: str, epochs: int,
-                  seed: int, lr0: float, replay: list[Path] = (), study: str = "") -> list[str]:
+                  seed: int, lr0: float, replay: list[Path] = (), study: str = "", imgsz: int | None = None,
+                  replay_fraction: float | None = None, calibrate: bool = False) -> list[str]:
     cmd = [sys.executable, "-m", "garage_exp.train", f"data=[{','.join(map(str, data))}]",
-           f"val=[{','.join(map(str, val))}]", f"base={base}", f"epochs={epochs}", f"imgsz={cfg.imgsz}",
+           f"val=[{','.join(map(str, val))}]", f"base={base}", f"epochs={epochs}", f"imgsz={imgsz or cfg.imgsz}",
            f"batch={cfg.batch}", f"seed={seed}", f"optimizer={cfg.optimizer}", f"lr0={lr0}", f"name={name}",
            f"study={study}",
            f"tracking.uri={cfg.tracking.uri}", f"tracking.experiment={cfg.tracking.experiment}",
            f"hydra.run.dir={out}"]
     if replay:
-        cmd += [f"replay=[{','.join(map(str, replay))}]", f"replay_fraction={cfg.replay_fraction}"]
+        fraction = cfg.replay_fraction if replay_fraction is None else replay_fraction
+        cmd += [f"replay=[{','.join(map(str, replay))}]", f"replay_fraction={fraction}"]
+    if calibrate and int(cfg.bn_calibrate):
+        cmd.append(f"bn_calibrate={int(cfg.bn_calibrate)}")
     return cmd
+
+
+def sweep_command(cfg: DictConfig, out: Path, overrides: list[str]) -> list[str]:
+    """`python -m garage_exp -m OVERRIDES dataset=true`: a plain sweep (a protocol's jobs), each job's frames
+    labelled in its dir (`out/<k>/dataset`), scored by the shipped detectors (the loop scores its own later)."""
+    return [sys.executable, "-m", "garage_exp", "-m", *overrides, "dataset=true",
+            f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
+            f"tracking.experiment={cfg.tracking.experiment}", f"hydra.sweep.dir={out}"]
+
+
+def verify_command(cfg: DictConfig, out: Path, data: str, weights: list[str]) -> list[str]:
+    """`python -m garage_exp.verify` of detectors (their .pt files, each scored on its own, at the loop's image
+    size) on a labelled real set; the shipped photos' "pedestrian" labels are people."""
+    from garage_exp.verify.photos import LABEL_MAP
+
+    return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP, f"detector.models=[{','.join(weights)}]",
+            f"detector.imgsz={cfg.imgsz}", f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
+            f"tracking.experiment={cfg.tracking.experiment}", f"hydra.run.dir={out}"]
+
+
+def jobs(name: str, out: Path) -> list[Trial]:
+    """A sweep's jobs as trials (number: the job's index), those that left a dataset, in order."""
+    dirs = sorted((d for d in out.iterdir() if d.is_dir() and d.name.isdigit()), key=lambda d: int(d.name))
+    return [Trial(name, int(d.name), "COMPLETE", None, d) for d in dirs
+            if (d / "dataset" / "data.yaml").is_file() and (d / "frames.csv").is_file()]
 
 
 def run(cmd: list[str], log: Path) -> None:
@@ -109,13 +141,14 @@ def trials(cfg: DictConfig, study: str) -> list[Trial]:
     for t in s.get_trials(deepcopy=False):
         d = t.user_attrs.get("output_dir")
         out.append(Trial(study, t.number, t.state.name, t.values[0] if t.values else None,
-                         Path(d) if d else None))
+                         Path(d) if d else None, int(t.user_attrs.get("frames") or 0)))
     return out
 
 
 def study_done(cfg: DictConfig, study: str, n: int) -> bool:
     try:
-        return len([t for t in trials(cfg, study) if t.state != "RUNNING"]) >= n
+        # WAITING (enqueued, not run yet) and RUNNING trials are not done
+        return len([t for t in trials(cfg, study) if t.state in ("COMPLETE", "PRUNED", "FAIL")]) >= n
     except KeyError:  # no such study yet
         return False
 

@@ -28,6 +28,7 @@ def check_train(cfg: DictConfig) -> None:
     check_range(cfg.epochs, 1, 10_000, "epochs")
     check_range(cfg.batch, 1, 4096, "batch")
     check_range(cfg.freeze, 0, 1000, "freeze")
+    check_range(cfg.bn_calibrate, 0, 100_000, "bn_calibrate")
     check_range(cfg.workers, 0, 64, "workers")
     check_range(cfg.seed, 0, 2**31 - 1, "seed")
     check_range(cfg.imgsz, 32, 4096, "imgsz")
@@ -53,6 +54,20 @@ def run_name(cfg: DictConfig, plan) -> str:
     return f"{Path(str(cfg.base)).name} on {len(plan.scenarios('train'))} scenarios, {len(plan.fit_frames)} frames"
 
 
+def calibrated_base(cfg: DictConfig, plan, base, out: Path):
+    """The base with its BatchNorms calibrated on `bn_calibrate` of the training's frames (seeded draw)."""
+    import dataclasses
+    import random
+
+    from garage_exp.train.calibrate import calibrate
+
+    frames = sorted(f.image for f in plan.fit_frames)
+    picked = random.Random(int(cfg.seed)).sample(frames, min(int(cfg.bn_calibrate), len(frames)))
+    path = calibrate(Path(base.path), picked, int(cfg.imgsz), out / "base_calibrated.pt")
+    print(f"garage_exp.train: BatchNorms calibrated on {len(picked)} training frames: {path}")
+    return dataclasses.replace(base, path=str(path))
+
+
 def train(cfg: DictConfig) -> dict:
     """Check, then train, log and register; returns what result.json holds."""
     from garage_exp.train.base import check_names, load_base
@@ -63,10 +78,15 @@ def train(cfg: DictConfig) -> dict:
     plan = plan_data(cfg)
     base = load_base(str(cfg.base), cfg.tracking.uri)
     check_names(base, plan.names)
+    if cfg.bn_calibrate and base.kind != "pt":
+        raise GarageError("bn_calibrate calibrates a .pt base's BatchNorms; a model YAML has none trained",
+                          "bn_calibrate")
     from garage_exp.tracking import runs as tracking
     from garage_exp.train.fit import fit, register
 
     data_yaml = write_data(plan, out / "data")
+    if cfg.bn_calibrate:
+        base = calibrated_base(cfg, plan, base, out)
     tags = {"base": str(cfg.base), "study": str(cfg.study or ""), "output_dir": str(out), "kind": "train"}
     run = tracking.start_job_run(cfg, run_name(cfg, plan), tags, None)
     for name in ("manifest.csv", "data.yaml", "train.txt", "val.txt"):

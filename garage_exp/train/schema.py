@@ -28,6 +28,10 @@ class TrainConf:
     batch: int = 16
     seed: int = 0
     freeze: int = 0  # the first N layers kept frozen (ultralytics' `freeze`)
+    # A .pt base's BatchNorms calibrated on N of the training's frames (new and replay, drawn with `seed`) before
+    # fine-tuning, eval outputs unchanged (garage_exp/train/calibrate.py): needed for a base whose BatchNorms were
+    # folded away (the COCO yolo11n rebuilt from INT8). 0: no calibration.
+    bn_calibrate: int = 0
     # ultralytics' `auto` picks AdamW at lr 0.002 x 5 / (4 + classes) for short trainings: 0.00012 for COCO's 80
     # classes, too slow to learn from scratch in a few hundred iterations. Name one (SGD, AdamW, ...) to set lr0.
     optimizer: str = "auto"

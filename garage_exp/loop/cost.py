@@ -1,0 +1,58 @@
+"""The loop's cost model: how long a config takes, from rates measured on the machine (`cost` in conf/loop.yaml;
+docs/loop.md says how they were measured). `python -m garage_exp.loop estimate=true` prints it and stops; the
+loop prints it before it starts. Steps already done cost nothing when a loop resumes (not counted here)."""
+
+from __future__ import annotations
+
+
+def detectors(cfg) -> int:
+    """D0 and one fine-tuned detector per arm, round and training seed."""
+    return 1 + len(cfg.arms) * int(cfg.rounds) * len(cfg.seeds)
+
+
+def estimate(cfg) -> dict[str, float]:
+    """Seconds per part of the loop, and `total`."""
+    c = cfg.cost
+    per_trial = c.trial_overhead_s + c.frames_per_trial * c.render_s_per_frame
+
+    def study(trials: int) -> float:
+        return c.search_s + trials * per_trial
+
+    runs = len(cfg.arms) * int(cfg.rounds) * len(cfg.seeds)  # searches, and as many fine-tunings
+    images = int(cfg.train_frames) * (1.0 + float(cfg.replay_fraction))
+    val_frames = float(cfg.val_fraction) * int(cfg.base_trials) * c.frames_per_trial
+    epochs = int(cfg.epochs)
+    training = c.command_s + epochs * images * c.train_s_per_image_epoch + (epochs + 1) * val_frames * c.val_s_per_image
+    protocol_jobs = sum(_jobs(overrides) for overrides in cfg.protocol.values())
+    last = 1 + len(cfg.arms) * len(cfg.seeds)  # D0 and the last round's detectors: every suite
+    held_frames = int(cfg.heldout_trials) * c.frames_per_trial
+    out = {"base data": study(int(cfg.base_trials)),
+           "held-out sample": study(int(cfg.heldout_trials)),
+           "protocol suite": len(cfg.protocol) * c.command_s + protocol_jobs * per_trial,
+           "generators": runs * study(int(cfg.trials)),
+           "fine-tunings": runs * training,
+           "evaluation": detectors(cfg) * (c.load_s + held_frames * c.detect_s_per_frame)
+           + last * protocol_jobs * c.frames_per_trial * c.detect_s_per_frame,
+           "real photos": (int(bool(cfg.photos)) + len(cfg.real_sets)) * (c.command_s + last * c.verify_s)}
+    if not str(cfg.base).endswith(".pt"):
+        out["D0"] = c.command_s + int(cfg.base_epochs) * (1 - float(cfg.val_fraction)) * int(cfg.base_trials) \
+            * c.frames_per_trial * c.train_s_per_image_epoch
+    out["total"] = sum(out.values())
+    return out
+
+
+def _jobs(overrides) -> int:
+    """Jobs of a sweep's overrides: the product of comma lists (an experiment's own sweep: CPNCO's 6 and CPRA's 4
+    jobs in the shipped ones, 4 for a user's)."""
+    n = 1
+    for o in overrides:
+        if o.startswith("+experiment="):
+            n *= {"cpnco": 6, "cpra": 4}.get(o.split("=", 1)[1], 4)
+        elif "=" in o and "," in o.split("=", 1)[1] and "(" not in o:
+            n *= len(o.split("=", 1)[1].split(","))
+    return n
+
+
+def describe(parts: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v / 60:.0f} min" for k, v in parts.items() if k != "total") + \
+        f"; total {parts['total'] / 3600:.2f} h"

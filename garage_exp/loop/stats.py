@@ -1,0 +1,98 @@
+"""The loop's statistics, from the field's libraries: Wilson intervals of failure rates (statsmodels'
+proportion_confint), paired comparisons by training seed (scipy's t-test) with Holm's correction over every
+comparison reported (statsmodels' multipletests), and power: how many seeds and held-out scenarios make a
+difference in failure rate detectable (statsmodels' TTestPower and NormalIndPower), from a pilot's variance.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+
+def wilson(k: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
+    """Wilson's interval of k / n (NaN ends for n = 0)."""
+    from statsmodels.stats.proportion import proportion_confint
+
+    if n == 0:
+        return math.nan, math.nan
+    low, high = proportion_confint(k, n, alpha=alpha, method="wilson")
+    return float(low), float(high)
+
+
+def t_interval(values, alpha: float = 0.05) -> tuple[float, float, float]:
+    """(mean, low, high): Student's t interval of the mean; one value has no interval (NaN ends)."""
+    from scipy import stats
+
+    v = np.asarray([x for x in values if x == x], dtype=float)
+    if len(v) == 0:
+        return math.nan, math.nan, math.nan
+    mean = float(v.mean())
+    if len(v) < 2:
+        return mean, math.nan, math.nan
+    half = float(stats.t.ppf(1 - alpha / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
+    return mean, mean - half, mean + half
+
+
+def paired(a: dict[int, float], b: dict[int, float] | float) -> dict:
+    """a - b paired by seed (b a number: a detector every seed shares, such as D0): mean, t interval, the two-sided
+    p-value of a one-sample t-test on the differences (NaN with fewer than two seeds or no spread), seeds."""
+    from scipy import stats
+
+    seeds = sorted(a) if not isinstance(b, dict) else sorted(set(a) & set(b))
+    diffs = np.asarray([a[s] - (b[s] if isinstance(b, dict) else b) for s in seeds], dtype=float)
+    diffs = diffs[~np.isnan(diffs)]
+    mean, low, high = t_interval(diffs)
+    p = math.nan
+    if len(diffs) >= 2:
+        p = 1.0 if np.all(diffs == diffs[0]) and diffs[0] == 0 else float(stats.ttest_1samp(diffs, 0.0).pvalue)
+    return {"diff": mean, "low": low, "high": high, "p": p, "seeds": int(len(diffs))}
+
+
+def holm(pvalues, alpha: float = 0.05) -> tuple[list[bool], list[float]]:
+    """Holm's step-down correction over a family of p-values (NaN ones are left out and stay NaN, not rejected)."""
+    from statsmodels.stats.multitest import multipletests
+
+    p = np.asarray(pvalues, dtype=float)
+    ok = ~np.isnan(p)
+    reject = np.zeros(len(p), dtype=bool)
+    adjusted = np.full(len(p), math.nan)
+    if ok.any():
+        r, adj, _, _ = multipletests(p[ok], alpha=alpha, method="holm")
+        reject[ok], adjusted[ok] = r, adj
+    return [bool(x) for x in reject], [float(x) for x in adjusted]
+
+
+def compare(rows: list[dict], alpha: float = 0.05) -> pd.DataFrame:
+    """The comparisons reported (each a `paired` dict plus its names), Holm-corrected as one family."""
+    table = pd.DataFrame(rows)
+    if table.empty:
+        return table
+    table["reject_holm"], table["p_holm"] = holm(table.p.to_numpy(), alpha)
+    return table
+
+
+def seeds_needed(sd_diff: float, delta: float = 0.05, alpha: float = 0.05, power: float = 0.8) -> float:
+    """Training seeds (pairs) for a paired t-test to detect a mean difference `delta` with standard deviation
+    `sd_diff` of the per-seed differences (a pilot's), two-sided."""
+    from statsmodels.stats.power import TTestPower
+
+    if not sd_diff > 0:
+        return 2.0
+    return float(TTestPower().solve_power(effect_size=delta / sd_diff, alpha=alpha, power=power,
+                                          alternative="two-sided"))
+
+
+def scenarios_needed(p1: float, p2: float, alpha: float = 0.05, power: float = 0.8) -> float:
+    """Held-out scenarios per detector to tell failure rates p1 and p2 apart (two independent proportions,
+    Cohen's h; the same scenarios for both detectors only need fewer)."""
+    from statsmodels.stats.power import NormalIndPower
+    from statsmodels.stats.proportion import proportion_effectsize
+
+    h = abs(float(proportion_effectsize(p1, p2)))
+    if h == 0:
+        return math.inf
+    return float(NormalIndPower().solve_power(effect_size=h, alpha=alpha, power=power, ratio=1.0,
+                                              alternative="two-sided"))

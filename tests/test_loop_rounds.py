@@ -1,0 +1,315 @@
+"""The loop in rounds (issue 39, items 2-7) on small settings: the held-out sample's determinism, the failure rate
+on it, equal budgets refused in one line, the rounds' bookkeeping and resume (a round done is not rerun), the
+statistics (Wilson, Holm, paired by seed, power) on known numbers, the cost model, and the BatchNorm calibration
+of the folded COCO detector."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from conftest import compose_cfg, run_in_process
+
+SPACE = ["case=choice('1','2','3',pedestrian)", "light=choice(bright,clear,moderate,dim)",
+         "seed=int(interval(0,9999))"]
+NO_ARCHIVE = ["arms.Q.sampler=tpe"]  # the archive sampler (item 1) is another branch's
+
+
+def test_the_held_out_sample_is_fixed_by_its_seed():
+    """The same seed gives the same scenarios, another seed others; a Sobol' sample of 16 balances every choice
+    (each of 4 cases and 4 light presets exactly 4 times: its first 2^4 points stratify each axis)."""
+    from garage_exp.loop import heldout
+
+    a = heldout.sample(SPACE, 16, seed=0)
+    assert a == heldout.sample(SPACE, 16, seed=0)
+    assert a != heldout.sample(SPACE, 16, seed=1)
+    assert heldout.sample(SPACE, 5, seed=0) == a[:5]  # a smaller sample is the same sequence's start
+    assert pd.Series([p["case"] for p in a]).value_counts().to_dict() == {"1": 4, "2": 4, "3": 4, "pedestrian": 4}
+    assert set(pd.Series([p["light"] for p in a]).value_counts()) == {4}
+    assert all(isinstance(p["seed"], int) and 0 <= p["seed"] <= 9999 for p in a)
+    assert len({p["seed"] for p in a}) == 16
+    halton = heldout.sample(SPACE, 7, seed=3, method="halton")
+    assert halton == heldout.sample(SPACE, 7, seed=3, method="halton") and halton != a[:7]
+
+
+def test_the_held_out_sample_is_what_the_study_runs(tmp_path):
+    """Enqueued in the held-out study, the points are the trials the search asks for, in order; a resumed study
+    (one that holds trials) gets nothing twice."""
+    import optuna
+
+    from garage_exp.loop import heldout
+    from garage_exp.search import space as space_mod
+
+    storage = f"sqlite:///{tmp_path / 'optuna.db'}"
+    points = heldout.sample(SPACE, 4, seed=2)
+    heldout.enqueue(storage, "heldout", points)
+    heldout.enqueue(storage, "heldout", points)
+    study = optuna.load_study(study_name="heldout", storage=storage)
+    params = heldout.space_params(SPACE)
+    assert params == {k: space_mod.distribution(o) for k, o in
+                      ((o.key_or_group, o) for o in space_mod.parse(SPACE))}
+    asked = []
+    for _ in range(4):
+        trial = study.ask()
+        asked.append({name: trial._suggest(name, dist) for name, dist in params.items()})
+        study.tell(trial, 0.5)
+    assert asked == points
+
+
+def test_the_failure_rate_counts_hard_fair_scenarios_of_the_whole_sample():
+    from garage_exp.loop import heldout
+    from garage_exp.loop.steps import Trial
+
+    trials = [Trial("heldout", k, "COMPLETE", None, None) for k in range(4)] + [Trial("heldout", 4, "PRUNED", None, None)]
+    frames = pd.DataFrame({"trial": [0, 0, 1, 1, 2, 3, 3], "fair": [True, True, True, False, True, False, False],
+                           "confidence": [0.1, 0.5, 0.9, 0.0, 0.39, 0.0, 0.0]})
+    got = heldout.failures(frames, trials, hard_below=0.4)
+    # trial 0: mean 0.3 fails; 1: 0.9 (its unfair frame does not count); 2: 0.39 fails; 3 and 4: no fair frame
+    assert (got["failures"], got["scenarios"], got["failed"]) == (2, 5, [0, 2])
+    assert got["per_100"] == 40.0 and got["low"] == pytest.approx(11.76, abs=0.01)
+    assert got["high"] == pytest.approx(76.93, abs=0.01)
+
+
+def test_statistics_on_known_numbers():
+    from garage_exp.loop import stats
+
+    assert stats.wilson(0, 30) == pytest.approx((0.0, 0.11351), abs=1e-5)
+    assert stats.wilson(15, 30) == pytest.approx((0.33154, 0.66846), abs=1e-5)
+    assert all(math.isnan(v) for v in stats.wilson(3, 0))  # no scenarios: no interval
+    reject, adjusted = stats.holm([0.01, 0.04, 0.03, float("nan")])
+    assert adjusted[:3] == pytest.approx([0.03, 0.06, 0.06]) and adjusted[3] != adjusted[3]
+    assert reject == [True, False, False, False]  # uncorrected, 0.04 and 0.03 would pass at 0.05
+    got = stats.paired({0: 10.0, 1: 12.0, 2: 14.0, 3: 9.0}, {0: 8.0, 1: 8.0, 2: 9.0, 3: 9.0, 9: 1.0})
+    assert got["diff"] == pytest.approx(2.75) and got["seeds"] == 4
+    # differences 2, 4, 5, 0 (seed 9 has no pair): sd 2.2174, t(3) 3.1824
+    assert (got["low"], got["high"]) == pytest.approx((-0.7783, 6.2783), abs=1e-4)
+    assert got["p"] == pytest.approx(0.08924, abs=1e-5)
+    assert stats.paired({0: 0.5, 1: 0.7}, 0.6)["diff"] == pytest.approx(0.0)
+    assert stats.seeds_needed(5.0, 5.0) == pytest.approx(9.94, abs=0.01)  # effect size 1: ten pairs
+    assert stats.scenarios_needed(0.30, 0.25) == pytest.approx(1250.1, abs=1.0)
+    table = stats.compare([{"a": "Q", "b": "R", "p": 0.01}, {"a": "T", "b": "R", "p": 0.04}])
+    assert table.p_holm.tolist() == pytest.approx([0.02, 0.04]) and table.reject_holm.tolist() == [True, True]
+
+
+def test_unequal_budgets_are_refused_in_one_line(tmp_path):
+    """An arm given more of anything the others spend is refused before anything runs; arms repeating the shared
+    budget pass."""
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop.app import check_budgets, cli
+
+    check_budgets(compose_cfg("arms.T.epochs=2", "arms.Q.trials=6", config="loop"))
+    for override, key in (("arms.Q.trials=12", "trials"), ("arms.T.train_frames=96", "train_frames"),
+                          ("arms.Q.epochs=5", "epochs"), ("arms.R.imgsz=640", "imgsz"),
+                          ("arms.T.replay_fraction=2.0", "replay_fraction")):
+        with pytest.raises(GarageError, match=f"unequal budgets: arm .* has {key}="):
+            check_budgets(compose_cfg(override, config="loop"))
+    r = run_in_process([f"dir={tmp_path}/loop", "arms.Q.epochs=5", *NO_ARCHIVE], tmp_path, entry=cli)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "garage_exp.loop: arms.Q.epochs: unequal budgets: arm Q has epochs=5, arm R 2 (every arm gets the same "
+        "generator trials, training frames, epochs, image size and replay per round)"]
+    assert not (tmp_path / "loop").exists()
+
+
+def test_an_unknown_generator_is_refused(tmp_path):
+    from garage_exp.loop.app import cli
+
+    r = run_in_process([f"dir={tmp_path}/loop", "arms.Q.sampler=annealing"], tmp_path, entry=cli)
+    assert r.returncode == 2 and "arms.Q.sampler: 'annealing' is not a sampler of the search" in r.stderr
+
+
+def test_a_round_draws_exactly_its_budget(tmp_path):
+    from garage_exp.loop import budget
+    from garage_exp.loop.steps import Trial
+
+    def trial(k, difficulty, frames):
+        d = tmp_path / str(k) / "dataset"
+        (d / "images").mkdir(parents=True)
+        (d / "data.yaml").write_text("names: {0: person}\n")
+        for f in range(frames):
+            (d / "images" / f"{f:04d}_front.png").write_bytes(b"")
+        return Trial("s", k, "COMPLETE" if difficulty is not None else "PRUNED", difficulty, tmp_path / str(k), frames)
+
+    found = [trial(0, 0.9, 5), trial(1, 0.2, 6), trial(2, 0.7, 4), trial(3, None, 3)]
+    new = budget.joining(found, "failures", hard_below=0.4)
+    assert [t.number for t in new] == [0, 2]  # confidence 0.1 and 0.3
+    assert [t.number for t in budget.joining(found, "all", 0.4)] == [0, 1, 2, 3]
+    assert budget.rendered(found) == 18
+    frames, topped = budget.round_frames(new, found, 7, seed=1)
+    assert len(frames) == len(set(frames)) == 7 and topped == 0
+    assert frames == budget.round_frames(new, found, 7, seed=1)[0]
+    frames, topped = budget.round_frames(new, found, 12, seed=1)  # 9 failure frames and the hardest other trial's 3
+    assert len(frames) == 12 and topped == 3 and all("/1/" in str(f) for f in frames[9:])
+    with pytest.raises(ValueError, match="fewer than train_frames=19"):
+        budget.round_frames(new, found, 19, seed=1)
+
+
+def fake_steps(monkeypatch, tmp_path):
+    """Steps that write what the commands would (a study's trials with datasets, a training's result.json) without
+    rendering or training; the evaluation and report are stubbed (their parts are tested on their own)."""
+    from garage_exp.loop import app, evaluate, heldout, report, steps
+
+    ran, studies = [], {}
+
+    def arg(cmd, key):
+        return next(a.split("=", 1)[1] for a in cmd if a.startswith(key + "="))
+
+    def fake_run(cmd, log):
+        ran.append(cmd)
+        if "garage_exp.train" in cmd:
+            out = Path(arg(cmd, "hydra.run.dir"))
+            (out / "weights").mkdir(parents=True, exist_ok=True)
+            (out / "weights" / "best.pt").write_text(arg(cmd, "name"))
+            listing = Path(arg(cmd, "data").strip("[]")).with_suffix(".txt")
+            n = len(listing.read_text().split())
+            (out / "result.json").write_text(json.dumps({
+                "weights": str(out / "weights" / "best.pt"), "model": str(out / "weights" / "best.pt"),
+                "train_frames": n, "replay_frames": n, "val_frames": 3, "epochs": int(arg(cmd, "epochs")),
+                "imgsz": int(arg(cmd, "imgsz"))}))
+        elif "hydra/sweeper=search" in cmd:
+            name, n = arg(cmd, "search.study"), int(arg(cmd, "search.trials"))
+            made = []
+            for k in range(n):
+                d = tmp_path / "fake" / name / str(k)
+                (d / "dataset" / "images").mkdir(parents=True, exist_ok=True)
+                (d / "dataset" / "data.yaml").write_text("names: {0: person}\n")
+                for f in range(4):
+                    (d / "dataset" / "images" / f"{f:04d}_front.png").write_bytes(b"")
+                made.append(steps.Trial(name, k, "COMPLETE", 0.9 if k % 2 else 0.3, d, 4))
+            studies[name] = made
+
+    monkeypatch.setattr(steps, "run", fake_run)
+    monkeypatch.setattr(steps, "trials", lambda cfg, name: studies.get(name, []))
+    monkeypatch.setattr(steps, "study_done", lambda cfg, name, n: len(studies.get(name, [])) >= n)
+    monkeypatch.setattr(heldout, "enqueue", lambda *a: None)
+    monkeypatch.setattr(evaluate, "easy_suite", lambda *a: [])
+    monkeypatch.setattr(evaluate, "score_all", lambda *a: pd.DataFrame())
+    monkeypatch.setattr(app, "real_photos", lambda *a: [])
+    monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times: {
+        "book": book, "detectors": detectors})
+    return ran
+
+
+def small(args: list[str], **values):
+    """The loop's config with these overrides, and values set after (a dict such as `protocol` replaced whole)."""
+    cfg = compose_cfg(*args, config="loop")
+    for key, value in {"protocol": {}, **values}.items():
+        cfg[key] = value
+    return cfg
+
+
+def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, monkeypatch):
+    """Round k searches and fine-tunes each arm's detector of round k-1 (round 1: D0), the arms with the same search
+    seed per training seed; the failures accumulate in the arm's suite; a rerun runs nothing already done, and one
+    more round runs only that round."""
+    from garage_exp.loop.app import run_loop
+
+    ran = fake_steps(monkeypatch, tmp_path)
+    args = [f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0,1]", "trials=4",
+            "train_frames=8", "base_trials=4", "heldout_trials=3", "photos=false",
+            "arms.Q.sampler=tpe"]
+    out = run_loop(small(args))
+    searches = [c for c in ran if "hydra/sweeper=search" in c]
+    trainings = [c for c in ran if "garage_exp.train" in c]
+    assert [next(a for a in c if a.startswith("search.study=")) for c in searches] == [
+        "search.study=base", "search.study=heldout", "search.study=gen_R_r1_s0", "search.study=gen_T_r1_s0",
+        "search.study=gen_Q_r1_s0", "search.study=gen_R_r1_s1", "search.study=gen_T_r1_s1", "search.study=gen_Q_r1_s1"]
+    d0 = str(Path(compose_cfg(*args, config="loop").base).absolute())
+    assert all(f"detector.models=[{d0}]" in c for c in searches[2:])  # round 1 searches D0
+    assert all(f"base={d0}" in c and "bn_calibrate=64" in c for c in trainings)
+    assert [c for c in searches[2:] if "search.seed=1000" in c] == searches[2:5]  # pairs by seed: one search seed
+    book = pd.DataFrame(out["book"])
+    assert book.train_frames.tolist() == [8] * 6
+    assert book[book.arm == "R"].joined.tolist() == [4, 4] and book[book.arm == "T"].joined.tolist() == [2, 2]
+
+    ran.clear()
+    run_loop(small(args))
+    assert ran == []  # everything done: nothing rerun
+
+    out = run_loop(small([a.replace("rounds=1", "rounds=2") for a in args]))
+    studies = [next(a for a in c if a.startswith("search.study=")) for c in ran if "hydra/sweeper=search" in c]
+    assert studies == [f"search.study=gen_{arm}_r2_s{s}" for s in (0, 1) for arm in "RTQ"]
+    for c in ran:  # round 2 searches and fine-tunes the arm's own round-1 detector of the same seed
+        name = next(a for a in c if a.startswith(("search.study=gen_", "name=")))
+        arm, _, seed = name.split("_")[-3:] if "gen_" in name else name.split("=")[1].split("_")
+        weights = tmp_path / "loop" / "train" / f"{arm}_r1_{seed}" / "weights" / "best.pt"
+        assert f"detector.models=[{weights}]" in c or f"base={weights}" in c
+    book = pd.DataFrame(out["book"])
+    assert book[book["round"] == 2].suite_scenarios.tolist() == [8, 4, 4, 8, 4, 4]  # the suites grew
+
+
+def test_the_cost_model_adds_up():
+    from garage_exp.loop import cost
+    from garage_exp.loop.schema import ArmConf
+
+    cfg = small(["rounds=1", "seeds=[0]", "base_trials=4", "heldout_trials=2", "trials=3", "train_frames=10",
+                 "epochs=2", "replay_fraction=1.0", "val_fraction=0.5", "photos=true", "cost.search_s=20",
+                 "cost.render_s_per_frame=1", "cost.trial_overhead_s=2", "cost.command_s=10",
+                 "cost.train_s_per_image_epoch=0.5", "cost.val_s_per_image=0.1", "cost.detect_s_per_frame=0.1",
+                 "cost.frames_per_trial=5", "cost.verify_s=4", "cost.load_s=3"],
+                protocol={"p": ["case=crossing", "light=bright,dim"]}, arms={"R": ArmConf("random", "all")})
+    parts = cost.estimate(cfg)
+    assert parts["base data"] == 20 + 4 * (2 + 5)
+    assert parts["held-out sample"] == 20 + 2 * 7
+    assert parts["protocol suite"] == 10 + 2 * 7
+    assert parts["generators"] == 20 + 3 * 7
+    assert parts["fine-tunings"] == pytest.approx(10 + 2 * 20 * 0.5 + 3 * 10 * 0.1)  # 10 val frames: half of 4 x 5
+    assert parts["evaluation"] == pytest.approx(2 * (3 + 2 * 5 * 0.1) + 2 * 2 * 5 * 0.1)  # D0 and R's: both suites
+    assert parts["real photos"] == 10 + 2 * 4  # one command, D0 and R's detector
+    assert parts["total"] == pytest.approx(sum(v for k, v in parts.items() if k != "total"))
+
+
+def test_the_shipped_loop_fits_its_budget():
+    """conf/loop.yaml at its measured rates: at most 2.5 hours on the 2-core CPU it was sized on."""
+    from garage_exp.loop import cost
+
+    assert cost.estimate(compose_cfg(config="loop"))["total"] <= 2.5 * 3600
+
+
+@pytest.fixture(scope="module")
+def photos_dir(tmp_path_factory):
+    from conftest import require
+
+    require("models")
+    import ultralytics
+
+    return Path(ultralytics.__file__).parent / "assets"
+
+
+def test_batchnorm_calibration_keeps_eval_outputs_and_makes_train_mode_agree(photos_dir):
+    """The folded COCO yolo11n: calibrated on two photos, its eval outputs stay (within float error) and its train
+    mode (batch statistics, as fine-tuning sees them) computes what eval mode does; uncalibrated, train mode is far
+    off - the first fine-tuning step would wreck it."""
+    import torch
+
+    from garage_exp.train.calibrate import calibrate_model, letterboxed
+
+    base = Path(__file__).resolve().parents[1] / ".." / "shared" / "models" / "yolo11n_fp32_from_int8.pt"
+    images = [photos_dir / "bus.jpg", photos_dir / "zidane.jpg"]
+    x = torch.from_numpy(__import__("numpy").stack([letterboxed(p, 128) for p in images]))
+
+    def features(model, train: bool):
+        """The detection head's inputs; a train-mode pass runs on a copy (it updates the running statistics)."""
+        model = copy.deepcopy(model) if train else model
+        got = {}
+        head = model.model[-1]
+        handle = head.register_forward_pre_hook(lambda m, inputs: got.setdefault("x", [t.clone() for t in inputs[0]]))
+        model.train(train)
+        with torch.no_grad():
+            model(x)
+        handle.remove()
+        return got["x"]
+
+    def gap(a, b):
+        return max(float((p - q).abs().max() / (q.abs().max() + 1e-9)) for p, q in zip(a, b))
+
+    model = torch.load(str(base), map_location="cpu", weights_only=False)["model"].float()
+    before = features(model, False)
+    assert gap(features(model, True), before) > 0.5  # uncalibrated: train mode is another network
+    model.eval()
+    assert calibrate_model(model, images, 128) == 81
+    assert gap(features(model, False), before) < 1e-3  # eval outputs unchanged
+    assert gap(features(model, True), before) < 1e-3  # train mode on the calibration batch: the same
