@@ -169,3 +169,43 @@ def test_a_late_search_names_lateness_in_its_lines_table_and_parent_run(late_sea
     parent = next(run for run in mlc.search_runs([exp.experiment_id]) if run.data.tags.get("sweep") == "parent")
     assert "best_lateness" in parent.data.metrics and "best_difficulty" not in parent.data.metrics
     assert parent.data.metrics["best_lateness"] == pytest.approx(trials.lateness.max())
+
+
+def test_a_study_continued_under_another_tracking_store_gets_a_parent_run_there(tmp_path):
+    """The study's storage is shared, MLflow's store is not: a search run again with another tracking.uri
+    (a user moving to a tracking server) continues the study with a parent run in the new store, says so in one
+    line naming both stores, and ranks the hardest trials without tagging runs that live in the first store
+    (before: a 50-line traceback, "MlflowException: Run with id=... not found", exit 1; issue 42, item 12).
+    Dry-run trials are infeasible, so the study gets one complete trial whose run is in the first store, as a
+    trial made before trials recorded their store."""
+    from optuna.distributions import FloatDistribution
+    from optuna.trial import create_trial
+
+    storage = f"sqlite:///{tmp_path / 'optuna.db'}"
+    first, second = (f"sqlite:///{tmp_path / name}" for name in ("first.db", "second.db"))
+    args = [*SEARCH, "dry_run=true", "light.intensity=interval(0.2,1.0)", f"search.storage={storage}"]
+    r = run_app([*args, "search.trials=1", f"tracking.uri={first}"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    (name,) = optuna.get_all_study_names(storage)
+    study = optuna.load_study(study_name=name, storage=storage)
+    (trial,) = study.trials
+    assert trial.user_attrs["tracking_uri"] == first
+    study.add_trial(create_trial(  # a complete trial (a rendered one), its run in the first store
+        params={"light.intensity": 0.3}, distributions={"light.intensity": FloatDistribution(0.2, 1.0)}, value=0.8,
+        user_attrs={"run_id": trial.user_attrs["run_id"], "overrides": ["light.intensity=0.3"], "output_dir": "",
+                    "fair_frames": 3, "frames": 4, "recall": 0.2, "confidence": 0.2, "visible_fraction": 0.7}))
+    r = run_app([*args, "search.trials=3", f"tracking.uri={second}", f"hydra.sweep.dir={tmp_path}/again"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "Traceback" not in r.stderr and "not found" not in r.stderr
+    said = [ln for ln in r.stdout.splitlines() if "was tracked in" in ln]
+    assert said == [f"garage_exp: study {name!r} was tracked in {first}; it continues tracked in {second}, with a "
+                    "parent run there: its earlier trials' runs stay where they were (the report and ranking cover "
+                    "every trial)"], r.stdout
+    mlc = tracking.client(second)
+    runs = mlc.search_runs([mlc.get_experiment_by_name("garage_exp").experiment_id], max_results=100)
+    (parent,) = [r for r in runs if r.data.tags.get("sweep") == "parent"]
+    assert parent.data.tags["sweep_key"] == f"study:{name}" and parent.info.status == "FINISHED"
+    (child,) = [r for r in runs if "search_trial" in r.data.tags]
+    assert child.data.tags["mlflow.parentRunId"] == parent.info.run_id
+    study = optuna.load_study(study_name=name, storage=storage)
+    assert study.trials[-1].user_attrs["tracking_uri"] == second and study.user_attrs["tracking_uri"] == second

@@ -99,8 +99,9 @@ class SearchLoop:
     """Runs a study's trials as jobs. `launch(overrides, job_idx)` runs one job and returns its JobReturn."""
 
     def __init__(self, search, space: space_mod.Space, study: optuna.Study, launch, budget: int,
-                 stop=lambda study: False, compose=None):
+                 stop=lambda study: False, compose=None, attrs: dict | None = None):
         self.search, self.space, self.launch, self.budget = search, space, launch, budget
+        self.attrs = dict(attrs or {})  # set on every trial it asks (the tracking store its run goes to)
         self.study = study_mod.lean(study, search)  # a random search's loop keeps no trial in memory
         self.stop = stop  # asked before each trial (a suite stops once its bands are full)
         self.compose = compose  # overrides -> the trial's config, for the pre-screen
@@ -128,6 +129,8 @@ class SearchLoop:
                 overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
                 trial.set_user_attr("overrides", overrides)
                 trial.set_user_attr("worker", WORKER)  # which process (which node) ran it: a cluster's trials spread
+                for key, value in self.attrs.items():
+                    trial.set_user_attr(key, value)
                 if not self.screened(trial, overrides):
                     batch.append((trial, overrides))
             if batch:

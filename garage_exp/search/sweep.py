@@ -156,16 +156,45 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     seed = seed_of(search, config)
     study = study_mod.open_study(search, name, seed, space.params)
     study.set_user_attr("command", " ".join(arguments_of(config)))
+    store = tracked_in(config)
     total = budget(search, space, study)
     held = len(study.get_trials(deepcopy=False))
     print(f"garage_exp: study {name!r} in {study_mod.storage_url(search)}: {held} trial(s) held, up to {total}")
+    say_moved(study, name, store)
     from garage_exp.search.loop import SearchLoop
 
     until = _suite_full(search, stop) if search.mode == "suite" else (lambda _study: stop())
     compose = getattr(launch, "compose", None) or (lambda overrides: loader.load_sweep_config(config, overrides))
-    loop = SearchLoop(search, space, study, launch, total, stop=until, compose=compose)
+    loop = SearchLoop(search, space, study, launch, total, stop=until, compose=compose,
+                      attrs={"tracking_uri": store})
     ran = loop.run()
     return {"study": study, "name": name, "ran": ran, "space": space}
+
+
+def tracked_in(config: DictConfig) -> str:
+    """The tracking store this command's runs go to (tracking.uri, else $MLFLOW_TRACKING_URI, else the project's)."""
+    from garage_exp.tracking import runs as tracking
+
+    return tracking.tracking_uri(config.tracking.uri)
+
+
+def say_moved(study, name: str, store: str) -> None:
+    """A study continued under another tracking store than its earlier trials' (the study's storage is shared,
+    MLflow's is not): it goes on, with a parent run of its own in this store (callbacks: the parent is found by
+    the study's name, in this store); the earlier trials' runs stay where they are (each trial records its
+    store). Said in one line; the study records the store it was last tracked in."""
+    from garage_exp.tracking import runs as tracking
+
+    tracked = [t for t in study.get_trials(deepcopy=False) if t.user_attrs.get("run_id")]
+    elsewhere = sorted({u for u in {t.user_attrs.get("tracking_uri") for t in tracked} if u and u != store})
+    unrecorded = [t for t in tracked if "tracking_uri" not in t.user_attrs]  # trials made before they said
+    if not elsewhere and unrecorded and not run_here(tracking.client(store), unrecorded[-1].user_attrs["run_id"]):
+        elsewhere = ["another store"]
+    if elsewhere:
+        print(f"garage_exp: study {name!r} was tracked in {', '.join(elsewhere)}; it continues tracked in {store}, "
+              "with a parent run there: its earlier trials' runs stay where they were (the report and ranking "
+              "cover every trial)")
+    study.set_user_attr("tracking_uri", store)
 
 
 def collect(config: DictConfig, loader, ran: list[int]) -> dict:
@@ -236,15 +265,33 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
     for key, value in tags.items():
         tracking.retry(lambda k=key, v=value: mlc.set_tag(parent_run_id, k, v))
     best = ranked(study)
+    store = tracked_in(config)
     for rank, trial in enumerate(best[: int(config.search.top)], start=1):
         run_id = trial.user_attrs.get("run_id")
-        if run_id:
+        if run_id and trial.user_attrs.get("tracking_uri", store) == store and run_here(mlc, run_id):
             tracking.retry(lambda r=run_id, k=rank: mlc.set_tag(r, "search_rank", str(k)))
     for key, value in (result.get("archive") or {}).items():  # coverage and QD score (search/archive.py)
         tracking.retry(lambda k=key, v=value: mlc.log_metric(parent_run_id, k, float(v)))
     if best:  # named by the objective: best_difficulty, best_lateness, best_slot_miss
         metric = f"best_{objective(config.search.objective).metric}"
         tracking.retry(lambda: mlc.log_metric(parent_run_id, metric, float(best[0].values[0])))
+
+
+def run_here(mlc, run_id: str) -> bool:
+    """Whether this store holds the run: a trial made before trials recorded their store (or by a worker of
+    another store) may have its run elsewhere, and tagging it would fail with "Run with id=... not found"."""
+    from mlflow.exceptions import MlflowException
+    from mlflow.protos.databricks_pb2 import RESOURCE_DOES_NOT_EXIST, ErrorCode
+
+    from garage_exp.tracking import runs as tracking
+
+    try:
+        tracking.retry(lambda: mlc.get_run(run_id))
+    except MlflowException as exc:
+        if exc.error_code == ErrorCode.Name(RESOURCE_DOES_NOT_EXIST):
+            return False
+        raise
+    return True
 
 
 def summary(result: dict, out_dir: Path) -> str:
