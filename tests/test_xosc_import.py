@@ -176,3 +176,23 @@ def test_every_vertex_of_a_polyline_is_kept(tmp_path, capsys, library):
     walked = math.hypot(last.x - first.x, last.y - first.y)
     assert walked == pytest.approx(math.hypot(1.5, 3.0), abs=0.05)  # to the path's end, not its first leg's
     assert abs(((last.yaw - first.yaw) + 180) % 360 - 180) == pytest.approx(90.0, abs=0.5)  # turned with the path
+
+
+def test_a_time_headway_trigger_starts_the_walk(tmp_path, capsys):
+    """ALKS 4.2.3's CrossStartCondition: the walker sets off when the ego is 3.6 s from it (freespace), not at
+    the first frame."""
+    walk = polyline([(45, -3.0), (45, 3.0)], times=[0.0, 4.8])
+    headway = ('<ByEntityCondition><TriggeringEntities triggeringEntitiesRule="any"><EntityRef entityRef="Ego"/>'
+               '</TriggeringEntities><EntityCondition><TimeHeadwayCondition entityRef="Walker" value="3.6" '
+               'freespace="true" rule="lessThan" coordinateSystem="road" relativeDistanceType="longitudinal"/>'
+               '</EntityCondition></ByEntityCondition>')
+    story = event("Walker", walk).replace(
+        '<ByValueCondition><SimulationTimeCondition value="0.0" rule="greaterThan"/></ByValueCondition>', headway, 1)
+    assert "TimeHeadwayCondition" in story
+    text = scenario(vehicle("Ego") + pedestrian("Walker"), {**EGO, "Walker": teleport(45, -3.0, math.pi / 2)},
+                    story=story)
+    case, printed = imported(tmp_path, capsys, text)
+    along, walker = case["motion"]["along"]["walker"], case["actors"]["walker"]
+    # 3.6 s at 2.5 m/s = 9 m between the ego's front and the walker's back: their centres 9 + (4.4 + 0.4) / 2 apart
+    assert along["at"] == pytest.approx(walker["distance"] + 9.0 + 2.4, abs=1e-3)
+    assert "3.6 s from 'Walker'" in printed and "taken as the start" not in printed
