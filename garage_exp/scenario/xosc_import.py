@@ -1,13 +1,15 @@
 """`python -m garage_exp.scenario.import FILE.xosc`: an OpenSCENARIO file as a case YAML, for the subset a case
 can say, with one line per element it leaves out.
 
-Mapped: entities to our actors (a Vehicle by its garage_exp model, else by size class and body from its length
-and category; a Pedestrian to a person of its height; a MiscObject to a box), each placed on the site's `lane`
-(`before:` the site's first bay, `distance`, `offset`, `yaw`): where it starts; the ego's speed and route to the
-case's motion (the ego's `distance`, from its start to its route's end); another actor's speed, route or
-trajectory and what starts it (the ego's travelled distance, the simulation time, or a SynchronizeAction's
-arrival) to a co-motion (`case.motion.along`: `offset` across the lane or `distance` along it, `speed`,
-`accelerate`, `at` or `meet`).
+Mapped: entities to our actors (a Vehicle by its garage_exp model, else by body from its category and the
+vehicle library's size class for its size, a category the library cannot render refused; a Pedestrian to a
+person of its height; a MiscObject to a box), each placed on the site's `lane` (`before:` the site's first bay,
+`distance`, `offset`, `yaw`): where it starts; the ego's speed and route to the case's motion (the ego's
+`distance`, from its start to its route's end); another actor's speed (or a timed polyline's), route or
+trajectory and what starts it (the ego's travelled distance, the simulation time, the ego's time headway to an
+entity, or a SynchronizeAction's arrival) to a co-motion (`case.motion.along`: `offset` across the lane or
+`distance` along it, every vertex of a bent route as its `path`, `speed`, `accelerate`, `at` or `meet`). The case
+then goes through the scenario's own checks (a target to score, `--target`) before it is written.
 
 Where it stands: a file garage_exp wrote (its FileHeader says `garage_exp ... plan=NAME`) is in the plan's own
 world frame; any other file is moved as a whole so that its ego starts on the site's lane, heading along it, with
