@@ -9,6 +9,7 @@ import math
 import pytest
 from conftest import ROOT
 from test_cases import build, library  # noqa: F401  (the cases' scene builder and its module-scoped library)
+from xosc_files import ROAD as FOREIGN_XODR  # a straight road of two 3.5 m lanes
 
 from garage_exp.core.paths import PLANS_DIR
 
@@ -181,15 +182,6 @@ def test_python_m_garage_exp_scenario_import_runs(cpnco, tmp_path):
     assert (tmp_path / "case" / "rt.yaml").is_file() and "left out" in result.stdout
 
 
-FOREIGN_XODR = """<?xml version="1.0"?>
-<OpenDRIVE><header revMajor="1" revMinor="7" name="straight"/>
-<road id="7" length="200" junction="-1"><planView><geometry s="0" x="100" y="-50" hdg="1.5707963267948966"
-length="200"><line/></geometry></planView><lanes><laneSection s="0">
-<left><lane id="1" type="driving" level="false"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></left>
-<center><lane id="0" type="none" level="false"/></center>
-<right><lane id="-1" type="driving" level="false"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right>
-</laneSection></lanes></road></OpenDRIVE>
-"""
 
 FOREIGN_XOSC = """<?xml version="1.0"?>
 <OpenSCENARIO><FileHeader revMajor="1" revMinor="2" date="2026-01-01T00:00:00" description="a crossing" author="t"/>

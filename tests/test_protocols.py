@@ -142,9 +142,13 @@ def test_cpra_is_scored_by_the_rear_camera_and_a_rig_without_one_is_refused():
     from garage_exp.run.preflight import check_config
     from garage_exp.scene.camera import scored_camera
 
+    alone = compose_cfg("case=cpra")  # the case brings the rig it is scored by (its defaults list) ...
+    check_config(alone)
+    assert alone.camera.name == "rear" and scored_camera(alone.camera, "rear") == "rear"
     with pytest.raises(GarageError, match=r"cpra\.yaml: case\.camera: the case is scored by camera 'rear'; "
                                           r"rig front has front"):
-        check_config(compose_cfg("case=cpra"))
+        check_config(compose_cfg("case=cpra", "camera=front"))  # ... and the command line's camera still wins
+    assert compose_cfg("+experiment=cpra", "camera=fisheye4").camera.name == "fisheye4"
     fisheye4 = compose_cfg("case=cpra", "camera=fisheye4")
     check_config(fisheye4)
     assert fisheye4.camera.cameras[0].name == "front" and scored_camera(fisheye4.camera, "rear") == "rear"

@@ -1,13 +1,15 @@
 """`python -m garage_exp.scenario.import FILE.xosc`: an OpenSCENARIO file as a case YAML, for the subset a case
 can say, with one line per element it leaves out.
 
-Mapped: entities to our actors (a Vehicle by its garage_exp model, else by size class and body from its length
-and category; a Pedestrian to a person of its height; a MiscObject to a box), each placed on the site's `lane`
-(`before:` the site's first bay, `distance`, `offset`, `yaw`): where it starts; the ego's speed and route to the
-case's motion (the ego's `distance`, from its start to its route's end); another actor's speed, route or
-trajectory and what starts it (the ego's travelled distance, the simulation time, or a SynchronizeAction's
-arrival) to a co-motion (`case.motion.along`: `offset` across the lane or `distance` along it, `speed`,
-`accelerate`, `at` or `meet`).
+Mapped: entities to our actors (a Vehicle by its garage_exp model, else by body from its category and the
+vehicle library's size class for its size, a category the library cannot render refused; a Pedestrian to a
+person of its height; a MiscObject to a box), each placed on the site's `lane` (`before:` the site's first bay,
+`distance`, `offset`, `yaw`): where it starts; the ego's speed and route to the case's motion (the ego's
+`distance`, from its start to its route's end); another actor's speed (or a timed polyline's), route or
+trajectory and what starts it (the ego's travelled distance, the simulation time, the ego's time headway to an
+entity, or a SynchronizeAction's arrival) to a co-motion (`case.motion.along`: `offset` across the lane or
+`distance` along it, every vertex of a bent route as its `path`, `speed`, `accelerate`, `at` or `meet`). The case
+then goes through the scenario's own checks (a target to score, `--target`) before it is written.
 
 Where it stands: a file garage_exp wrote (its FileHeader says `garage_exp ... plan=NAME`) is in the plan's own
 world frame; any other file is moved as a whole so that its ego starts on the site's lane, heading along it, with
@@ -193,7 +195,7 @@ def to_case(r: Read, classified, site, name: str, margin: float, target: str | N
         notes.append(f"ego speed {ego_speed * 3.6:.4g} km/h: run the case with ego.speed={ego_speed * 3.6:.4g}")
     along = {}
     for n in sorted(movers - {ego}, key=list(placed).index):
-        spec = _along(r, n, placed[n], transform, distance, offset, motion, ego, ego_speed, notes)
+        spec = _along(r, n, placed[n], transform, distance, offset, motion, ego, ego_speed, notes, placed)
         if spec is None:
             continue
         if motion:
@@ -239,7 +241,8 @@ def check_runs(case: dict, r: Read) -> None:
         raise GarageError(f"the case would not run: {exc}{hint}", str(r.path)) from None
 
 
-def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego_speed, notes) -> dict | None:
+def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego_speed, notes, placed: dict
+           ) -> dict | None:
     """A moving actor's co-motion; its `at` and `meet` are values of the ego's motion (`motion`)."""
     ego_value = offset if motion.get("key") == "offset" else distance
     d0 = motion.get("start", 0.0)
@@ -288,6 +291,17 @@ def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego
         spec["at"] = round(d0 + ahead * m.trigger[1], 4)
     elif m.trigger[0] == "time" and m.trigger[1] > 0:
         spec["at"] = round(d0 + ahead * m.trigger[1] * ego_speed, 4)
+    elif m.trigger[0] == "headway" and m.by == ego and motion.get("key") == "distance":
+        # the ego's value when it is that many seconds (at its speed) from the other entity: its front that far
+        # before the other's back (freespace), else its centre before the other's
+        _, seconds, of, freespace = m.trigger
+        ends = (r.things[ego].extent[0] + r.things[of].extent[0]) / 2 if freespace and of in r.things else 0.0
+        at = round(distance(*placed[of][:2]) - ahead * (seconds * ego_speed + ends), 4) if of in placed else d0
+        if (at - d0) * ahead > 0:
+            spec["at"] = at
+            notes.append(f"{n}: sets off when the ego is {seconds:g} s from {of!r} -> at {at:g}")
+        else:
+            notes.append(f"{n}: sets off when the ego is {seconds:g} s from {of!r}, as it is from the first frame")
     elif m.trigger[0] == "travel":
         notes.append(f"{n}: started by {m.by!r}'s travel, not the ego's: taken as starting at once")
     return spec

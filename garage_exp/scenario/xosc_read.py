@@ -36,7 +36,8 @@ class Move:
 
     speed: float
     rate: float = 0.0  # m/s^2 (0: at once)
-    trigger: tuple[str, float] = ("init", 0.0)  # ("init", 0) | ("time", s) | ("travel", m travelled by `by`)
+    trigger: tuple = ("init", 0.0)  # ("init", 0) | ("time", s) | ("travel", m travelled by `by`) |
+    # ("headway", s, of whom, freespace): `by` is that many seconds from the other entity
     by: str = ""  # the entity whose travel starts it
     meet: tuple | None = None  # a SynchronizeAction: (master, its position, own target (x, y), steady distance)
 
@@ -359,7 +360,11 @@ def _timed_move(r: Reader, action, pts, times, trigger) -> Move | None:
         r.leave(timing, f"its legs' speeds ({min(paces):.2f}-{max(paces):.2f} m/s): walked at their mean, "
                 f"{speed:.2f} m/s")
     begin = times[0] * scale + shift  # when it leaves its first vertex
-    (kind, value), by = trigger
+    (kind, value, *more), by = trigger
+    if kind == "headway":
+        if begin:
+            r.leave(timing, f"its first vertex {begin:g} s after a time-headway trigger: taken as 0 s")
+        return Move(speed, 0.0, trigger[0], by)
     if timing.get("domainAbsoluteRelative") == "absolute":
         if kind == "travel":
             r.leave(timing, "vertex times on the simulation's clock after a travelled-distance trigger: taken as "
@@ -388,8 +393,8 @@ def _synchronize(r: Reader, name: str, sync, trigger, moves) -> None:
         master, master_at[:2], target, v.num(steady, "distance") if steady is not None else None)))
 
 
-def _trigger(r: Reader, start) -> tuple[tuple[str, float], str]:
-    """An event's start trigger as (kind, value) and the entity it watches."""
+def _trigger(r: Reader, start) -> tuple[tuple, str]:
+    """An event's start trigger as (kind, value, ...) and the entity it watches (Move.trigger)."""
     if start is None:
         return ("time", 0.0), ""
     conditions = start.findall("ConditionGroup/Condition")
@@ -401,6 +406,12 @@ def _trigger(r: Reader, start) -> tuple[tuple[str, float], str]:
         time = c.find("ByValueCondition/SimulationTimeCondition")
         if time is not None:
             return ("time", r.values.num(time, "value")), ""
+        headway = c.find("ByEntityCondition/EntityCondition/TimeHeadwayCondition")
+        if headway is not None and ent is not None and headway.get("rule") in ("lessThan", "lessOrEqual"):
+            # (ALKS 4.2.3's crossing pedestrian: it sets off when the ego is 3.6 s from it)
+            return ("headway", r.values.num(headway, "value"), r.values.get(headway, "entityRef"),
+                    r.values.get(headway, "freespace", "false") == "true"), ent.get("entityRef")
     if conditions:
-        r.leave(conditions[0], "a start condition other than time or travelled distance: taken as the start")
+        r.leave(conditions[0], "a start condition other than time, travelled distance or time headway: taken as "
+                "the start")
     return ("time", 0.0), ""
