@@ -60,8 +60,7 @@ def column(values, dtype, like):
     if is_torch(like):
         import torch
 
-        dt = {np.float32: torch.float32, np.float64: torch.float64}[dtype]
-        return torch.tensor(values, dtype=dt, device=like.device).view(-1, 1, 1, 1)
+        return torch.tensor(values, dtype=getattr(torch, np.dtype(dtype).name), device=like.device).view(-1, 1, 1, 1)
     return np.asarray(values, dtype=dtype).reshape(-1, 1, 1, 1)
 
 
@@ -104,20 +103,13 @@ def as_uint8(x):
     return np.rint(x).astype(np.uint8)
 
 
-def as_float32(x):
+def cast(x, dtype):
+    """x as numpy `dtype` (np.float32, np.float64), or the torch dtype of that name."""
     if is_torch(x):
         import torch
 
-        return x.to(torch.float32)
-    return x.astype(np.float32)
-
-
-def as_float64(x):
-    if is_torch(x):
-        import torch
-
-        return x.to(torch.float64)
-    return x.astype(np.float64)
+        return x.to(getattr(torch, np.dtype(dtype).name))
+    return x.astype(dtype)
 
 
 # -- random numbers. The source decides the stream: a numpy Generator draws numpy's numbers whatever the arrays'

@@ -210,7 +210,7 @@ class SensorModel:
 
     def deliver(self, signal):
         """The linear signal (full scale 1) through the tone curve and sRGB: float32 in [0, 1], or uint8."""
-        out = arrays.as_float32(linear_to_srgb(TONES[self.tone](signal.clip(min=0.0)).clip(0.0, 1.0)))
+        out = arrays.cast(linear_to_srgb(TONES[self.tone](signal.clip(min=0.0)).clip(0.0, 1.0)), np.float32)
         return arrays.as_uint8(out * 255.0) if self.quantize else out
 
     def params(self) -> dict[str, Any]:
@@ -229,8 +229,8 @@ def poisson_chain(model: SensorModel, rgb, rng):
     """The sensor chain: Poisson shot noise, well saturation, Gaussian read noise, gain, tone curve, sRGB."""
     radiance, chosen = model.expose(rgb)
     scale = arrays.column([e * model.full_well for e, _ in chosen], np.float64, radiance)
-    expected = arrays.as_float64(radiance) * scale
-    electrons = arrays.as_float32(arrays.poisson(rng, expected).clip(max=model.full_well))
+    expected = arrays.cast(radiance, np.float64) * scale
+    electrons = arrays.cast(arrays.poisson(rng, expected).clip(max=model.full_well), np.float32)
     if model.read_noise > 0:
         electrons = electrons + arrays.normal(rng, model.read_noise, electrons)
     return model.deliver(electrons * arrays.column([g / model.full_well for _, g in chosen], np.float32, electrons))
