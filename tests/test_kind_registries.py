@@ -1,6 +1,7 @@
-"""Camera views and sensor kinds (and tone curves) are registries with the registration beside what it registers
-(scene/views.py `@register_view`, perception/sensor.py `@sensor_kind`, `@tone_curve`): adding one is one module.
-Each test adds one from a temporary module and uses it where the shipped ones are used."""
+"""Camera views, sensor kinds (and tone curves) and slot detector kinds are registries with the registration beside
+what it registers (scene/views.py `@register_view`, perception/sensor.py `@sensor_kind`, `@tone_curve`,
+perception/slots/detector.py `@slot_kind`): adding one is one module. Each test adds one from a temporary module
+and uses it where the shipped ones are used."""
 
 from __future__ import annotations
 
@@ -10,10 +11,11 @@ import sys
 import numpy as np
 import pytest
 import torch
-from conftest import compose_cfg
+from conftest import compose_cfg, schema_node
 
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.sensor import KINDS, TONES, make_sensor
+from garage_exp.perception.slots.detector import KINDS as SLOT_KINDS
 from garage_exp.scene.views import VIEWS
 
 VIEW_MODULE = '''
@@ -47,11 +49,25 @@ def square(x):
     return x * x
 '''
 
+SLOT_MODULE = '''
+from garage_exp.perception.slots.detector import SlotKind, slot_kind
+from garage_exp.perception.slots.marks import SlotFrame
+
+
+@slot_kind("nothing")
+class Nothing(SlotKind):
+    """Finds no slot, at the image's size."""
+
+    @staticmethod
+    def load(conf):
+        return lambda image, mpp: SlotFrame([], [], mpp, (image.shape[1], image.shape[0]))
+'''
+
 
 @pytest.fixture
 def plugin(tmp_path, monkeypatch):
     """Import a module written to a temporary directory; its registrations are removed afterwards."""
-    before = {id(r): dict(r) for r in (VIEWS, KINDS, TONES)}
+    before = {id(r): dict(r) for r in (VIEWS, KINDS, TONES, SLOT_KINDS)}
     monkeypatch.syspath_prepend(str(tmp_path))
 
     def load(name: str, text: str):
@@ -59,10 +75,10 @@ def plugin(tmp_path, monkeypatch):
         return importlib.import_module(name)
 
     yield load
-    for registry in (VIEWS, KINDS, TONES):
+    for registry in (VIEWS, KINDS, TONES, SLOT_KINDS):
         registry.clear()
         registry.update(before[id(registry)])
-    for name in ("user_view", "user_sensor"):
+    for name in ("user_view", "user_sensor", "user_slots"):
         sys.modules.pop(name, None)
 
 
@@ -96,3 +112,15 @@ def test_a_sensor_kind_and_a_tone_curve_from_a_module_of_their_own(plugin):
     squared = make_sensor(name="sq", kind="noisy", params={"tone": "square"}).apply(rgb, np.random.default_rng(1))
     plain = make_sensor(name="lin", kind="noisy", params={}).apply(rgb, np.random.default_rng(1))
     assert squared.dtype == np.uint8 and squared.mean() < plain.mean()  # x^2 darkens a signal below full scale
+
+
+def test_a_slot_detector_kind_from_a_module_of_its_own(plugin):
+    from garage_exp.perception.slots.detector import check_slot_detector, load
+    from garage_exp.perception.slots.schema import SlotDetectorConf
+
+    conf = schema_node(SlotDetectorConf, {"kind": "nothing"})
+    with pytest.raises(GarageError, match="slot_detector.kind: unknown kind 'nothing'"):
+        check_slot_detector(conf)
+    plugin("user_slots", SLOT_MODULE)
+    found = load(conf)(np.zeros((30, 40, 3), np.uint8), 0.05)
+    assert found.slots == [] and found.size == (40, 30) and found.meters_per_pixel == 0.05
