@@ -166,8 +166,8 @@ def main() -> int:
         diffs, equal = [], 0
         for k, take in enumerate(b.render(batch)):
             (want,) = cpu.render_batch([batch[k]], [b.camera], [b.names])
-            got = mask_stats(take.frame, take.silhouettes, b.stage.ids)
-            ref = mask_stats(want.frame, want.silhouettes, cpu.ids)
+            got = mask_stats(take.frame, take.silhouettes, take.ids)
+            ref = mask_stats(want.frame, want.silhouettes, want.ids)
             equal += [s for s in got if s.full_box is not None] == [s for s in ref if s.full_box is not None]
             diffs.append(np.abs(want.frame.rgb.astype(int) - take.frame.rgb.cpu().numpy().astype(int)))
         d = np.stack(diffs)

@@ -144,13 +144,16 @@ def pack(layout: Layout, shots: Sequence, specs: dict, hidden: Pose, rest: dict)
 
 @dataclass
 class Take:
-    """One camera of one shot, rendered: its frame (numpy, or torch CUDA tensors in `rgb` and `ids`) and the
-    unoccluded silhouettes (name -> H x W bool) of the actors asked for; one left out is outside the image."""
+    """One camera of one shot, rendered: its frame (numpy, or torch CUDA tensors in `rgb` and `ids`), the
+    unoccluded silhouettes (name -> H x W bool) of the actors asked for (one left out is outside the image) and
+    the entity ids of the sub-scene that rendered it (a sub-scene kept from an earlier scene numbers its new
+    actors on from the old ones)."""
 
     shot: object
     camera: str
     frame: Frame
     silhouettes: dict
+    ids: dict
 
 
 class RenderScene:
@@ -205,7 +208,10 @@ class RenderScene:
         return getattr(self.subs[0], "description", None)
 
     def load(self, scene) -> None:
-        """Build every sub-scene from the description (a sub-scene that holds it already is kept)."""
+        """Build every sub-scene from the description (a sub-scene that holds it already is kept). Under CUDA a
+        new description gets new sub-scenes: nothing can be added to a SAPIEN scene once it is in a group."""
+        if self.cuda and any(getattr(sub, "description", None) is not scene for sub in self.subs):
+            self.subs = [sub.sibling(cull=False) for sub in self.subs]
         for k, sub in enumerate(self.subs):
             if getattr(sub, "description", None) is not scene:
                 sub.load(scene)
@@ -238,7 +244,7 @@ class RenderScene:
                 sub.set_pose(name, pose if pose is not None else self.hidden)
             for camera in cameras:
                 frame = sub.render(camera)
-                takes.append(Take(shot, camera, frame, sub.unoccluded_ids(camera, actors[k])))
+                takes.append(Take(shot, camera, frame, sub.unoccluded_ids(camera, actors[k]), sub.ids))
         return takes
 
 
@@ -305,7 +311,7 @@ class CudaGroup:
                 spec = self.specs[camera]
                 frame = Frame(camera, rgb[k], ids[k], camera_to_world(shot.ego, spec), *intrinsics_of(spec),
                               self._vehicle_poses(shot), see_through=self.see_through)
-                takes.append(Take(shot, camera, frame, {a: masks[a][k] for a in actors[k]}))
+                takes.append(Take(shot, camera, frame, {a: masks[a][k] for a in actors[k]}, self.subs[k].ids))
         return takes
 
     def _silhouettes(self, camera: str, n: int, names: Sequence[str]) -> dict:
@@ -321,7 +327,8 @@ class CudaGroup:
             self.group.update_render()
             group.take_picture()
             ids = torch.as_tensor(group.get_picture_cuda("PositionSegmentation"), device="cuda")
-            masks[name] = ids[:n, ..., 3] == self.subs[0].ids[name]
+            mine = torch.tensor([sub.ids[name] for sub in self.subs[:n]], device="cuda").view(-1, 1, 1)
+            masks[name] = ids[:n, ..., 3] == mine
         for sub in self.subs:
             sub.show()
         return masks

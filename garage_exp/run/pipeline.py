@@ -141,7 +141,7 @@ class FramePipeline:
         from garage_exp.perception.groundtruth import ground_truth
         from garage_exp.render.composite import blank_composite
 
-        shot, frame, scene, ids = take.shot, take.frame, self.scene, self.stage.ids
+        shot, frame, scene, ids = take.shot, take.frame, self.scene, take.ids
         truth = ground_truth(frame, take.silhouettes, scene, ids)
         if not scene.background and str(self.cfg.look.name) != "flat":
             # The blank control is a scene (the car alone on grey) that the camera then sees: exposure, blur
