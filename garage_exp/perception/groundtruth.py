@@ -239,7 +239,9 @@ def mask_stats(frame: Frame, silhouettes: Mapping[str, object], ids: Mapping[str
             raise ValueError(f"silhouette of {name} is {tuple(silhouettes[name].shape)}, "
                              f"the frame {tuple(frame.ids.shape)}")
     stack = arrays.xp(frame.ids).stack
-    masks = stack([silhouettes[m] for m in names])[None] != 0  # bool, whatever the masks' dtype
+    masks = stack([silhouettes[m] for m in names])[None]
+    if str(masks.dtype).rsplit(".", 1)[-1] != "bool":
+        masks = masks != 0
     actor_ids = arrays.table(np.array([[ids[m] for m in names]], dtype=np.int32), frame.ids)
     batch = batch_mask_stats(frame.ids[None], masks, actor_ids, sorted(frame.see_through))
     return stats_of(batch, [names])[0]
