@@ -82,3 +82,33 @@ def test_frames_draw_the_sensor_stream_in_shot_then_camera_order():
         assert f.target.full_box == (10 + f.shot.index, 10, 18 + f.shot.index, 20)
     assert in_view(scene, {"target": None}) == [] and in_view(scene, {}) == ["target"]
     assert in_view(scene, {}, placed_only=True) == []
+
+
+def test_a_frame_of_torch_tensors_finishes_as_its_numpy_twin():
+    """The GPU branch hands the pipeline frames as tensors: ground truth, the blank composite and the camera model
+    take them through the same code (CPU tensors here) and give the numpy frame's truth, and its picture within
+    one 8-bit level (float32 sums in another order)."""
+    import torch
+
+    from garage_exp.render.batch import Take
+
+    scene = Scene("s", [Entity("target", "target", Pose(10.0, 0.0, 0.0, 90.0), extent=(4.5, 1.8, 1.5),
+                               static=False)],
+                  cameras=[CameraSpec("front", Pose(0.0, 0.0, 1.0), width=40, height=30)], background=False)
+    cfg = OmegaConf.create({"look": {"name": "real"}, "dataset": False,
+                            "detector": {"iou": 0.5, "match": "full", "threshold": 0.5}})
+    renderer = Drawn()
+    shot = Shot(0, "", 0.0, Pose(), {"target": Pose(10.0, 2.0, 0.0, 90.0)}, "target")
+    renderer.set_pose("ego", shot.ego)
+    renderer.set_pose("target", shot.poses["target"])
+    frame = renderer.render("front")
+    masks = renderer.unoccluded_ids("front", ["target"])
+    tensor_frame = Frame("front", torch.from_numpy(frame.rgb), torch.from_numpy(frame.ids), frame.cam_to_world,
+                         *frame.intrinsics, frame.poses)
+    sensor = make_sensor(name="camera", kind="camera", params={"blur_sigma": 0.8, "vignetting": 0.3})
+    pipeline = FramePipeline(cfg, scene, renderer, sensor, np.random.default_rng(0))
+    want = pipeline.finish(Take(shot, "front", frame, masks, renderer.ids), np.random.default_rng(5))
+    got = pipeline.finish(Take(shot, "front", tensor_frame, {k: torch.from_numpy(m) for k, m in masks.items()},
+                               renderer.ids), np.random.default_rng(5))
+    assert isinstance(got.rgb, np.ndarray) and got.truth == want.truth and got.target.visible_fraction == 1.0
+    assert np.abs(got.rgb.astype(int) - want.rgb.astype(int)).max() <= 1

@@ -4,16 +4,18 @@
 
 On a machine without CUDA it refuses in one line (exit 2). It measures, in this process, on the project's real
 garage (the research plan, case 1, 640x480 unless --width/--height):
-- ceiling: `render.batch.BatchRenderer` over N sub-scenes: poses from the CUDA tensor, one group picture, Color
-  and Segmentation read as CUDA tensors; no project work. frames/s for each N of --scenes.
-- pipeline: the same, plus the silhouettes, ground truth's pixel work (perception/batch_truth.py) and the camera
-  model (perception/batch_sensor.py, --sensor), only numbers copied back. frames/s, and its ratio to the ceiling.
-- agreement: the CPU path's `SapienRenderer` (on the same card) and the batched path on the same shots: colour
-  max / mean absolute difference (8-bit levels) and ground truth compared record by record (the goal: equal to
-  the pixel).
-- detectors: end to end, the batched pipeline's frames through the project's composite detector
-  (`Detector.detect` on a batch: the entries of detector.models, e.g. `--detector official_pt` for .pt
-  networks that run on the card), frames/s with the pictures copied to numpy first and fed as the CUDA tensor.
+- ceiling: the render scene's CUDA branch (`render.batch.RenderScene.open` with `renderer.device=cuda`, N
+  sub-scenes in one RenderSystemGroup): poses from the CUDA tensor, one group picture, Color and Segmentation
+  read as CUDA tensors; no project work. frames/s for each N of --scenes.
+- pipeline: the frame pipeline over that scene (`run.pipeline.FramePipeline.shots`: `render_batch`, the
+  silhouettes, ground truth and the camera model (--sensor) on the tensors, perception/groundtruth.py and
+  sensor.py, each frame then copied to numpy for the detector). frames/s, and its ratio to the ceiling.
+- agreement: the CPU path's `SapienRenderer` (on the same card, a scene of one sub-scene) and the CUDA branch on
+  the same shots: colour max / mean absolute difference (8-bit levels) and ground truth compared record by
+  record (the goal: equal to the pixel).
+- detectors: end to end, the pipeline's frames through the project's composite detector (`Detector.detect` on a
+  batch: the entries of detector.models, e.g. `--detector official_pt` for .pt networks that run on the card),
+  frames/s.
 - fisheye4: the four-fisheye rig's faces rendered batched and remapped with grid_sample, delivered Mpx/s.
 - search: trials/hour of today's search on this card (benchmarks/studies/search.py's throughput run, --trials).
 - gym: StepOut-v0 env steps/s (random actions), alone and as a vector env of 4 and 16 episodes.
@@ -56,33 +58,42 @@ def batch_of(shots, n):
 
 
 class Batched:
-    """The batched pipeline (run.pipeline.shoot_batch) over one job's scene, in `scenes` sub-scenes."""
+    """The frame pipeline over one job's scene in a render scene of `scenes` sub-scenes on the GPU."""
 
     def __init__(self, job, scenes: int):
-        from garage_exp.render.batch import BatchRenderer
-        from garage_exp.run.pipeline import in_view
+        import numpy as np
+
+        from garage_exp.render.batch import RenderScene
+        from garage_exp.run.pipeline import FramePipeline, in_view
         from garage_exp.scenario.assemble import HIDDEN
 
         self.job = job
-        self.renderer = BatchRenderer(job.scene, scenes, HIDDEN, max_lights=job.cfg.renderer.max_lights)
+        self.stage = RenderScene.open(job.cfg.renderer, HIDDEN, scenes)
+        self.stage.load(job.scene)
+        self.pipeline = FramePipeline(job.cfg, job.scene, self.stage, job.sensor, np.random.default_rng(1))
         self.names = in_view(job.scene, {})
+        self.camera = job.scene.cameras[0].name
+
+    def render(self, shots):
+        """The render scene's one call: each shot's Take (frame and silhouettes as CUDA tensors)."""
+        return self.stage.render_batch(shots, [self.camera], [self.names] * len(shots))
 
     def ceiling(self):
         """SAPIEN alone: the group's poses applied from the CUDA tensor, one picture, Color and Segmentation read
         as CUDA tensors (the tensor was filled once; the lights stay where the last `render` put them)."""
         import torch
 
-        r = self.renderer
-        r.group.update_render()
-        r.lit.take_picture()
-        return (torch.as_tensor(r.lit.get_picture_cuda("Color"), device="cuda"),
-                torch.as_tensor(r.lit.get_picture_cuda("Segmentation"), device="cuda"))
+        gpu = self.stage.gpu
+        gpu.group.update_render()
+        lit = gpu.lit[self.camera]
+        lit.take_picture()
+        return (torch.as_tensor(lit.get_picture_cuda("Color"), device="cuda"),
+                torch.as_tensor(lit.get_picture_cuda("Segmentation"), device="cuda"))
 
-    def frames(self, shots, generator=None):
-        """(frames after the camera model, per-frame MaskStats, colour before it): run.pipeline.shoot_batch."""
-        from garage_exp.run.pipeline import shoot_batch
-
-        return shoot_batch(self.renderer, shots, self.names, self.job.sensor, generator)
+    def frames(self, shots, rng):
+        """The pipeline's frames (`run.pipeline.Rendered`) of the shots, each drawing from `rng`."""
+        n = len(shots)
+        return list(self.pipeline.shots(shots, [self.camera], [self.names] * n, [rng] * n))
 
 
 def section(results: dict, name: str, fn) -> None:
@@ -134,7 +145,7 @@ def main() -> int:
         for n in [int(x) for x in opts.scenes.split(",")]:
             b = Batched(job, n)
             batch = batch_of(shots, n)
-            b.renderer.render(batch)  # poses the batch once: the ceiling then re-renders it
+            b.render(batch)  # poses the batch once: the ceiling then re-renders it
             ceiling = timed_rate(b.ceiling, n, opts.seconds)
             g = torch.Generator(device="cuda").manual_seed(1)
             pipeline = timed_rate(lambda: b.frames(batch, g), n, opts.seconds)
@@ -145,23 +156,20 @@ def main() -> int:
 
     def agreement():
         from garage_exp.perception.groundtruth import mask_stats
-        from garage_exp.run.pipeline import in_view
+        from garage_exp.render.batch import RenderScene
+        from garage_exp.scenario.assemble import HIDDEN
 
         n = min(16, len(shots))
         b = Batched(job, n)
         batch = batch_of(shots, n)
-        _, stats, rgb = b.frames(batch)
-        rgb = rgb.cpu().numpy()
+        cpu = RenderScene.over(job.renderer, HIDDEN)  # the CPU path's renderer, one sub-scene
         diffs, equal = [], 0
-        cpu = job.pipeline()
-        cam = job.scene.cameras[0].name
-        for k, shot in enumerate(batch):
-            cpu.pose(shot)
-            frame = job.renderer.render(cam)
-            want = mask_stats(frame, job.renderer.unoccluded_ids(cam, in_view(job.scene, shot.poses)), job.renderer.ids)
-            got = [s for s in stats[k] if s.full_box is not None]
-            equal += got == [s for s in want if s.full_box is not None]
-            diffs.append(np.abs(frame.rgb.astype(int) - rgb[k].astype(int)))
+        for k, take in enumerate(b.render(batch)):
+            (want,) = cpu.render_batch([batch[k]], [b.camera], [b.names])
+            got = mask_stats(take.frame, take.silhouettes, take.ids)
+            ref = mask_stats(want.frame, want.silhouettes, want.ids)
+            equal += [s for s in got if s.full_box is not None] == [s for s in ref if s.full_box is not None]
+            diffs.append(np.abs(want.frame.rgb.astype(int) - take.frame.rgb.cpu().numpy().astype(int)))
         d = np.stack(diffs)
         return {"frames": n, "colour_max_levels": int(d.max()), "colour_mean_levels": round(float(d.mean()), 4),
                 "colour_share_over_2_levels": round(float((d > 2).mean()), 6), "truth_equal_frames": int(equal)}
@@ -175,14 +183,11 @@ def main() -> int:
         for n in (16, 64):
             b = Batched(job, n)
             batch = batch_of(shots, n)
+            rng = np.random.default_rng(1)
 
-            def step(copied: bool):
-                frames, _, _ = b.frames(batch)
-                detector.detect(list(frames.cpu().numpy()) if copied else frames, None)
-            # copied: every picture to numpy first (today's shape); fed: the CUDA tensor batch as it is (entries
-            # run by torch take it on the card, the OpenVINO exports get one host copy a batch)
-            out[f"batch{n}_copied_fps"] = round(timed_rate(lambda: step(True), n, opts.seconds), 1)
-            out[f"batch{n}_fed_fps"] = round(timed_rate(lambda: step(False), n, opts.seconds), 1)
+            def step():
+                detector.detect([item.rgb for item in b.frames(batch, rng)], None)
+            out[f"batch{n}_fps"] = round(timed_rate(step, n, opts.seconds), 1)
         out["on_card"] = [e.name for e in detector.entries if e.takes_tensors()]
         return out
 

@@ -323,6 +323,7 @@ class RendererConf:
     shadows: bool = False
     save_frames: str = "key"  # all | key | none
     device: str = "auto"  # the Vulkan device: auto (a GPU when present, else lavapipe) | cpu | cuda (render.device)
+    scenes: int = 1  # sub-scenes of the render scene: the shots rendered as one batch (render/batch.py)
 
 
 @dataclass

@@ -9,11 +9,13 @@ sees exactly the frames, scores and rewards a lone StepOutEnv would with the sam
 camera noise from its own stream (the job's seed + 1, frame after frame), and a shot poses every moved actor.
 
 A step: each env moves its movers and makes its shot; the K shots go through the frame pipeline as one batch
-(`env.shoot` -> `FramePipeline.detect_shots`); each env then judges its frame (`StepOutEnv.finish`). On the CPU
-renderer (lavapipe) the batch's shots are posed and rendered one after another while the detector child works on
-the previous frame (detection overlaps rendering, as in a job). The GPU path would take the same batch in one
-call: a `render.batch.BatchRenderer` with one sub-scene per env, the K shots posed together and rendered as one
-group (`run.pipeline.shoot_batch`), the detector fed the batch; not built for the gym yet (no GPU to test it on).
+(`env.shoot` -> `FramePipeline.detect_shots`), which hands them to the render scene's one call,
+`render.batch.RenderScene.render_batch`, as many at a time as it has sub-scenes; each env then judges its frame
+(`StepOutEnv.finish`). The envs' pipeline is over the process's renderer, a render scene of one sub-scene: the
+batch's shots are posed and rendered one after another while the detector child works on the previous frame
+(detection overlaps rendering, as in a job). A scene of K sub-scenes (`RenderScene.open(job.renderer, HIDDEN, K)`,
+one RenderSystemGroup under `renderer.device=cuda`) takes the same call whole; the envs do not open one yet
+(unmeasured: no GPU was lent to the session that wrote the CUDA branch).
 
 Autoreset is gymnasium's NEXT_STEP: the step after an env's episode ended resets that env (its action ignored,
 reward 0, not terminated) and returns its first observation. Infos are gymnasium's dict of arrays with `_key`

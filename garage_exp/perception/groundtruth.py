@@ -25,12 +25,13 @@ pixels): fully visible >= 0.85, partly occluded >= 0.5, largely occluded > 0, fu
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
+from garage_exp.core import arrays
 from garage_exp.render import Frame
 from garage_exp.scene.camera import to_camera, to_pixels
 from garage_exp.scene.description import Box, Entity, Pose, Scene
@@ -90,13 +91,10 @@ def kitti_level(box_height: float, visible_fraction: float, truncation: float) -
     return "ignored"
 
 
-def mask_box(mask: np.ndarray) -> BoxXYXY | None:
-    """Tight box (pixel edges) of a boolean mask, or None when it is empty."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0:
-        return None
-    cols = np.flatnonzero(mask.any(axis=0))
-    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+def mask_box(mask) -> BoxXYXY | None:
+    """Tight box (pixel edges) of a boolean mask, or None when it is empty (`mask_boxes` of one mask)."""
+    box, empty = mask_boxes(mask)
+    return None if bool(empty) else tuple(int(v) for v in box.tolist())
 
 
 def local_box(entity: Entity) -> tuple[np.ndarray, np.ndarray] | None:
@@ -162,8 +160,8 @@ def _edge_points(local: np.ndarray, per_edge: int = 9) -> np.ndarray:
 @dataclass(frozen=True)
 class MaskStats:
     """The pixel work of one actor's ground truth: its unoccluded silhouette and visible pixels, counted and
-    boxed (None: empty), and whether the silhouette touches the image border. The numpy path (`mask_stats`) and
-    the batched torch path (`perception.batch_truth`) both give these; `truth_records` turns them into records."""
+    boxed (None: empty), and whether the silhouette touches the image border (`batch_mask_stats`, `stats_of`);
+    `truth_records` turns them into records."""
 
     name: str
     unoccluded_pixels: int
@@ -173,26 +171,80 @@ class MaskStats:
     touches_border: bool
 
 
-def mask_stats(frame: Frame, silhouettes: Mapping[str, np.ndarray], ids: Mapping[str, int]) -> list[MaskStats]:
-    """Each actor's `MaskStats` on one frame, in the order of `silhouettes` (see `ground_truth`)."""
-    # Decal pixels (a shadow over a tyre's last millimetre) hide nothing: one mask for every actor of the frame.
-    see_through = np.isin(frame.ids, list(frame.see_through)) if frame.see_through else None
+def mask_boxes(masks):
+    """Tight boxes (pixel edges x1, y1, x2, y2, as `mask_box`) of (..., H, W) bool masks, numpy or torch: (...,
+    4) integer boxes and (...) bool `empty` (whose boxes are meaningless)."""
+    h, w = masks.shape[-2:]
+    rows, cols = masks.any(axis=-1), masks.any(axis=-2)  # (..., H), (..., W)
+    # argmax gives the first maximal index: the first row (column) holding a pixel, from either end.
+    y1, x1 = (rows * 1).argmax(axis=-1), (cols * 1).argmax(axis=-1)
+    y2 = h - (arrays.flip(rows, -1) * 1).argmax(axis=-1)
+    x2 = w - (arrays.flip(cols, -1) * 1).argmax(axis=-1)
+    return arrays.xp(masks).stack([x1, y1, x2, y2], axis=-1), ~rows.any(axis=-1)
+
+
+def batch_mask_stats(ids, silhouettes, actor_ids, see_through=()) -> dict:
+    """The pixel statistics of K actors in each of N frames, numpy or torch (on the pictures' device).
+
+    ids: (N, H, W) integer entity-id pictures. silhouettes: (N, K, H, W) bool, each actor rendered with
+    everything else hidden. actor_ids: (N, K) each actor's id (any value for padding). see_through: ids of floor
+    decals that hide nothing. Returns arrays of the inputs' kind: unoccluded (N, K), visible (N, K), full_box /
+    visible_box (N, K, 4), full_empty / visible_empty (N, K) bool, border (N, K) bool.
+    """
+    if len(ids.shape) != 3 or len(silhouettes.shape) != 4 or silhouettes.shape[0] != ids.shape[0] \
+            or tuple(silhouettes.shape[2:]) != tuple(ids.shape[1:]) \
+            or tuple(actor_ids.shape) != tuple(silhouettes.shape[:2]):
+        raise ValueError(f"ids {tuple(ids.shape)}, silhouettes {tuple(silhouettes.shape)} and actor ids "
+                         f"{tuple(actor_ids.shape)} do not describe N frames of K actors")
+    shown = ids[:, None] == actor_ids[:, :, None, None]  # (N, K, H, W)
+    if len(see_through):
+        # Decal pixels (a shadow over a tyre's last millimetre) hide nothing.
+        shown = shown | arrays.isin(ids, see_through)[:, None]
+    visible = shown & silhouettes
+    full_box, full_empty = mask_boxes(silhouettes)
+    visible_box, visible_empty = mask_boxes(visible)
+    border = (silhouettes[..., 0, :].any(axis=-1) | silhouettes[..., -1, :].any(axis=-1)
+              | silhouettes[..., :, 0].any(axis=-1) | silhouettes[..., :, -1].any(axis=-1))
+    return {"unoccluded": silhouettes.sum(axis=(-2, -1)), "visible": visible.sum(axis=(-2, -1)),
+            "full_box": full_box, "full_empty": full_empty, "visible_box": visible_box,
+            "visible_empty": visible_empty, "border": border}
+
+
+def stats_of(batch: dict, names: Sequence[Sequence[str]]) -> list[list[MaskStats]]:
+    """`batch_mask_stats`' numbers as `MaskStats`, frame by frame (names[n]: frame n's actors, in silhouette
+    order; padding beyond them is dropped). One copy to the CPU per array for the whole batch."""
+    host = {k: v.tolist() for k, v in batch.items()}
     out = []
-    for name, silhouette in silhouettes.items():
-        silhouette = np.asarray(silhouette, dtype=bool)
-        if silhouette.shape != frame.ids.shape:
-            raise ValueError(f"silhouette of {name} is {silhouette.shape}, the frame {frame.ids.shape}")
-        full_box = mask_box(silhouette)
-        if full_box is None:
-            out.append(MaskStats(name, 0, 0, None, None, False))
-            continue
-        shown = frame.ids == ids[name]
-        if see_through is not None:
-            shown |= see_through
-        visible = shown & silhouette
-        out.append(MaskStats(name, int(silhouette.sum()), int(visible.sum()), full_box, mask_box(visible),
-                             _touches_border(silhouette)))
+    for n, frame_names in enumerate(names):
+        row = []
+        for k, name in enumerate(frame_names):
+            if host["full_empty"][n][k]:
+                row.append(MaskStats(name, 0, 0, None, None, False))
+                continue
+            visible_box = None if host["visible_empty"][n][k] else tuple(host["visible_box"][n][k])
+            row.append(MaskStats(name, int(host["unoccluded"][n][k]), int(host["visible"][n][k]),
+                                 tuple(host["full_box"][n][k]), visible_box, bool(host["border"][n][k])))
+        out.append(row)
     return out
+
+
+def mask_stats(frame: Frame, silhouettes: Mapping[str, object], ids: Mapping[str, int]) -> list[MaskStats]:
+    """Each actor's `MaskStats` on one frame, in the order of `silhouettes` (see `ground_truth`): a batch of one
+    frame. The frame's ids and the silhouettes are numpy arrays or torch tensors alike."""
+    names = list(silhouettes)
+    if not names:
+        return []
+    for name in names:
+        if tuple(silhouettes[name].shape) != tuple(frame.ids.shape):
+            raise ValueError(f"silhouette of {name} is {tuple(silhouettes[name].shape)}, "
+                             f"the frame {tuple(frame.ids.shape)}")
+    stack = arrays.xp(frame.ids).stack
+    masks = stack([silhouettes[m] for m in names])[None]
+    if str(masks.dtype).rsplit(".", 1)[-1] != "bool":
+        masks = masks != 0
+    actor_ids = arrays.table(np.array([[ids[m] for m in names]], dtype=np.int32), frame.ids)
+    batch = batch_mask_stats(frame.ids[None], masks, actor_ids, sorted(frame.see_through))
+    return stats_of(batch, [names])[0]
 
 
 def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Scene,
@@ -268,5 +320,3 @@ def _clip_near(local: np.ndarray, near: float) -> np.ndarray:
     return np.concatenate(points, axis=0)
 
 
-def _touches_border(mask: np.ndarray) -> bool:
-    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())

@@ -14,16 +14,37 @@ shows as colour speckle, much like a camera's raw chroma noise before denoising.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
-from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
+from garage_exp.core import arrays
 
-KINDS = ("ideal", "noisy", "camera")
-TONES = ("srgb", "filmic")
+# Sensor kinds (`sensor.kind`): name -> fn(model, frames, rng) -> the frames as the camera delivers them, frames
+# (N, H, W, 3) uint8 numpy or torch. A kind is registered beside its function (`@sensor_kind`).
+KINDS: dict[str, Callable] = {}
+# Tone curves (`sensor.params.tone`): name -> fn(linear signal >= 0) -> display-linear signal (clipped at 1 after).
+TONES: dict[str, Callable] = {}
+
+
+def sensor_kind(name: str) -> Callable:
+    """Register a sensor kind's function under `name` (see KINDS)."""
+    def register(fn: Callable) -> Callable:
+        KINDS[name] = fn
+        return fn
+    return register
+
+
+def tone_curve(name: str) -> Callable:
+    """Register a tone curve under `name` (see TONES)."""
+    def register(fn: Callable) -> Callable:
+        TONES[name] = fn
+        return fn
+    return register
 
 # Parameter sets for conf/sensor/<name>.yaml (`kind` plus `params`).
 LEVELS: dict[str, dict[str, Any]] = {
@@ -43,13 +64,20 @@ def srgb_to_linear(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
-def linear_to_srgb(v: np.ndarray) -> np.ndarray:
-    """Linear light in [0, 1] to sRGB-encoded values (IEC 61966-2-1)."""
-    v = np.clip(v, 0.0, 1.0)
-    return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1.0 / 2.4) - 0.055)
+def linear_to_srgb(v):
+    """Linear light in [0, 1] to sRGB-encoded values (IEC 61966-2-1); numpy or torch."""
+    v = v.clip(0.0, 1.0)
+    return arrays.xp(v).where(v <= 0.0031308, v * 12.92, 1.055 * v ** (1.0 / 2.4) - 0.055)
 
 
-def aces(x: np.ndarray) -> np.ndarray:
+@tone_curve("srgb")
+def no_tone(x):
+    """No tone curve: the linear signal, clipped at full scale by the sRGB encoding."""
+    return x
+
+
+@tone_curve("filmic")
+def aces(x):
     """Narkowicz's fit of the ACES filmic curve: linear in, display-linear out, 1.0 only at infinity."""
     return (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
 
@@ -67,9 +95,7 @@ _OUT_STEPS, _OUT_RANGE = 16384, 4.0  # signal (full scale 1) -> output table: 1/
 
 @STATE.memo("process", maxsize=4)
 def _output_table(tone: str, quantize: bool) -> np.ndarray:
-    signal = (np.arange(_OUT_STEPS, dtype=np.float64) + 0.5) * (_OUT_RANGE / _OUT_STEPS)
-    if tone == "filmic":
-        signal = aces(signal)
+    signal = TONES[tone]((np.arange(_OUT_STEPS, dtype=np.float64) + 0.5) * (_OUT_RANGE / _OUT_STEPS))
     out = linear_to_srgb(np.clip(signal, 0.0, 1.0))
     return np.rint(out * 255.0).astype(np.uint8) if quantize else out.astype(np.float32)
 
@@ -153,49 +179,77 @@ class SensorModel:
             return self.exposure * needed, 1.0
         return self.exposure, min(needed, self.max_gain)
 
-    def apply(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """The frame as this camera would deliver it; `rng` draws the noise (same seed, same frame)."""
-        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-            raise ValueError(f"expected an HxWx3 uint8 RGB frame, got {rgb.dtype} {rgb.shape}")
-        if self.kind == "ideal":
-            return rgb
-        radiance = _LINEAR_LUT[rgb]
+    def apply(self, rgb, rng):
+        """The frame (H x W x 3 uint8, numpy or torch) as this camera would deliver it; `rng` draws the noise
+        (same seed, same frame). A batch of one (`apply_batch`)."""
+        if len(rgb.shape) != 3 or rgb.shape[2] != 3 or str(rgb.dtype).rsplit(".", 1)[-1] != "uint8":
+            raise ValueError(f"expected an HxWx3 uint8 RGB frame, got {rgb.dtype} {tuple(rgb.shape)}")
+        return KINDS[self.kind](self, rgb[None], rng)[0]
+
+    def apply_batch(self, rgb, rng=None):
+        """Frames (N, H, W, 3) uint8, numpy or torch (on their device), as this camera delivers them: uint8, or
+        float32 with `quantize` off; each frame with its own auto-exposure. rng: a numpy Generator (its stream,
+        whatever the frames' kind: a torch batch then draws the numbers a numpy batch would) or a torch Generator
+        (None: torch's default). One rng draws the whole batch at once, which is not the stream of N `apply`
+        calls."""
+        if len(rgb.shape) != 4 or rgb.shape[-1] != 3 or str(rgb.dtype).rsplit(".", 1)[-1] != "uint8":
+            raise ValueError(f"expected (N, H, W, 3) uint8 frames, got {rgb.dtype} {tuple(rgb.shape)}")
+        return KINDS[self.kind](self, rgb, rng)
+
+    def expose(self, rgb):
+        """The radiance reaching the sensor ((N, H, W, 3) float32: sRGB decoded, lens blur, vignetting) and the
+        AE's (exposure, gain) per frame: the front of every noisy kind's chain."""
+        radiance = arrays.take(arrays.table(_LINEAR_LUT, rgb, ("linear",)), rgb)
         if self.blur_sigma > 0:
-            import cv2
-
-            radiance = cv2.GaussianBlur(radiance, (0, 0), sigmaX=self.blur_sigma, sigmaY=self.blur_sigma,
-                                        borderType=cv2.BORDER_REFLECT)
+            radiance = arrays.gaussian_blur(radiance, self.blur_sigma)
         if self.vignetting > 0:
-            radiance *= _falloff(radiance.shape[:2], self.vignetting)[..., None]  # a fresh array: in place
-        exposure, gain = self.exposure_and_gain(float(radiance.mean()))
-        if self.kind == "camera":
-            return self._fast(radiance * np.float32(exposure * self.full_well), gain, rng)
-        expected = radiance.astype(np.float64) * (exposure * self.full_well)
-        electrons = np.minimum(rng.poisson(expected), self.full_well).astype(np.float32)
-        if self.read_noise > 0:
-            electrons += rng.normal(0.0, self.read_noise, size=electrons.shape).astype(np.float32)
-        signal = electrons * np.float32(gain / self.full_well)
-        if self.tone == "filmic":
-            signal = aces(np.maximum(signal, 0.0))
-        out = linear_to_srgb(np.clip(signal, 0.0, 1.0)).astype(np.float32)
-        if not self.quantize:
-            return out
-        return np.rint(out * 255.0).astype(np.uint8)
+            shape = tuple(rgb.shape[1:3])
+            falloff = arrays.table(_falloff(shape, self.vignetting), rgb, ("falloff", shape, self.vignetting))
+            radiance = radiance * falloff[..., None]
+        return radiance, [self.exposure_and_gain(m) for m in arrays.frame_means(radiance)]
 
-    def _fast(self, expected: np.ndarray, gain: float, rng: np.random.Generator) -> np.ndarray:
-        """The "camera" kind's noise and output, in float32 and tables: shot noise as a Gaussian of the
-        Poisson's variance (within 1% of it above ~10 e-, where a frame's pixels are), read noise in the same
-        draw, then the tone curve and sRGB as one lookup. About 10 ms a 640x480 frame instead of 60."""
-        sd = np.sqrt(expected + np.float32(self.read_noise ** 2))
-        electrons = expected + sd * rng.standard_normal(expected.shape, dtype=np.float32)
-        signal = np.minimum(electrons, np.float32(self.full_well)) * np.float32(gain / self.full_well)
-        index = np.clip(signal * np.float32(_OUT_STEPS / _OUT_RANGE), 0, _OUT_STEPS - 1).astype(np.int32)
-        table = _output_table(self.tone, self.quantize)
-        return table[index]
+    def deliver(self, signal):
+        """The linear signal (full scale 1) through the tone curve and sRGB: float32 in [0, 1], or uint8."""
+        out = arrays.cast(linear_to_srgb(TONES[self.tone](signal.clip(min=0.0)).clip(0.0, 1.0)), np.float32)
+        return arrays.as_uint8(out * 255.0) if self.quantize else out
 
     def params(self) -> dict[str, Any]:
         """The parameters as logged with a run."""
         return asdict(self)
+
+
+@sensor_kind("ideal")
+def ideal(model: SensorModel, rgb, rng):
+    """The frame as rendered."""
+    return rgb
+
+
+@sensor_kind("noisy")
+def poisson_chain(model: SensorModel, rgb, rng):
+    """The sensor chain: Poisson shot noise, well saturation, Gaussian read noise, gain, tone curve, sRGB."""
+    radiance, chosen = model.expose(rgb)
+    scale = arrays.column([e * model.full_well for e, _ in chosen], np.float64, radiance)
+    expected = arrays.cast(radiance, np.float64) * scale
+    electrons = arrays.cast(arrays.poisson(rng, expected).clip(max=model.full_well), np.float32)
+    if model.read_noise > 0:
+        electrons = electrons + arrays.normal(rng, model.read_noise, electrons)
+    return model.deliver(electrons * arrays.column([g / model.full_well for _, g in chosen], np.float32, electrons))
+
+
+@sensor_kind("camera")
+def fast_chain(model: SensorModel, rgb, rng):
+    """The "camera" kind's chain in float32 and tables: shot noise as a Gaussian of the Poisson's variance
+    (within 1% of it above ~10 e-, where a frame's pixels are), read noise in the same draw, then the tone curve
+    and sRGB as one lookup. About 10 ms a 640x480 frame instead of 60."""
+    radiance, chosen = model.expose(rgb)
+    expected = radiance * arrays.column([e * model.full_well for e, _ in chosen], np.float32, radiance)
+    sd = arrays.xp(expected).sqrt(expected + np.float32(model.read_noise ** 2))
+    electrons = expected + sd * arrays.standard_normal(rng, expected)
+    gain = arrays.column([g / model.full_well for _, g in chosen], np.float32, expected)
+    signal = electrons.clip(max=float(np.float32(model.full_well))) * gain
+    index = arrays.as_int((signal * np.float32(_OUT_STEPS / _OUT_RANGE)).clip(0, _OUT_STEPS - 1))
+    key = ("output", model.tone, model.quantize)
+    return arrays.take(arrays.table(_output_table(model.tone, model.quantize), signal, key), index)
 
 
 def make_sensor(*, name: str = "ideal", kind: str = "ideal", params: dict[str, Any] | None = None) -> SensorModel:

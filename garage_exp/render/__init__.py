@@ -13,13 +13,15 @@ from garage_exp.render.icd import check_available
 from garage_exp.core.plugins import build, check_target
 
 SAVE_FRAMES = ("all", "key", "none")
+MAX_SCENES = 256  # sub-scenes of one render scene: what one GPU's group held in the measured recipe (FACTS.md)
 
 
 def check_renderer(conf) -> None:
     """The `renderer` group: an allowed factory, a light pool SAPIEN's default shader can compile (1-10),
-    a known save_frames and device (auto | cpu | cuda)."""
+    a known save_frames and device (auto | cpu | cuda), 1 to MAX_SCENES sub-scenes."""
     check_target(str(conf._target_), "a renderer", "renderer._target_")
     check_range(conf.max_lights, 1, 10, "renderer.max_lights")
+    check_range(conf.get("scenes", 1), 1, MAX_SCENES, "renderer.scenes")
     if conf.save_frames not in SAVE_FRAMES:
         raise GarageError(f"unknown save_frames {conf.save_frames!r} (all | key | none)", "renderer.save_frames")
     # File globs only: whether Vulkan really finds the device shows when the first scene loads (ensure_device).

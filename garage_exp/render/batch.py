@@ -1,29 +1,40 @@
-"""The GPU path (`renderer.device=cuda`): a batch of shots rendered at once, one SAPIEN sub-scene per trial or
-environment in flight, with pictures that stay on the GPU.
+"""The render scene: ONE object owning N sub-scenes, whose `render_batch(shots)` is the only render call (the
+ManiSkill way: its `ManiSkillScene` over sub-scenes). Every caller of the frame pipeline (`run.pipeline`: a job's
+frames, hence a search batch's trials, the pre-screen, the gym's vector env, the benchmarks) renders through it.
 
-Recipe (../shared/FACTS.md, "SAPIEN and YOLO on an NVIDIA H100"): each sub-scene is the project's own scene
+A batch is up to N shots: shot i is posed in sub-scene i, and each of its cameras rendered with the unoccluded
+silhouettes of the actors ground truth asks for (`Take`).
+- CPU (`renderer.scenes`, 1 by default): each sub-scene is a renderer of its own (sub-scene 0 the process's warm
+  one, the others its `sibling()`s), rendered one after another through the `Renderer` interface: numpy pictures,
+  exactly those of N separate jobs (tests/test_render_scene.py).
+- CUDA (`renderer.device=cuda`): the N sub-scenes' SAPIEN scenes in one `sapien.render.RenderSystemGroup`
+  (`CudaGroup`), pictures as torch CUDA tensors; ground truth and the camera model then run on them in torch
+  (perception/groundtruth.py and sensor.py take numpy or torch), and the frame goes to numpy for the detector.
+
+The CUDA recipe (../shared/FACTS.md, "SAPIEN and YOLO on an NVIDIA H100"): each sub-scene is the project's own scene
 (`SapienRenderer` builds it, so materials, lamps and merged statics are the CPU path's); every camera and every
 render shape of a moving actor gets a row of one pose tensor (`set_gpu_pose_batch_index`), a torch float32 CUDA
-tensor of rows (p xyz, q wxyz, 6 unused) handed to `RenderSystemGroup.set_cuda_poses`; a frame writes poses
-into the tensor, `update_render()`, `take_picture()` on a camera group, and reads Color and Segmentation as CUDA
-tensors. Silhouettes (ground truth's unoccluded masks) are one more group picture per actor slot with everything
-else hidden in every sub-scene. Ground truth's pixel work and the camera model then run in torch
-(perception/batch_truth.py, batch_sensor.py), and only numbers leave the GPU.
+tensor of rows (p xyz, q wxyz, 6 unused) handed to `RenderSystemGroup.set_cuda_poses`; a batch writes poses into
+the tensor, `update_render()`, `take_picture()` on a camera group per camera, and reads Color and Segmentation as
+CUDA tensors. Silhouettes are one more group picture per actor with everything else hidden in every sub-scene.
+It reads the renderer only through its public methods (`SapienRenderer.camera_components`, `render_shapes`,
+`movers`, `place_camera`, `show`). Pinhole cameras only (a fisheye's cube faces are not batched).
 
-What runs without a GPU (and is tested on the CPU): `Layout` (which row each posed thing has), `pose_rows`
-(4x4 poses -> rows), `pack` (a batch of shots -> the tensor's rows). `BatchRenderer` needs CUDA and refuses in
-one line otherwise (`require_cuda`). Unmeasured here: no GPU was lent to the session that wrote it;
-benchmarks/gpu_pipeline.py checks it against the CPU path on the GPU machine.
+What runs without a GPU (and is tested on the CPU): the CPU branch; `Layout` (which row each posed thing has),
+`pose_rows` (4x4 poses -> rows), `pack` (a batch of shots -> the tensor's rows). The CUDA branch needs CUDA and
+refuses in one line otherwise (`require_cuda`). Unmeasured: no GPU was lent to the session that wrote it
+(docs/gpu.md); benchmarks/performance/gpu_pipeline.py checks it against the CPU path on the GPU machine.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from garage_exp.core.errors import GarageError
+from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.scene.camera import camera_to_world
 from garage_exp.scene.description import Pose
 
@@ -131,89 +142,201 @@ def pack(layout: Layout, shots: Sequence, specs: dict, hidden: Pose, rest: dict)
     return pose_rows(mats)
 
 
-class BatchRenderer:
-    """`scenes` copies of one scene description in a `RenderSystemGroup`, rendered a batch of shots at a time on
-    the GPU. Pinhole cameras only (a fisheye rig's faces are pinhole crops: render those and remap them with
-    render/fisheye_torch.py). Needs CUDA (`require_cuda`)."""
+@dataclass
+class Take:
+    """One camera of one shot, rendered: its frame (numpy, or torch CUDA tensors in `rgb` and `ids`), the
+    unoccluded silhouettes (name -> H x W bool) of the actors asked for (one left out is outside the image) and
+    the entity ids of the sub-scene that rendered it (a sub-scene kept from an earlier scene numbers its new
+    actors on from the old ones)."""
 
-    def __init__(self, scene, scenes: int, hidden: Pose, max_lights: int = 8, camera: str | None = None):
+    shot: object
+    camera: str
+    frame: Frame
+    silhouettes: dict
+    ids: dict
+
+
+class RenderScene:
+    """N sub-scenes of one scene description behind one `render_batch` (see the module's doc). subs: the
+    sub-scenes' renderers (`Renderer`s); hidden: where an actor absent from a shot waits (out of sight)."""
+
+    def __init__(self, subs: Sequence, hidden: Pose, cuda: bool = False):
+        if not subs:
+            raise ValueError("a render scene needs at least one sub-scene")
+        self.subs, self.hidden, self.cuda = list(subs), hidden, cuda
+        self.dressed = [0] * len(self.subs)  # the replicate whose materials each sub-scene holds
+        self._group = None  # the CUDA branch's RenderSystemGroup, built on load
+
+    @classmethod
+    def over(cls, renderer, hidden: Pose) -> "RenderScene":
+        """One sub-scene: a renderer already loaded (the CPU path's batch of one)."""
+        return cls([renderer], hidden)
+
+    @classmethod
+    def open(cls, conf, hidden: Pose, scenes: int | None = None) -> "RenderScene":
+        """The `renderer` group's scene of `scenes` sub-scenes (default `renderer.scenes`, 1 when unset): the
+        CUDA branch when `renderer.device=cuda` (refused in one line without a GPU), else the CPU branch with the
+        process's renderer as sub-scene 0."""
+        from garage_exp.render import open_renderer
+
+        n = int(scenes if scenes is not None else conf.get("scenes", 1) or 1)
+        cuda = str(conf.get("device", "auto")) == "cuda"
+        if cuda:
+            require_cuda()
+        first = open_renderer(conf)
+        if cuda:  # the group's sub-scenes, all built alike (no culling: one pose tensor poses every sub-scene)
+            return cls([first.sibling(cull=False) for _ in range(n)], hidden, cuda=True)
+        return cls([first, *(first.sibling() for _ in range(n - 1))], hidden)
+
+    @property
+    def gpu(self) -> "CudaGroup | None":
+        """The CUDA branch's group (its RenderSystemGroup and camera groups), None on the CPU."""
+        return self._group
+
+    @property
+    def n(self) -> int:
+        """Sub-scenes: the most shots a batch holds."""
+        return len(self.subs)
+
+    @property
+    def ids(self) -> dict[str, int]:
+        """Entity name -> id in the pictures (the same in every sub-scene: each is built in the same order)."""
+        return self.subs[0].ids
+
+    @property
+    def description(self):
+        return getattr(self.subs[0], "description", None)
+
+    def load(self, scene) -> None:
+        """Build every sub-scene from the description (a sub-scene that holds it already is kept). Under CUDA a
+        new description gets new sub-scenes: nothing can be added to a SAPIEN scene once it is in a group."""
+        if self.cuda and any(getattr(sub, "description", None) is not scene for sub in self.subs):
+            self.subs = [sub.sibling(cull=False) for sub in self.subs]
+        for k, sub in enumerate(self.subs):
+            if getattr(sub, "description", None) is not scene:
+                sub.load(scene)
+                self.dressed[k] = 0
+                self._group = None
+        if self.cuda and self._group is None:
+            self._group = CudaGroup(self.subs, scene, self.hidden)
+
+    def render_batch(self, shots: Sequence, cameras: Sequence[str], actors: Sequence[Sequence[str]],
+                     redress: Callable[[int, int], dict] | None = None) -> list[Take]:
+        """Up to `n` shots, shot i in sub-scene i: every camera of `cameras` (in order) of every shot (in order),
+        with the silhouettes of the shot's `actors`. redress(replicate, loaded): the material change that turns
+        the loaded replicate's surfaces into the shot's (None: replicates look alike)."""
+        if len(shots) > self.n:
+            raise ValueError(f"{len(shots)} shots for {self.n} sub-scenes")
+        if len(actors) != len(shots):
+            raise ValueError(f"{len(actors)} actor lists for {len(shots)} shots")
+        for k, shot in enumerate(shots):
+            sub = self.subs[k]
+            if redress is not None and shot.replicate != self.dressed[k] and hasattr(sub, "restyle"):
+                sub.restyle(redress(shot.replicate, self.dressed[k]))
+                self.dressed[k] = shot.replicate
+        if self._group is not None:
+            return self._group.render(shots, cameras, actors)
+        takes = []
+        for k, shot in enumerate(shots):
+            sub = self.subs[k]
+            sub.set_pose("ego", shot.ego)
+            for name, pose in shot.poses.items():
+                sub.set_pose(name, pose if pose is not None else self.hidden)
+            for camera in cameras:
+                frame = sub.render(camera)
+                takes.append(Take(shot, camera, frame, sub.unoccluded_ids(camera, actors[k]), sub.ids))
+        return takes
+
+
+class CudaGroup:
+    """The CUDA branch of `RenderScene`: the sub-scenes' SAPIEN scenes in one RenderSystemGroup, a camera group
+    per camera (lit: Color and Segmentation; its ids-only twins: PositionSegmentation), poses from one CUDA
+    tensor. Needs CUDA (`require_cuda`)."""
+
+    def __init__(self, subs: Sequence, scene, hidden: Pose):
         require_cuda()
         import sapien
         import torch
 
-        from garage_exp.render.sapien_backend import SapienRenderer
-        from garage_exp.render.sapien_builder import DECALS
-
-        spec = next((c for c in scene.cameras if c.name == camera), scene.cameras[0]) if camera else scene.cameras[0]
-        if spec.fisheye:
-            raise GarageError("the batched renderer takes pinhole cameras; a fisheye is rendered as its faces",
-                              "renderer.device")
-        self.scene, self.spec, self.hidden = scene, spec, hidden  # hidden: where an absent actor waits
-        self.subs = []
-        for _ in range(scenes):  # each its own sapien.Scene, built as the CPU path builds it
-            sub = SapienRenderer(max_lights=max_lights, device="cuda", cull=False)
-            sub.load(scene)
-            self.subs.append(sub)
-        movers = tuple(n for n in self.subs[0]._built.entities if n != self.subs[0]._ego and not n.endswith(DECALS))
-        self.layout = Layout(scenes, (spec.name,), ("ego", *movers))
-        ego = self.subs[0]._ego
+        if any(spec.fisheye for spec in scene.cameras):
+            raise GarageError("the batched renderer takes pinhole cameras; render a fisheye rig with "
+                              "renderer.device=auto or cpu", "renderer.device")
+        self.subs, self.scene, self.hidden = list(subs), scene, hidden
+        self.specs = {spec.name: spec for spec in scene.cameras}
+        first = self.subs[0]
+        self.layout = Layout(len(self.subs), tuple(self.specs), ("ego", *first.movers))
         for i, sub in enumerate(self.subs):
-            cam = sub._cameras[spec.name]
-            for component in (cam.component, cam.silhouette):
-                component.set_gpu_pose_batch_index(self.layout.row(i, spec.name))
+            for name in self.specs:
+                for component in sub.camera_components(name):
+                    component.set_gpu_pose_batch_index(self.layout.row(i, name))
             for name in self.layout.actors:
-                entity = ego if name == "ego" else name
-                entities = sub._built.entities
-                for node in (entities.get(entity), entities.get(entity + DECALS)):  # its contact shadow too
-                    for body in (node.components if node is not None else []):
-                        for shape in getattr(body, "render_shapes", []):
-                            shape.set_gpu_pose_batch_index(self.layout.row(i, name))
-        self.group = sapien.render.RenderSystemGroup([sub._built.scene.render_system for sub in self.subs])
-        self.lit = self.group.create_camera_group([s._cameras[spec.name].component for s in self.subs],
-                                                  ["Color", "Segmentation"])
-        self.ids_only = self.group.create_camera_group([s._cameras[spec.name].silhouette for s in self.subs],
-                                                       ["PositionSegmentation"])
+                for shape in sub.render_shapes(sub.ego if name == "ego" else name):
+                    shape.set_gpu_pose_batch_index(self.layout.row(i, name))
+        self.group = sapien.render.RenderSystemGroup([sub.sapien_scene.render_system for sub in self.subs])
+        self.lit = {name: self.group.create_camera_group([sub.camera_components(name)[0] for sub in self.subs],
+                                                         ["Color", "Segmentation"]) for name in self.specs}
+        self.ids_only = {name: self.group.create_camera_group(
+            [sub.camera_components(name)[1] for sub in self.subs], ["PositionSegmentation"]) for name in self.specs}
         self.poses = torch.zeros((self.layout.rows, ROW), dtype=torch.float32, device="cuda")
-        self.group.set_cuda_poses(sapien.pysapien.CudaArray(self.poses))  # noqa: the tensor's memory, kept
+        self.group.set_cuda_poses(sapien.pysapien.CudaArray(self.poses))  # the tensor's memory, kept
+        self.rest = {e.name: e.pose for e in scene.entities}
+        self.vehicles, self.ego = first.vehicles, first.ego
+        self.see_through = first.decal_ids
 
-    def _pose(self, shots: Sequence) -> None:
+    def render(self, shots: Sequence, cameras: Sequence[str], actors: Sequence[Sequence[str]]) -> list[Take]:
         import torch
 
-        specs = {self.spec.name: self.spec}
-        rest = {e.name: e.pose for e in self.scene.entities}
-        self.poses.copy_(torch.from_numpy(pack(self.layout, shots, specs, self.hidden, rest)))
-        for sub, shot in zip(self.subs, shots):  # the light pool follows each camera (CPU-side, per sub-scene)
-            sub._place(sub._cameras[self.spec.name], camera_to_world(shot.ego, self.spec))
-            sub.bodies.show_only(sub.bodies.base)
-        self.group.update_render()
+        from garage_exp.scene.camera import intrinsics_of
 
-    def render(self, shots: Sequence):
-        """Colour (N, H, W, 3) uint8 and ids (N, H, W) int32 CUDA tensors of the shots (N = len(shots))."""
+        self.poses.copy_(torch.from_numpy(pack(self.layout, shots, self.specs, self.hidden, self.rest)))
+        n, frames = len(shots), {}
+        for camera in cameras:
+            for sub, shot in zip(self.subs, shots):  # the light pool follows each camera (CPU-side, per sub-scene)
+                sub.place_camera(camera, camera_to_world(shot.ego, self.specs[camera]))
+                sub.show()
+            self.group.update_render()
+            lit = self.lit[camera]
+            lit.take_picture()
+            rgba = torch.as_tensor(lit.get_picture_cuda("Color"), device="cuda")[:n]
+            seg = torch.as_tensor(lit.get_picture_cuda("Segmentation"), device="cuda")[:n]
+            rgb = (rgba[..., :3].clamp(0.0, 1.0) * 255.0 + 0.5).to(torch.uint8)  # as sapien_cameras.take rounds
+            ids = seg[..., 1].to(torch.int32)
+            if not self.scene.background:
+                rgb[ids == 0] = BLANK_GREY
+            frames[camera] = (rgb, ids, self._silhouettes(camera, n, sorted({a for names in actors for a in names})))
+        takes = []
+        for k, shot in enumerate(shots):
+            for camera in cameras:
+                rgb, ids, masks = frames[camera]
+                spec = self.specs[camera]
+                frame = Frame(camera, rgb[k], ids[k], camera_to_world(shot.ego, spec), *intrinsics_of(spec),
+                              self._vehicle_poses(shot), see_through=self.see_through)
+                takes.append(Take(shot, camera, frame, {a: masks[a][k] for a in actors[k]}, self.subs[k].ids))
+        return takes
+
+    def _silhouettes(self, camera: str, n: int, names: Sequence[str]) -> dict:
+        """name -> (n, H, W) bool CUDA masks: the actor alone in each sub-scene; the ids picture's channel 3, as
+        `sapien_cameras.take_ids` reads it."""
         import torch
 
-        self._pose(shots)
-        self.lit.take_picture()
-        n = len(shots)
-        rgba = torch.as_tensor(self.lit.get_picture_cuda("Color"), device="cuda")[:n]
-        seg = torch.as_tensor(self.lit.get_picture_cuda("Segmentation"), device="cuda")[:n]
-        rgb = (rgba[..., :3].clamp(0.0, 1.0) * 255.0 + 0.5).to(torch.uint8)  # as SapienRenderer._take rounds
-        return rgb, seg[..., 1].to(torch.int32)
-
-    def silhouettes(self, shots: Sequence, names: Sequence[str]):
-        """(N, K, H, W) bool CUDA masks: actor k alone in each sub-scene (K = len(names)); the ids picture's
-        channel 3, as `SapienRenderer._take_ids` reads it."""
-        import torch
-
-        if not names:
-            return torch.zeros((len(shots), 0, self.spec.height, self.spec.width), dtype=torch.bool, device="cuda")
-        masks = []
+        masks = {}
+        group = self.ids_only[camera]
         for name in names:
             for sub in self.subs:
-                sub.bodies.show_only(sub.bodies.only([name]))
+                sub.show([name])
             self.group.update_render()
-            self.ids_only.take_picture()
-            ids = torch.as_tensor(self.ids_only.get_picture_cuda("PositionSegmentation"), device="cuda")
-            masks.append(ids[: len(shots), ..., 3] == self.subs[0].ids[name])
+            group.take_picture()
+            ids = torch.as_tensor(group.get_picture_cuda("PositionSegmentation"), device="cuda")
+            mine = torch.tensor([sub.ids[name] for sub in self.subs[:n]], device="cuda").view(-1, 1, 1)
+            masks[name] = ids[:n, ..., 3] == mine
         for sub in self.subs:
-            sub.bodies.show_only(sub.bodies.base)
-        return torch.stack(masks, dim=1)
+            sub.show()
+        return masks
+
+    def _vehicle_poses(self, shot) -> dict[str, Pose]:
+        """Where each vehicle stood in the shot (`Frame.poses`): the shot's pose, else the scene's."""
+        out = {}
+        for name in self.vehicles:
+            pose = shot.ego if name == self.ego else shot.poses[name] if name in shot.poses else self.rest.get(name)
+            out[name] = self.hidden if pose is None else pose
+        return out

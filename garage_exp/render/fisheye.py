@@ -31,6 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# The views a detector may get instead of the raw image live with the scene's camera models (scene/views.py,
+# registered there); they are lenses like the ones here.
+from garage_exp.scene.views import VIEWS, Cylindrical, Pinhole, grid as _grid, unit as _unit  # noqa: F401
+
 PAD = 1  # face pixels of margin on every side (bilinear sampling at a face's edge)
 MIN_FACE = 16  # pixels per face side at least
 FACE_QUANTILE = 99.0  # per cent of a face's fisheye pixels whose footprint gets at least one face pixel
@@ -46,66 +50,6 @@ def face_rotation(name: str) -> np.ndarray:
     rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     return rz @ ry
-
-
-def _grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-    return u, v
-
-
-def _unit(d: np.ndarray) -> np.ndarray:
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-
-@dataclass(frozen=True)
-class Pinhole:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    @classmethod
-    def from_fovx(cls, width: int, height: int, fovx: float) -> "Pinhole":
-        f = width / 2.0 / math.tan(math.radians(fovx) / 2.0)
-        return cls(width, height, f, f, width / 2.0, height / 2.0)
-
-    def rays(self) -> tuple[np.ndarray, np.ndarray]:
-        u, v = _grid(self.width, self.height)
-        d = np.stack([np.ones_like(u), -(u - self.cx) / self.fx, -(v - self.cy) / self.fy], axis=-1)
-        return _unit(d), np.ones(u.shape, dtype=bool)
-
-    def project(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous pixel coordinates; rays at or behind the image plane get NaN."""
-        d = np.asarray(d, dtype=float)
-        x = np.where(d[..., 0] > 1e-9, d[..., 0], np.nan)
-        return self.cx - self.fx * d[..., 1] / x, self.cy - self.fy * d[..., 2] / x
-
-
-@dataclass(frozen=True)
-class Cylindrical:
-    width: int
-    height: int
-    f: float  # pixels per radian of azimuth, and per unit of tan(elevation)
-    cx: float
-    cy: float
-
-    @classmethod
-    def from_fovx(cls, width: int, height: int, fovx: float) -> "Cylindrical":
-        return cls(width, height, width / math.radians(fovx), width / 2.0, height / 2.0)
-
-    def rays(self) -> tuple[np.ndarray, np.ndarray]:
-        u, v = _grid(self.width, self.height)
-        phi = (u - self.cx) / self.f  # to the right
-        d = np.stack([np.cos(phi), -np.sin(phi), -(v - self.cy) / self.f], axis=-1)
-        return _unit(d), np.ones(u.shape, dtype=bool)
-
-    def project(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = np.asarray(d, dtype=float)
-        flat = np.hypot(d[..., 0], d[..., 1])
-        return (self.cx + self.f * np.arctan2(-d[..., 1], d[..., 0]),
-                self.cy - self.f * d[..., 2] / np.where(flat > 1e-12, flat, np.nan))
 
 
 @dataclass(frozen=True)
@@ -192,15 +136,10 @@ def lens_of(spec) -> Fisheye:
     return resolve(model.lens, "a camera lens", f"camera model {model.name}")(spec)
 
 
-def view_lens(spec) -> Pinhole | Cylindrical | None:
-    """The undistorted view a fisheye camera's detector gets (`spec.view`), None for the raw image. Same size
-    as the fisheye image; a perspective view cannot hold 190 degrees, so it keeps the central 120 degrees
-    across; the cylindrical view keeps the lens's whole width."""
-    if spec.view == "perspective":
-        return Pinhole.from_fovx(spec.width, spec.height, 120.0)
-    if spec.view == "cylindrical":
-        return Cylindrical.from_fovx(spec.width, spec.height, min(spec.fov, 180.0))
-    return None
+def view_lens(spec):
+    """The undistorted view a fisheye camera's detector gets (`spec.view`, a registered view: scene/views.py),
+    None for the raw image."""
+    return VIEWS[spec.view](spec)
 
 
 @dataclass

@@ -33,9 +33,9 @@ from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.bodies import Bodies
 from garage_exp.render.cull import frustum_planes, outside_frustum
 from garage_exp.render.device import ensure_device
-from garage_exp.render.fisheye import Pinhole, lookup, remap_bilinear
+from garage_exp.render.fisheye import lookup, remap_bilinear
 from garage_exp.render.light_pool import LightPool
-from garage_exp.render.sapien_builder import SceneBuilder, merges, static_key
+from garage_exp.render.sapien_builder import DECALS, SceneBuilder, merges, static_key
 from garage_exp.render.sapien_cameras import SapienCamera, add_camera, take, take_ids
 from garage_exp.render.silhouettes import disjoint_groups, image_rect
 from garage_exp.scene.camera import camera_to_world, intrinsics_of
@@ -248,7 +248,7 @@ class SapienRenderer:
             rgb[ids == 0] = BLANK_GREY
         poses = self._vehicle_poses()
         see_through = frozenset(self._built.decal_ids)
-        if isinstance(lens, Pinhole):  # a perspective view is a plain pinhole frame
+        if getattr(lens, "model", "") == "pinhole":  # a perspective view is a plain pinhole frame
             return Frame(cam.spec.name, rgb, ids, pose, lens.fx, lens.fy, lens.cx, lens.cy, poses,
                          see_through=see_through)
         f = lens.f
@@ -307,6 +307,53 @@ class SapienRenderer:
                     out[name] = mask
         return out
 
+    # ---- what the batched scene (render/batch.py) reads and sets -------------------------------------------
+
+    def sibling(self, cull: bool | None = None) -> "SapienRenderer":
+        """A new renderer with these settings: another sub-scene of a `render.batch.RenderScene` (the shaders
+        are compiled once per process, so it costs only its scene's build)."""
+        return SapienRenderer(max_lights=self.max_lights, shadows=self.shadows, batch_static=self.batch_static,
+                              cull=self.cull if cull is None else cull, device=self.device)
+
+    @property
+    def ego(self) -> str | None:
+        """The loaded scene's ego entity (the cameras' carrier)."""
+        return self._ego
+
+    @property
+    def movers(self) -> list[str]:
+        """Entities that move from shot to shot with their own render shapes: every one with its own id but the
+        ego and the decal holders (which move with their actor, `render_shapes`)."""
+        return [n for n in self._built.entities if n != self._ego and not n.endswith(DECALS)]
+
+    @property
+    def vehicles(self) -> set[str]:
+        return set(self._built.vehicles)
+
+    @property
+    def decal_ids(self) -> frozenset[int]:
+        """Ids of flat pictures on the floor that hide nothing (`Frame.see_through`)."""
+        return frozenset(self._built.decal_ids)
+
+    def render_shapes(self, name: str) -> list:
+        """The SAPIEN render shapes of entity `name` and of its decals (its contact shadow), which move with it."""
+        entities = self._built.entities
+        return [shape for node in (entities.get(name), entities.get(name + DECALS)) if node is not None
+                for body in node.components for shape in getattr(body, "render_shapes", [])]
+
+    def camera_components(self, camera_name: str) -> tuple[object, object]:
+        """A pinhole camera's SAPIEN components: the lit one and its ids-only twin."""
+        cam = self._camera(camera_name)
+        return cam.component, cam.silhouette
+
+    def place_camera(self, camera_name: str, pose: np.ndarray) -> None:
+        """The camera at a 4x4 pose, and the light pool on the lamps nearest it."""
+        self._place(self._camera(camera_name), pose)
+
+    def show(self, names: Sequence[str] | None = None) -> None:
+        """Draw what a frame draws (None: the scene's base visibility, not culled), or only the named entities."""
+        self.bodies.show_only(self.bodies.base if names is None else self.bodies.only(list(names)))
+
     # ---- helpers --------------------------------------------------------------------------------------------
 
     def _camera(self, name: str) -> SapienCamera:
@@ -344,8 +391,8 @@ def get_renderer(max_lights: int = 8, shadows: bool = False, device: str = "auto
 
 
 def make(*, max_lights: int = 8, shadows: bool = False, save_frames: str = "key", name: str = "sapien",
-         device: str = "auto") -> SapienRenderer:
+         device: str = "auto", scenes: int = 1) -> SapienRenderer:
     """The factory `conf/renderer/sapien.yaml` names (`_target_`), called with the `renderer` group's keys:
     the process's renderer with its light pool, shadows and Vulkan device. save_frames and name are the frame
-    loop's and the level's, not the renderer's."""
+    loop's and the level's, scenes the render scene's (render/batch.py), not the renderer's."""
     return get_renderer(max_lights=int(max_lights), shadows=bool(shadows), device=str(device))

@@ -43,7 +43,8 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     from garage_exp.core.plugins import build
     from garage_exp.perception.detect import Intrinsics
     from garage_exp.perception.detect.worker import open_detector
-    from garage_exp.render import open_renderer
+    from garage_exp.render.batch import RenderScene
+    from garage_exp.scenario.assemble import HIDDEN
     from garage_exp.scene.gltf import export_glb
 
     scene, setup = prepared.scene, prepared.setup
@@ -51,7 +52,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> dict:
     detector = open_detector(prepared.detector, Intrinsics.of(scene.cameras[0]))
     classes = prepared.detector.scoring()
     sensor = build(cfg.sensor, "a sensor model", "sensor._target_")
-    renderer = open_renderer(cfg.renderer)
+    renderer = RenderScene.open(cfg.renderer, HIDDEN)  # renderer.scenes sub-scenes; the GPU's group under cuda
     renderer.load(scene)
     trial = cfg.search.trial is not None  # a search trial: lean (the study's parent holds map, plots, frames)
     if not trial:

@@ -1,20 +1,22 @@
 """The one frame pipeline: pose the actors -> render -> ground truth -> camera model -> detect -> score.
 
-Every caller goes through it: a job's frame loop (`run.frames`, hence a search's trials, which run as jobs), the
-search's pre-screen (`search.prescreen`), the gym's steps (`gym.env` and `gym.vector`: `detect_shots`) and the
-benchmarks (`benchmarks/jobkit.py`).
+Every caller goes through it: a job's frame loop (`run.frames`, hence a search batch's trials, which run as jobs),
+the search's pre-screen (`search.prescreen`), the gym's steps (`gym.env` and `gym.vector`: `detect_shots`) and the
+benchmarks (`benchmarks/jobkit.py`, `benchmarks/performance/gpu_pipeline.py`).
 Nothing else strings these stages together.
+
+It always works in batches: the shots go to the render scene (`render.batch.RenderScene`, N sub-scenes) N at a
+time, through its one render call, `render_batch`; on the CPU N is 1 unless `renderer.scenes` says otherwise,
+under `renderer.device=cuda` the N sub-scenes render as one group on the GPU. Ground truth and the camera model
+take the pictures as they come (numpy, or torch on the GPU).
 
 The stages, and the order that fixes the sensor's random stream (hence the golden tables):
 - `FramePipeline.frames(shots)`: for every shot of the batch, every camera in the scene's order: render, ground
   truth, then the sensor model (drawing from `sensor_rng` in that order). A shot of another replicate re-dresses
-  the materials first.
+  the materials of its sub-scene first.
 - `FramePipeline.detected(frames)`: each frame with its detections, in order. Detection overlaps rendering: frame
-  k is sent to the detector (a child process, perception/detect/worker.py) before frame k+1 is rendered.
+  k is sent to the detector (a child process, perception/detect/worker.py) before the next batch is rendered.
 - `FramePipeline.score(item, dets)`: the target's score (`detector.iou/match/threshold`, the detector's classes).
-
-A batch is a sequence of shots (`scenario.Shot`); on the CPU renderer they render one after another (a batch of
-one at a time, as before). The GPU path (`render.batch`, `renderer.device=cuda`) renders a batch in one go.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from omegaconf import DictConfig
 
 from garage_exp import exports
 from garage_exp.perception.groundtruth import VehicleTruth
+from garage_exp.render.batch import RenderScene, Take
 from garage_exp.scenario import Shot
 from garage_exp.scene.description import Scene
 
@@ -70,14 +73,28 @@ def replicate_materials(cfg: DictConfig, scene: Scene, replicate: int, loaded: i
     return {back[m]: new for m, new in redress(scene, draw(replicate)).items()}
 
 
+def batches(items: Iterable, size: int) -> Iterator[list]:
+    """`items` in lists of `size` (the last may be shorter), read lazily."""
+    batch = []
+    for item in items:
+        batch.append(item)
+        if len(batch) == size:
+            yield batch
+            batch = []
+    if batch:
+        yield batch
+
+
 @dataclass
 class FramePipeline:
-    """A job's (or an environment's) frame pipeline over a loaded renderer.
+    """A job's (or an environment's) frame pipeline over a render scene.
 
-    cfg: the job's composed config (look, materials, seed, dataset, detector's iou/match/threshold). sensor: the
-    camera model (`perception.sensor.SensorModel` or any `apply(rgb, rng)`), drawing from `sensor_rng`.
-    detector: what `detected` sends frames to (`submit`/`result`: `perception.detect.worker.open_detector`'s, or
-    an in-process one); scoring: the detector's classes for `score_target` (`Detector.scoring()`).
+    cfg: the job's composed config (look, materials, seed, dataset, detector's iou/match/threshold). renderer: a
+    `render.batch.RenderScene` (N sub-scenes), or one loaded `Renderer`, which becomes a scene of one sub-scene.
+    sensor: the camera model (`perception.sensor.SensorModel` or any `apply(rgb, rng)`), drawing from
+    `sensor_rng`. detector: what `detected` sends frames to (`submit`/`result`:
+    `perception.detect.worker.open_detector`'s, or an in-process one); scoring: the detector's classes for
+    `score_target` (`Detector.scoring()`).
     """
 
     cfg: DictConfig
@@ -87,7 +104,12 @@ class FramePipeline:
     sensor_rng: np.random.Generator
     detector: object | None = None
     scoring: dict = field(default_factory=dict)
-    dressed: int = 0  # the replicate whose materials the renderer holds (the build drew replicate 0's)
+
+    def __post_init__(self) -> None:
+        from garage_exp.scenario.assemble import HIDDEN
+
+        self.stage = (self.renderer if isinstance(self.renderer, RenderScene)
+                      else RenderScene.over(self.renderer, HIDDEN))
 
     @cached_property
     def intrinsics(self) -> dict:
@@ -98,41 +120,43 @@ class FramePipeline:
 
     # -- render, ground truth, camera model ---------------------------------------------------------------------
 
-    def pose(self, shot: Shot) -> None:
-        """Move the ego and the shot's actors (one not in this variant: out of sight)."""
-        from garage_exp.scenario.assemble import HIDDEN
+    def redress(self, replicate: int, loaded: int) -> dict:
+        """The material change from the loaded replicate's surfaces to `replicate`'s (`replicate_materials`)."""
+        return replicate_materials(self.cfg, self.scene, replicate, loaded)
 
-        if shot.replicate != self.dressed and hasattr(self.renderer, "restyle"):
-            self.renderer.restyle(replicate_materials(self.cfg, self.scene, shot.replicate, self.dressed))
-            self.dressed = shot.replicate
-        self.renderer.set_pose("ego", shot.ego)
-        for name, pose in shot.poses.items():
-            self.renderer.set_pose(name, pose if pose is not None else HIDDEN)
+    def shots(self, shots: Sequence[Shot], cameras: Sequence[str], actors: Sequence[Sequence[str]],
+              rngs: Sequence[np.random.Generator]) -> Iterator[Rendered]:
+        """Every camera of every shot, in order, rendered N at a time (`RenderScene.render_batch`), then each
+        frame's ground truth and camera model (drawing from its shot's rng) in that order."""
+        n = self.stage.n
+        for start in range(0, len(shots), n):
+            takes = self.stage.render_batch(shots[start:start + n], cameras, actors[start:start + n], self.redress)
+            per_shot = len(cameras)
+            for k, take in enumerate(takes):
+                yield self.finish(take, rngs[start + k // per_shot])
 
-    def shoot(self, shot: Shot, camera: str, actors: Sequence[str] | None = None,
-              rng: np.random.Generator | None = None) -> Rendered:
-        """One camera of the posed shot: rendered, its ground truth (of `actors`, default `in_view`), the camera
-        model applied (one draw from `rng`, default `sensor_rng`)."""
+    def finish(self, take: Take, rng: np.random.Generator) -> Rendered:
+        """A rendered camera's ground truth (of its silhouettes' actors) and camera model (one draw from `rng`).
+        The frame leaves as numpy (the detector's and the tables' input)."""
         from garage_exp.perception.groundtruth import ground_truth
         from garage_exp.render.composite import blank_composite
 
-        renderer, scene = self.renderer, self.scene
-        rng = self.sensor_rng if rng is None else rng
-        frame = renderer.render(camera)
-        names = in_view(scene, shot.poses) if actors is None else list(actors)
-        truth = ground_truth(frame, renderer.unoccluded_ids(camera, names), scene, renderer.ids)
+        shot, frame, scene, ids = take.shot, take.frame, self.scene, take.ids
+        truth = ground_truth(frame, take.silhouettes, scene, ids)
         if not scene.background and str(self.cfg.look.name) != "flat":
             # The blank control is a scene (the car alone on grey) that the camera then sees: exposure, blur
             # and noise act on the grey too. The flat look keeps the order its published tables used.
-            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, renderer.ids, [shot.target]), rng)
+            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, ids, [shot.target]), rng)
         else:
             rgb = self.sensor.apply(frame.rgb, rng)
             if not scene.background:
-                rgb = blank_composite(rgb, frame, renderer.ids, [shot.target])
+                rgb = blank_composite(rgb, frame, ids, [shot.target])
         target = next((t for t in truth if t.name == shot.target), None)
+        if not isinstance(rgb, np.ndarray):  # a GPU frame: the detector's worker and the tables take numpy
+            rgb = rgb.cpu().numpy()
         # copied only when a dataset will label the frame in 3D
         geometry = exports.FrameGeometry.of(frame) if self.cfg.get("dataset") else None
-        return Rendered(shot, camera, rgb, truth, target, geometry)
+        return Rendered(shot, take.camera, rgb, truth, target, geometry)
 
     def frames(self, shots: Iterable[Shot], progress: str | None = None) -> Iterator[Rendered]:
         """Every camera of every shot, in order: the sensor's random stream is drawn in this order. progress: a
@@ -141,10 +165,10 @@ class FramePipeline:
             from tqdm import tqdm
 
             shots = tqdm(shots, desc=progress, unit="frame", leave=False)
-        for shot in shots:
-            self.pose(shot)
-            for cam in self.scene.cameras:
-                yield self.shoot(shot, cam.name)
+        cameras = [cam.name for cam in self.scene.cameras]
+        for batch in batches(shots, self.stage.n):
+            actors = [in_view(self.scene, shot.poses) for shot in batch]
+            yield from self.shots(batch, cameras, actors, [self.sensor_rng] * len(batch))
 
     # -- detect, score ------------------------------------------------------------------------------------------
 
@@ -156,17 +180,9 @@ class FramePipeline:
                      rngs: Sequence[np.random.Generator]) -> Iterator[tuple[Rendered, list]]:
         """A batch of shots from independent episodes (the gym's vector env: one shot per episode, each with the
         ground truth of its `actors` and its own sensor stream in `rngs`), one camera each: each frame with its
-        detections, in order. On the CPU renderer the shots are posed and rendered one after another, detection
-        overlapping rendering (`overlapped`). The batch is one call so that the GPU path can take it whole: a
-        `render.batch.BatchRenderer` would pose the shots in its sub-scenes and render them together
-        (`shoot_batch`), the detector taking the batch at once."""
-
-        def frames():
-            for shot, names, rng in zip(shots, actors, rngs, strict=True):
-                self.pose(shot)
-                yield self.shoot(shot, camera, names, rng)
-
-        return self.detected(frames())
+        detections, in order. The shots render N at a time in the render scene's sub-scenes (one after another
+        on the CPU's single sub-scene, as one group on the GPU), detection overlapping rendering."""
+        return self.detected(self.shots(list(shots), [camera], list(actors), list(rngs)))
 
     def score(self, item: Rendered, dets: list):
         """The target's score in one frame (`perception.detect.score_target` with the job's matching rule)."""
@@ -206,22 +222,3 @@ def render_frames(cfg: DictConfig, scene: Scene, shots: Iterable[Shot], renderer
     """The render half of the pipeline for callers that detect on their own (the pre-screen's in-process
     detector, the benchmarks and tests of the render stage): every camera of every shot, in order."""
     return FramePipeline(cfg, scene, renderer, sensor, sensor_rng).frames(shots)
-
-
-def shoot_batch(renderer, shots: Sequence[Shot], actors: Sequence[str], sensor, generator=None):
-    """The GPU path's render, ground truth and camera model for a batch of shots, one per sub-scene of a
-    `render.batch.BatchRenderer`: (frames after the camera model (N, H, W, 3) uint8 CUDA, each frame's
-    `groundtruth.MaskStats` of `actors`, the rendered colour before the camera model). Only the numbers cross
-    to the CPU; `groundtruth.truth_records` makes the records of a frame from its stats."""
-    import torch
-
-    from garage_exp.perception.batch_sensor import apply_batch
-    from garage_exp.perception.batch_truth import batch_mask_stats, stats_of
-
-    rgb, ids = renderer.render(shots)
-    silhouettes = renderer.silhouettes(shots, actors)
-    known = renderer.subs[0].ids
-    actor_ids = torch.tensor([[known[m] for m in actors]] * len(shots), dtype=torch.int32, device=ids.device)
-    see = torch.tensor(sorted(renderer.subs[0]._built.decal_ids), dtype=torch.int32, device=ids.device)
-    stats = stats_of(batch_mask_stats(ids, silhouettes, actor_ids, see), [list(actors)] * len(shots))
-    return apply_batch(sensor, rgb, generator), stats, rgb

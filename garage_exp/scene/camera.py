@@ -15,10 +15,10 @@ import numpy as np
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.scene.description import CameraSpec, Pose
 from garage_exp.scene.lenses import DEFAULT, MODELS, check_model, model_of
+from garage_exp.scene.views import VIEWS  # the registered views: raw, perspective, cylindrical, ...
 
 RESOLUTION_RANGE = (16, 4096)  # pixels per side
 FOVY_LEVELS = (30.0, 60.0, 90.0, 120.0)  # the research's range of forward fields of view
-VIEWS = ("raw", "perspective", "cylindrical")
 
 
 @dataclass(frozen=True)

@@ -80,7 +80,7 @@ class Intrinsics:
     def of(cls, spec: Any) -> Intrinsics:
         """A scene camera's (`scene.description.CameraSpec`) intrinsics, as its detector sees the picture: a fisheye
         camera's raw image, or the perspective / cylindrical view undistorted from it."""
-        from garage_exp.render.fisheye import Cylindrical, lens_of, view_lens
+        from garage_exp.render.fisheye import lens_of, view_lens
         from garage_exp.scene.camera import intrinsics_of
 
         w, h = int(spec.width), int(spec.height)
@@ -91,9 +91,8 @@ class Intrinsics:
             lens = lens_of(spec)
             # the raw image of a lens model (scene/lenses.py; its lens has f, cx, cy and k, as the fisheye's)
             return cls(w, h, lens.f, lens.f, lens.cx, lens.cy, spec.model, tuple(lens.k), float(spec.fov), spec.name)
-        if isinstance(view, Cylindrical):
-            return cls(w, h, view.f, view.f, view.cx, view.cy, "cylindrical", camera=spec.name)
-        return cls(w, h, view.fx, view.fy, view.cx, view.cy, camera=spec.name)
+        # a registered view (scene/views.py) says how its pixels are laid out
+        return cls(w, h, view.fx, view.fy, view.cx, view.cy, view.model, camera=spec.name)
 
     @classmethod
     def default(cls, width: int = 640, height: int = 480, fovy: float = 60.0) -> Intrinsics:

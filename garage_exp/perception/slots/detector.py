@@ -1,6 +1,8 @@
 """The slot detector a job runs on its bird's-eye views, from the `slot_detector` config group.
 
-`load(conf)` returns `detect(image, meters_per_pixel) -> SlotFrame` (image: BEV RGB uint8 (H, W, 3)):
+`load(conf)` returns `detect(image, meters_per_pixel) -> SlotFrame` (image: BEV RGB uint8 (H, W, 3)) of the
+node's kind (`slot_detector.kind`). The kinds are a registry, each registered beside its class with
+`@slot_kind(NAME)` (a `SlotKind`: `check`, `weights`, `load`), so adding one is one module with its class:
 - `lines`: the classical baseline (garage_exp/perception/slots/lines.py), no weights;
 - `callable`: the user's function, named by `detect._target_` like every component a config names and built the
   project's one way (core.plugins.build, as a partial: the node's other keys are its keyword arguments; the
@@ -21,9 +23,34 @@ from omegaconf import DictConfig, OmegaConf
 from garage_exp.core.errors import GarageError, check_range, did_you_mean
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 
-KINDS = ("lines", "callable", "pose")
 KEYPOINTS = ("corners", "points")
 Detect = Callable[[np.ndarray, float], SlotFrame]
+KINDS: dict[str, type] = {}  # slot_detector.kind -> its SlotKind class (`@slot_kind`)
+
+
+def slot_kind(name: str) -> Callable:
+    """Register a `SlotKind` class under `name` (`slot_detector.kind`)."""
+    def register(cls: type) -> type:
+        KINDS[name] = cls
+        return cls
+    return register
+
+
+class SlotKind:
+    """A kind of slot detector: its own config check (after the node's shared keys are checked), its files (a real
+    job's preflight, beside the object detector's weights) and the detector itself."""
+
+    @staticmethod
+    def check(conf: Any) -> None:
+        """The kind's own keys (GarageError naming the key)."""
+
+    @staticmethod
+    def weights(conf: Any) -> None:
+        """The kind's files are there."""
+
+    @staticmethod
+    def load(conf: Any) -> Detect:
+        raise NotImplementedError
 
 
 def check_slot_detector(conf: Any) -> None:
@@ -51,23 +78,12 @@ def check_slot_detector(conf: Any) -> None:
                           "slot_detector.metrics.point_tolerance_m")
     check_range(m.angle_tolerance_deg, 0.0, 180.0, "slot_detector.metrics.angle_tolerance_deg")
     check_range(m.min_score, 0.0, 1.0, "slot_detector.metrics.min_score")
-    if kind == "callable":
-        user_function(conf)
-    elif kind == "pose":
-        if str(conf.keypoints) not in KEYPOINTS:
-            raise GarageError(f"unknown keypoints {conf.keypoints!r}{did_you_mean(str(conf.keypoints), KEYPOINTS)}",
-                              "slot_detector.keypoints")
-        check_range(conf.conf, 0.0, 1.0, "slot_detector.conf")
-        check_range(conf.imgsz, 32, 4096, "slot_detector.imgsz")
+    KINDS[kind].check(conf)
 
 
 def check_slot_weights(conf: Any) -> None:
-    """A pose detector's model file is there (a real job's preflight, beside the object detector's weights)."""
-    if str(conf.kind) != "pose":
-        return
-    path = Path(str(conf.model)).expanduser()
-    if not str(conf.model) or path.suffix != ".pt" or not path.is_file():
-        raise GarageError(f"{str(conf.model)!r} is not an ultralytics pose model file (.pt)", "slot_detector.model")
+    """The kind's files are there (a pose model's .pt; a real job's preflight, beside the object detector's)."""
+    KINDS[str(conf.kind)].weights(conf)
 
 
 def user_function(conf: Any) -> Detect:
@@ -93,8 +109,15 @@ def load(conf: Any) -> Detect:
     """The detector the `slot_detector` node describes (checked first)."""
     check_slot_detector(conf)
     check_slot_weights(conf)
-    kind = str(conf.kind)
-    if kind == "lines":
+    return KINDS[str(conf.kind)].load(conf)
+
+
+@slot_kind("lines")
+class Lines(SlotKind):
+    """The classical baseline (perception/slots/lines.py), no weights."""
+
+    @staticmethod
+    def load(conf: Any) -> Detect:
         from garage_exp.perception.slots.lines import detect as detect_lines
         from garage_exp.perception.slots.schema import SlotLinesConf
 
@@ -102,7 +125,18 @@ def load(conf: Any) -> Detect:
         params = SlotLinesConf(**OmegaConf.to_container(conf.lines, resolve=True)) \
             if isinstance(conf.lines, DictConfig) else conf.lines
         return lambda image, mpp: detect_lines(image, float(mpp), params)
-    if kind == "callable":
+
+
+@slot_kind("callable")
+class UserCallable(SlotKind):
+    """The user's function, `detect._target_` (`user_function`)."""
+
+    @staticmethod
+    def check(conf: Any) -> None:
+        user_function(conf)
+
+    @staticmethod
+    def load(conf: Any) -> Detect:
         target = str(conf.detect._target_)
         function = user_function(conf)
 
@@ -113,7 +147,30 @@ def load(conf: Any) -> Detect:
             return out
 
         return detect_user
-    return pose_detector(conf)
+
+
+@slot_kind("pose")
+class PoseModel(SlotKind):
+    """An ultralytics pose model (`model`, a .pt) whose keypoints are mapped by `from_pose`."""
+
+    @staticmethod
+    def check(conf: Any) -> None:
+        if str(conf.keypoints) not in KEYPOINTS:
+            raise GarageError(f"unknown keypoints {conf.keypoints!r}{did_you_mean(str(conf.keypoints), KEYPOINTS)}",
+                              "slot_detector.keypoints")
+        check_range(conf.conf, 0.0, 1.0, "slot_detector.conf")
+        check_range(conf.imgsz, 32, 4096, "slot_detector.imgsz")
+
+    @staticmethod
+    def weights(conf: Any) -> None:
+        path = Path(str(conf.model)).expanduser()
+        if not str(conf.model) or path.suffix != ".pt" or not path.is_file():
+            raise GarageError(f"{str(conf.model)!r} is not an ultralytics pose model file (.pt)",
+                              "slot_detector.model")
+
+    @staticmethod
+    def load(conf: Any) -> Detect:
+        return pose_detector(conf)
 
 
 def pose_detector(conf: Any) -> Detect:

@@ -44,7 +44,7 @@ class SlotDetectorConf:
     its direction (`keypoints: points`)."""
 
     name: str = "lines"
-    kind: str = "lines"  # lines | callable | pose
+    kind: str = "lines"  # a registered kind (perception/slots/detector.py KINDS): lines | callable | pose
     detect: Any = None  # callable: {_target_: package.module.function, ...its keyword arguments}
     target: str = ""  # the old form of `detect` ("package.module:function"): refused, naming the new one
     model: str = ""  # pose: path to the .pt

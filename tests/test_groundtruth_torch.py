@@ -1,5 +1,5 @@
-"""The batched torch ground truth (perception/batch_truth.py) against the numpy one (perception/groundtruth.py):
-the same pixel counts, boxes and records, to the pixel, on the same inputs (CPU tensors)."""
+"""Ground truth's pixel work (perception/groundtruth.py, one implementation) on a batch of torch tensors against
+numpy, frame by frame: the same pixel counts, boxes and records, to the pixel, on the same inputs (CPU tensors)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,7 @@ import pytest
 import torch
 from test_groundtruth import car, make_frame
 
-from garage_exp.perception.batch_truth import batch_mask_stats, mask_boxes, stats_of
-from garage_exp.perception.groundtruth import mask_box, mask_stats, truth_records
+from garage_exp.perception.groundtruth import batch_mask_stats, mask_box, mask_boxes, mask_stats, stats_of, truth_records
 from garage_exp.scene.description import Entity, Pose, Scene
 
 H, W = 48, 64
@@ -51,7 +50,7 @@ def test_mask_boxes_match_numpy_to_the_pixel():
 def test_batched_stats_and_records_equal_the_numpy_ones(seed):
     names, frames, silhouettes = random_frames(seed)
     ids = {m: i + 1 for i, m in enumerate(names)}
-    see = torch.tensor(sorted(frames[0].see_through), dtype=torch.int32)
+    see = sorted(frames[0].see_through)
     batch = batch_mask_stats(torch.from_numpy(np.stack([f.ids for f in frames])),
                              torch.from_numpy(np.stack(silhouettes)),
                              torch.tensor([[ids[m] for m in names]] * len(frames), dtype=torch.int32), see)
@@ -62,6 +61,10 @@ def test_batched_stats_and_records_equal_the_numpy_ones(seed):
     for frame, sil, stats in zip(frames, silhouettes, got):
         want = mask_stats(frame, dict(zip(names, sil)), ids)
         assert stats == want
+        tensors = {m: torch.from_numpy(x) for m, x in zip(names, sil)}
+        frame_t = make_frame(torch.from_numpy(frame.ids), frame.poses)
+        frame_t.see_through = frame.see_through
+        assert mask_stats(frame_t, tensors, ids) == want  # one frame, torch
         assert truth_records(frame, stats, scene) == truth_records(frame, want, scene)
     assert any(s.full_box is None for s in got[0])  # the empty silhouette is there, and gives no record
 
