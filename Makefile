@@ -5,6 +5,8 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+KSERVE_VENV := .venv-kserve
+KSERVE_STAMP := $(KSERVE_VENV)/.installed
 # The default experiment: a factorial sweep of lighting x case on the default plan, each cell twice (replicates:
 # intervals and an ANOVA with its interaction in the report; 2 keeps it under 3 minutes on 2 cores).
 RUN_ARGS ?= -m light=bright,dim case=1,2,3 replicates=2
@@ -19,13 +21,20 @@ system:
 	@bash scripts/setup_browser.sh
 	@bash scripts/setup_postgres.sh
 
-python: $(STAMP)
+python: $(STAMP) $(KSERVE_STAMP)
 
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --disable-pip-version-check -c constraints.txt -e '.[test]'
 	@# openvino phones home from a background thread on import unless opted out
 	@$(BIN)/opt_in_out --opt_out >/dev/null 2>&1 || true
+	@touch $@
+
+# A stock KServe server for tests/test_kserve_stock.py, in an environment of its own: kserve 0.21 pins a protobuf,
+# pandas and psutil older than the project's (requirements-kserve.txt).
+$(KSERVE_STAMP): requirements-kserve.txt
+	@test -x $(KSERVE_VENV)/bin/python || $(PYTHON) -m venv $(KSERVE_VENV)
+	$(KSERVE_VENV)/bin/pip install -q --disable-pip-version-check -r requirements-kserve.txt
 	@touch $@
 
 data: python

@@ -244,6 +244,7 @@ class Server:
             self.port = s.getsockname()[1]
         self.models, self.fault, self.log = models, fault, log
         self.proc = None
+        self.command = [sys.executable, __file__]  # the server's program (tests/kserve_stock.py: kserve's own)
 
     def url(self, name: str) -> str:
         return f"http://127.0.0.1:{self.port}/v2/models/{name}"
@@ -253,7 +254,7 @@ class Server:
         import time
         import urllib.request
 
-        args = [sys.executable, __file__, str(self.port), *(f"{k}={v}" for k, v in self.models.items())]
+        args = [*self.command, str(self.port), *(f"{k}={v}" for k, v in self.models.items())]
         if self.fault:
             args += ["--fault", self.fault]
         out = open(self.log, "a") if self.log else subprocess.DEVNULL

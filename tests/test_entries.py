@@ -406,3 +406,13 @@ def test_the_onnx_export_installs_nothing(models, tmp_path):
     assert "YOLO_AUTOINSTALL False" in said and "slimming with onnxslim" in said, said[-3000:]
     assert "AutoUpdate" not in said and "not found" not in said, said[-3000:]
     assert (tmp_path / "m.onnx").stat().st_size > 1_000_000
+
+
+def test_the_prescreens_cheap_detector_keeps_its_models_names():
+    """The search's pre-screen runs the first model alone: the class names given for the others stay behind."""
+    walker = "callable:user_detectors:unnamed_walker"
+    detector = Detector([walker, USER], class_names={"unnamed_walker": ["Pedestrian"], "centre_box": ["car"]},
+                        class_map={"Pedestrian": "person"})
+    cheap = detector.cheap(0.5)
+    assert cheap.names == ["unnamed_walker"] and cheap.class_names == {"unnamed_walker": ("Pedestrian",)}
+    assert Detector([USER, walker], class_names={"unnamed_walker": ["Pedestrian"]}).cheap(0.5).class_names == {}

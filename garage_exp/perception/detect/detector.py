@@ -166,7 +166,9 @@ class Detector:
 
     def cheap(self, scale: float) -> Detector:
         """The first model alone at `scale` of the input size (the search's pre-screen)."""
-        return replace(self, models=self.models[:1], imgsz=max(160, int(round(self.imgsz * scale / 32)) * 32))
+        first = self.entries[0].name
+        return replace(self, models=self.models[:1], imgsz=max(160, int(round(self.imgsz * scale / 32)) * 32),
+                       class_names={k: v for k, v in self.class_names.items() if k == first})
 
 
 def _remade(settings: dict[str, Any]) -> Detector:

@@ -12,7 +12,8 @@ What the served model must look like (docs/perception.md, "A model server"):
   letterboxed frames, -1 gets the frames as they are;
 - outputs in one of `tensors.LAYOUTS` (boxes/scores/classes, K x 6 rows, or ultralytics' raw head);
 - class names: the model config's parameter `names` (a JSON list, a JSON mapping of index to name, or
-  comma-separated), or the metadata's `parameters.names`.
+  comma-separated), or the metadata's `parameters.names`, or, for a server that gives neither (a stock KServe
+  server), the config's `detector.class_names.NAME`.
 
 `check()` (preflight, before anything is written) asks for liveness, the model's readiness, metadata and config
 and runs one probe frame: a server that is down, answers with an error or returns tensors of the wrong shape is
@@ -145,11 +146,8 @@ class ServerEntry(Entry):
             config = client.get_model_config(e.model, e.version)
         except Exception:  # noqa: BLE001 - the model config is Triton's extension; KServe servers may lack it
             config = {}
-        self.names = class_names(config, meta)
+        self.names = self._class_names(class_names(config, meta))
         self.classes = tuple(self.names)
-        if not self.names:
-            raise GarageError("the model gives no class names (a config parameter `names`)",
-                              self.where)
         self._input = input_of(meta, self.where)
         shapes = {o["name"]: [int(d) for d in o["shape"]] for o in meta.get("outputs", [])}
         try:
@@ -167,6 +165,20 @@ class ServerEntry(Entry):
         except ServerError as exc:
             raise GarageError(f"the probe frame failed: {exc.reason}", self.where) from None
         self._ready = True
+
+    def _class_names(self, served: list[str]) -> list[str]:
+        """The model's class names: the server's, or those the config gives (detector.class_names.NAME: a stock
+        KServe server has no config route and drops the metadata's `parameters`); both must agree."""
+        given = list(self.given_classes)
+        if served and given and served != given:
+            raise GarageError(f"the server's class names ({', '.join(served[:4])}, ...) differ from "
+                              f"detector.class_names.{self.name} ({', '.join(given[:4])}, ...): give one of them",
+                              self.where)
+        if not (served or given):
+            raise GarageError(f"the model gives no class names (no config parameter or metadata `parameters` "
+                              f"`names`, as on a stock KServe server): give them, +detector.class_names.{self.name}="
+                              "[person,bicycle,car,...] or a file of them (docs/perception.md)", self.where)
+        return served or given
 
     def _connect(self):
         if self._client is None:
