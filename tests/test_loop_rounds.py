@@ -313,3 +313,34 @@ def test_batchnorm_calibration_keeps_eval_outputs_and_makes_train_mode_agree(pho
     assert calibrate_model(model, images, 128) == 81
     assert gap(features(model, False), before) < 1e-3  # eval outputs unchanged
     assert gap(features(model, True), before) < 1e-3  # train mode on the calibration batch: the same
+
+
+def test_the_report_pairs_seeds_and_corrects_the_whole_family():
+    """Per round and arm: the seeds' mean failure rate (D0: its Wilson interval); after the last round one Holm
+    family: the pair of arms and each arm against D0 on the failure rate, the protocol and the photos' recall."""
+    from garage_exp.loop import report, stats
+
+    rows = [{"arm": "D0", "round": 0, "seed": -1, "suite": "heldout", "failures": 8, "scenarios": 16, "per_100": 50.0},
+            {"arm": "D0", "round": 0, "seed": -1, "suite": "protocol", "fair_recall": 0.5}]
+    for seed, (r, t) in enumerate([(6, 4), (7, 4), (5, 2)]):
+        for arm, f in (("R", r), ("T", t)):
+            rows += [{"arm": arm, "round": 1, "seed": seed, "suite": "heldout", "failures": f, "scenarios": 16,
+                      "per_100": 100 * f / 16},
+                     {"arm": arm, "round": 1, "seed": seed, "suite": "protocol", "fair_recall": 0.5 + 0.1 * seed}]
+    scores = pd.DataFrame(rows)
+    photos = pd.DataFrame([{"arm": a, "round": k, "seed": s, "set": "photos", "recall": 6 / 7}
+                           for a, k, s in [("D0", 0, -1), ("R", 1, 0), ("R", 1, 1), ("R", 1, 2), ("T", 1, 0),
+                                           ("T", 1, 1), ("T", 1, 2)]])
+    table = report.round_table(scores)
+    d0 = table[table.arm == "D0"].iloc[0]
+    assert (d0.low, d0.high) == pytest.approx(tuple(100 * v for v in stats.wilson(8, 16)))
+    r = table[table.arm == "R"].iloc[0]
+    assert r.per_100 == pytest.approx(37.5) and (r.pooled_failures, r.pooled_scenarios) == (18, 48)
+    family = report.comparisons(scores, photos, ["R", "T"], 1)
+    assert list(zip(family.metric, family.a, family.b)) == [
+        ("failures per 100 (held-out)", "R", "T"), ("failures per 100 (held-out)", "R", "D0"),
+        ("protocol recall", "R", "D0"), ("real-photo recall", "R", "D0"), ("failures per 100 (held-out)", "T", "D0"),
+        ("protocol recall", "T", "D0"), ("real-photo recall", "T", "D0")]
+    assert family["diff"].iloc[0] == pytest.approx(100 * 8 / 3 / 16)  # R - T: 2, 3, 3 failures of 16
+    assert family.p_holm.tolist() == pytest.approx(stats.holm(family.p.tolist())[1], nan_ok=True)
+    assert family.p.iloc[3] == 1.0  # the photos' recall: the same for every seed and D0
