@@ -219,7 +219,7 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
         "search.study=gen_Q_r1_s0", "search.study=gen_R_r1_s1", "search.study=gen_T_r1_s1", "search.study=gen_Q_r1_s1"]
     d0 = str(Path(compose_cfg(*args, config="loop").base).absolute())
     assert all(f"detector.models=[{d0}]" in c for c in searches[2:])  # round 1 searches D0
-    assert all(f"base={d0}" in c and "bn_calibrate=64" in c for c in trainings)
+    assert all(f"base={d0}" in c and "bn_calibrate=64" in c and "warmup_bias_lr=0.0" in c for c in trainings)
     assert [c for c in searches[2:] if "search.seed=1000" in c] == searches[2:5]  # pairs by seed: one search seed
     book = pd.DataFrame(out["book"])
     assert book.train_frames.tolist() == [8] * 6

@@ -67,6 +67,8 @@ def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: 
         cmd += [f"replay=[{','.join(map(str, replay))}]", f"replay_fraction={fraction}"]
     if calibrate and int(cfg.bn_calibrate):
         cmd.append(f"bn_calibrate={int(cfg.bn_calibrate)}")
+    if calibrate:  # fine-tuning the pretrained D0 and its descendants: the biases warm up from 0, not 0.1
+        cmd.append(f"warmup_bias_lr={cfg.warmup_bias_lr}")
     return cmd
 
 
