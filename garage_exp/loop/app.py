@@ -253,7 +253,7 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
     models, linked under its loop name, so each gets its own recall and mAP50): D0 and the last round's."""
     import os
 
-    from garage_exp.verify.photos import write_photos
+    from garage_exp.results.photos import write_photos
 
     sets = []
     if loop.cfg.photos:

@@ -83,7 +83,7 @@ def sweep_command(cfg: DictConfig, out: Path, overrides: list[str]) -> list[str]
 def verify_command(cfg: DictConfig, out: Path, data: str, weights: list[str]) -> list[str]:
     """`python -m garage_exp.verify` of detectors (their .pt files, each scored on its own, at the loop's image
     size) on a labelled real set; the shipped photos' "pedestrian" labels are people."""
-    from garage_exp.verify.photos import LABEL_MAP
+    from garage_exp.results.photos import LABEL_MAP
 
     return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP, f"detector.models=[{','.join(weights)}]",
             f"detector.imgsz={cfg.imgsz}", f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
