@@ -101,13 +101,14 @@ def test_unequal_budgets_are_refused_in_one_line(tmp_path):
     from garage_exp.core.errors import GarageError
     from garage_exp.loop.app import check_budgets, cli
 
-    check_budgets(compose_cfg("arms.T.epochs=2", "arms.Q.trials=6", config="loop"))
-    for override, key in (("arms.Q.trials=12", "trials"), ("arms.T.train_frames=96", "train_frames"),
+    shipped = compose_cfg(config="loop")
+    check_budgets(compose_cfg(f"arms.T.epochs={shipped.epochs}", f"arms.Q.trials={shipped.trials}", config="loop"))
+    for override, key in (("arms.Q.trials=99", "trials"), ("arms.T.train_frames=96", "train_frames"),
                           ("arms.Q.epochs=5", "epochs"), ("arms.R.imgsz=640", "imgsz"),
                           ("arms.T.replay_fraction=2.0", "replay_fraction")):
         with pytest.raises(GarageError, match=f"unequal budgets: arm .* has {key}="):
             check_budgets(compose_cfg(override, config="loop"))
-    r = run_in_process([f"dir={tmp_path}/loop", "arms.Q.epochs=5", *NO_ARCHIVE], tmp_path, entry=cli)
+    r = run_in_process([f"dir={tmp_path}/loop", "epochs=2", "arms.Q.epochs=5", *NO_ARCHIVE], tmp_path, entry=cli)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "garage_exp.loop: arms.Q.epochs: unequal budgets: arm Q has epochs=5, arm R 2 (every arm gets the same "
         "generator trials, training frames, epochs, image size and replay per round)"]
