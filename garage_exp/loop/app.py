@@ -273,8 +273,11 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
             link.symlink_to(Path(d["weights"]).absolute())
         linked[name] = link
     rows = []
+    # One verify per set and last round (and variant): `rounds=K+1` scores its own last round, not refused as a
+    # step made from other inputs.
+    suffix = f"_r{loop.cfg.rounds}" + (f"_{loop.cfg.variant}" if loop.cfg.variant else "")
     for label, data in sets:
-        m = loop.verify(label, data, [str(p) for p in linked.values()])["metrics"]
+        m = loop.verify(f"{label}{suffix}", data, [str(p) for p in linked.values()])["metrics"]
         for name, d in detectors.items():
             rows.append({"detector": name, "arm": d["arm"], "round": d["round"], "seed": d["seed"], "set": label,
                          "recall": m[f"recall/{name}"], "map50": m[f"map50/{name}"]})
