@@ -218,10 +218,13 @@ def run_loop(cfg: DictConfig) -> dict:
                 name = f"{arm}_r{k}_s{seed}{suffix}"
                 found = loop.step(f"round {k} arm {arm} seed {seed}: search", lambda name=name, arm=arm, b=b, p=prev:
                                   loop.study(f"gen_{name}", plans, int(b["trials"]), cfg.arms[arm].sampler,
-                                             1000 * k + seed, [p["model"]], startup=int(cfg.startup)))
+                                             1000 * k + seed, [p["weights"]], startup=int(cfg.startup)))
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
-                frames, topped = budget.round_frames(suite, found, int(b["train_frames"]), seed * 100 + k)
+                try:
+                    frames, topped = budget.round_frames(suite, found, int(b["train_frames"]), seed * 100 + k)
+                except ValueError as exc:  # the budget asks for more frames than the generator rendered
+                    raise GarageError(str(exc), f"round {k}, arm {arm}, seed {seed}") from None
                 listing = budget.write_list(data / f"{name}.yaml", frames, names)
                 trained[arm] = loop.step(f"round {k} arm {arm} seed {seed}: fine-tune", lambda name=name, b=b, p=prev,
                                          listing=listing, arm=arm: loop.train(
