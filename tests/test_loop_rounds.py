@@ -64,7 +64,8 @@ def test_the_failure_rate_counts_hard_fair_scenarios_of_the_whole_sample():
     from garage_exp.loop import heldout
     from garage_exp.loop.steps import Trial
 
-    trials = [Trial("heldout", k, "COMPLETE", None, None) for k in range(4)] + [Trial("heldout", 4, "PRUNED", None, None)]
+    trials = [Trial("heldout", k, "COMPLETE", None, None) for k in range(4)]
+    trials.append(Trial("heldout", 4, "PRUNED", None, None))
     frames = pd.DataFrame({"trial": [0, 0, 1, 1, 2, 3, 3], "fair": [True, True, True, False, True, False, False],
                            "confidence": [0.1, 0.5, 0.9, 0.0, 0.39, 0.0, 0.0]})
     got = heldout.failures(frames, trials, hard_below=0.4)

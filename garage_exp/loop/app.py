@@ -216,7 +216,8 @@ def run_loop(cfg: DictConfig) -> dict:
                 b = arm_budget(cfg, arm)
                 prev = detectors["D0"] if k == 1 else detectors[f"{arm}_r{k - 1}_s{seed}{suffix}"]
                 name = f"{arm}_r{k}_s{seed}{suffix}"
-                found = loop.step(f"round {k} arm {arm} seed {seed}: search", lambda name=name, arm=arm, b=b, p=prev:
+                label = f"round {k} arm {arm} seed {seed}{suffix}"
+                found = loop.step(f"{label}: search", lambda name=name, arm=arm, b=b, p=prev:
                                   loop.study(f"gen_{name}", plans, int(b["trials"]), cfg.arms[arm].sampler,
                                              1000 * k + seed, [p["weights"]], startup=int(cfg.startup)))
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
@@ -226,7 +227,7 @@ def run_loop(cfg: DictConfig) -> dict:
                 except ValueError as exc:  # the budget asks for more frames than the generator rendered
                     raise GarageError(str(exc), f"round {k}, arm {arm}, seed {seed}") from None
                 listing = budget.write_list(data / f"{name}.yaml", frames, names)
-                trained[arm] = loop.step(f"round {k} arm {arm} seed {seed}: fine-tune", lambda name=name, b=b, p=prev,
+                trained[arm] = loop.step(f"{label}: fine-tune", lambda name=name, b=b, p=prev,
                                          listing=listing, arm=arm: loop.train(
                     name, data=[listing], val=[base_val], base=p["weights"], epochs=int(b["epochs"]), seed=seed,
                     lr0=float(cfg.lr0), replay=[base_train], study=f"gen_{name}", imgsz=int(b["imgsz"]),
@@ -244,9 +245,9 @@ def run_loop(cfg: DictConfig) -> dict:
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
     easy = loop.step("easy suite", lambda: evaluate.easy_suite(loop.dir / "eval", held, d0, cfg))
-    scores = loop.step("evaluation", lambda: evaluate.score_all(loop.dir / "eval", cfg, detectors, held, easy,
+    scores = loop.step(f"evaluation{suffix}", lambda: evaluate.score_all(loop.dir / "eval", cfg, detectors, held, easy,
                                                                protocol, last), always=True)
-    photos = loop.step("real photos", lambda: real_photos(loop, last), always=True)
+    photos = loop.step(f"real photos{suffix}", lambda: real_photos(loop, last), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
     return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times)
 

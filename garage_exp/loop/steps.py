@@ -85,7 +85,8 @@ def verify_command(cfg: DictConfig, out: Path, data: str, weights: list[str]) ->
     size) on a labelled real set; the shipped photos' "pedestrian" labels are people."""
     from garage_exp.results.photos import LABEL_MAP
 
-    return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP, f"detector.models=[{','.join(weights)}]",
+    return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP,
+            f"detector.models=[{','.join(weights)}]",
             f"detector.imgsz={cfg.imgsz}", f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
             f"tracking.experiment={cfg.tracking.experiment}", f"hydra.run.dir={out}"]
 
