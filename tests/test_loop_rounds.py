@@ -64,7 +64,8 @@ def test_the_failure_rate_counts_hard_fair_scenarios_of_the_whole_sample():
     from garage_exp.loop import heldout
     from garage_exp.loop.steps import Trial
 
-    trials = [Trial("heldout", k, "COMPLETE", None, None) for k in range(4)] + [Trial("heldout", 4, "PRUNED", None, None)]
+    trials = [Trial("heldout", k, "COMPLETE", None, None) for k in range(4)]
+    trials.append(Trial("heldout", 4, "PRUNED", None, None))
     frames = pd.DataFrame({"trial": [0, 0, 1, 1, 2, 3, 3], "fair": [True, True, True, False, True, False, False],
                            "confidence": [0.1, 0.5, 0.9, 0.0, 0.39, 0.0, 0.0]})
     got = heldout.failures(frames, trials, hard_below=0.4)
@@ -101,13 +102,14 @@ def test_unequal_budgets_are_refused_in_one_line(tmp_path):
     from garage_exp.core.errors import GarageError
     from garage_exp.loop.app import check_budgets, cli
 
-    check_budgets(compose_cfg("arms.T.epochs=2", "arms.Q.trials=6", config="loop"))
-    for override, key in (("arms.Q.trials=12", "trials"), ("arms.T.train_frames=96", "train_frames"),
+    shipped = compose_cfg(config="loop")
+    check_budgets(compose_cfg(f"arms.T.epochs={shipped.epochs}", f"arms.Q.trials={shipped.trials}", config="loop"))
+    for override, key in (("arms.Q.trials=99", "trials"), ("arms.T.train_frames=96", "train_frames"),
                           ("arms.Q.epochs=5", "epochs"), ("arms.R.imgsz=640", "imgsz"),
                           ("arms.T.replay_fraction=2.0", "replay_fraction")):
         with pytest.raises(GarageError, match=f"unequal budgets: arm .* has {key}="):
             check_budgets(compose_cfg(override, config="loop"))
-    r = run_in_process([f"dir={tmp_path}/loop", "arms.Q.epochs=5", *NO_ARCHIVE], tmp_path, entry=cli)
+    r = run_in_process([f"dir={tmp_path}/loop", "epochs=2", "arms.Q.epochs=5", *NO_ARCHIVE], tmp_path, entry=cli)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "garage_exp.loop: arms.Q.epochs: unequal budgets: arm Q has epochs=5, arm R 2 (every arm gets the same "
         "generator trials, training frames, epochs, image size and replay per round)"]
@@ -219,7 +221,7 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
         "search.study=gen_Q_r1_s0", "search.study=gen_R_r1_s1", "search.study=gen_T_r1_s1", "search.study=gen_Q_r1_s1"]
     d0 = str(Path(compose_cfg(*args, config="loop").base).absolute())
     assert all(f"detector.models=[{d0}]" in c for c in searches[2:])  # round 1 searches D0
-    assert all(f"base={d0}" in c and "bn_calibrate=64" in c for c in trainings)
+    assert all(f"base={d0}" in c and "bn_calibrate=64" in c and "warmup_bias_lr=0.0" in c for c in trainings)
     assert [c for c in searches[2:] if "search.seed=1000" in c] == searches[2:5]  # pairs by seed: one search seed
     book = pd.DataFrame(out["book"])
     assert book.train_frames.tolist() == [8] * 6
@@ -313,3 +315,34 @@ def test_batchnorm_calibration_keeps_eval_outputs_and_makes_train_mode_agree(pho
     assert calibrate_model(model, images, 128) == 81
     assert gap(features(model, False), before) < 1e-3  # eval outputs unchanged
     assert gap(features(model, True), before) < 1e-3  # train mode on the calibration batch: the same
+
+
+def test_the_report_pairs_seeds_and_corrects_the_whole_family():
+    """Per round and arm: the seeds' mean failure rate (D0: its Wilson interval); after the last round one Holm
+    family: the pair of arms and each arm against D0 on the failure rate, the protocol and the photos' recall."""
+    from garage_exp.loop import report, stats
+
+    rows = [{"arm": "D0", "round": 0, "seed": -1, "suite": "heldout", "failures": 8, "scenarios": 16, "per_100": 50.0},
+            {"arm": "D0", "round": 0, "seed": -1, "suite": "protocol", "fair_recall": 0.5}]
+    for seed, (r, t) in enumerate([(6, 4), (7, 4), (5, 2)]):
+        for arm, f in (("R", r), ("T", t)):
+            rows += [{"arm": arm, "round": 1, "seed": seed, "suite": "heldout", "failures": f, "scenarios": 16,
+                      "per_100": 100 * f / 16},
+                     {"arm": arm, "round": 1, "seed": seed, "suite": "protocol", "fair_recall": 0.5 + 0.1 * seed}]
+    scores = pd.DataFrame(rows)
+    photos = pd.DataFrame([{"arm": a, "round": k, "seed": s, "set": "photos", "recall": 6 / 7}
+                           for a, k, s in [("D0", 0, -1), ("R", 1, 0), ("R", 1, 1), ("R", 1, 2), ("T", 1, 0),
+                                           ("T", 1, 1), ("T", 1, 2)]])
+    table = report.round_table(scores)
+    d0 = table[table.arm == "D0"].iloc[0]
+    assert (d0.low, d0.high) == pytest.approx(tuple(100 * v for v in stats.wilson(8, 16)))
+    r = table[table.arm == "R"].iloc[0]
+    assert r.per_100 == pytest.approx(37.5) and (r.pooled_failures, r.pooled_scenarios) == (18, 48)
+    family = report.comparisons(scores, photos, ["R", "T"], 1)
+    assert list(zip(family.metric, family.a, family.b)) == [
+        ("failures per 100 (held-out)", "R", "T"), ("failures per 100 (held-out)", "R", "D0"),
+        ("protocol recall", "R", "D0"), ("real-photo recall", "R", "D0"), ("failures per 100 (held-out)", "T", "D0"),
+        ("protocol recall", "T", "D0"), ("real-photo recall", "T", "D0")]
+    assert family["diff"].iloc[0] == pytest.approx(100 * 8 / 3 / 16)  # R - T: 2, 3, 3 failures of 16
+    assert family.p_holm.tolist() == pytest.approx(stats.holm(family.p.tolist())[1], nan_ok=True)
+    assert family.p.iloc[3] == 1.0  # the photos' recall: the same for every seed and D0

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from conftest import require, run_app, run_in_process
 
-from garage_exp.verify.photos import write_photos
+from garage_exp.results.photos import write_photos
 
 YOLO = "yolo11n_int8_openvino_model"
 

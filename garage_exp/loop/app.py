@@ -216,14 +216,18 @@ def run_loop(cfg: DictConfig) -> dict:
                 b = arm_budget(cfg, arm)
                 prev = detectors["D0"] if k == 1 else detectors[f"{arm}_r{k - 1}_s{seed}{suffix}"]
                 name = f"{arm}_r{k}_s{seed}{suffix}"
-                found = loop.step(f"round {k} arm {arm} seed {seed}: search", lambda name=name, arm=arm, b=b, p=prev:
+                label = f"round {k} arm {arm} seed {seed}{suffix}"
+                found = loop.step(f"{label}: search", lambda name=name, arm=arm, b=b, p=prev:
                                   loop.study(f"gen_{name}", plans, int(b["trials"]), cfg.arms[arm].sampler,
-                                             1000 * k + seed, [p["model"]], startup=int(cfg.startup)))
+                                             1000 * k + seed, [p["weights"]], startup=int(cfg.startup)))
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
-                frames, topped = budget.round_frames(suite, found, int(b["train_frames"]), seed * 100 + k)
+                try:
+                    frames, topped = budget.round_frames(suite, found, int(b["train_frames"]), seed * 100 + k)
+                except ValueError as exc:  # the budget asks for more frames than the generator rendered
+                    raise GarageError(str(exc), f"round {k}, arm {arm}, seed {seed}") from None
                 listing = budget.write_list(data / f"{name}.yaml", frames, names)
-                trained[arm] = loop.step(f"round {k} arm {arm} seed {seed}: fine-tune", lambda name=name, b=b, p=prev,
+                trained[arm] = loop.step(f"{label}: fine-tune", lambda name=name, b=b, p=prev,
                                          listing=listing, arm=arm: loop.train(
                     name, data=[listing], val=[base_val], base=p["weights"], epochs=int(b["epochs"]), seed=seed,
                     lr0=float(cfg.lr0), replay=[base_train], study=f"gen_{name}", imgsz=int(b["imgsz"]),
@@ -241,9 +245,9 @@ def run_loop(cfg: DictConfig) -> dict:
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
     easy = loop.step("easy suite", lambda: evaluate.easy_suite(loop.dir / "eval", held, d0, cfg))
-    scores = loop.step("evaluation", lambda: evaluate.score_all(loop.dir / "eval", cfg, detectors, held, easy,
+    scores = loop.step(f"evaluation{suffix}", lambda: evaluate.score_all(loop.dir / "eval", cfg, detectors, held, easy,
                                                                protocol, last), always=True)
-    photos = loop.step("real photos", lambda: real_photos(loop, last), always=True)
+    photos = loop.step(f"real photos{suffix}", lambda: real_photos(loop, last), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
     return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times)
 
@@ -253,7 +257,7 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
     models, linked under its loop name, so each gets its own recall and mAP50): D0 and the last round's."""
     import os
 
-    from garage_exp.verify.photos import write_photos
+    from garage_exp.results.photos import write_photos
 
     sets = []
     if loop.cfg.photos:
@@ -273,8 +277,11 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
             link.symlink_to(Path(d["weights"]).absolute())
         linked[name] = link
     rows = []
+    # One verify per set and last round (and variant): `rounds=K+1` scores its own last round, not refused as a
+    # step made from other inputs.
+    suffix = f"_r{loop.cfg.rounds}" + (f"_{loop.cfg.variant}" if loop.cfg.variant else "")
     for label, data in sets:
-        m = loop.verify(label, data, [str(p) for p in linked.values()])["metrics"]
+        m = loop.verify(f"{label}{suffix}", data, [str(p) for p in linked.values()])["metrics"]
         for name, d in detectors.items():
             rows.append({"detector": name, "arm": d["arm"], "round": d["round"], "seed": d["seed"], "set": label,
                          "recall": m[f"recall/{name}"], "map50": m[f"map50/{name}"]})

@@ -29,6 +29,7 @@ def draw(rounds: pd.DataFrame, scores: pd.DataFrame, photos: pd.DataFrame, path:
         ax.errorbar(x, part.per_100, yerr=[low, high], fmt="o-", capsize=3, color=COLOURS.get(arm, None),
                     label=f"{arm}")
     ax.set_xticks(sorted(rounds["round"].unique()))
+    ax.set_ylim(0, 100)
     ax.set_xlabel("round (0: D0)")
     ax.set_ylabel("hard-and-fair failures per 100 held-out scenarios")
     ax.set_title("Failure rate on the held-out sample (95 % CI over seeds)")

@@ -18,14 +18,16 @@ DELTA = 5.0  # the difference in failures per 100 scenarios the power estimate i
 
 
 def round_table(scores: pd.DataFrame) -> pd.DataFrame:
-    """Failures per 100 held-out scenarios per round and arm: the seeds' mean with its t interval, and the seeds
-    pooled (every seed's scenarios counted) with a Wilson interval."""
+    """Failures per 100 held-out scenarios per round and arm: the seeds' mean with its t interval (one seed, as
+    D0: its Wilson interval), and the seeds pooled (every seed's scenarios counted) with a Wilson interval."""
     held = scores[scores.suite == "heldout"]
     rows = []
     for (k, arm), g in held.groupby(["round", "arm"], sort=True):
         mean, low, high = stats.t_interval(g.per_100)
         f, n = int(g.failures.sum()), int(g.scenarios.sum())
         wl, wh = stats.wilson(f, n)
+        if len(g) == 1:  # one detector (D0): its own Wilson interval
+            low, high = 100 * wl, 100 * wh
         rows.append({"round": int(k), "arm": arm, "seeds": len(g), "per_100": mean, "low": low, "high": high,
                      "pooled_failures": f, "pooled_scenarios": n, "pooled_low": 100 * wl, "pooled_high": 100 * wh})
     return pd.DataFrame(rows)

@@ -66,6 +66,7 @@ class LoopConf:
     base_trials: int = 16  # QMC scenarios on the training plans: the replay pool and the validation scenarios
     optimizer: str = "AdamW"
     lr0: float = 0.0005  # the arms' fine-tuning
+    warmup_bias_lr: float = 0.0  # the fine-tunings' bias warm-up start (ultralytics' 0.1 shakes a pretrained head)
     batch: int = 16
     rounds: int = 2
     arms: dict[str, ArmConf] = field(default_factory=lambda: {

@@ -47,7 +47,10 @@ def paired(a: dict[int, float], b: dict[int, float] | float) -> dict:
     mean, low, high = t_interval(diffs)
     p = math.nan
     if len(diffs) >= 2:
-        p = 1.0 if np.all(diffs == diffs[0]) and diffs[0] == 0 else float(stats.ttest_1samp(diffs, 0.0).pvalue)
+        if np.ptp(diffs) == 0:  # no spread: the same difference every seed (t is infinite, or 0/0 for none)
+            p = 1.0 if diffs[0] == 0 else 0.0
+        else:
+            p = float(stats.ttest_1samp(diffs, 0.0).pvalue)
     return {"diff": mean, "low": low, "high": high, "p": p, "seeds": int(len(diffs))}
 
 

@@ -67,6 +67,8 @@ def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: 
         cmd += [f"replay=[{','.join(map(str, replay))}]", f"replay_fraction={fraction}"]
     if calibrate and int(cfg.bn_calibrate):
         cmd.append(f"bn_calibrate={int(cfg.bn_calibrate)}")
+    if calibrate:  # fine-tuning the pretrained D0 and its descendants: the biases warm up from 0, not 0.1
+        cmd.append(f"warmup_bias_lr={cfg.warmup_bias_lr}")
     return cmd
 
 
@@ -81,9 +83,10 @@ def sweep_command(cfg: DictConfig, out: Path, overrides: list[str]) -> list[str]
 def verify_command(cfg: DictConfig, out: Path, data: str, weights: list[str]) -> list[str]:
     """`python -m garage_exp.verify` of detectors (their .pt files, each scored on its own, at the loop's image
     size) on a labelled real set; the shipped photos' "pedestrian" labels are people."""
-    from garage_exp.verify.photos import LABEL_MAP
+    from garage_exp.results.photos import LABEL_MAP
 
-    return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP, f"detector.models=[{','.join(weights)}]",
+    return [sys.executable, "-m", "garage_exp.verify", f"data={data}", *LABEL_MAP,
+            f"detector.models=[{','.join(weights)}]",
             f"detector.imgsz={cfg.imgsz}", f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
             f"tracking.experiment={cfg.tracking.experiment}", f"hydra.run.dir={out}"]
 

@@ -29,6 +29,8 @@ def check_train(cfg: DictConfig) -> None:
     check_range(cfg.batch, 1, 4096, "batch")
     check_range(cfg.freeze, 0, 1000, "freeze")
     check_range(cfg.bn_calibrate, 0, 100_000, "bn_calibrate")
+    if cfg.warmup_bias_lr is not None:
+        check_range(cfg.warmup_bias_lr, 0.0, 1.0, "warmup_bias_lr")
     check_range(cfg.workers, 0, 64, "workers")
     check_range(cfg.seed, 0, 2**31 - 1, "seed")
     check_range(cfg.imgsz, 32, 4096, "imgsz")

@@ -75,6 +75,8 @@ def fit(cfg, plan: DataPlan, base: Base, data_yaml: Path, out: Path, run) -> dic
     extra = {"optimizer": str(cfg.optimizer)}
     if cfg.lr0 is not None:
         extra["lr0"] = float(cfg.lr0)
+    if cfg.warmup_bias_lr is not None:
+        extra["warmup_bias_lr"] = float(cfg.warmup_bias_lr)
     start = time.perf_counter()
     model.train(**extra, data=str(data_yaml), epochs=int(cfg.epochs), imgsz=int(cfg.imgsz), batch=int(cfg.batch),
                 seed=int(cfg.seed), deterministic=True, freeze=int(cfg.freeze) or None, device=device,

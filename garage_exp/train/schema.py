@@ -36,6 +36,10 @@ class TrainConf:
     # classes, too slow to learn from scratch in a few hundred iterations. Name one (SGD, AdamW, ...) to set lr0.
     optimizer: str = "auto"
     lr0: Optional[float] = None  # the initial learning rate (with a named optimizer); None: ultralytics' default
+    # Where the biases' learning rate starts its warm-up (ultralytics: 0.1, falling to lr0 over the warm-up; its own
+    # `auto` optimizer starts at 0). A short fine-tuning of a pretrained detector is all warm-up: 0.1 with AdamW
+    # moves every bias by about 0.1 a step. None: ultralytics' default.
+    warmup_bias_lr: Optional[float] = None
     device: str = "auto"  # auto: the first GPU when there is one, else the CPU; or cpu, 0, cuda:0, ...
     workers: int = 2  # dataloader workers
     register: bool = True  # register the weights as a version of `registered_name`
