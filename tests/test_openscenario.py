@@ -44,8 +44,9 @@ def test_cpnco_exports_validate_against_the_asam_schemas_and_read_back(cpnco):
             cell = classified.plan.cell_at(*road.point(road.length * k / 10, 0.0))
             assert cell is not None and classified.cell(*cell).driveable
     text = paths[1].read_text()
-    for needle in ("TraveledDistanceCondition", "AssignRouteAction", "AbsoluteTargetSpeed value=\"2.777778\"",
-                   "pedestrianCategory=\"pedestrian\"", "SimulationTimeCondition"):
+    for needle in ("TraveledDistanceCondition", "AssignRouteAction", "AbsoluteTargetSpeed value=\"$EgoSpeed\"",
+                   'ParameterDeclaration name="EgoSpeed" parameterType="double" value="2.777778"',
+                   "FollowTrajectoryAction", "pedestrianCategory=\"pedestrian\"", "SimulationTimeCondition"):
         assert needle in text
 
 
@@ -85,7 +86,7 @@ def test_a_reversing_ego_and_a_synchronised_walker_import_back(library, tmp_path
     cfg, classified, _, setup = build(library, "case=cpra", "ego.speed=4")
     paths = export(cfg, tmp_path / "osc", PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
     walking = paths[7]  # the seventh variant: adult walking 50 %
-    assert "adult walking 50 %" in walking.read_text() and 'AbsoluteTargetSpeed value="-1.111111"' in walking.read_text()
+    assert "adult walking 50 %" in walking.read_text() and 'name="EgoSpeed" parameterType="double" value="-1.111111"' in walking.read_text()
     out = tmp_path / "conf" / "case" / "cpra_rt.yaml"
     assert main([str(walking), "-o", str(out), "--name", "cpra_rt"]) == 0
     _, _, _, again = build(library, "case=cpra_rt", "ego.speed=4", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
@@ -146,15 +147,15 @@ def test_a_road_the_plan_cannot_place_is_refused(cpnco, tmp_path, capsys):
         return etree.tostring(tree, encoding="unicode")
 
     def on_road_99(tree):  # the child's start as a lane position on a road the road file lacks
-        world = tree.find("Storyboard/Init/Actions/Private[@entityRef='child']/PrivateAction/TeleportAction"
-                          "/Position/WorldPosition")
-        world.getparent().replace(world, etree.Element("LanePosition", roadId="99", laneId="-1", s="3",
+        start = tree.find("Storyboard/Init/Actions/Private[@entityRef='child']/PrivateAction/TeleportAction"
+                          "/Position/*")
+        start.getparent().replace(start, etree.Element("LanePosition", roadId="99", laneId="-1", s="3",
                                                        offset="0"))
 
     def far_away(tree):  # the large car 300 m east, outside the plan
-        world = tree.find("Storyboard/Init/Actions/Private[@entityRef='car_large']/PrivateAction/TeleportAction"
-                          "/Position/WorldPosition")
-        world.set("x", str(float(world.get("x")) + 300))
+        start = tree.find("Storyboard/Init/Actions/Private[@entityRef='car_large']/PrivateAction/TeleportAction"
+                          "/Position/*")
+        start.getparent().replace(start, etree.Element("WorldPosition", x="330", y="40", h="0"))
 
     lane, far = changed(on_road_99), changed(far_away)
     for name, bad, says in (("lane.xosc", lane, "needs road 99"), ("far.xosc", far, "needs a road the plan")):
