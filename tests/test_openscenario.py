@@ -76,6 +76,22 @@ def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tm
     assert_same_placements(setup.shots, again.shots)
 
 
+@pytest.mark.parametrize("speed", [5, 20])
+def test_the_cpnco_export_imports_back_at_other_ego_speeds(cpnco, library, tmp_path, speed):
+    """The child's timed arrival is a SynchronizeAction with the ego, not a trigger fixed for the exported speed:
+    imported back and run at 5 or 20 km/h, the case builds the same frames as the original at that speed (with a
+    trigger the child set off 10 frames early at 5 km/h, and was 2.5 m short of the ego's path at 20)."""
+    from garage_exp.scenario.xosc_import import main
+
+    cfg, classified, setup, paths = cpnco
+    assert "SynchronizeAction" in paths[1].read_text()
+    out = tmp_path / "conf" / "case" / "cpnco_v.yaml"
+    assert main([str(paths[1]), "-o", str(out), "--name", "cpnco_v"]) == 0
+    _, _, _, original = build(library, "case=cpnco", f"ego.speed={speed}")
+    _, _, _, again = build(library, "case=cpnco_v", f"ego.speed={speed}", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    assert_same_placements(original.shots, again.shots)
+
+
 def test_a_reversing_ego_and_a_synchronised_walker_import_back(library, tmp_path):
     """cpra's walking variant at 4 km/h (the ego reverses: a negative speed; the adult's walk is timed to meet
     it) exported and imported again: the same placements, frame for frame."""

@@ -59,6 +59,7 @@ class Track:
     trigger: tuple[str, float] = ("time", 0.0)  # ("time", s) | ("ego_travel", m travelled by the ego)
     accelerate: float = 0.0  # metres from standstill to `speed` at a constant acceleration (0: a step)
     initial: float = 0.0  # m/s it already has at the start (a walk under way at the first frame)
+    meet: Pose | None = None  # where the ego is when this actor reaches its end (a timed arrival: `meet`)
 
     @property
     def length(self) -> float:
@@ -260,6 +261,17 @@ def _speed(value, accelerate: float = 0.0):
         xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0))
 
 
+def _synchronize(track: Track, ego: Track):
+    """A timed arrival (`meet`) as OpenSCENARIO says it: reach the end as the ego reaches where the case meets
+    it, at `speed` from `accelerate` metres on (the steady state); at another EgoSpeed the arrival still holds."""
+    from scenariogeneration import xosc
+
+    steady = xosc.TargetDistanceSteadyState(round(max(track.length - track.accelerate, 0.0), 6))
+    return xosc.SynchronizeAction("ego", _position(track.meet, ego.entity), _position(track.end, track.entity),
+                                  target_tolerance_master=0.05, target_tolerance=0.05,
+                                  final_speed=xosc.AbsoluteSpeed(round(track.speed, 6), steady))
+
+
 @dataclass
 class EgoLane:
     """Where a driving ego is on the roads: the road (lane_runs' index + 1), the lane it drives in, the s of its
@@ -386,7 +398,8 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         if t.trigger != ("time", 0.0) or t.initial > 0:
             kind, value = t.trigger
             go = xosc.Event(f"{t.name}_starts", xosc.Priority.override)
-            go.add_action(f"{t.name}_speed", _speed(t.speed, t.accelerate))
+            go.add_action(f"{t.name}_speed", _synchronize(t, ego) if t.meet is not None and ego is not None
+                          else _speed(t.speed, t.accelerate))
             go.add_trigger(xosc.EntityTrigger(f"ego_travelled_{value:.2f}", 0, xosc.ConditionEdge.rising,
                                               xosc.TraveledDistanceCondition(round(value, 6)), "ego")
                            if kind == "ego_travel" else

@@ -186,7 +186,8 @@ def to_case(r: Read, classified, site, name: str, margin: float) -> tuple[dict, 
     if along:
         motion["along"] = along
         meets = [spec["meet"] for spec in along.values() if "meet" in spec]
-        if meets and motion.get("actor") == "ego":  # a protocol's impact: the frames stop short of it
+        # a protocol's impact: the frames stop short of it (a file of ours ends its ego's route at the last frame)
+        if meets and motion.get("actor") == "ego" and not own_plan(r):
             d0, d1 = motion["start"], motion["end"]
             short = round(max(d1, min(meets) + SHORT) if d1 < d0 else min(d1, max(meets) - SHORT), 4)
             if short != d1:
