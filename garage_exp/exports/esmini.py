@@ -122,3 +122,47 @@ def read_log(log: Path) -> Replay:
                     bb_y=float(block[6]), road_s=float(block[20]), lane=int(float(block[22])),
                     lane_offset=float(block[23]), heading_to_drive=float(block[27]), collisions=block[30]))
     return replay
+
+
+def draw_replays(classified, shots, clock: list[float], panels: list[tuple[str, Replay]], path: Path,
+                 names: list[str] | None = None) -> Path:
+    """A PNG of the job's trajectories (each actor's pose at each frame: dots) and esmini's (its log: lines) on
+    the plan, one panel per replay (title, Replay), cropped to where the actors are."""
+    from collections import Counter
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from garage_exp.plan.draw import _draw_cells, _draw_pillars
+
+    names = names or ["ego", *[n for n in shots[0].poses if shots[0].poses[n] is not None]]
+    job = {n: [(s.ego if n == "ego" else s.poses[n]) for s in shots] for n in names}
+    xs = [p.x for ps in job.values() for p in ps]
+    ys = [p.y for ps in job.values() for p in ps]
+    box = (min(xs) - 4, max(xs) + 4, min(ys) - 4, max(ys) + 4)
+    fig = Figure(figsize=(5.2 * len(panels), 5.2 * (box[3] - box[2]) / (box[1] - box[0]) + 1.4), dpi=110)
+    FigureCanvasAgg(fig)
+    colours = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
+    for k, (title, replay) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), k + 1)
+        _draw_cells(ax, classified, Counter())
+        _draw_pillars(ax, classified, 0.6)
+        for n, colour in zip(names, colours):
+            if n in replay.samples:
+                pts = [replay.at(n, r.t)[:2] for r in replay.samples[n] if r.t <= clock[-1] + 1e-6]
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], "-", color=colour, lw=3, alpha=0.6, zorder=3,
+                        label=f"{n}: esmini")
+                ax.plot(*pts[0], "+", color=colour, ms=12, mew=2, zorder=5)  # where esmini starts it
+            ax.plot([p.x for p in job[n]], [p.y for p in job[n]], "o", color=colour, ms=3.5, mfc="white",
+                    zorder=4, label=f"{n}: the job's frames")
+        ax.set_xlim(box[0], box[1])
+        ax.set_ylim(box[2], box[3])
+        ax.set_aspect("equal")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("x (m)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    fig.legend(*ax.get_legend_handles_labels(), fontsize=7, loc="lower center", ncol=len(names), frameon=False)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    return path
