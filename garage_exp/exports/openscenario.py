@@ -20,7 +20,7 @@ What is written (docs/openscenario.md has the mapping; tests/test_esmini.py repl
   (TraveledDistanceCondition on the ego) and accelerates as the case says (a `linear` change at a `rate`), one
   already under way at the first frame starts at the speed it has there; any other mover starts at the
   simulation time of its first move. Each stops (speed 0) when it has travelled its track;
-- the storyboard stops one second after the last mover is done (an expression of EgoSpeed).
+- the storyboard stops one second after every mover has travelled its track (600 s at the latest).
 
 One file per variant of the case (replicate 0): `scenario.xosc` for the first, `scenario_2.xosc`, ... for the
 others. A case whose ego stands still sweeps a placement value frame by frame rather than in time; it is written
@@ -390,7 +390,7 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
                 init.add_init_action(t.name, _speed("$EgoSpeed" if t.name == "ego" else t.speed, t.accelerate))
     act = xosc.Act("motion", xosc.ValueTrigger("start", 0, xosc.ConditionEdge.none,
                                                xosc.SimulationTimeCondition(0, xosc.Rule.greaterOrEqual)))
-    ends = []  # when each mover is done, as expressions of $EgoSpeed where its start depends on the ego
+    done = xosc.ConditionGroup("stop")
     for t in moving:
         if t.end is None:
             continue
@@ -415,26 +415,25 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         group.add_actor(t.name)
         group.add_maneuver(maneuver)
         act.add_maneuver_group(group)
-        if t.speed <= 0:
-            continue
-        own = (t.length + t.accelerate) / t.speed
-        if t.name == "ego":
-            ends.append(f"{t.length:.6f} / abs($EgoSpeed)")
-        elif t.trigger[0] == "ego_travel" and ego_v:
-            ends.append(f"{t.trigger[1]:.6f} / abs($EgoSpeed) + {own:.6f}")
-        else:
-            ends.append(f"{t.trigger[1] if t.trigger[0] == 'time' else 0.0:.6f} + {own:.6f}")
+        # the storyboard stops a second after every mover has travelled its track (whatever EgoSpeed is)
+        done.add_condition(xosc.EntityTrigger(f"{t.name}_done", 1.0, xosc.ConditionEdge.none,
+                                              xosc.TraveledDistanceCondition(round(t.length, 6)), t.name,
+                                              triggeringpoint="stop"))
     story = xosc.Story("garage_exp")
     if not act.maneuvergroup:
         group = xosc.ManeuverGroup("ego_group")  # a Story needs an Act, an Act a ManeuverGroup
         group.add_actor("ego")
         act.add_maneuver_group(group)
     story.add_act(act)
-    last = "0"
-    for end in ends:
-        last = end if last == "0" else f"max({last}, {end})"
-    stop = xosc.ValueTrigger("end", 0, xosc.ConditionEdge.rising,
-                             xosc.SimulationTimeCondition(f"${{{last} + 1.0}}", xosc.Rule.greaterThan), "stop")
+    stop = xosc.Trigger("stop")
+    if not done.conditions:
+        done.add_condition(xosc.ValueTrigger("still", 1.0, xosc.ConditionEdge.none,
+                                             xosc.SimulationTimeCondition(0, xosc.Rule.greaterThan), "stop"))
+    stop.add_conditiongroup(done)
+    cap = xosc.ConditionGroup("stop")  # a file played with EgoSpeed 0 ends too
+    cap.add_condition(xosc.ValueTrigger("cap", 0, xosc.ConditionEdge.none,
+                                        xosc.SimulationTimeCondition(600, xosc.Rule.greaterThan), "stop"))
+    stop.add_conditiongroup(cap)
     board = xosc.StoryBoard(init, stop)
     board.add_story(story)
     case = cfg.case
