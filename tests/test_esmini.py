@@ -97,3 +97,27 @@ def test_esmini_replays_the_export_as_the_job_ran(case, plan, library, tmp_path)
             worst = max(abs((r.heading_to_drive - facing + math.pi) % (2 * math.pi) - math.pi)
                         for r in replay.samples["ego"])
             assert worst < math.radians(DEGREES), f"{where}: the ego heads {math.degrees(worst):.0f} deg off its lane"
+
+
+def test_the_road_file_holds_the_garage_s_pillars_walls_obstacles_and_bays(tmp_path):
+    """garage.xodr: the header's bounds are the plan's extent; every pillar is a pole, every perimeter wall a
+    barrier, every obstacle cell a building and every bay beside a lane a parkingSpace, with their dimensions."""
+    from garage_exp.exports.openscenario import write_xodr
+    from garage_exp.plan import classify, load_plan
+    from garage_exp.scenario.asam import parse, validate
+
+    classified = classify(load_plan(PLANS_DIR / "research.yaml"))
+    path = write_xodr(classified, tmp_path / "garage.xodr")
+    assert validate(path) == "opendrive_17_core.xsd"
+    root = parse(path).getroot()
+    header = root.find("header")
+    width, depth = classified.plan.size
+    assert (float(header.get("east")), float(header.get("north"))) == pytest.approx((width, depth))
+    objects = root.findall("road/objects/object")
+    kinds = {k: [o for o in objects if o.get("type") == k] for k in ("pole", "barrier", "building", "parkingSpace")}
+    cells = [c for c in classified.all_cells()]
+    assert len(kinds["pole"]) == len(classified.pillars) > 0
+    assert all(float(o.get("length")) == float(o.get("width")) == 0.6 for o in kinds["pole"])
+    assert len(kinds["building"]) == sum(c.value == -1 for c in cells)
+    assert len(kinds["parkingSpace"]) == sum(c.value == 0 and bool(c.lanes) for c in cells) > 0
+    assert kinds["barrier"] and sum(float(o.get("length")) for o in kinds["barrier"]) > width + depth

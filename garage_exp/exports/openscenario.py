@@ -157,7 +157,62 @@ def _side_types(classified, run: Run) -> list[tuple[float, str, str]]:
     return out
 
 
-def write_xodr(classified, path: Path, rule: str = "RHT") -> Path:
+@dataclass
+class Thing:
+    """A fixed thing of the garage as an OpenDRIVE object: its centre, heading (radians), size, type."""
+
+    kind: str  # OpenDRIVE object type: pole (a pillar), barrier (a wall), building (an obstacle cell), parkingSpace
+    name: str
+    x: float
+    y: float
+    hdg: float
+    length: float
+    width: float
+    height: float
+
+
+def garage_things(classified, pillar_size: float = 0.6, height: float = 2.8, wall: float = 0.25) -> list[Thing]:
+    """The pillars, the perimeter walls, the obstacle cells and the bays (parking cells beside a lane) of the
+    plan, with their dimensions."""
+    from garage_exp.plan.draw import _perimeter_walls
+
+    plan = classified.plan
+    out = []
+    for k, p in enumerate(classified.pillars):
+        x, y = plan.vertex(p.a, p.b)
+        out.append(Thing("pole", f"pillar_{k}", x + p.sx * pillar_size / 2, y + p.sy * pillar_size / 2, 0.0,
+                         pillar_size, pillar_size, height))
+    for k, ((x0, y0), (x1, y1)) in enumerate(_perimeter_walls(classified)):
+        out.append(Thing("barrier", f"wall_{k}", (x0 + x1) / 2, (y0 + y1) / 2, math.atan2(y1 - y0, x1 - x0),
+                         math.hypot(x1 - x0, y1 - y0), wall, height))
+    for cell in classified.all_cells():
+        if cell.value == -1 or (cell.value == 0 and cell.lanes):
+            x0, y0, x1, y1 = plan.cell_rect(cell.i, cell.j)
+            kind, name = ("building", "obstacle") if cell.value == -1 else ("parkingSpace", "bay")
+            out.append(Thing(kind, f"{name}_{cell.i}_{cell.j}", (x0 + x1) / 2, (y0 + y1) / 2, 0.0, x1 - x0, y1 - y0,
+                             height if cell.value == -1 else 0.0))
+    return out
+
+
+def _add_objects(odr, roads: list, runs: list[Run], things: list[Thing]) -> None:
+    """Each thing on the road nearest its centre (s clamped to the road, t across it, heading relative)."""
+    from scenariogeneration import xodr
+
+    for k, th in enumerate(things):
+        def distance(run):
+            s, t = run.st(th.x, th.y)
+            return max(-s, s - run.length, 0.0) + abs(t)
+        near = min(range(len(runs)), key=lambda r: distance(runs[r]))
+        s, t = runs[near].st(th.x, th.y)
+        obj = xodr.Object(round(min(max(s, 0.0), runs[near].length), 6), round(t, 6),
+                          Type=getattr(xodr.ObjectType, th.kind), subtype=th.name.split("_")[0], id=str(k + 1),
+                          name=th.name,
+                          hdg=round(th.hdg - runs[near].heading, 9), length=round(th.length, 6),
+                          width=round(th.width, 6), height=round(th.height, 6))
+        roads[near].add_object(obj)
+
+
+def write_xodr(classified, path: Path, rule: str = "RHT", things: list[Thing] | None = None) -> Path:
     """The plan's driving lanes as OpenDRIVE roads (lane_runs), in the world frame of the plan: a driving lane
     each side of the cells' centre line (half the cell's width), and beyond each an outer lane as deep as the
     neighbouring row or column, of type parking beside bays and free space, none beside walls (so that no bay
@@ -166,7 +221,8 @@ def write_xodr(classified, path: Path, rule: str = "RHT") -> Path:
 
     odr = xodr.OpenDrive(f"garage {classified.plan.name}", revMinor="7")
     traffic = getattr(xodr.TrafficRule, rule)
-    for k, run in enumerate(lane_runs(classified), start=1):
+    runs, roads = lane_runs(classified), []
+    for k, run in enumerate(runs, start=1):
         planview = xodr.PlanView(run.start[0], run.start[1], run.heading)
         planview.add_geometry(xodr.Line(run.length))
         lanes = xodr.Lanes()
@@ -179,10 +235,20 @@ def write_xodr(classified, path: Path, rule: str = "RHT") -> Path:
             if run.sides[1] > 0:
                 section.add_right_lane(xodr.Lane(getattr(xodr.LaneType, right_type), a=run.sides[1]))
             lanes.add_lanesection(section)
-        odr.add_road(xodr.Road(k, planview, lanes, rule=traffic))
+        roads.append(xodr.Road(k, planview, lanes, rule=traffic))
+        odr.add_road(roads[-1])
+    _add_objects(odr, roads, runs, things if things is not None else garage_things(classified))
     odr.adjust_roads_and_lanes()
     path.parent.mkdir(parents=True, exist_ok=True)
     odr.write_xml(str(path))
+    # the header's bounds: the plan's extent (scenariogeneration writes 0)
+    from garage_exp.scenario.asam import parse
+
+    tree = parse(path)
+    width, depth = classified.plan.size
+    tree.getroot().find("header").attrib.update(
+        {"north": f"{depth:.6f}", "south": "0.0", "east": f"{width:.6f}", "west": "0.0"})
+    tree.write(str(path), xml_declaration=True, encoding="utf-8")
     return path
 
 
@@ -475,7 +541,9 @@ def write(cfg, classified, variants: list[tuple[str, str, float | None, list[Tra
     # one garage, one rule: the side the ego keeps to (a case's variants drive the same side)
     rule = next((lane.rule for lane in lanes if lane is not None), "RHT")
     lanes = [lane if lane is None or lane.rule == rule else None for lane in lanes]
-    xodr_path = write_xodr(classified, out / "garage.xodr", rule)
+    garage = cfg.garage
+    xodr_path = write_xodr(classified, out / "garage.xodr", rule, garage_things(
+        classified, float(garage.pillar_size), float(garage.ceiling_height), float(garage.wall_thickness)))
     paths = [xodr_path]
     for k, ((label, target, step, moving, notes), lane) in enumerate(zip(variants, lanes), start=1):
         name = "scenario.xosc" if k == 1 else f"scenario_{k}.xosc"
