@@ -198,14 +198,14 @@ def _add_objects(odr, roads: list, runs: list[Run], things: list[Thing]) -> None
     """Each thing on the road nearest its centre (s clamped to the road, t across it, heading relative)."""
     from scenariogeneration import xodr
 
-    for k, th in enumerate(things):
+    for th in things:
         def distance(run):
             s, t = run.st(th.x, th.y)
             return max(-s, s - run.length, 0.0) + abs(t)
         near = min(range(len(runs)), key=lambda r: distance(runs[r]))
         s, t = runs[near].st(th.x, th.y)
         obj = xodr.Object(round(min(max(s, 0.0), runs[near].length), 6), round(t, 6),
-                          Type=getattr(xodr.ObjectType, th.kind), subtype=th.name.split("_")[0], id=str(k + 1),
+                          Type=getattr(xodr.ObjectType, th.kind), subtype=th.name.split("_")[0],
                           name=th.name,
                           hdg=round(th.hdg - runs[near].heading, 9), length=round(th.length, 6),
                           width=round(th.width, 6), height=round(th.height, 6))
