@@ -58,18 +58,25 @@ def declared_lanes(xosc) -> dict[str, tuple[str, int]]:
 @pytest.mark.parametrize("case", CASES)
 def test_esmini_replays_the_export_as_the_job_ran(case, plan, library, tmp_path):
     require("esmini")
+    judge(library, tmp_path, f"case={case}", f"plan={plan}")
+
+
+def judge(library, tmp_path, *overrides: str) -> list:
+    """Export the case, play each variant in esmini and hold it to the job's frames (the module's docstring);
+    the exported paths."""
     from garage_exp.exports.esmini import play
     from garage_exp.run.openscenario import export, frame_clock, tracks, variants_of
     from garage_exp.run.preflight import PreparedJob
     from garage_exp.scenario.asam import validate
     from garage_exp.scenario.xodr_read import read_roads
 
-    cfg, classified, _, setup = build(library, f"case={case}", f"plan={plan}")
+    cfg, classified, _, setup = build(library, *overrides)
+    plan = cfg.plan.name
     paths = export(cfg, tmp_path / "osc", PreparedJob(PLANS_DIR / f"{plan}.yaml", classified, setup=setup))
     roads, _ = read_roads(paths[0])
     assert validate(paths[0]).startswith("opendrive")
     for (label, shots), xosc in zip(variants_of(setup), paths[1:], strict=True):
-        where = f"{plan} case={case} [{label}]"
+        where = f"{plan} case={cfg.case.name} [{label}]"
         assert validate(xosc).startswith("OpenSCENARIO")
         moving, _ = tracks(cfg, setup, shots)
         replay = play(xosc, tmp_path / xosc.stem)
@@ -97,6 +104,45 @@ def test_esmini_replays_the_export_as_the_job_ran(case, plan, library, tmp_path)
             worst = max(abs((r.heading_to_drive - facing + math.pi) % (2 * math.pi) - math.pi)
                         for r in replay.samples["ego"])
             assert worst < math.radians(DEGREES), f"{where}: the ego heads {math.degrees(worst):.0f} deg off its lane"
+
+    return paths
+
+
+def test_a_1_0_export_is_what_scenario_runner_reads_and_plays_the_same(library, tmp_path):
+    """export.openscenario_version=1.0 (CARLA's ScenarioRunner reads 1.0 only): the 1.0 schema, the ego marked
+    type=ego_vehicle, CARLA blueprints as vehicle names and pedestrian models, no expressions, no negative speed;
+    esmini plays it as the job ran, as the 1.2 file."""
+    require("esmini")
+    from garage_exp.exports.openscenario import CARLA_VEHICLES, CARLA_WALKERS
+    from garage_exp.scenario.asam import parse, validate
+
+    for case in ("crossing", "cpnco"):
+        paths = judge(library, tmp_path / case, f"case={case}", "export.openscenario_version=1.0")
+        assert validate(paths[1]) == "OpenSCENARIO_1_0.xsd"
+        root = parse(paths[1]).getroot()
+        objects = {o.get("name"): o for o in root.iterfind("Entities/ScenarioObject")}
+        ego = objects["ego"].find("Vehicle")
+        assert ego.find("Properties/Property[@name='type']").get("value") == "ego_vehicle"
+        assert all(v.get("name") in CARLA_VEHICLES.values() for v in root.iter("Vehicle"))
+        assert {p.get("model") for p in root.iter("Pedestrian")} <= set(CARLA_WALKERS.values())
+        text = paths[1].read_text()
+        assert "${" not in text and "SynchronizeAction" not in text
+        declared = {p.get("name"): p.get("value") for p in root.iter("ParameterDeclaration")}
+        speeds = [declared.get(v.get("value")[1:], "") if v.get("value").startswith("$") else v.get("value")
+                  for v in root.iter("AbsoluteTargetSpeed")]
+        assert speeds and all(float(v) >= 0 for v in speeds), speeds
+
+
+def test_a_reversing_ego_is_refused_for_1_0_in_one_line_before_the_job(tmp_path, mlflow_uri):
+    from conftest import run_app
+
+    out = tmp_path / "run"
+    result = run_app(["case=cpra", "camera=rear", "export.openscenario=true", "export.openscenario_version=1.0",
+                      f"hydra.run.dir={out}", f"tracking.uri={mlflow_uri}"], tmp_path)
+    assert result.returncode == 2
+    err = result.stderr.strip().splitlines()
+    assert len(err) == 1 and "export.openscenario_version" in err[0] and "reverses" in err[0], err
+    assert not (out / "openscenario").exists() and not (out / "frames.csv").exists()
 
 
 def test_the_road_file_holds_the_garage_s_pillars_walls_obstacles_and_bays(tmp_path):

@@ -271,7 +271,9 @@ def reference(pose: Pose, entity: Entity) -> Pose:
     return Pose(pose.x - back * math.cos(h), pose.y - back * math.sin(h), 0.0, pose.yaw)
 
 
-def _entity_object(track: Track):
+def _entity_object(track: Track, carla: bool = False):
+    """The entity's object; `carla`: as ScenarioRunner spawns it (a blueprint as a vehicle's name and a
+    pedestrian's model, the ego marked type=ego_vehicle)."""
     from scenariogeneration import xosc
 
     e = track.entity
@@ -285,8 +287,9 @@ def _entity_object(track: Track):
         parts = (e.model or "").split("-")
         if len(parts) == 5 and parts[4].endswith("cm") and parts[4][:-2].isdigit():
             props.update(gender=parts[1], build=parts[2], pose=parts[3], height=f"{int(parts[4][:-2]) / 100:.2f}")
+        model = CARLA_WALKERS.get(e.size_class or "adult", CARLA_WALKERS["adult"]) if carla else e.model or "pedestrian"
         obj = xosc.Pedestrian(track.name, 20.0 if e.size_class == "child" else 70.0, xosc.PedestrianCategory.pedestrian,
-                              box, model=e.model or "pedestrian")
+                              box, model=model)
     elif e.kind == "box":
         obj = xosc.MiscObject(track.name, 100.0, xosc.MiscObjectCategory.obstacle, box)
     else:
@@ -297,11 +300,14 @@ def _entity_object(track: Track):
         props["size"] = e.size_class or ""
         wheel = 0.65 if body in ("car", "suv") else 0.8
         base = 2 * axle_offset(e)  # the wheelbase: both axles REAR_AXLE_IN from their bumpers
-        obj = xosc.Vehicle(track.name, getattr(xosc.VehicleCategory, CATEGORIES.get(body, "car")), box,
+        name = CARLA_VEHICLES.get(body, CARLA_VEHICLES["car"]) if carla else track.name
+        obj = xosc.Vehicle(name, getattr(xosc.VehicleCategory, CATEGORIES.get(body, "car")), box,
                            xosc.Axle(0.6, wheel, width * 0.85, base, wheel / 2),
                            xosc.Axle(0.0, wheel, width * 0.85, 0.0, wheel / 2), 30.0, 3.0, 8.0)
     for key, value in props.items():
         obj.add_property(PREFIX + key, str(value))
+    if carla and e.role == "ego":
+        obj.add_property("type", "ego_vehicle")
     return obj
 
 
@@ -413,7 +419,7 @@ def _lane_position(s, offset, lane: EgoLane, yaw: float):
 
 def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str,
                target: str = "", step: float | None = None, lane: EgoLane | None = None,
-               runs: list | None = None) -> Path:
+               runs: list | None = None, minor: int = OSC_MINOR) -> Path:
     """One variant's scenario. The ego drives its declared lane (`lane`; LanePositions with the parameters EgoS,
     EgoOffset) at the parameter EgoSpeed; every other mover follows a polyline trajectory from its start to its
     end, its pace set by speed actions; the stop trigger's time follows EgoSpeed."""
@@ -430,15 +436,15 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
     entities = xosc.Entities()
     init = xosc.Init()
     for t in moving:
-        entities.add_scenario_object(t.name, _entity_object(t))
+        entities.add_scenario_object(t.name, _entity_object(t, carla=minor == 0))
         if t.name == "ego" and lane is not None:
             init.add_init_action(t.name, xosc.TeleportAction(_lane_position("$EgoS", "$EgoOffset", lane, t.start.yaw)))
             if t.end is None:
                 continue
             route = xosc.Route("ego_route")
             route.add_waypoint(_lane_position("$EgoS", "$EgoOffset", lane, t.start.yaw), xosc.RouteStrategy.shortest)
-            route.add_waypoint(_lane_position(f"${{$EgoS + {lane.s1 - lane.s0:.6f}}}", "$EgoOffset", lane, t.end.yaw),
-                               xosc.RouteStrategy.shortest)
+            end = f"${{$EgoS + {lane.s1 - lane.s0:.6f}}}" if minor > 0 else lane.s1  # 1.0 has no expressions
+            route.add_waypoint(_lane_position(end, "$EgoOffset", lane, t.end.yaw), xosc.RouteStrategy.shortest)
             init.add_init_action(t.name, xosc.AssignRouteAction(route))
             init.add_init_action(t.name, _speed("$EgoSpeed"))
             continue
@@ -446,7 +452,9 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         if t.end is not None:
             # a polyline from its start to its end (a route would keep it on a lane: a walk across it would be a
             # slide along it); its speed actions pace it (timing none)
-            shape = xosc.Polyline([], [_position(t.start, t.entity), _position(t.end, t.entity)])
+            # (1.0 wants each vertex's time; with no time reference a player ignores it)
+            times = [] if minor > 0 else [0.0, round((t.length + t.accelerate) / t.speed if t.speed else 0.0, 6)]
+            shape = xosc.Polyline(times, [_position(t.start, t.entity), _position(t.end, t.entity)])
             trajectory = xosc.Trajectory(f"{t.name}_path", False)
             trajectory.add_shape(shape)
             init.add_init_action(t.name, xosc.FollowTrajectoryAction(trajectory, xosc.FollowingMode.position))
@@ -454,25 +462,27 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
                 init.add_init_action(t.name, _speed(t.initial))
             elif t.trigger == ("time", 0.0):
                 init.add_init_action(t.name, _speed("$EgoSpeed" if t.name == "ego" else t.speed, t.accelerate))
+    at_least = xosc.Rule.greaterOrEqual if minor >= 1 else xosc.Rule.greaterThan  # (1.0 has no greaterOrEqual)
     act = xosc.Act("motion", xosc.ValueTrigger("start", 0, xosc.ConditionEdge.none,
-                                               xosc.SimulationTimeCondition(0, xosc.Rule.greaterOrEqual)))
+                                               xosc.SimulationTimeCondition(0, at_least)))
     done = xosc.ConditionGroup("stop")
+    priority = xosc.Priority.override if minor >= 2 else xosc.Priority.overwrite  # (renamed in 1.2)
     for t in moving:
         if t.end is None:
             continue
         maneuver = xosc.Maneuver(f"{t.name}_moves")
         if t.trigger != ("time", 0.0) or t.initial > 0:
             kind, value = t.trigger
-            go = xosc.Event(f"{t.name}_starts", xosc.Priority.override)
-            go.add_action(f"{t.name}_speed", _synchronize(t, ego) if t.meet is not None and ego is not None
-                          else _speed(t.speed, t.accelerate))
+            go = xosc.Event(f"{t.name}_starts", priority)
+            synchronised = t.meet is not None and ego is not None and minor > 0  # 1.0: no steady state
+            go.add_action(f"{t.name}_speed", _synchronize(t, ego) if synchronised else _speed(t.speed, t.accelerate))
             go.add_trigger(xosc.EntityTrigger(f"ego_travelled_{value:.2f}", 0, xosc.ConditionEdge.rising,
                                               xosc.TraveledDistanceCondition(round(value, 6)), "ego")
                            if kind == "ego_travel" else
                            xosc.ValueTrigger(f"time_{value:.2f}", 0, xosc.ConditionEdge.none,
-                                             xosc.SimulationTimeCondition(round(value, 6), xosc.Rule.greaterOrEqual)))
+                                             xosc.SimulationTimeCondition(round(value, 6), at_least)))
             maneuver.add_event(go)
-        stop = xosc.Event(f"{t.name}_stops", xosc.Priority.override)
+        stop = xosc.Event(f"{t.name}_stops", priority)
         stop.add_action(f"{t.name}_stop", _speed(0.0))
         stop.add_trigger(xosc.EntityTrigger(f"{t.name}_travelled_{t.length:.2f}", 0, xosc.ConditionEdge.rising,
                                             xosc.TraveledDistanceCondition(round(t.length, 6)), t.name))
@@ -508,7 +518,7 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
                    f"ego.speed={float(cfg.ego.speed):g} km/h"
                    + "".join(f"; {n}" for n in notes))
     scenario = xosc.Scenario(description, AUTHOR, params, entities, board,
-                             xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=OSC_MINOR)
+                             xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=minor)
     path.parent.mkdir(parents=True, exist_ok=True)
     scenario.write_xml(str(path))
     return path
@@ -523,19 +533,47 @@ class ExportConf:
     # and openscenario/garage.xodr (the plan's driving lanes as ASAM OpenDRIVE); a search writes its hardest
     # trials', a suite each scenario's (docs/openscenario.md)
     openscenario: bool = False
+    # "1.2"; or "1.0" for CARLA's ScenarioRunner (its reader takes 1.0 only): the ego marked type=ego_vehicle,
+    # CARLA blueprints as vehicle names and pedestrian models, no expressions, no synchronised arrivals (a
+    # timed start instead); a reversing ego cannot be said in it and is refused
+    openscenario_version: str = "1.2"
+
+
+VERSIONS = {"1.2": 2, "1.0": 0}
+# CARLA 0.9.x blueprints for our bodies and people (ScenarioRunner spawns a Vehicle's `name`, a Pedestrian's
+# `model`)
+CARLA_VEHICLES = {"car": "vehicle.tesla.model3", "suv": "vehicle.nissan.patrol", "pickup": "vehicle.ford.ranger",
+                  "van": "vehicle.volkswagen.t2", "bus": "vehicle.mitsubishi.fusorosa",
+                  "truck": "vehicle.carlamotors.carlacola"}
+CARLA_WALKERS = {"adult": "walker.pedestrian.0001", "child": "walker.pedestrian.0009"}
 
 
 def check_export(cfg) -> None:
-    """The `export` group: a dry run builds no scenario to write."""
+    """The `export` group: a dry run builds no scenario to write; a version is one we write."""
     if cfg.export.openscenario and cfg.dry_run:
         raise GarageError("a dry run builds no scenario to export; drop dry_run=true or export.openscenario=true",
                           "export.openscenario")
+    if str(cfg.export.openscenario_version) not in VERSIONS:
+        raise GarageError(f"{cfg.export.openscenario_version!r} is not a version we write (1.2, or 1.0 for CARLA's "
+                          "ScenarioRunner)", "export.openscenario_version")
+
+
+def check_tracks(version: str, label: str, moving: list[Track]) -> None:
+    """What OpenSCENARIO `version` cannot say, refused in one line: 1.0 for ScenarioRunner has no negative
+    speed, so no reversing ego."""
+    ego = next((t for t in moving if t.name == "ego"), None)
+    if version == "1.0" and ego is not None and ego.velocity < 0:
+        raise GarageError(f"CARLA's ScenarioRunner (OpenSCENARIO 1.0) refuses negative speeds: the ego reverses in "
+                          f"variant {label!r}; export it as 1.2", "export.openscenario_version")
 
 
 def write(cfg, classified, variants: list[tuple[str, str, float | None, list[Track], list[str]]], out: Path
           ) -> list[Path]:
     """`out`/garage.xodr and one .xosc per variant (label, its target, its frames' step, its actors' tracks,
     notes): `scenario.xosc`, `scenario_2.xosc`, ...; the paths."""
+    version = str(cfg.export.openscenario_version)
+    for label, _, _, moving, _ in variants:
+        check_tracks(version, label, moving)
     runs = lane_runs(classified)
     lanes = [ego_lane(runs, next(t for t in moving if t.name == "ego")) for _, _, _, moving, _ in variants]
     # one garage, one rule: the side the ego keeps to (a case's variants drive the same side)
@@ -548,5 +586,5 @@ def write(cfg, classified, variants: list[tuple[str, str, float | None, list[Tra
     for k, ((label, target, step, moving, notes), lane) in enumerate(zip(variants, lanes), start=1):
         name = "scenario.xosc" if k == 1 else f"scenario_{k}.xosc"
         paths.append(write_xosc(cfg, moving, label, notes, out / name, xodr_path.name, target, step, lane,
-                                runs))
+                                runs, VERSIONS[version]))
     return paths
