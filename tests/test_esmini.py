@@ -167,3 +167,19 @@ def test_the_road_file_holds_the_garage_s_pillars_walls_obstacles_and_bays(tmp_p
     assert len(kinds["building"]) == sum(c.value == -1 for c in cells)
     assert len(kinds["parkingSpace"]) == sum(c.value == 0 and bool(c.lanes) for c in cells) > 0
     assert kinds["barrier"] and sum(float(o.get("length")) for o in kinds["barrier"]) > width + depth
+
+
+def test_asam_s_checker_bundles_find_nothing_in_the_exports(library, tmp_path):
+    """asam-qc-openscenarioxml and asam-qc-opendrive on the files esmini judges: cpnco (1.2: a SynchronizeAction,
+    parameters, lane positions, trajectories), crossing as 1.0, and their road files: no issue."""
+    require("asam-qc")
+    from garage_exp.exports.asam_qc import issues
+    from garage_exp.run.openscenario import export
+    from garage_exp.run.preflight import PreparedJob
+
+    files = []
+    for case, version in (("cpnco", "1.2"), ("crossing", "1.0")):
+        cfg, classified, _, setup = build(library, f"case={case}", f"export.openscenario_version={version}")
+        files += export(cfg, tmp_path / case, PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
+    found = {f"{p.parent.name}/{p.name}": issues(p) for p in files}
+    assert not any(found.values()), found
