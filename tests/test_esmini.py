@@ -97,7 +97,7 @@ def judge(library, tmp_path, *overrides: str) -> list:
                 f"{where}: {name} starts off every lane of the road file, at ({x:.2f}, {y:.2f})"
         declared = declared_lanes(xosc)
         ego = next(t for t in moving if t.name == "ego")
-        if ego.end is not None and "ego" in declared:
+        if "ego" in declared and abs(declared["ego"][1]) == 1:  # an ego in a driving lane, standing or driving
             lanes = {r.lane for r in replay.samples["ego"]}
             assert lanes == {declared["ego"][1]}, f"{where}: the ego drives in lanes {lanes}"
             facing = math.pi if ego.velocity < 0 else 0.0  # a reversing ego faces against its lane's direction
