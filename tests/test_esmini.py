@@ -133,18 +133,6 @@ def test_a_1_0_export_is_what_scenario_runner_reads_and_plays_the_same(library, 
         assert speeds and all(float(v) >= 0 for v in speeds), speeds
 
 
-def test_a_reversing_ego_is_refused_for_1_0_in_one_line_before_the_job(tmp_path, mlflow_uri):
-    from conftest import run_app
-
-    out = tmp_path / "run"
-    result = run_app(["case=cpra", "camera=rear", "export.openscenario=true", "export.openscenario_version=1.0",
-                      f"hydra.run.dir={out}", f"tracking.uri={mlflow_uri}"], tmp_path)
-    assert result.returncode == 2
-    err = result.stderr.strip().splitlines()
-    assert len(err) == 1 and "export.openscenario_version" in err[0] and "reverses" in err[0], err
-    assert not (out / "openscenario").exists() and not (out / "frames.csv").exists()
-
-
 def test_the_road_file_holds_the_garage_s_pillars_walls_obstacles_and_bays(tmp_path):
     """garage.xodr: the header's bounds are the plan's extent; every pillar is a pole, every perimeter wall a
     barrier, every obstacle cell a building and every bay beside a lane a parkingSpace, with their dimensions."""
