@@ -62,7 +62,7 @@ def assert_same_placements(original: list, again: list) -> None:
             other = b.poses[name]
             worst = max(worst, math.hypot(pose.x - other.x, pose.y - other.y))
             assert abs(((pose.yaw - other.yaw) + 180) % 360 - 180) < 0.5
-    assert worst < 0.05
+    assert worst < 0.05, f"worst {worst:.3f} m"
 
 
 def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tmp_path):

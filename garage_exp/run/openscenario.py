@@ -101,7 +101,7 @@ def tracks(cfg, setup: CaseSetup, shots: list[Shot]) -> tuple[list[Track], list[
             track.trigger = ("ego_travel", round(t_at * ego_speed, 6)) if t_at > 0 else ("time", 0.0)
             if t_at < 0:  # already on its way at the first frame: it starts there at the speed it has then
                 track.initial = speed_at(along, -t_at)
-            elif along.get("meet") is not None:  # timed to meet the ego: where the ego is then
+            if along.get("meet") is not None:  # timed to meet the ego: where the ego is then
                 track.meet = _extended(shots[0].ego, shots[-1].ego, values[0], values[-1], float(along.meet))
             continue
         first, last = moved[0] - 1, moved[-1]
