@@ -558,6 +558,15 @@ def check_export(cfg) -> None:
                           "ScenarioRunner)", "export.openscenario_version")
 
 
+def check_version(cfg, setup) -> None:
+    """Refuse, at the job's preflight, a scenario the export's version cannot say (check_tracks): the ego's
+    first and last frame of each variant tell whether it reverses."""
+    ego = next(e for e in setup.vehicles if e.name == "ego")
+    for label in dict.fromkeys(s.label for s in setup.shots if s.replicate == 0):
+        shots = [s for s in setup.shots if s.label == label and s.replicate == 0]
+        check_tracks(str(cfg.export.openscenario_version), label, [Track("ego", ego, shots[0].ego, shots[-1].ego, 1.0)])
+
+
 def check_tracks(version: str, label: str, moving: list[Track]) -> None:
     """What OpenSCENARIO `version` cannot say, refused in one line: 1.0 for ScenarioRunner has no negative
     speed, so no reversing ego."""

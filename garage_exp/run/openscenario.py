@@ -33,15 +33,6 @@ def export(cfg: DictConfig, out: Path, prepared=None) -> list[Path]:
     return openscenario.write(cfg, prepared.classified, variants, out)
 
 
-def check(cfg: DictConfig, setup: CaseSetup) -> None:
-    """Refuse, before the job runs, a scenario the export's version cannot say (exports.openscenario.check_tracks:
-    a reversing ego in 1.0)."""
-    from garage_exp.exports.openscenario import check_tracks
-
-    for label, shots in variants_of(setup):
-        check_tracks(str(cfg.export.openscenario_version), label, tracks(cfg, setup, shots)[0])
-
-
 def frame_step(shots: list[Shot]) -> float | None:
     """The motion's value from one frame to the next (listed values too); None for a single frame."""
     return round(abs(shots[1].position - shots[0].position), 6) if len(shots) > 1 else None

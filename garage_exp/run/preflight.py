@@ -166,9 +166,9 @@ def preflight(cfg: DictConfig, check_space: bool = True) -> PreparedJob:
             raise
         raise exc.again(f"{exc}; {where}", None) from None
     if cfg.export.openscenario:
-        from garage_exp.run.openscenario import check as check_export_version
+        from garage_exp.exports.openscenario import check_version
 
-        check_export_version(cfg, setup)
+        check_version(cfg, setup)
     if not cfg.dry_run:
         prepared.scene, prepared.setup = scene, setup
         prepared.detector = check_loads(detector, prepared.scene)
