@@ -51,6 +51,14 @@ def missing(capability: str) -> str | None:
                 from cluster import cluster_problem
 
                 problem = cluster_problem()
+            elif capability == "asam-qc":
+                from garage_exp.exports.asam_qc import qc_bin
+
+                qc_bin()
+            elif capability == "esmini":
+                from garage_exp.exports.esmini import esmini_path
+
+                esmini_path()
             elif capability == "vehicles":
                 from garage_exp.assets.locate import vehicles_dir
 
@@ -85,7 +93,8 @@ def browser_problem() -> str | None:
 
 
 def require(*capabilities: str) -> None:
-    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models", "browser", "cluster"; under CI=true or
+    """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models", "browser", "cluster",
+    "esmini" (the OpenSCENARIO player in ../shared/tools), "asam-qc" (ASAM's checker bundles in .venv-qc); under CI=true or
     `make test` (STRICT_CI) fail instead, whatever the test's markers."""
     for capability in capabilities:
         problem = missing(capability)

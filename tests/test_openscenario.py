@@ -45,8 +45,9 @@ def test_cpnco_exports_validate_against_the_asam_schemas_and_read_back(cpnco):
             cell = classified.plan.cell_at(*road.point(road.length * k / 10, 0.0))
             assert cell is not None and classified.cell(*cell).driveable
     text = paths[1].read_text()
-    for needle in ("TraveledDistanceCondition", "AssignRouteAction", "AbsoluteTargetSpeed value=\"2.777778\"",
-                   "pedestrianCategory=\"pedestrian\"", "SimulationTimeCondition"):
+    for needle in ("TraveledDistanceCondition", "AssignRouteAction", "AbsoluteTargetSpeed value=\"$EgoSpeed\"",
+                   'ParameterDeclaration name="EgoSpeed" parameterType="double" value="2.777778"',
+                   "FollowTrajectoryAction", "pedestrianCategory=\"pedestrian\"", "SimulationTimeCondition"):
         assert needle in text
 
 
@@ -62,7 +63,7 @@ def assert_same_placements(original: list, again: list) -> None:
             other = b.poses[name]
             worst = max(worst, math.hypot(pose.x - other.x, pose.y - other.y))
             assert abs(((pose.yaw - other.yaw) + 180) % 360 - 180) < 0.5
-    assert worst < 0.05
+    assert worst < 0.05, f"worst {worst:.3f} m"
 
 
 def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tmp_path):
@@ -76,6 +77,22 @@ def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tm
     assert_same_placements(setup.shots, again.shots)
 
 
+@pytest.mark.parametrize("speed", [5, 20])
+def test_the_cpnco_export_imports_back_at_other_ego_speeds(cpnco, library, tmp_path, speed):
+    """The child's timed arrival is a SynchronizeAction with the ego, not a trigger fixed for the exported speed:
+    imported back and run at 5 or 20 km/h, the case builds the same frames as the original at that speed (with a
+    trigger the child set off 10 frames early at 5 km/h, and was 2.5 m short of the ego's path at 20)."""
+    from garage_exp.scenario.xosc_import import main
+
+    cfg, classified, setup, paths = cpnco
+    assert "SynchronizeAction" in paths[1].read_text()
+    out = tmp_path / "conf" / "case" / "cpnco_v.yaml"
+    assert main([str(paths[1]), "-o", str(out), "--name", "cpnco_v"]) == 0
+    _, _, _, original = build(library, "case=cpnco", f"ego.speed={speed}")
+    _, _, _, again = build(library, "case=cpnco_v", f"ego.speed={speed}", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    assert_same_placements(original.shots, again.shots)
+
+
 def test_a_reversing_ego_and_a_synchronised_walker_import_back(library, tmp_path):
     """cpra's walking variant at 4 km/h (the ego reverses: a negative speed; the adult's walk is timed to meet
     it) exported and imported again: the same placements, frame for frame."""
@@ -86,7 +103,7 @@ def test_a_reversing_ego_and_a_synchronised_walker_import_back(library, tmp_path
     cfg, classified, _, setup = build(library, "case=cpra", "ego.speed=4")
     paths = export(cfg, tmp_path / "osc", PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
     walking = paths[7]  # the seventh variant: adult walking 50 %
-    assert "adult walking 50 %" in walking.read_text() and 'AbsoluteTargetSpeed value="-1.111111"' in walking.read_text()
+    assert "adult walking 50 %" in walking.read_text() and 'name="EgoSpeed" parameterType="double" value="-1.111111"' in walking.read_text()
     out = tmp_path / "conf" / "case" / "cpra_rt.yaml"
     assert main([str(walking), "-o", str(out), "--name", "cpra_rt"]) == 0
     _, _, _, again = build(library, "case=cpra_rt", "ego.speed=4", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
@@ -147,15 +164,15 @@ def test_a_road_the_plan_cannot_place_is_refused(cpnco, tmp_path, capsys):
         return etree.tostring(tree, encoding="unicode")
 
     def on_road_99(tree):  # the child's start as a lane position on a road the road file lacks
-        world = tree.find("Storyboard/Init/Actions/Private[@entityRef='child']/PrivateAction/TeleportAction"
-                          "/Position/WorldPosition")
-        world.getparent().replace(world, etree.Element("LanePosition", roadId="99", laneId="-1", s="3",
+        start = tree.find("Storyboard/Init/Actions/Private[@entityRef='child']/PrivateAction/TeleportAction"
+                          "/Position/*")
+        start.getparent().replace(start, etree.Element("LanePosition", roadId="99", laneId="-1", s="3",
                                                        offset="0"))
 
     def far_away(tree):  # the large car 300 m east, outside the plan
-        world = tree.find("Storyboard/Init/Actions/Private[@entityRef='car_large']/PrivateAction/TeleportAction"
-                          "/Position/WorldPosition")
-        world.set("x", str(float(world.get("x")) + 300))
+        start = tree.find("Storyboard/Init/Actions/Private[@entityRef='car_large']/PrivateAction/TeleportAction"
+                          "/Position/*")
+        start.getparent().replace(start, etree.Element("WorldPosition", x="330", y="40", h="0"))
 
     lane, far = changed(on_road_99), changed(far_away)
     for name, bad, says in (("lane.xosc", lane, "needs road 99"), ("far.xosc", far, "needs a road the plan")):

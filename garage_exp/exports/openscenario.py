@@ -2,18 +2,25 @@
 (`garage.xodr`), written with `scenariogeneration`, for the tools test engineers replay scenarios in (esmini,
 CARLA's ScenarioRunner, commercial simulators, HIL rigs).
 
-What is written (docs/openscenario.md has the mapping):
+What is written (docs/openscenario.md has the mapping; tests/test_esmini.py replays it in esmini):
 - entities: every actor of the variant as a Vehicle (category car/van/bus/truck from its model), a Pedestrian or a
-  MiscObject (a box: an obstacle), with its bounding box (our extent; the reference point is the footprint's
-  centre on the ground) and Properties saying what garage_exp made it from (role, kind, model, age, height);
-- initial positions: TeleportAction to a WorldPosition (x, y in the plan's world frame, which is the .xodr's
-  inertial frame; heading in radians, counter-clockwise from +x, as our yaw);
-- motion: each moving actor gets a route (AssignRouteAction, its start and end as waypoints) and speed actions:
-  the ego drives at `ego.speed` from the start (a negative speed when it reverses, as in `cpra`); an actor moving along with it (`case.motion.along`) starts when
-  the ego has travelled to `at` (TraveledDistanceCondition on the ego) at its own speed; any other mover starts
-  at the simulation time of its first move (SimulationTimeCondition). Each stops (speed 0) when it has
-  travelled its route (TraveledDistanceCondition on itself);
-- the storyboard stops at the last frame's time plus one second.
+  MiscObject (a box: an obstacle), with its bounding box (our extent) and Properties saying what garage_exp made
+  it from (role, kind, model, age, height). A vehicle's reference point is its rear axle, as OpenSCENARIO has it
+  (REAR_AXLE_IN from its rear bumper; the bounding box's centre lies `axle_offset` ahead of it); a person's or a
+  box's is its footprint's centre;
+- the parameters EgoSpeed (m/s, negative when it reverses) and, for an ego in a lane, EgoS and EgoOffset (its
+  start along its road and its offset from its lane's centre);
+- initial positions: the ego in a declared lane (`ego_lane`: LanePosition on its road, in the lane its side of
+  the centre line says under the roads' declared traffic rule), every other actor in the lane that holds it (a
+  driving lane, or the outer lane beside it: a bay), else a WorldPosition (x, y in the plan's world frame, which
+  is the .xodr's inertial frame; heading in radians, counter-clockwise from +x, as our yaw);
+- motion: the ego drives its lane (AssignRouteAction) at EgoSpeed from the start; every other mover follows a
+  polyline trajectory from its start to its end (a walk across a lane crosses it), paced by speed actions: an
+  actor moving along with the ego (`case.motion.along`) starts when the ego has travelled to `at`
+  (TraveledDistanceCondition on the ego) and accelerates as the case says (a `linear` change at a `rate`), one
+  already under way at the first frame starts at the speed it has there; any other mover starts at the
+  simulation time of its first move. Each stops (speed 0) when it has travelled its track;
+- the storyboard stops one second after every mover has travelled its track (600 s at the latest).
 
 One file per variant of the case (replicate 0): `scenario.xosc` for the first, `scenario_2.xosc`, ... for the
 others. A case whose ego stands still sweeps a placement value frame by frame rather than in time; it is written
@@ -21,9 +28,8 @@ as the moved actor travelling through its placements at a nominal speed (1.4 m/s
 others), and the FileHeader's description says so.
 
 The lanes: one OpenDRIVE road per maximal straight run of driveable cells along a row or a column, through the
-cells' centres from edge to edge, with one driving lane each side (half the cell's width each). Junctions are
-not modelled: roads overlap at corners and junction cells (positions are world positions throughout, so the
-scenario does not depend on them).
+cells' centres from edge to edge, with one driving lane each side (half the cell's width each) and beyond each
+an outer lane as deep as the neighbouring row or column (parking beside bays, none beside walls).
 """
 
 from __future__ import annotations
@@ -52,6 +58,8 @@ class Track:
     speed: float = 0.0  # m/s
     trigger: tuple[str, float] = ("time", 0.0)  # ("time", s) | ("ego_travel", m travelled by the ego)
     accelerate: float = 0.0  # metres from standstill to `speed` at a constant acceleration (0: a step)
+    initial: float = 0.0  # m/s it already has at the start (a walk under way at the first frame)
+    meet: Pose | None = None  # where the ego is when this actor reaches its end (a timed arrival: `meet`)
 
     @property
     def length(self) -> float:
@@ -67,9 +75,25 @@ class Track:
         return -self.speed if ahead < -1e-9 else self.speed
 
 
-def lane_runs(classified) -> list[tuple[tuple[float, float], float, float, float]]:
-    """Maximal straight runs of driveable cells along rows (heading E) and columns (heading N): (start point,
-    heading in radians, length, width across)."""
+@dataclass
+class Run:
+    """A maximal straight run of driveable cells: one OpenDRIVE road."""
+
+    start: tuple[float, float]
+    heading: float  # radians: 0 along a row (E), pi/2 up a column (N)
+    length: float
+    width: float  # across: the cells' depth (a row's R or a column's C)
+    cells: list[tuple[int, int]]  # in the order the road runs
+    sides: tuple[float, float]  # the depth of the row or column on its left and on its right (0: none)
+
+    def st(self, x: float, y: float) -> tuple[float, float]:
+        """(s, t) of a world point on this road's reference line."""
+        c, n = math.cos(self.heading), math.sin(self.heading)
+        return (x - self.start[0]) * c + (y - self.start[1]) * n, -(x - self.start[0]) * n + (y - self.start[1]) * c
+
+
+def lane_runs(classified) -> list[Run]:
+    """Maximal straight runs of driveable cells along rows (heading E) and columns (heading N)."""
     plan = classified.plan
     m, n = plan.shape
     runs = []
@@ -88,8 +112,9 @@ def lane_runs(classified) -> list[tuple[tuple[float, float], float, float, float
             while k + 1 < n and connected(classified.cell(i, k), classified.cell(i, k + 1), "E"):
                 k += 1
             y = plan.cell_center(i, j)[1]
-            runs.append(((float(plan.x_edges[j]), y), 0.0, float(plan.x_edges[k + 1] - plan.x_edges[j]),
-                         float(plan.R[i])))
+            sides = (float(plan.R[i - 1]) if i > 0 else 0.0, float(plan.R[i + 1]) if i + 1 < m else 0.0)
+            runs.append(Run((float(plan.x_edges[j]), y), 0.0, float(plan.x_edges[k + 1] - plan.x_edges[j]),
+                            float(plan.R[i]), [(i, c) for c in range(j, k + 1)], sides))
             j = k + 1
     for j in range(n):
         i = m - 1
@@ -102,33 +127,158 @@ def lane_runs(classified) -> list[tuple[tuple[float, float], float, float, float
             while k - 1 >= 0 and connected(classified.cell(k, j), classified.cell(k - 1, j), "N"):
                 k -= 1
             x = plan.cell_center(i, j)[0]
-            runs.append(((x, float(plan.y_edges[i + 1])), math.pi / 2, float(plan.y_edges[k] - plan.y_edges[i + 1]),
-                         float(plan.C[j])))
+            sides = (float(plan.C[j - 1]) if j > 0 else 0.0, float(plan.C[j + 1]) if j + 1 < n else 0.0)
+            runs.append(Run((x, float(plan.y_edges[i + 1])), math.pi / 2,
+                            float(plan.y_edges[k] - plan.y_edges[i + 1]), float(plan.C[j]),
+                            [(r, j) for r in range(i, k - 1, -1)], sides))
             i = k - 1
     return runs
 
 
-def write_xodr(classified, path: Path) -> Path:
-    """The plan's driving lanes as OpenDRIVE roads (lane_runs), in the world frame of the plan."""
+def _side_types(classified, run: Run) -> list[tuple[float, str, str]]:
+    """Where along the road the cells beside it change: (s, left type, right type), OpenDRIVE lane types of the
+    outer lanes (parking beside bays and free space, none beside walls, obstacles and other lanes)."""
+    plan = classified.plan
+    m, n = plan.shape
+    di, dj = (-1, 0) if run.heading == 0.0 else (0, -1)  # the left neighbour: N of a row, W of a column
+
+    def kind(i, j) -> str:
+        if not (0 <= i < m and 0 <= j < n):
+            return "none"
+        cell = classified.cell(i, j)
+        return "parking" if cell.value == 0 else "none"
+
+    out, s = [], 0.0
+    for i, j in run.cells:
+        types = (kind(i + di, j + dj), kind(i - di, j - dj))
+        if not out or out[-1][1:] != types:
+            out.append((s, *types))
+        s += float(plan.C[j]) if run.heading == 0.0 else float(plan.R[i])
+    return out
+
+
+@dataclass
+class Thing:
+    """A fixed thing of the garage as an OpenDRIVE object: its centre, heading (radians), size, type."""
+
+    kind: str  # OpenDRIVE object type: pole (a pillar), barrier (a wall), building (an obstacle cell), parkingSpace
+    name: str
+    x: float
+    y: float
+    hdg: float
+    length: float
+    width: float
+    height: float
+
+
+def garage_things(classified, pillar_size: float = 0.6, height: float = 2.8, wall: float = 0.25) -> list[Thing]:
+    """The pillars, the perimeter walls, the obstacle cells and the bays (parking cells beside a lane) of the
+    plan, with their dimensions."""
+    from garage_exp.plan.draw import _perimeter_walls
+
+    plan = classified.plan
+    out = []
+    for k, p in enumerate(classified.pillars):
+        x, y = plan.vertex(p.a, p.b)
+        out.append(Thing("pole", f"pillar_{k}", x + p.sx * pillar_size / 2, y + p.sy * pillar_size / 2, 0.0,
+                         pillar_size, pillar_size, height))
+    for k, ((x0, y0), (x1, y1)) in enumerate(_perimeter_walls(classified)):
+        out.append(Thing("barrier", f"wall_{k}", (x0 + x1) / 2, (y0 + y1) / 2, math.atan2(y1 - y0, x1 - x0),
+                         math.hypot(x1 - x0, y1 - y0), wall, height))
+    for cell in classified.all_cells():
+        if cell.value == -1 or (cell.value == 0 and cell.lanes):
+            x0, y0, x1, y1 = plan.cell_rect(cell.i, cell.j)
+            kind, name = ("building", "obstacle") if cell.value == -1 else ("parkingSpace", "bay")
+            out.append(Thing(kind, f"{name}_{cell.i}_{cell.j}", (x0 + x1) / 2, (y0 + y1) / 2, 0.0, x1 - x0, y1 - y0,
+                             height if cell.value == -1 else 0.0))
+    return out
+
+
+def _add_objects(odr, roads: list, runs: list[Run], things: list[Thing]) -> None:
+    """Each thing on the road nearest its centre (s clamped to the road, t across it, heading relative)."""
+    from scenariogeneration import xodr
+
+    for th in things:
+        def distance(run):
+            s, t = run.st(th.x, th.y)
+            return max(-s, s - run.length, 0.0) + abs(t)
+        near = min(range(len(runs)), key=lambda r: distance(runs[r]))
+        s, t = runs[near].st(th.x, th.y)
+        obj = xodr.Object(round(min(max(s, 0.0), runs[near].length), 6), round(t, 6),
+                          Type=getattr(xodr.ObjectType, th.kind), subtype=th.name.split("_")[0],
+                          name=th.name,
+                          hdg=round(th.hdg - runs[near].heading, 9), length=round(th.length, 6),
+                          width=round(th.width, 6), height=round(th.height, 6))
+        roads[near].add_object(obj)
+
+
+def write_xodr(classified, path: Path, rule: str = "RHT", things: list[Thing] | None = None) -> Path:
+    """The plan's driving lanes as OpenDRIVE roads (lane_runs), in the world frame of the plan: a driving lane
+    each side of the cells' centre line (half the cell's width), and beyond each an outer lane as deep as the
+    neighbouring row or column, of type parking beside bays and free space, none beside walls (so that no bay
+    and no one standing in it is off the road). `rule`: the traffic rule the roads declare (RHT or LHT)."""
     from scenariogeneration import xodr
 
     odr = xodr.OpenDrive(f"garage {classified.plan.name}", revMinor="7")
-    for k, (start, heading, length, width) in enumerate(lane_runs(classified), start=1):
-        road = xodr.create_road(xodr.Line(length), id=k, left_lanes=1, right_lanes=1, lane_width=width / 2)
-        road.planview.set_start_point(start[0], start[1], heading)
-        odr.add_road(road)
+    traffic = getattr(xodr.TrafficRule, rule)
+    runs, roads = lane_runs(classified), []
+    for k, run in enumerate(runs, start=1):
+        planview = xodr.PlanView(run.start[0], run.start[1], run.heading)
+        planview.add_geometry(xodr.Line(run.length))
+        lanes = xodr.Lanes()
+        for s, left_type, right_type in _side_types(classified, run):
+            section = xodr.LaneSection(s, xodr.Lane(xodr.LaneType.none))
+            section.add_left_lane(xodr.Lane(xodr.LaneType.driving, a=run.width / 2))
+            section.add_right_lane(xodr.Lane(xodr.LaneType.driving, a=run.width / 2))
+            if run.sides[0] > 0:
+                section.add_left_lane(xodr.Lane(getattr(xodr.LaneType, left_type), a=run.sides[0]))
+            if run.sides[1] > 0:
+                section.add_right_lane(xodr.Lane(getattr(xodr.LaneType, right_type), a=run.sides[1]))
+            lanes.add_lanesection(section)
+        roads.append(xodr.Road(k, planview, lanes, rule=traffic))
+        odr.add_road(roads[-1])
+    _add_objects(odr, roads, runs, things if things is not None else garage_things(classified))
     odr.adjust_roads_and_lanes()
     path.parent.mkdir(parents=True, exist_ok=True)
     odr.write_xml(str(path))
+    # the header's bounds: the plan's extent (scenariogeneration writes 0)
+    from garage_exp.scenario.asam import parse
+
+    tree = parse(path)
+    width, depth = classified.plan.size
+    tree.getroot().find("header").attrib.update(
+        {"north": f"{depth:.6f}", "south": "0.0", "east": f"{width:.6f}", "west": "0.0"})
+    tree.write(str(path), xml_declaration=True, encoding="utf-8")
     return path
 
 
-def _entity_object(track: Track):
+REAR_AXLE_IN = 0.9  # m: a vehicle's rear axle this far in from its rear bumper (and the front axle from its front)
+
+
+def axle_offset(entity: Entity) -> float:
+    """How far the bounding box's centre lies ahead of the entity's OpenSCENARIO reference point: a vehicle's is
+    its rear axle (OpenSCENARIO 1.2, 'Coordinate systems': the vehicle's reference point), a person's or a box's
+    its footprint's centre."""
+    if entity.kind in ("person", "box"):
+        return 0.0
+    return max(entity.extent[0] / 2 - REAR_AXLE_IN, 0.0)
+
+
+def reference(pose: Pose, entity: Entity) -> Pose:
+    """Our pose (the footprint's centre) as the entity's reference point."""
+    back = axle_offset(entity)
+    h = math.radians(pose.yaw)
+    return Pose(pose.x - back * math.cos(h), pose.y - back * math.sin(h), 0.0, pose.yaw)
+
+
+def _entity_object(track: Track, carla: bool = False):
+    """The entity's object; `carla`: as ScenarioRunner spawns it (a blueprint as a vehicle's name and a
+    pedestrian's model, the ego marked type=ego_vehicle)."""
     from scenariogeneration import xosc
 
     e = track.entity
     length, width, height = e.extent
-    box = xosc.BoundingBox(width, length, height, 0.0, 0.0, height / 2)
+    box = xosc.BoundingBox(width, length, height, axle_offset(e), 0.0, height / 2)
     props = {"role": e.role, "kind": e.kind or "vehicle", "model": e.model or ""}
     if e.kind == "person":
         props.update(age=e.size_class or "adult", height=f"{height:.3f}")
@@ -137,8 +287,9 @@ def _entity_object(track: Track):
         parts = (e.model or "").split("-")
         if len(parts) == 5 and parts[4].endswith("cm") and parts[4][:-2].isdigit():
             props.update(gender=parts[1], build=parts[2], pose=parts[3], height=f"{int(parts[4][:-2]) / 100:.2f}")
+        model = CARLA_WALKERS.get(e.size_class or "adult", CARLA_WALKERS["adult"]) if carla else e.model or "pedestrian"
         obj = xosc.Pedestrian(track.name, 20.0 if e.size_class == "child" else 70.0, xosc.PedestrianCategory.pedestrian,
-                              box, model=e.model or "pedestrian")
+                              box, model=model)
     elif e.kind == "box":
         obj = xosc.MiscObject(track.name, 100.0, xosc.MiscObjectCategory.obstacle, box)
     else:
@@ -148,67 +299,190 @@ def _entity_object(track: Track):
         props["body"] = body
         props["size"] = e.size_class or ""
         wheel = 0.65 if body in ("car", "suv") else 0.8
-        axle = length / 2 - 0.9  # wheels ~0.9 m in from either bumper
-        obj = xosc.Vehicle(track.name, getattr(xosc.VehicleCategory, CATEGORIES.get(body, "car")), box,
-                           xosc.Axle(0.6, wheel, width * 0.85, axle, wheel / 2),
-                           xosc.Axle(0.0, wheel, width * 0.85, -axle, wheel / 2), 30.0, 3.0, 8.0)
+        base = 2 * axle_offset(e)  # the wheelbase: both axles REAR_AXLE_IN from their bumpers
+        name = CARLA_VEHICLES.get(body, CARLA_VEHICLES["car"]) if carla else track.name
+        obj = xosc.Vehicle(name, getattr(xosc.VehicleCategory, CATEGORIES.get(body, "car")), box,
+                           xosc.Axle(0.6, wheel, width * 0.85, base, wheel / 2),
+                           xosc.Axle(0.0, wheel, width * 0.85, 0.0, wheel / 2), 30.0, 3.0, 8.0)
     for key, value in props.items():
         obj.add_property(PREFIX + key, str(value))
+    if carla and e.role == "ego":
+        obj.add_property("type", "ego_vehicle")
     return obj
 
 
-def _position(pose: Pose):
+def _position(pose: Pose, entity: Entity | None = None):
+    """A WorldPosition of the entity's reference point (`entity` None: the pose as it is)."""
     from scenariogeneration import xosc
 
-    return xosc.WorldPosition(round(pose.x, 6), round(pose.y, 6), 0.0, round(math.radians(pose.yaw % 360.0), 9))
+    p = reference(pose, entity) if entity is not None else pose
+    return xosc.WorldPosition(round(p.x, 6), round(p.y, 6), 0.0, round(math.radians(p.yaw % 360.0), 9))
 
 
-def _speed(value: float, accelerate: float = 0.0):
-    """Reach `value` m/s at once, or (accelerate > 0) at the constant acceleration that reaches it after
-    `accelerate` metres from standstill (a `rate` of v^2 / 2a m/s^2)."""
+def _speed(value, accelerate: float = 0.0):
+    """Reach `value` m/s (a number or a parameter reference) at once, or (accelerate > 0) at the constant
+    acceleration that reaches it after `accelerate` metres from standstill (a `rate` of v^2 / 2a m/s^2)."""
     from scenariogeneration import xosc
 
-    if accelerate > 0 and value != 0:
-        return xosc.AbsoluteSpeedAction(round(value, 6), xosc.TransitionDynamics(
+    number = isinstance(value, (int, float))
+    value = round(value, 6) if number else value
+    if accelerate > 0 and value != 0 and number:
+        return xosc.AbsoluteSpeedAction(value, xosc.TransitionDynamics(
             xosc.DynamicsShapes.linear, xosc.DynamicsDimension.rate, round(value * value / (2 * accelerate), 6)))
-    return xosc.AbsoluteSpeedAction(round(value, 6), xosc.TransitionDynamics(
+    return xosc.AbsoluteSpeedAction(value, xosc.TransitionDynamics(
         xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0))
 
 
-def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str,
-               target: str = "", step: float | None = None) -> Path:
+def _synchronize(track: Track, ego: Track):
+    """A timed arrival (`meet`) as OpenSCENARIO says it: reach the end as the ego reaches where the case meets
+    it, at `speed` from `accelerate` metres on (the steady state); at another EgoSpeed the arrival still holds."""
     from scenariogeneration import xosc
 
+    steady = xosc.TargetDistanceSteadyState(round(max(track.length - track.accelerate, 0.0), 6))
+    return xosc.SynchronizeAction("ego", _position(track.meet, ego.entity), _position(track.end, track.entity),
+                                  target_tolerance_master=0.05, target_tolerance=0.05,
+                                  final_speed=xosc.AbsoluteSpeed(round(track.speed, 6), steady))
+
+
+@dataclass
+class EgoLane:
+    """Where a driving ego is on the roads: the road (lane_runs' index + 1), the lane it drives in, the s of its
+    reference point at its start and end, its offset from the lane's centre, and the traffic rule that makes that
+    lane's driving direction its direction of travel (the side of the centre line it keeps to)."""
+
+    road: int
+    lane: int
+    s0: float
+    s1: float
+    offset: float
+    rule: str
+
+
+def ego_lane(runs: list, track: Track) -> EgoLane | None:
+    """The lane an ego keeps to, from where it stands and where it travels (standing: where it faces); None when
+    it is not on one road's driving lanes (it then goes by world positions). An ego on the centre line (t = 0) is in
+    the lane on its right under right-hand traffic, at that lane's left edge: declared, not left to rounding."""
+    a = reference(track.start, track.entity)
+    b = reference(track.end, track.entity) if track.end is not None else a
+    travel = math.atan2(b.y - a.y, b.x - a.x) if track.end is not None else math.radians(track.start.yaw)
+    for k, run in enumerate(runs, start=1):
+        if abs(math.sin(run.heading - travel)) > 1e-6:
+            continue
+        (s0, t0), (s1, t1) = run.st(a.x, a.y), run.st(b.x, b.y)
+        inside = all(-1e-6 <= s <= run.length + 1e-6 for s in (s0, s1))
+        if not inside or abs(t0 - t1) > 1e-6 or abs(t0) > run.width / 2 + 1e-6:
+            continue
+        along = 1 if math.cos(run.heading - travel) > 0 else -1  # travels towards +s or -s
+        left = t0 * along > 1e-6
+        lane = along if left else -along  # RHT: +s traffic in the right lanes (negative ids); LHT the left
+        centre = math.copysign(run.width / 4, lane)
+        return EgoLane(k, lane, round(s0, 6), round(s1, 6), round(t0 - centre, 6), "LHT" if left else "RHT")
+    return None
+
+
+def lane_of(runs: list, pose: Pose) -> tuple[int, int, float, float] | None:
+    """(road, lane, s, offset from the lane's centre) of a reference point on the roads: in a driving lane where
+    one holds it, else in an outer lane (a bay, the space beside the lane); None off every road."""
+    found = None
+    for k, run in enumerate(runs, start=1):
+        s, t = run.st(pose.x, pose.y)
+        if not -1e-6 <= s <= run.length + 1e-6:
+            continue
+        half = run.width / 2
+        side = run.sides[0] if t > 0 else run.sides[1]
+        if abs(t) <= half + 1e-9:
+            lane = 1 if t > 1e-9 else -1
+            return k, lane, round(s, 6), round(t - math.copysign(half / 2, lane), 6)
+        if found is None and side > 0 and abs(t) <= half + side:
+            lane = 2 if t > 0 else -2
+            found = k, lane, round(s, 6), round(t - math.copysign(half + side / 2, t), 6)
+    return found
+
+
+def _start_position(runs: list, pose: Pose, entity: Entity):
+    """Where an actor starts: a LanePosition in the lane that holds its reference point (esmini then reports it
+    there, not as an offset from the nearest driving lane), else a WorldPosition."""
+    on = lane_of(runs, reference(pose, entity))
+    if on is None:
+        return _position(pose, entity)
+    road, lane, s, offset = on
+    return _lane_position(s, offset, EgoLane(road, lane, s, s, offset, ""), pose.yaw)
+
+
+def _lane_position(s, offset, lane: EgoLane, yaw: float):
+    from scenariogeneration import xosc
+
+    return xosc.LanePosition(s, offset, lane.lane, lane.road,
+                             xosc.Orientation(h=round(math.radians(yaw % 360.0), 9),
+                                              reference=xosc.ReferenceContext.absolute))
+
+
+def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str,
+               target: str = "", step: float | None = None, lane: EgoLane | None = None,
+               runs: list | None = None, minor: int = OSC_MINOR) -> Path:
+    """One variant's scenario. The ego drives its declared lane (`lane`; LanePositions with the parameters EgoS,
+    EgoOffset) at the parameter EgoSpeed; every other mover follows a polyline trajectory from its start to its
+    end, its pace set by speed actions; the stop trigger's time follows EgoSpeed."""
+    from scenariogeneration import xosc
+
+    runs = runs or []
+    ego = next((t for t in moving if t.name == "ego"), None)
+    ego_v = ego.velocity if ego is not None else 0.0
+    params = xosc.ParameterDeclarations()
+    params.add_parameter(xosc.Parameter("EgoSpeed", xosc.ParameterType.double, str(round(ego_v, 6))))
+    if lane is not None:
+        params.add_parameter(xosc.Parameter("EgoS", xosc.ParameterType.double, str(lane.s0)))
+        params.add_parameter(xosc.Parameter("EgoOffset", xosc.ParameterType.double, str(lane.offset)))
     entities = xosc.Entities()
     init = xosc.Init()
     for t in moving:
-        entities.add_scenario_object(t.name, _entity_object(t))
-        init.add_init_action(t.name, xosc.TeleportAction(_position(t.start)))
-        if t.end is not None:
-            route = xosc.Route(f"{t.name}_route")
-            route.add_waypoint(_position(t.start), xosc.RouteStrategy.shortest)
-            route.add_waypoint(_position(t.end), xosc.RouteStrategy.shortest)
+        entities.add_scenario_object(t.name, _entity_object(t, carla=minor == 0))
+        if t.name == "ego" and lane is not None:
+            init.add_init_action(t.name, xosc.TeleportAction(_lane_position("$EgoS", "$EgoOffset", lane, t.start.yaw)))
+            if t.end is None:
+                continue
+            route = xosc.Route("ego_route")
+            route.add_waypoint(_lane_position("$EgoS", "$EgoOffset", lane, t.start.yaw), xosc.RouteStrategy.shortest)
+            end = f"${{$EgoS + {lane.s1 - lane.s0:.6f}}}" if minor > 0 else lane.s1  # 1.0 has no expressions
+            route.add_waypoint(_lane_position(end, "$EgoOffset", lane, t.end.yaw), xosc.RouteStrategy.shortest)
             init.add_init_action(t.name, xosc.AssignRouteAction(route))
-            if t.trigger == ("time", 0.0):
-                init.add_init_action(t.name, _speed(t.velocity, t.accelerate))
+            init.add_init_action(t.name, _speed("$EgoSpeed"))
+            continue
+        init.add_init_action(t.name, xosc.TeleportAction(_start_position(runs, t.start, t.entity)))
+        if t.end is not None:
+            # a polyline from its start to its end (a route would keep it on a lane: a walk across it would be a
+            # slide along it); its speed actions pace it (timing none)
+            # (1.0 wants each vertex's time; with no time reference a player ignores it)
+            times = [] if minor > 0 else [0.0, round((t.length + t.accelerate) / t.speed if t.speed else 0.0, 6)]
+            shape = xosc.Polyline(times, [_position(t.start, t.entity), _position(t.end, t.entity)])
+            trajectory = xosc.Trajectory(f"{t.name}_path", False)
+            trajectory.add_shape(shape)
+            init.add_init_action(t.name, xosc.FollowTrajectoryAction(trajectory, xosc.FollowingMode.position))
+            if t.initial > 0:
+                init.add_init_action(t.name, _speed(t.initial))
+            elif t.trigger == ("time", 0.0):
+                init.add_init_action(t.name, _speed("$EgoSpeed" if t.name == "ego" else t.speed, t.accelerate))
+    at_least = xosc.Rule.greaterOrEqual if minor >= 1 else xosc.Rule.greaterThan  # (1.0 has no greaterOrEqual)
     act = xosc.Act("motion", xosc.ValueTrigger("start", 0, xosc.ConditionEdge.none,
-                                               xosc.SimulationTimeCondition(0, xosc.Rule.greaterOrEqual)))
-    end_time = 0.0
+                                               xosc.SimulationTimeCondition(0, at_least)))
+    done = xosc.ConditionGroup("stop")
+    priority = xosc.Priority.override if minor >= 2 else xosc.Priority.overwrite  # (renamed in 1.2)
     for t in moving:
         if t.end is None:
             continue
         maneuver = xosc.Maneuver(f"{t.name}_moves")
-        if t.trigger != ("time", 0.0):
+        if t.trigger != ("time", 0.0) or t.initial > 0:
             kind, value = t.trigger
-            go = xosc.Event(f"{t.name}_starts", xosc.Priority.override)
-            go.add_action(f"{t.name}_speed", _speed(t.velocity, t.accelerate))
+            go = xosc.Event(f"{t.name}_starts", priority)
+            synchronised = t.meet is not None and ego is not None and minor > 0  # 1.0: no steady state
+            go.add_action(f"{t.name}_speed", _synchronize(t, ego) if synchronised else _speed(t.speed, t.accelerate))
             go.add_trigger(xosc.EntityTrigger(f"ego_travelled_{value:.2f}", 0, xosc.ConditionEdge.rising,
                                               xosc.TraveledDistanceCondition(round(value, 6)), "ego")
                            if kind == "ego_travel" else
-                           xosc.ValueTrigger(f"time_{value:.2f}", 0, xosc.ConditionEdge.rising,
-                                             xosc.SimulationTimeCondition(round(value, 6), xosc.Rule.greaterOrEqual)))
+                           xosc.ValueTrigger(f"time_{value:.2f}", 0, xosc.ConditionEdge.none,
+                                             xosc.SimulationTimeCondition(round(value, 6), at_least)))
             maneuver.add_event(go)
-        stop = xosc.Event(f"{t.name}_stops", xosc.Priority.override)
+        stop = xosc.Event(f"{t.name}_stops", priority)
         stop.add_action(f"{t.name}_stop", _speed(0.0))
         stop.add_trigger(xosc.EntityTrigger(f"{t.name}_travelled_{t.length:.2f}", 0, xosc.ConditionEdge.rising,
                                             xosc.TraveledDistanceCondition(round(t.length, 6)), t.name))
@@ -217,17 +491,25 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
         group.add_actor(t.name)
         group.add_maneuver(maneuver)
         act.add_maneuver_group(group)
-        ego_speed = next((e.speed for e in moving if e.name == "ego"), 0.0)
-        start = t.trigger[1] if t.trigger[0] == "time" else t.trigger[1] / ego_speed if ego_speed > 0 else 0.0
-        end_time = max(end_time, start + (t.length + t.accelerate) / t.speed if t.speed > 0 else start)
+        # the storyboard stops a second after every mover has travelled its track (whatever EgoSpeed is)
+        done.add_condition(xosc.EntityTrigger(f"{t.name}_done", 1.0, xosc.ConditionEdge.none,
+                                              xosc.TraveledDistanceCondition(round(t.length, 6)), t.name,
+                                              triggeringpoint="stop"))
     story = xosc.Story("garage_exp")
     if not act.maneuvergroup:
         group = xosc.ManeuverGroup("ego_group")  # a Story needs an Act, an Act a ManeuverGroup
         group.add_actor("ego")
         act.add_maneuver_group(group)
     story.add_act(act)
-    stop = xosc.ValueTrigger("end", 0, xosc.ConditionEdge.rising,
-                             xosc.SimulationTimeCondition(round(end_time + 1.0, 3), xosc.Rule.greaterThan), "stop")
+    stop = xosc.Trigger("stop")
+    if not done.conditions:
+        done.add_condition(xosc.ValueTrigger("still", 1.0, xosc.ConditionEdge.none,
+                                             xosc.SimulationTimeCondition(0, xosc.Rule.greaterThan), "stop"))
+    stop.add_conditiongroup(done)
+    cap = xosc.ConditionGroup("stop")  # a file played with EgoSpeed 0 ends too
+    cap.add_condition(xosc.ValueTrigger("cap", 0, xosc.ConditionEdge.none,
+                                        xosc.SimulationTimeCondition(600, xosc.Rule.greaterThan), "stop"))
+    stop.add_conditiongroup(cap)
     board = xosc.StoryBoard(init, stop)
     board.add_story(story)
     case = cfg.case
@@ -235,8 +517,8 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
                    f"light={cfg.light.name} step={step or float(case.motion.step):g} target={target} "
                    f"ego.speed={float(cfg.ego.speed):g} km/h"
                    + "".join(f"; {n}" for n in notes))
-    scenario = xosc.Scenario(description, AUTHOR, xosc.ParameterDeclarations(), entities, board,
-                             xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=OSC_MINOR)
+    scenario = xosc.Scenario(description, AUTHOR, params, entities, board,
+                             xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=minor)
     path.parent.mkdir(parents=True, exist_ok=True)
     scenario.write_xml(str(path))
     return path
@@ -251,22 +533,67 @@ class ExportConf:
     # and openscenario/garage.xodr (the plan's driving lanes as ASAM OpenDRIVE); a search writes its hardest
     # trials', a suite each scenario's (docs/openscenario.md)
     openscenario: bool = False
+    # "1.2"; or "1.0" for CARLA's ScenarioRunner (its reader takes 1.0 only): the ego marked type=ego_vehicle,
+    # CARLA blueprints as vehicle names and pedestrian models, no expressions, no synchronised arrivals (a
+    # timed start instead); a reversing ego cannot be said in it and is refused
+    openscenario_version: str = "1.2"
+
+
+VERSIONS = {"1.2": 2, "1.0": 0}
+# CARLA 0.9.x blueprints for our bodies and people (ScenarioRunner spawns a Vehicle's `name`, a Pedestrian's
+# `model`)
+CARLA_VEHICLES = {"car": "vehicle.tesla.model3", "suv": "vehicle.nissan.patrol", "pickup": "vehicle.ford.ranger",
+                  "van": "vehicle.volkswagen.t2", "bus": "vehicle.mitsubishi.fusorosa",
+                  "truck": "vehicle.carlamotors.carlacola"}
+CARLA_WALKERS = {"adult": "walker.pedestrian.0001", "child": "walker.pedestrian.0009"}
 
 
 def check_export(cfg) -> None:
-    """The `export` group: a dry run builds no scenario to write."""
+    """The `export` group: a dry run builds no scenario to write; a version is one we write."""
     if cfg.export.openscenario and cfg.dry_run:
         raise GarageError("a dry run builds no scenario to export; drop dry_run=true or export.openscenario=true",
                           "export.openscenario")
+    if str(cfg.export.openscenario_version) not in VERSIONS:
+        raise GarageError(f"{cfg.export.openscenario_version!r} is not a version we write (1.2, or 1.0 for CARLA's "
+                          "ScenarioRunner)", "export.openscenario_version")
+
+
+def check_version(cfg, setup) -> None:
+    """Refuse, at the job's preflight, a scenario the export's version cannot say (check_tracks): the ego's
+    first and last frame of each variant tell whether it reverses."""
+    ego = next(e for e in setup.vehicles if e.name == "ego")
+    for label in dict.fromkeys(s.label for s in setup.shots if s.replicate == 0):
+        shots = [s for s in setup.shots if s.label == label and s.replicate == 0]
+        check_tracks(str(cfg.export.openscenario_version), label, [Track("ego", ego, shots[0].ego, shots[-1].ego, 1.0)])
+
+
+def check_tracks(version: str, label: str, moving: list[Track]) -> None:
+    """What OpenSCENARIO `version` cannot say, refused in one line: 1.0 for ScenarioRunner has no negative
+    speed, so no reversing ego."""
+    ego = next((t for t in moving if t.name == "ego"), None)
+    if version == "1.0" and ego is not None and ego.velocity < 0:
+        raise GarageError(f"CARLA's ScenarioRunner (OpenSCENARIO 1.0) refuses negative speeds: the ego reverses in "
+                          f"variant {label!r}; export it as 1.2", "export.openscenario_version")
 
 
 def write(cfg, classified, variants: list[tuple[str, str, float | None, list[Track], list[str]]], out: Path
           ) -> list[Path]:
     """`out`/garage.xodr and one .xosc per variant (label, its target, its frames' step, its actors' tracks,
     notes): `scenario.xosc`, `scenario_2.xosc`, ...; the paths."""
-    xodr_path = write_xodr(classified, out / "garage.xodr")
+    version = str(cfg.export.openscenario_version)
+    for label, _, _, moving, _ in variants:
+        check_tracks(version, label, moving)
+    runs = lane_runs(classified)
+    lanes = [ego_lane(runs, next(t for t in moving if t.name == "ego")) for _, _, _, moving, _ in variants]
+    # one garage, one rule: the side the ego keeps to (a case's variants drive the same side)
+    rule = next((lane.rule for lane in lanes if lane is not None), "RHT")
+    lanes = [lane if lane is None or lane.rule == rule else None for lane in lanes]
+    garage = cfg.garage
+    xodr_path = write_xodr(classified, out / "garage.xodr", rule, garage_things(
+        classified, float(garage.pillar_size), float(garage.ceiling_height), float(garage.wall_thickness)))
     paths = [xodr_path]
-    for k, (label, target, step, moving, notes) in enumerate(variants, start=1):
+    for k, ((label, target, step, moving, notes), lane) in enumerate(zip(variants, lanes), start=1):
         name = "scenario.xosc" if k == 1 else f"scenario_{k}.xosc"
-        paths.append(write_xosc(cfg, moving, label, notes, out / name, xodr_path.name, target, step))
+        paths.append(write_xosc(cfg, moving, label, notes, out / name, xodr_path.name, target, step, lane,
+                                runs, VERSIONS[version]))
     return paths

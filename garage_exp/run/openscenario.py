@@ -13,7 +13,7 @@ from omegaconf import DictConfig
 from garage_exp.exports.openscenario import Track
 from garage_exp.scenario.build import along_value, frame_times, moves_ego
 from garage_exp.scenario.shots import CaseSetup, Shot
-from garage_exp.scenario.timing import start_time
+from garage_exp.scenario.timing import speed_at, start_time
 from garage_exp.scene.description import Pose
 
 PERSON_SPEED = 1.4  # m/s: a static case's moved person walks through its placements at this pace
@@ -90,8 +90,10 @@ def tracks(cfg, setup: CaseSetup, shots: list[Shot]) -> tuple[list[Track], list[
             track.speed = float(along.speed)
             track.accelerate = float(along.get("accelerate") or 0.0)
             track.trigger = ("ego_travel", round(t_at * ego_speed, 6)) if t_at > 0 else ("time", 0.0)
-            if t_at < 0:
-                notes.append(f"{name}: already on its way at the first frame; written as setting off there")
+            if t_at < 0:  # already on its way at the first frame: it starts there at the speed it has then
+                track.initial = speed_at(along, -t_at)
+            if along.get("meet") is not None:  # timed to meet the ego: where the ego is then
+                track.meet = _extended(shots[0].ego, shots[-1].ego, values[0], values[-1], float(along.meet))
             continue
         first, last = moved[0] - 1, moved[-1]
         track.end = poses[last]
@@ -105,3 +107,20 @@ def tracks(cfg, setup: CaseSetup, shots: list[Shot]) -> tuple[list[Track], list[
                for k in moved):
             notes.append(f"{name}: its turning on the spot (yaw) is left out")
     return out, notes
+
+
+def frame_clock(cfg, shots: list[Shot], moving: list[Track]) -> list[float]:
+    """When, in the exported scenario's time, the job's each frame is: its own time where the ego drives; in a
+    sweep of placements (the ego standing), when the moved actor, walking or driving its track at the nominal
+    speed, reaches the frame's placement."""
+    if moves_ego(cfg.case):
+        return [s.time for s in shots]
+    mover = next((t for t in moving if t.end is not None and t.speed > 0), None)
+    if mover is None:
+        return [0.0 for _ in shots]
+    t0 = mover.trigger[1] if mover.trigger[0] == "time" else 0.0
+    out = []
+    for shot in shots:
+        pose = shot.ego if mover.name == "ego" else shot.poses[mover.name]
+        out.append(t0 + math.hypot(pose.x - mover.start.x, pose.y - mover.start.y) / mover.speed)
+    return out

@@ -168,6 +168,10 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
         if not where:
             raise
         raise exc.again(f"{exc}; {where}", None) from None
+    if cfg.export.openscenario:
+        from garage_exp.exports.openscenario import check_version
+
+        check_version(cfg, setup)
     if not cfg.dry_run:
         prepared.scene, prepared.setup, prepared.detector = scene, setup, detector
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)

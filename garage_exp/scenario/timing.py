@@ -23,6 +23,15 @@ def travelled(along, tau: float) -> float:
     return a + v * (tau - ramp)
 
 
+def speed_at(along, tau: float) -> float:
+    """The actor's speed (m/s) `tau` seconds after its start (travelled's derivative)."""
+    v, a = float(along.speed), float(along.accelerate or 0.0)
+    if tau <= 0 or v <= 0:
+        return 0.0
+    ramp = 2.0 * a / v if a > 0 else 0.0
+    return v * tau / ramp if tau < ramp else v
+
+
 def travel_time(along, metres: float) -> float:
     """Seconds from the start to cover `metres` (inf when the actor does not move)."""
     v, a = float(along.speed), float(along.accelerate or 0.0)

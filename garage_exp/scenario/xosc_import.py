@@ -208,7 +208,8 @@ def to_case(r: Read, classified, site, name: str, margin: float, target: str | N
     if along:
         motion["along"] = along
         meets = [spec["meet"] for spec in along.values() if "meet" in spec]
-        if meets and motion.get("actor") == "ego":  # a protocol's impact: the frames stop short of it
+        # a protocol's impact: the frames stop short of it (a file of ours ends its ego's route at the last frame)
+        if meets and motion.get("actor") == "ego" and not own_plan(r):
             d0, d1 = motion["start"], motion["end"]
             short = round(max(d1, min(meets) + SHORT) if d1 < d0 else min(d1, max(meets) - SHORT), 4)
             if short != d1:
@@ -247,7 +248,8 @@ def _along(r: Read, n: str, start, transform, distance, offset, motion, ego, ego
     ego_value = offset if motion.get("key") == "offset" else distance
     d0 = motion.get("start", 0.0)
     ahead = -1.0 if motion.get("end", d0) < d0 else 1.0  # which way the ego's value runs as it drives
-    m = next(m for m in r.moves[n] if m.speed != 0)
+    # a synchronisation says the walk (a speed before it only gets it under way: one already moving at the start)
+    m = next((m for m in r.moves[n] if m.meet is not None), None) or next(m for m in r.moves[n] if m.speed != 0)
     route = r.routes.get(n)
     if not route or len(route) < 2:
         notes.append(f"{n}: a speed without a route or trajectory: left standing")
