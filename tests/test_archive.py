@@ -99,20 +99,19 @@ def cell(kind: str, distance: float = 5.0, luminance: float = 0.1, visible: floa
 
 def test_a_cells_elite_is_replaced_only_by_a_harder_trial_and_ribs_keeps_the_same_elites():
     search = search_conf()
-    trials = numbered([trial(0, 0.5, cell("car")), trial(1, 0.4, cell("car")), trial(2, 0.5, cell("car")),  # none harder
-                       trial(3, 0.7, cell("car")), trial(4, 0.65, cell("car")),  # 3 replaces 0; 4 does not replace 3
-                       trial(5, 0.3, cell("child", distance=8.0)), trial(6, 0.9, None)])  # 6: no descriptors
+    trials = numbered([trial(0, 0.5, cell("car")), trial(1, 0.4, cell("car")), trial(2, 0.5, cell("car")),  # 0 stays
+                       trial(3, 0.6, cell("adult")), trial(4, 0.7, cell("adult")), trial(5, 0.65, cell("adult")),
+                       trial(6, 0.3, cell("child", distance=8.0)), trial(7, 0.9, None)])  # 7: no descriptors
     grid = archive.Grid(search.descriptors)
     elites = archive.elite_trials(trials, grid)
-    assert {c: t.number for c, t in elites.items()} == {(0, 0, 0, 1): 3, (2, 0, 1, 1): 5}
+    assert {c: t.number for c, t in elites.items()} == {(0, 0, 0, 1): 0, (1, 0, 0, 1): 4, (2, 0, 1, 1): 6}
     numbers = archive.summary(trials, search)
-    assert numbers == {"archive_cells": 72, "archive_filled": 2, "archive_failure_cells": 1,
-                       "archive_coverage": pytest.approx(1 / 72), "archive_qd_score": pytest.approx(1.0)}
+    assert numbers == {"archive_cells": 72, "archive_filled": 3, "archive_failure_cells": 1,
+                       "archive_coverage": pytest.approx(1 / 72), "archive_qd_score": pytest.approx(1.5)}
     ribs = archive.ribs_archive(trials, grid, {"a": FloatDistribution(0.0, 1.0)}, seed=0)
-    data = ribs.data()
-    assert sorted(data["objective"].tolist()) == pytest.approx([0.3, 0.7])
+    assert sorted(ribs.data()["objective"].tolist()) == pytest.approx([0.3, 0.5, 0.7])
     table = archive.archive_table(trials, search)
-    assert list(table.trial) == [3, 5] and list(table.failure) == [True, False]
+    assert list(table.trial) == [0, 4, 6] and list(table.failure) == [False, True, False]
     assert table.rerun[0] == "python -m garage_exp a=0.5" and table.cell[0] == "car | 0-0.12 | 0-6 | 0.9-1"
 
 
