@@ -27,9 +27,11 @@ others. A case whose ego stands still sweeps a placement value frame by frame ra
 as the moved actor travelling through its placements at a nominal speed (1.4 m/s for people, `ego.speed` for
 others), and the FileHeader's description says so.
 
-The lanes: one OpenDRIVE road per maximal straight run of driveable cells along a row or a column, through the
-cells' centres from edge to edge, with one driving lane each side (half the cell's width each) and beyond each
-an outer lane as deep as the neighbouring row or column (parking beside bays, none beside walls).
+The lanes: one OpenDRIVE road per maximal straight run of driveable cells along a row or a column between junction
+cells, through the cells' centres from edge to edge, with one driving lane each side (half the cell's width each)
+and beyond each an outer lane as deep as the neighbouring row or column (parking beside bays, none beside walls).
+Each corner, T-junction and crossroads cell is an OpenDRIVE junction whose one-way connecting roads (straight across
+it, and turns) link the roads that end at its edges (write_xodr).
 """
 
 from __future__ import annotations
