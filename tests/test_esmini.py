@@ -171,3 +171,67 @@ def test_asam_s_checker_bundles_find_nothing_in_the_exports(library, tmp_path):
         files += export(cfg, tmp_path / case, PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
     found = {f"{p.parent.name}/{p.name}": issues(p) for p in files}
     assert not any(found.values()), found
+
+
+def test_a_route_that_turns_a_corner_plays(tmp_path):
+    """garage.xodr's junctions: on the research plan's corner, a route from the road into the corner to the road out
+    of it is valid in esmini (it logs no route "not valid", no invalid waypoint), and the car follows the turn:
+    it passes the route's end, on the road out, in its lane, heading that road's way (right-hand traffic)."""
+    require("esmini")
+    from scenariogeneration import xosc
+
+    from garage_exp.exports.esmini import play
+    from garage_exp.exports.openscenario import arms, junction_cells, lane_runs, write_xodr
+    from garage_exp.plan import classify, load_plan
+
+    classified = classify(load_plan(PLANS_DIR / "research.yaml"))
+    xodr = write_xodr(classified, tmp_path / "garage.xodr")
+    runs, cells = lane_runs(classified), junction_cells(classified)
+    corner = next(c for c in cells if classified.cell(*c).type == "corner")
+    (into, into_end), (out, out_end) = [arms(runs, cells)[corner, d] for d in classified.cell(*corner).lanes]
+    ahead = 8.0  # m from the junction on each road
+    # right-hand traffic: towards the junction in lane -1 on a road that ends there, in lane 1 on one that starts there
+    lane_in, s_in = (-1, runs[into - 1].length - ahead) if into_end == "end" else (1, ahead)
+    lane_out, s_out = (-1, ahead) if out_end == "start" else (1, runs[out - 1].length - ahead)
+    start, end = xosc.LanePosition(s_in, 0, lane_in, into), xosc.LanePosition(s_out, 0, lane_out, out)
+    car = xosc.Vehicle("car", xosc.VehicleCategory.car, xosc.BoundingBox(1.8, 4.5, 1.5, 1.35, 0, 0.75),
+                       xosc.Axle(0.5, 0.65, 1.5, 2.7, 0.33), xosc.Axle(0, 0.65, 1.5, 0, 0.33), 30, 3, 8)
+    entities = xosc.Entities()
+    entities.add_scenario_object("ego", car)
+    init = xosc.Init()
+    route = xosc.Route("around_the_corner")
+    route.add_waypoint(start, xosc.RouteStrategy.shortest)
+    route.add_waypoint(end, xosc.RouteStrategy.shortest)
+    init.add_init_action("ego", xosc.TeleportAction(start))
+    init.add_init_action("ego", xosc.AssignRouteAction(route))
+    init.add_init_action("ego", xosc.AbsoluteSpeedAction(4.0, xosc.TransitionDynamics(
+        xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0)))
+    group = xosc.ManeuverGroup("ego_group")
+    group.add_actor("ego")
+    act = xosc.Act("drive")
+    act.add_maneuver_group(group)
+    story = xosc.Story("turn")
+    story.add_act(act)
+    stop, condition = xosc.Trigger("stop"), xosc.ConditionGroup("stop")
+    condition.add_condition(xosc.ValueTrigger("t", 0, xosc.ConditionEdge.none,
+                                              xosc.SimulationTimeCondition(12, xosc.Rule.greaterThan), "stop"))
+    stop.add_conditiongroup(condition)
+    board = xosc.StoryBoard(init, stop)
+    board.add_story(story)
+    path = tmp_path / "turn.xosc"
+    xosc.Scenario("a turn at a corner", "garage_exp", xosc.ParameterDeclarations(), entities, board,
+                  xosc.RoadNetwork(xodr.name), xosc.Catalog()).write_xml(str(path))
+    replay = play(path, tmp_path / "replay")
+    said = (tmp_path / "replay" / "esmini.txt").read_text()
+    assert "not valid" not in said and "Invalid waypoint" not in said, said
+    road = runs[out - 1]
+    centre = -road.width / 4 if lane_out < 0 else road.width / 4
+    c, n = math.cos(road.heading), math.sin(road.heading)
+    gx, gy = road.start[0] + s_out * c - centre * n, road.start[1] + s_out * n + centre * c
+    way = road.heading if lane_out < 0 else road.heading + math.pi
+    rows = replay.samples["ego"]
+    near = min(rows, key=lambda r: math.hypot(r.x - gx, r.y - gy))
+    assert math.hypot(near.x - gx, near.y - gy) < 0.2, (near.x, near.y, gx, gy)
+    assert abs((near.h - way + math.pi) % (2 * math.pi) - math.pi) < math.radians(DEGREES)
+    x0, y0, x1, y1 = classified.plan.cell_rect(*corner)
+    assert any(x0 < r.x < x1 and y0 < r.y < y1 for r in rows)  # through the corner, not around it

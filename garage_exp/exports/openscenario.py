@@ -27,9 +27,11 @@ others. A case whose ego stands still sweeps a placement value frame by frame ra
 as the moved actor travelling through its placements at a nominal speed (1.4 m/s for people, `ego.speed` for
 others), and the FileHeader's description says so.
 
-The lanes: one OpenDRIVE road per maximal straight run of driveable cells along a row or a column, through the
-cells' centres from edge to edge, with one driving lane each side (half the cell's width each) and beyond each
-an outer lane as deep as the neighbouring row or column (parking beside bays, none beside walls).
+The lanes: one OpenDRIVE road per maximal straight run of driveable cells along a row or a column between junction
+cells, through the cells' centres from edge to edge, with one driving lane each side (half the cell's width each)
+and beyond each an outer lane as deep as the neighbouring row or column (parking beside bays, none beside walls).
+Each corner, T-junction and crossroads cell is an OpenDRIVE junction whose one-way connecting roads (straight across
+it, and turns) link the roads that end at its edges (write_xodr).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from garage_exp.core.errors import GarageError
+from garage_exp.plan.model import OPPOSITE, YAW
 from garage_exp.scene.description import Entity, Pose
 
 OSC_MINOR = 2
@@ -77,7 +80,8 @@ class Track:
 
 @dataclass
 class Run:
-    """A maximal straight run of driveable cells: one OpenDRIVE road."""
+    """A maximal straight run of driveable cells between junction cells (one OpenDRIVE road), or the straight way
+    through one junction cell (a connecting road of that junction: `junction` > 0)."""
 
     start: tuple[float, float]
     heading: float  # radians: 0 along a row (E), pi/2 up a column (N)
@@ -85,6 +89,12 @@ class Run:
     width: float  # across: the cells' depth (a row's R or a column's C)
     cells: list[tuple[int, int]]  # in the order the road runs
     sides: tuple[float, float]  # the depth of the row or column on its left and on its right (0: none)
+    junction: int = 0  # the junction (1, 2, ...) whose connecting road it is; 0: an ordinary road
+    side: int = 0  # a connecting road's lanes: -1 the right ones only, 1 the left ones only (one way); 0 both
+
+    def has(self, lane: int) -> bool:
+        """Whether the road has lanes on lane id `lane`'s side."""
+        return self.side == 0 or (lane > 0) == (self.side > 0)
 
     def st(self, x: float, y: float) -> tuple[float, float]:
         """(s, t) of a world point on this road's reference line."""
@@ -92,46 +102,76 @@ class Run:
         return (x - self.start[0]) * c + (y - self.start[1]) * n, -(x - self.start[0]) * n + (y - self.start[1]) * c
 
 
+JUNCTION_TYPES = ("corner", "t_junction", "crossroads")
+
+
+def junction_cells(classified) -> dict[tuple[int, int], int]:
+    """The driveable cells where lanes meet (corners, T-junctions, crossroads; plan/classify.py) and each one's
+    junction id (1, 2, ... in row-major order)."""
+    cells = [(c.i, c.j) for c in classified.all_cells() if c.driveable and c.type in JUNCTION_TYPES]
+    return {cell: k for k, cell in enumerate(cells, start=1)}
+
+
 def lane_runs(classified) -> list[Run]:
-    """Maximal straight runs of driveable cells along rows (heading E) and columns (heading N)."""
+    """The straight roads, their index + 1 their road id: maximal straight runs of driveable cells along rows
+    (heading E) and columns (heading N) cut at junction cells, then the straight ways across each junction cell
+    along a row and a column (its connecting roads, heading E or N as the roads they join, one way each: a pair per
+    axis, one with the right lanes and one with the left; across a dead end too, so that whoever stands in a
+    corner is on a lane)."""
     plan = classified.plan
     m, n = plan.shape
+    junctions = junction_cells(classified)
     runs = []
 
+    def ordinary(cell) -> bool:
+        return cell.driveable and (cell.i, cell.j) not in junctions
+
     def connected(a, b, d) -> bool:
-        return a.driveable and b.driveable and d in a.lanes
+        return ordinary(a) and ordinary(b) and d in a.lanes
+
+    def row(i, j, k, junction=0, side=0) -> Run:
+        y = plan.cell_center(i, j)[1]
+        sides = (float(plan.R[i - 1]) if i > 0 else 0.0, float(plan.R[i + 1]) if i + 1 < m else 0.0)
+        return Run((float(plan.x_edges[j]), y), 0.0, float(plan.x_edges[k + 1] - plan.x_edges[j]),
+                   float(plan.R[i]), [(i, c) for c in range(j, k + 1)], sides, junction, side)
+
+    def column(j, i, k, junction=0, side=0) -> Run:  # from row i (the bottom) up to row k
+        x = plan.cell_center(i, j)[0]
+        sides = (float(plan.C[j - 1]) if j > 0 else 0.0, float(plan.C[j + 1]) if j + 1 < n else 0.0)
+        return Run((x, float(plan.y_edges[i + 1])), math.pi / 2, float(plan.y_edges[k] - plan.y_edges[i + 1]),
+                   float(plan.C[j]), [(r, j) for r in range(i, k - 1, -1)], sides, junction, side)
 
     for i in range(m):
         j = 0
         while j < n:
             cell = classified.cell(i, j)
-            if not (cell.driveable and ({"E", "W"} & set(cell.lanes))):
+            if not (ordinary(cell) and ({"E", "W"} & set(cell.lanes))):
                 j += 1
                 continue
             k = j
             while k + 1 < n and connected(classified.cell(i, k), classified.cell(i, k + 1), "E"):
                 k += 1
-            y = plan.cell_center(i, j)[1]
-            sides = (float(plan.R[i - 1]) if i > 0 else 0.0, float(plan.R[i + 1]) if i + 1 < m else 0.0)
-            runs.append(Run((float(plan.x_edges[j]), y), 0.0, float(plan.x_edges[k + 1] - plan.x_edges[j]),
-                            float(plan.R[i]), [(i, c) for c in range(j, k + 1)], sides))
+            runs.append(row(i, j, k))
             j = k + 1
     for j in range(n):
         i = m - 1
         while i >= 0:  # from the bottom row up: heading N
             cell = classified.cell(i, j)
-            if not (cell.driveable and ({"N", "S"} & set(cell.lanes))):
+            if not (ordinary(cell) and ({"N", "S"} & set(cell.lanes))):
                 i -= 1
                 continue
             k = i
             while k - 1 >= 0 and connected(classified.cell(k, j), classified.cell(k - 1, j), "N"):
                 k -= 1
-            x = plan.cell_center(i, j)[0]
-            sides = (float(plan.C[j - 1]) if j > 0 else 0.0, float(plan.C[j + 1]) if j + 1 < n else 0.0)
-            runs.append(Run((x, float(plan.y_edges[i + 1])), math.pi / 2,
-                            float(plan.y_edges[k] - plan.y_edges[i + 1]), float(plan.C[j]),
-                            [(r, j) for r in range(i, k - 1, -1)], sides))
+            runs.append(column(j, i, k))
             i = k - 1
+    for (i, j), junction in junctions.items():
+        lanes = set(classified.cell(i, j).lanes)
+        for side in (-1, 1):  # one way each: the right lanes' traffic and the left lanes'
+            if {"E", "W"} & lanes:  # through the cell, or from a dead end (a corner's, a T's stem axis) to its arm
+                runs.append(row(i, j, j, junction, side))
+            if {"N", "S"} & lanes:
+                runs.append(column(j, i, i, junction, side))
     return runs
 
 
@@ -212,33 +252,160 @@ def _add_objects(odr, roads: list, runs: list[Run], things: list[Thing]) -> None
         roads[near].add_object(obj)
 
 
+def _ends(run: Run) -> tuple[tuple[int, int], str, tuple[int, int], str]:
+    """The cells before a road's start and after its end, and the direction from each back to the road."""
+    (i0, j0), (i1, j1) = run.cells[0], run.cells[-1]
+    if run.heading == 0.0:
+        return (i0, j0 - 1), "E", (i1, j1 + 1), "W"
+    return (i0 + 1, j0), "N", (i1 - 1, j1), "S"
+
+
+def arms(runs: list[Run], junctions: dict) -> dict[tuple[tuple[int, int], str], tuple[int, str]]:
+    """(junction cell, direction) -> (road id, the road's contact point there: start or end) of each ordinary road
+    that ends at a junction cell."""
+    out = {}
+    for k, run in enumerate(runs, start=1):
+        if run.junction:
+            continue
+        before, back, after, ahead = _ends(run)
+        if before in junctions:
+            out[before, back] = (k, "start")
+        if after in junctions:
+            out[after, ahead] = (k, "end")
+    return out
+
+
+@dataclass
+class Turn:
+    """A connecting road that turns through a junction cell from its arm `arms[0]` to `arms[1]`: a straight piece
+    and a quarter circle (or the other way round) from one edge's centre to the other's (cells need not be
+    square), its lanes widening from the one road's half width to the other's."""
+
+    cell: tuple[int, int]
+    arms: tuple[str, str]
+    start: tuple[float, float]
+    heading: float
+    pieces: list[tuple[str, float, float]]  # ("line", length, 0) | ("arc", curvature, angle)
+    widths: tuple[float, float]
+    side: int  # its one lane: -1 the right, 1 the left
+
+    @property
+    def length(self) -> float:
+        return sum(a if kind == "line" else b / abs(a) for kind, a, b in self.pieces)
+
+
+def turns(classified) -> list[Turn]:
+    """The turning connecting roads: a pair (one way each) per pair of perpendicular arms of each junction cell."""
+    plan = classified.plan
+    out = []
+    for (i, j) in junction_cells(classified):
+        x0, y0, x1, y1 = plan.cell_rect(i, j)
+        xc, yc = plan.cell_center(i, j)
+        edge = {"W": (x0, yc), "E": (x1, yc), "S": (xc, y0), "N": (xc, y1)}
+        width = {d: float(plan.R[i]) if d in "EW" else float(plan.C[j]) for d in "NESW"}
+        lanes = [d for d in "NESW" if d in classified.cell(i, j).lanes]
+        for a, d1 in enumerate(lanes):
+            for d2 in lanes[a + 1:]:
+                if OPPOSITE[d1] == d2:
+                    continue
+                (px, py), (qx, qy) = edge[d1], edge[d2]
+                h0 = math.radians(YAW[OPPOSITE[d1]])
+                ahead = (qx - px) * math.cos(h0) + (qy - py) * math.sin(h0)
+                side = -(qx - px) * math.sin(h0) + (qy - py) * math.cos(h0)
+                r = min(ahead, abs(side))
+                pieces = [("line", ahead - r, 0.0)] if ahead - r > 1e-9 else []
+                pieces.append(("arc", math.copysign(1.0 / r, side), math.pi / 2))
+                if abs(side) - r > 1e-9:
+                    pieces.append(("line", abs(side) - r, 0.0))
+                out += [Turn((i, j), (d1, d2), (px, py), h0, pieces, (width[d1], width[d2]), side) for side in (-1, 1)]
+    return out
+
+
+def _link_connecting(road, lane, side: int, forward: bool, junction, before, after) -> None:
+    """A one-way connecting road's links: to the road at its start (`before`: road id, contact point) and at its
+    end (`after`), its lane's (id `side`) links to theirs, and the junction's connection from the road its traffic
+    comes from (`forward`: its traffic runs along s, from `before`)."""
+    from scenariogeneration import xodr
+
+    for link, end, other in (("predecessor", "start", before), ("successor", "end", after)):
+        if other is None:
+            continue
+        rid, contact = other
+        getattr(road, f"add_{link}")(xodr.ElementType.road, rid, getattr(xodr.ContactPoint, contact))
+        theirs = side if contact != end else -side  # start to end keeps lane ids, start to start flips them
+        lane.add_link(link, theirs)
+        if forward == (end == "start"):
+            connection = xodr.Connection(rid, road.id, getattr(xodr.ContactPoint, end))
+            connection.add_lanelink(theirs, side)
+            junction.add_connection(connection)
+
+
 def write_xodr(classified, path: Path, rule: str = "RHT", things: list[Thing] | None = None) -> Path:
     """The plan's driving lanes as OpenDRIVE roads (lane_runs), in the world frame of the plan: a driving lane
     each side of the cells' centre line (half the cell's width), and beyond each an outer lane as deep as the
     neighbouring row or column, of type parking beside bays and free space, none beside walls (so that no bay
-    and no one standing in it is off the road). `rule`: the traffic rule the roads declare (RHT or LHT)."""
+    and no one standing in it is off the road). `rule`: the traffic rule the roads declare (RHT or LHT).
+    Each junction cell (corner, T-junction, crossroads) is an OpenDRIVE junction: the roads end at its edges and
+    link to it, and its connecting roads (straight through it, and turns) link to them, lane by lane."""
     from scenariogeneration import xodr
 
     odr = xodr.OpenDrive(f"garage {classified.plan.name}", revMinor="7")
     traffic = getattr(xodr.TrafficRule, rule)
     runs, roads = lane_runs(classified), []
+    cells = junction_cells(classified)
+    touch = arms(runs, cells)
+    junctions = {jid: xodr.Junction(f"cell {i} {j}", jid) for (i, j), jid in cells.items()}
+    def forward(side: int) -> bool:  # a one-way road's traffic runs along s: RHT's right lanes, LHT's left
+        return (side < 0) == (rule == "RHT")
+
     for k, run in enumerate(runs, start=1):
         planview = xodr.PlanView(run.start[0], run.start[1], run.heading)
         planview.add_geometry(xodr.Line(run.length))
         lanes = xodr.Lanes()
         for s, left_type, right_type in _side_types(classified, run):
             section = xodr.LaneSection(s, xodr.Lane(xodr.LaneType.none))
-            section.add_left_lane(xodr.Lane(xodr.LaneType.driving, a=run.width / 2))
-            section.add_right_lane(xodr.Lane(xodr.LaneType.driving, a=run.width / 2))
-            if run.sides[0] > 0:
-                section.add_left_lane(xodr.Lane(getattr(xodr.LaneType, left_type), a=run.sides[0]))
-            if run.sides[1] > 0:
-                section.add_right_lane(xodr.Lane(getattr(xodr.LaneType, right_type), a=run.sides[1]))
+            driving = {}
+            for side, add, depth, outer in ((-1, section.add_right_lane, run.sides[1], right_type),
+                                            (1, section.add_left_lane, run.sides[0], left_type)):
+                if not run.has(side):
+                    continue
+                driving[side] = xodr.Lane(xodr.LaneType.driving, a=run.width / 2)
+                add(driving[side])
+                if depth > 0:
+                    add(xodr.Lane(getattr(xodr.LaneType, outer), a=depth))
             lanes.add_lanesection(section)
-        roads.append(xodr.Road(k, planview, lanes, rule=traffic))
-        odr.add_road(roads[-1])
+        road = xodr.Road(k, planview, lanes, road_type=run.junction or -1, rule=traffic)
+        before, back, after, ahead = _ends(run)
+        if run.junction:
+            cell = run.cells[0]
+            _link_connecting(road, driving[run.side], run.side, forward(run.side), junctions[run.junction],
+                             touch.get((cell, OPPOSITE[back])), touch.get((cell, OPPOSITE[ahead])))
+        else:
+            if before in cells:
+                road.add_predecessor(xodr.ElementType.junction, cells[before])
+            if after in cells:
+                road.add_successor(xodr.ElementType.junction, cells[after])
+        roads.append(road)
+        odr.add_road(road)
+    for k, turn in enumerate(turns(classified), start=len(runs) + 1):
+        planview = xodr.PlanView(turn.start[0], turn.start[1], turn.heading)
+        for kind, a, b in turn.pieces:
+            planview.add_geometry(xodr.Line(a) if kind == "line" else xodr.Arc(a, angle=b))
+        (w0, w1), length = turn.widths, turn.length
+        section = xodr.LaneSection(0, xodr.Lane(xodr.LaneType.none))
+        lane = xodr.Lane(xodr.LaneType.driving, a=w0 / 2, b=(w1 - w0) / 2 / length)
+        (section.add_right_lane if turn.side < 0 else section.add_left_lane)(lane)
+        lanes = xodr.Lanes()
+        lanes.add_lanesection(section)
+        jid = cells[turn.cell]
+        road = xodr.Road(k, planview, lanes, road_type=jid, rule=traffic)
+        _link_connecting(road, lane, turn.side, forward(turn.side), junctions[jid],
+                         touch.get((turn.cell, turn.arms[0])), touch.get((turn.cell, turn.arms[1])))
+        odr.add_road(road)
+    for junction in junctions.values():
+        odr.add_junction(junction)
     _add_objects(odr, roads, runs, things if things is not None else garage_things(classified))
-    odr.adjust_roads_and_lanes()
+    odr.adjust_startpoints()  # the lanes' links are set above (adjust_roads_and_lanes would guess them again)
     path.parent.mkdir(parents=True, exist_ok=True)
     odr.write_xml(str(path))
     # the header's bounds: the plan's extent (scenariogeneration writes 0)
@@ -348,7 +515,8 @@ def _synchronize(track: Track, ego: Track):
 class EgoLane:
     """Where a driving ego is on the roads: the road (lane_runs' index + 1), the lane it drives in, the s of its
     reference point at its start and end, its offset from the lane's centre, and the traffic rule that makes that
-    lane's driving direction its direction of travel (the side of the centre line it keeps to)."""
+    lane's driving direction its direction of travel (the side of the centre line it keeps to); `road_end`: the road
+    it ends on (through junctions: the straight roads it drives are collinear, its lane id the same on each)."""
 
     road: int
     lane: int
@@ -356,27 +524,58 @@ class EgoLane:
     s1: float
     offset: float
     rule: str
+    road_end: int = 0  # 0: `road`
+    # where its route begins when it starts on a connecting road and ends beyond it: the next road's (id, s) where
+    # it enters it (a route from a connecting road out of a dead end, which no road enters, is "not valid" in esmini)
+    entry: tuple[int, float] | None = None
+
+    @property
+    def last(self) -> int:
+        return self.road_end or self.road
 
 
 def ego_lane(runs: list, track: Track) -> EgoLane | None:
     """The lane an ego keeps to, from where it stands and where it travels (standing: where it faces); None when
-    it is not on one road's driving lanes (it then goes by world positions). An ego on the centre line (t = 0) is in
-    the lane on its right under right-hand traffic, at that lane's left edge: declared, not left to rounding."""
+    it is not on the driving lanes of straight roads along one line (it then goes by world positions). An ego on
+    the centre line (t = 0) is in the lane on its right under right-hand traffic, at that lane's left edge:
+    declared, not left to rounding."""
     a = reference(track.start, track.entity)
     b = reference(track.end, track.entity) if track.end is not None else a
     travel = math.atan2(b.y - a.y, b.x - a.x) if track.end is not None else math.radians(track.start.yaw)
-    for k, run in enumerate(runs, start=1):
-        if abs(math.sin(run.heading - travel)) > 1e-6:
-            continue
-        (s0, t0), (s1, t1) = run.st(a.x, a.y), run.st(b.x, b.y)
-        inside = all(-1e-6 <= s <= run.length + 1e-6 for s in (s0, s1))
-        if not inside or abs(t0 - t1) > 1e-6 or abs(t0) > run.width / 2 + 1e-6:
-            continue
+
+    def holding(p) -> list[tuple[int, float, float]]:
+        out = []
+        for k, run in enumerate(runs, start=1):
+            if abs(math.sin(run.heading - travel)) > 1e-6:
+                continue
+            s, t = run.st(p.x, p.y)
+            if -1e-6 <= s <= run.length + 1e-6 and abs(t) <= run.width / 2 + 1e-6:
+                out.append((k, s, t))
+        return out
+
+    for k, s0, t0 in holding(a):
+        run = runs[k - 1]
         along = 1 if math.cos(run.heading - travel) > 0 else -1  # travels towards +s or -s
         left = t0 * along > 1e-6
         lane = along if left else -along  # RHT: +s traffic in the right lanes (negative ids); LHT the left
+        ends = [(e, s1) for e, s1, t1 in holding(b) if runs[e - 1].heading == run.heading
+                and abs(t0 - t1) <= 1e-6 and runs[e - 1].has(lane)]
+        ends.sort(key=lambda end: end[0] != k)  # its own road first
+        if not run.has(lane) or not ends:
+            continue
+        end, s1 = ends[0]
         centre = math.copysign(run.width / 4, lane)
-        return EgoLane(k, lane, round(s0, 6), round(s1, 6), round(t0 - centre, 6), "LHT" if left else "RHT")
+        entry = None
+        if run.junction and end != k:  # the road it drives onto next, where it enters it
+            c, n = math.cos(run.heading), math.sin(run.heading)
+            s_out = run.length + 1e-3 if along > 0 else -1e-3
+            x, y = run.start[0] + s_out * c - t0 * n, run.start[1] + s_out * n + t0 * c
+            following = [(e, s) for e, s, _ in holding(Pose(x, y, 0.0, 0.0))
+                         if e != k and runs[e - 1].heading == run.heading and runs[e - 1].has(lane)]
+            if following:
+                entry = (following[0][0], 0.0 if along > 0 else round(runs[following[0][0] - 1].length, 6))
+        return EgoLane(k, lane, round(s0, 6), round(s1, 6), round(t0 - centre, 6), "LHT" if left else "RHT",
+                       0 if end == k else end, entry)
     return None
 
 
@@ -390,8 +589,10 @@ def lane_of(runs: list, pose: Pose) -> tuple[int, int, float, float] | None:
             continue
         half = run.width / 2
         side = run.sides[0] if t > 0 else run.sides[1]
+        lane = 1 if t > 1e-9 else -1
+        if not run.has(lane):  # a one-way connecting road without lanes on this side
+            continue
         if abs(t) <= half + 1e-9:
-            lane = 1 if t > 1e-9 else -1
             return k, lane, round(s, 6), round(t - math.copysign(half / 2, lane), 6)
         if found is None and side > 0 and abs(t) <= half + side:
             lane = 2 if t > 0 else -2
@@ -442,9 +643,13 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
             if t.end is None:
                 continue
             route = xosc.Route("ego_route")
-            route.add_waypoint(_lane_position("$EgoS", "$EgoOffset", lane, t.start.yaw), xosc.RouteStrategy.shortest)
-            end = f"${{$EgoS + {lane.s1 - lane.s0:.6f}}}" if minor > 0 else lane.s1  # 1.0 has no expressions
-            route.add_waypoint(_lane_position(end, "$EgoOffset", lane, t.end.yaw), xosc.RouteStrategy.shortest)
+            first = _lane_position("$EgoS", "$EgoOffset", lane, t.start.yaw) if lane.entry is None else \
+                _lane_position(lane.entry[1], "$EgoOffset", EgoLane(lane.entry[0], lane.lane, 0, 0, 0, ""), t.start.yaw)
+            route.add_waypoint(first, xosc.RouteStrategy.shortest)
+            # on its own road the end follows EgoS (1.0 has no expressions); on a road beyond a junction it is fixed
+            end = f"${{$EgoS + {lane.s1 - lane.s0:.6f}}}" if minor > 0 and lane.last == lane.road else lane.s1
+            route.add_waypoint(_lane_position(end, "$EgoOffset", EgoLane(lane.last, lane.lane, 0, 0, 0, ""),
+                                              t.end.yaw), xosc.RouteStrategy.shortest)
             init.add_init_action(t.name, xosc.AssignRouteAction(route))
             init.add_init_action(t.name, _speed("$EgoSpeed"))
             continue
