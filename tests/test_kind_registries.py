@@ -1,6 +1,6 @@
 """Camera views, sensor kinds (and tone curves) and slot detector kinds are registries with the registration beside
-what it registers (scene/views.py `@register_view`, perception/sensor.py `@sensor_kind`, `@tone_curve`,
-perception/slots/detector.py `@slot_kind`): adding one is one module. Each test adds one from a temporary module
+what it registers (scene/views.py `@register_view`, perception/sensor.py `@register_sensor_kind`, `@register_tone_curve`,
+perception/slots/detector.py `@register_slot_kind`): adding one is one module. Each test adds one from a temporary module
 and uses it where the shipped ones are used."""
 
 from __future__ import annotations
@@ -35,26 +35,26 @@ class Narrow(Pinhole):
 '''
 
 SENSOR_MODULE = '''
-from garage_exp.perception.sensor import sensor_kind, tone_curve
+from garage_exp.perception.sensor import register_sensor_kind, register_tone_curve
 
 
-@sensor_kind("negative")
+@register_sensor_kind("negative")
 def negative(model, rgb, rng):
     """The frame's negative (numpy or torch alike)."""
     return 255 - rgb
 
 
-@tone_curve("square")
+@register_tone_curve("square")
 def square(x):
     return x * x
 '''
 
 SLOT_MODULE = '''
-from garage_exp.perception.slots.detector import SlotKind, slot_kind
+from garage_exp.perception.slots.detector import SlotKind, register_slot_kind
 from garage_exp.perception.slots.marks import SlotFrame
 
 
-@slot_kind("nothing")
+@register_slot_kind("nothing")
 class Nothing(SlotKind):
     """Finds no slot, at the image's size."""
 

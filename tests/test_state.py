@@ -176,3 +176,102 @@ def test_the_prescreen_and_the_job_share_one_warm_detector(monkeypatch):
     for a, b in zip(found, ours):
         assert a.classes == b.classes
         np.testing.assert_allclose(a.scores, b.scores, atol=1e-6)
+
+
+# --- the process environment and process resources: set for a scope, put back when it is cleared (issue 41, item 5)
+
+def env_writes(root: Path) -> list[str]:
+    """Writes to os.environ outside core/state.py: `os.environ[...] = `, `os.environ.setdefault/update/pop(...)`,
+    `del os.environ[...]`, `os.putenv`/`os.unsetenv`."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        if path.name == "state.py" and path.parent.name == "core":
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            text = None
+            if isinstance(node, (ast.Assign, ast.AugAssign, ast.Delete)):
+                for target in getattr(node, "targets", None) or [node.target]:
+                    if isinstance(target, ast.Subscript) and ast.unparse(target.value) == "os.environ":
+                        text = ast.unparse(node)
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+                called = ast.unparse(node.func)
+                if called in ("os.putenv", "os.unsetenv") or (
+                        called.startswith("os.environ.") and node.func.attr in MUTATORS):
+                    text = ast.unparse(node)
+            if text:
+                found.append(f"{path.relative_to(root.parent)}:{node.lineno} {text}")
+    return found
+
+
+def test_the_package_writes_the_environment_only_through_state():
+    assert env_writes(PACKAGE) == []
+
+
+def test_the_scan_finds_a_stray_environment_write(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "m.py").write_text("import os\nos.environ['A'] = '1'\nos.environ.setdefault('B', '2')\n"
+                              "del os.environ['C']\nx = os.environ.get('D')\n")
+    assert len(env_writes(pkg)) == 3
+
+
+def test_setenv_is_put_back_when_its_scope_is_cleared(monkeypatch):
+    state = ProcessState()
+    monkeypatch.setenv("GARAGE_TEST_KEPT", "user")
+    monkeypatch.delenv("GARAGE_TEST_NEW", raising=False)
+    monkeypatch.delenv("GARAGE_TEST_PROC", raising=False)
+    state.setenv("GARAGE_TEST_KEPT", "command's", "command")
+    state.setenv("GARAGE_TEST_KEPT", "again", "command")  # the first earlier value is what comes back
+    state.setenv("GARAGE_TEST_NEW", "x", "job")
+    assert state.setenv("GARAGE_TEST_KEPT", "ignored", "job", default=True) == "again"
+    state.setenv("GARAGE_TEST_PROC", "p", "process")
+    state.begin_job()
+    assert "GARAGE_TEST_NEW" not in os.environ and os.environ["GARAGE_TEST_KEPT"] == "again"
+    state.end()
+    assert os.environ["GARAGE_TEST_KEPT"] == "user" and os.environ["GARAGE_TEST_PROC"] == "p"
+    state.clear("process")
+    assert "GARAGE_TEST_PROC" not in os.environ
+    with pytest.raises(ValueError, match="scope must be one of"):
+        state.setenv("GARAGE_TEST_NEW", "x", "forever")
+
+
+def test_a_command_leaves_the_tracking_store_and_logging_as_it_found_them(monkeypatch, tmp_path):
+    """prepare_environment sets $MLFLOW_TRACKING_URI for the command (its workers inherit it); STATE.end puts
+    back the one before, and the shell puts back logging.raiseExceptions."""
+    import logging
+
+    from garage_exp.core.environment import prepare_environment
+    from garage_exp.core.shell import Command
+    from garage_exp.verify import schema
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "sqlite:///before.db")
+    monkeypatch.delenv("MLFLOW_HTTP_REQUEST_TIMEOUT", raising=False)
+    seen = {}
+
+    def task(cfg):
+        prepare_environment("http://127.0.0.1:1")
+        seen.update(uri=os.environ["MLFLOW_TRACKING_URI"], timeout=os.environ.get("MLFLOW_HTTP_REQUEST_TIMEOUT"),
+                    raise_exceptions=logging.raiseExceptions)
+
+    monkeypatch.chdir(tmp_path)
+    assert logging.raiseExceptions is True
+    Command("test", "verify", (schema.register,)).run(task, [f"hydra.run.dir={tmp_path}"])
+    assert seen == {"uri": "http://127.0.0.1:1", "timeout": "30", "raise_exceptions": False}
+    assert os.environ["MLFLOW_TRACKING_URI"] == "sqlite:///before.db"
+    assert "MLFLOW_HTTP_REQUEST_TIMEOUT" not in os.environ and logging.raiseExceptions is True
+
+
+def test_clearing_the_process_closes_its_detector_and_drops_its_renderer():
+    state = ProcessState()
+    closed = []
+
+    class Child:
+        def close(self):
+            closed.append(True)
+
+    state.detector, state.renderer = Child(), object()
+    state.clear("command")
+    assert state.detector is not None and state.renderer is not None  # warm across commands
+    state.clear("process")
+    assert closed == [True] and state.detector is None and state.renderer is None

@@ -23,6 +23,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from garage_exp.core.state import STATE
+
 log = logging.getLogger("garage_exp")
 GB = 1024**3
 
@@ -82,7 +84,8 @@ def connect(conf: RaySettings) -> None:
                   "cluster: `ray start --head` first, or hydra.launcher.address=HOST:PORT)", flush=True)
         else:
             check_answers(joined, "the cluster this machine joined (`ray start`)")
-    os.environ.setdefault("RAY_COLOR_PREFIX", "0")  # workers' lines without colour codes (1 brings them back)
+    # workers' lines without colour codes (1 brings them back); for the command that started Ray
+    STATE.setenv("RAY_COLOR_PREFIX", "0", "command", default=True)
     env = {str(k): str(v) for k, v in conf.env.items()}
     for name in ("MLFLOW_TRACKING_URI", "YOLO_OFFLINE", "GARAGE_EXP_TRACKING_WAIT", "GARAGE_EXP_STORAGE_WAIT"):
         if os.environ.get(name) and name not in env:
@@ -149,8 +152,6 @@ def lost(exc: BaseException) -> bool:
 def _prepare_worker(singleton_state, cwd: str) -> None:
     from hydra.core.singleton import Singleton
     from hydra.core.utils import setup_globals
-
-    from garage_exp.core.state import STATE
 
     setup_globals()
     Singleton.set_state(singleton_state)

@@ -10,17 +10,19 @@
 
 from __future__ import annotations
 
-import os
-
 
 def prepare_environment(tracking_uri: str | None = None, *, offline: bool = False) -> None:
     """Set the process's environment for the tracking store `tracking_uri` (when given) and for offline
     ultralytics/OpenVINO (when `offline`). Cheap when already done."""
+    from garage_exp.core.state import STATE
+
     if tracking_uri:
+        # The command's store: put back when the command ends (STATE.end), so the next command run in this
+        # process (a test session, a benchmark) does not inherit it.
         if tracking_uri.startswith(("http://", "https://")):  # a user's own setting is kept
-            os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
-            os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "30")
-        os.environ["MLFLOW_TRACKING_URI"] = tracking_uri
+            STATE.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0", "command", default=True)
+            STATE.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "30", "command", default=True)
+        STATE.setenv("MLFLOW_TRACKING_URI", tracking_uri, "command")
     if offline:
         from garage_exp.core.offline import prepare_offline
 

@@ -9,7 +9,6 @@ OpenVINO for GA4 telemetry sent from a background thread).
 from __future__ import annotations
 
 import importlib.util
-import os
 import shutil
 import sys
 from pathlib import Path
@@ -27,14 +26,14 @@ def prepare_offline() -> Path:
 
     YOLO_CONFIG_DIR defaults to <cache_dir>/ultralytics (a user's own setting is kept), so ultralytics'
     settings and fonts stay out of ~/.config; YOLO_OFFLINE is forced to 1 and YOLO_AUTOINSTALL to False."""
-    config_root = Path(os.environ.setdefault("YOLO_CONFIG_DIR", str(cache_dir() / "ultralytics")))
+    config_root = Path(STATE.setenv("YOLO_CONFIG_DIR", str(cache_dir() / "ultralytics"), "process", default=True))
     settings_dir = config_root / "Ultralytics"  # ultralytics appends this sub-dir to YOLO_CONFIG_DIR
     if _PREPARED:
         return settings_dir
-    os.environ["YOLO_OFFLINE"] = "1"  # skips ultralytics' DNS check, hub calls and analytics
+    STATE.setenv("YOLO_OFFLINE", "1", "process")  # skips ultralytics' DNS check, hub calls and analytics
     # ultralytics pip-installs a missing requirement (onnxslim for an ONNX export) when it finds the network; the
     # set-up ships what the project's exports need, so nothing is installed behind the user's back.
-    os.environ["YOLO_AUTOINSTALL"] = "False"
+    STATE.setenv("YOLO_AUTOINSTALL", "False", "process")
     _opt_out_of_openvino_telemetry()
     _install_fonts(settings_dir)
     if "ultralytics" in sys.modules:
@@ -84,4 +83,4 @@ def _opt_out_of_openvino_telemetry() -> None:
     except OSError:
         declined = False
     if not declined:
-        os.environ["CI"] = "true"
+        STATE.setenv("CI", "true", "process")

@@ -153,8 +153,8 @@ class Command:
         state = STATE.begin()  # this command's sweep, counts and outages; the warm renderer and detector stay
         install_error_report(self.prog)
         # On a full disk every log record that cannot be written would print a traceback of its own (Python's
-        # logging default); the job reports the full disk once instead.
-        logging.raiseExceptions = False
+        # logging default); the job reports the full disk once instead. Only for the command: put back after it.
+        raise_exceptions, logging.raiseExceptions = logging.raiseExceptions, False
         main = hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name=self.config_name)(
             self.task(task))
         previous = {sig: signal.signal(sig, handler) for sig, handler in
@@ -170,6 +170,7 @@ class Command:
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+            logging.raiseExceptions = raise_exceptions
             STATE.end()
         if failed:
             sys.exit(EXIT_FAILED_JOBS)

@@ -41,7 +41,9 @@ class ProcessState:
     maps: dict = field(default_factory=dict)  # a plan's digest -> its map's PNG bytes: a sweep's jobs share one plan
     # name -> (scope, clear): every registered cache and memo, and how to empty it
     registered: dict[str, tuple[str, Callable[[], None]]] = field(default_factory=dict)
-    stopped_env: dict = field(default_factory=dict)  # what stop() changed in os.environ: name -> earlier value
+    # What this process changed in os.environ, by scope: name -> the value before (None: it was unset). Clearing a
+    # scope puts those back, so a command leaves the environment as it found it (setenv below).
+    saved_env: dict[str, dict[str, str | None]] = field(default_factory=lambda: {scope: {} for scope in SCOPES})
 
     # A request already on its way to a server that hangs must not hold a stopping command's exit either.
     STOP_ENV = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "3", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"}
@@ -50,8 +52,37 @@ class ProcessState:
         """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry)."""
         self.stopping = True
         for name, value in self.STOP_ENV.items():
-            self.stopped_env.setdefault(name, os.environ.get(name))
-            os.environ[name] = value
+            self.setenv(name, value, "command")
+
+    def setenv(self, name: str, value: str, scope: str, *, default: bool = False) -> str:
+        """Set $name for `scope` (one of SCOPES): clearing that scope puts back the value it had before (or unsets
+        it). With `default`, a value already there is kept (os.environ.setdefault). The package writes the process
+        environment only through here (tests/test_state.py), so no command leaks its tracking store or time-outs
+        into the next one run in the same process (a test session, a benchmark, the loop's steps)."""
+        if scope not in SCOPES:
+            raise ValueError(f"scope must be one of {SCOPES}, got {scope!r}")
+        if default and name in os.environ:
+            return os.environ[name]
+        if not any(name in saved for saved in self.saved_env.values()):
+            self.saved_env[scope][name] = os.environ.get(name)
+        os.environ[name] = value
+        return value
+
+    def popenv(self, name: str, scope: str) -> None:
+        """Unset $name for `scope`, as setenv sets it."""
+        if name in os.environ:
+            if not any(name in saved for saved in self.saved_env.values()):
+                self.saved_env[scope][name] = os.environ[name]
+            del os.environ[name]
+
+    def _restore_env(self, scopes) -> None:
+        for scope in scopes:
+            for name, value in self.saved_env[scope].items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+            self.saved_env[scope].clear()
 
     def register(self, name: str, scope: str, clear: Callable[[], None]) -> None:
         """Record a cache's `clear` under `scope` (one of SCOPES); the same name again replaces it (a reload)."""
@@ -85,15 +116,15 @@ class ProcessState:
             self.stopping = False
             self.tracking_down_since = None
             self.tracking_given_up = False
-            for name, value in self.stopped_env.items():
-                if value is None:
-                    os.environ.pop(name, None)
-                else:
-                    os.environ[name] = value
-            self.stopped_env.clear()
+        self._restore_env(narrower)
         if scope == "process":
             self.plans.clear()
             self.maps.clear()
+            # The warm renderer and the detector's child process are process resources: a fresh process has
+            # neither, and the child's models and memory go with it now, not at interpreter exit.
+            detector, self.detector, self.renderer = self.detector, None, None
+            if detector is not None and hasattr(detector, "close"):
+                detector.close()
 
     def begin(self) -> ProcessState:
         """A new command in this process: forget the last one's sweep, counts, outage and command caches, keep

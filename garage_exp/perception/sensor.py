@@ -25,13 +25,13 @@ from garage_exp.core.state import STATE
 from garage_exp.core import arrays
 
 # Sensor kinds (`sensor.kind`): name -> fn(model, frames, rng) -> the frames as the camera delivers them, frames
-# (N, H, W, 3) uint8 numpy or torch. A kind is registered beside its function (`@sensor_kind`).
+# (N, H, W, 3) uint8 numpy or torch. A kind is registered beside its function (`@register_sensor_kind`).
 KINDS: dict[str, Callable] = {}
 # Tone curves (`sensor.params.tone`): name -> fn(linear signal >= 0) -> display-linear signal (clipped at 1 after).
 TONES: dict[str, Callable] = {}
 
 
-def sensor_kind(name: str) -> Callable:
+def register_sensor_kind(name: str) -> Callable:
     """Register a sensor kind's function under `name` (see KINDS)."""
     def register(fn: Callable) -> Callable:
         KINDS[name] = fn
@@ -39,7 +39,7 @@ def sensor_kind(name: str) -> Callable:
     return register
 
 
-def tone_curve(name: str) -> Callable:
+def register_tone_curve(name: str) -> Callable:
     """Register a tone curve under `name` (see TONES)."""
     def register(fn: Callable) -> Callable:
         TONES[name] = fn
@@ -70,13 +70,13 @@ def linear_to_srgb(v):
     return arrays.xp(v).where(v <= 0.0031308, v * 12.92, 1.055 * v ** (1.0 / 2.4) - 0.055)
 
 
-@tone_curve("srgb")
+@register_tone_curve("srgb")
 def no_tone(x):
     """No tone curve: the linear signal, clipped at full scale by the sRGB encoding."""
     return x
 
 
-@tone_curve("filmic")
+@register_tone_curve("filmic")
 def aces(x):
     """Narkowicz's fit of the ACES filmic curve: linear in, display-linear out, 1.0 only at infinity."""
     return (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
@@ -218,13 +218,13 @@ class SensorModel:
         return asdict(self)
 
 
-@sensor_kind("ideal")
+@register_sensor_kind("ideal")
 def ideal(model: SensorModel, rgb, rng):
     """The frame as rendered."""
     return rgb
 
 
-@sensor_kind("noisy")
+@register_sensor_kind("noisy")
 def poisson_chain(model: SensorModel, rgb, rng):
     """The sensor chain: Poisson shot noise, well saturation, Gaussian read noise, gain, tone curve, sRGB."""
     radiance, chosen = model.expose(rgb)
@@ -236,7 +236,7 @@ def poisson_chain(model: SensorModel, rgb, rng):
     return model.deliver(electrons * arrays.column([g / model.full_well for _, g in chosen], np.float32, electrons))
 
 
-@sensor_kind("camera")
+@register_sensor_kind("camera")
 def fast_chain(model: SensorModel, rgb, rng):
     """The "camera" kind's chain in float32 and tables: shot noise as a Gaussian of the Poisson's variance
     (within 1% of it above ~10 e-, where a frame's pixels are), read noise in the same draw, then the tone curve

@@ -29,8 +29,14 @@ def check_renderer(conf) -> None:
 
 
 def open_renderer(conf) -> Renderer:
-    """The process's renderer of the backend `conf._target_` names, set up from the `renderer` group."""
-    return build(conf, "a renderer", "renderer._target_")
+    """The process's renderer of the backend `conf._target_` names, set up from the `renderer` group. `scenes` is
+    the render scene's (render/batch.py), not the backend's: a user's backend is not handed a key it never asked
+    for."""
+    from omegaconf import DictConfig, OmegaConf
+
+    settings = OmegaConf.to_container(conf, resolve=True) if isinstance(conf, DictConfig) else dict(conf or {})
+    settings.pop("scenes", None)
+    return build(settings, "a renderer", "renderer._target_")
 
 
 __all__ = ["BLANK_GREY", "Frame", "Renderer", "check_renderer", "open_renderer"]

@@ -50,8 +50,8 @@ def choose_icd(device: str = "auto") -> str | None:
         icd = lavapipe_icd() if device == "cpu" else nvidia_icd()
     if icd is not None:
         # VK_DRIVER_FILES wins over VK_ICD_FILENAMES in newer loaders: one variable, so the choice holds.
-        os.environ.pop("VK_DRIVER_FILES", None)
-        os.environ["VK_ICD_FILENAMES"] = icd
+        STATE.popenv("VK_DRIVER_FILES", "process")
+        STATE.setenv("VK_ICD_FILENAMES", icd, "process")
     return icd
 
 

@@ -391,8 +391,8 @@ def get_renderer(max_lights: int = 8, shadows: bool = False, device: str = "auto
 
 
 def make(*, max_lights: int = 8, shadows: bool = False, save_frames: str = "key", name: str = "sapien",
-         device: str = "auto", scenes: int = 1) -> SapienRenderer:
+         device: str = "auto") -> SapienRenderer:
     """The factory `conf/renderer/sapien.yaml` names (`_target_`), called with the `renderer` group's keys:
     the process's renderer with its light pool, shadows and Vulkan device. save_frames and name are the frame
-    loop's and the level's, scenes the render scene's (render/batch.py), not the renderer's."""
+    loop's and the level's, not the renderer's (`scenes`, the render scene's, never reaches a backend)."""
     return get_renderer(max_lights=int(max_lights), shadows=bool(shadows), device=str(device))

@@ -4,12 +4,12 @@ visible fraction at which recall crosses 0.5 from a logistic fit."""
 
 from __future__ import annotations
 
-import os
 import tempfile
 from pathlib import Path
 
 import pandas as pd
 
+from garage_exp.core.state import STATE
 from garage_exp.results import stats
 from garage_exp.tracking import runs as tracking
 from garage_exp.report.tables import primary
@@ -27,7 +27,7 @@ def run_tables(mlc, runs: pd.DataFrame, artifact: str) -> pd.DataFrame:
     """Every finished run's CSV artifact `artifact`, concatenated with its run id; runs without one, or with an
     empty one, are left out."""
     # One progress bar per downloaded table would bury the sweep's summary.
-    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    STATE.setenv("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false", "command", default=True)
     parts = []
     with tempfile.TemporaryDirectory(prefix="garage_tables_") as tmp:
         for run_id in runs[runs.status == "FINISHED"].run_id:

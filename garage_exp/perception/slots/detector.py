@@ -2,7 +2,7 @@
 
 `load(conf)` returns `detect(image, meters_per_pixel) -> SlotFrame` (image: BEV RGB uint8 (H, W, 3)) of the
 node's kind (`slot_detector.kind`). The kinds are a registry, each registered beside its class with
-`@slot_kind(NAME)` (a `SlotKind`: `check`, `weights`, `load`), so adding one is one module with its class:
+`@register_slot_kind(NAME)` (a `SlotKind`: `check`, `weights`, `load`), so adding one is one module with its class:
 - `lines`: the classical baseline (garage_exp/perception/slots/lines.py), no weights;
 - `callable`: the user's function, named by `detect._target_` like every component a config names and built the
   project's one way (core.plugins.build, as a partial: the node's other keys are its keyword arguments; the
@@ -25,10 +25,10 @@ from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 
 KEYPOINTS = ("corners", "points")
 Detect = Callable[[np.ndarray, float], SlotFrame]
-KINDS: dict[str, type] = {}  # slot_detector.kind -> its SlotKind class (`@slot_kind`)
+KINDS: dict[str, type] = {}  # slot_detector.kind -> its SlotKind class (`@register_slot_kind`)
 
 
-def slot_kind(name: str) -> Callable:
+def register_slot_kind(name: str) -> Callable:
     """Register a `SlotKind` class under `name` (`slot_detector.kind`)."""
     def register(cls: type) -> type:
         KINDS[name] = cls
@@ -112,7 +112,7 @@ def load(conf: Any) -> Detect:
     return KINDS[str(conf.kind)].load(conf)
 
 
-@slot_kind("lines")
+@register_slot_kind("lines")
 class Lines(SlotKind):
     """The classical baseline (perception/slots/lines.py), no weights."""
 
@@ -127,7 +127,7 @@ class Lines(SlotKind):
         return lambda image, mpp: detect_lines(image, float(mpp), params)
 
 
-@slot_kind("callable")
+@register_slot_kind("callable")
 class UserCallable(SlotKind):
     """The user's function, `detect._target_` (`user_function`)."""
 
@@ -149,7 +149,7 @@ class UserCallable(SlotKind):
         return detect_user
 
 
-@slot_kind("pose")
+@register_slot_kind("pose")
 class PoseModel(SlotKind):
     """An ultralytics pose model (`model`, a .pt) whose keypoints are mapped by `from_pose`."""
 
