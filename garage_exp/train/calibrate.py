@@ -84,8 +84,11 @@ def calibrate_model(model, images: list[Path], imgsz: int) -> int:
 def calibrate(base: Path, images: list[Path], imgsz: int, out: Path) -> Path:
     """A copy of the ultralytics checkpoint `base` with its BatchNorms calibrated on `images`, in float32, at `out`."""
     import torch
+    from ultralytics.nn.tasks import torch_safe_load
 
-    ckpt = torch.load(str(base), map_location="cpu", weights_only=False)
+    # An ultralytics checkpoint pickles its model's classes: loaded as ultralytics loads every `.pt` the project
+    # runs (its own loader), not with a bare torch.load (tests/test_reliability_inputs.py's static guard).
+    ckpt, _ = torch_safe_load(str(base))
     for key in ("model", "ema"):
         if ckpt.get(key) is not None:
             ckpt[key] = ckpt[key].float()
