@@ -319,3 +319,36 @@ def test_a_synchronised_walk_becomes_meet_and_the_ego_stops_short(tmp_path, caps
     assert "at" not in along
     assert case["motion"]["end"] == pytest.approx(along["meet"] + 0.5)  # 0.5 m short of the meeting
     assert "stops 0.5 m short" in capsys.readouterr().out
+
+
+ROUND_TRIP_CASES = ["1", "2", "3", "cpnco", "cpra", "crossing", "crouch", "light", "pedestrian", "pullout", "stepout"]
+
+
+@pytest.mark.parametrize("case", ROUND_TRIP_CASES)
+def test_every_export_imports_back_to_the_job_s_frames_at_three_ego_speeds(case, library, tmp_path):
+    """Issue 40: the importer reads every export back (each variant's .xosc) and the imported case builds the
+    frames the job built, actor for actor within 5 cm, for a job run at each of three ego speeds (cpra: the
+    protocol's reversing speeds, 4 and 8, and 10: from 12 km/h on, its walkers come back 0.19-0.38 m off, a known
+    defect in docs/openscenario.md)."""
+    import contextlib
+    import io
+
+    from garage_exp.run.openscenario import export, variants_of
+    from garage_exp.run.preflight import PreparedJob
+    from garage_exp.scenario.xosc_import import main
+
+    speeds = [4, 8, 10] if case == "cpra" else [5, 10, 20]
+    for speed in speeds:
+        cfg, classified, _, setup = build(library, f"case={case}", f"ego.speed={speed}")
+        paths = export(cfg, tmp_path / f"osc{speed}", PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
+        variants = variants_of(setup)
+        assert len(paths) == len(variants) + 1  # the road file, then one scenario a variant
+        for k, ((label, _), xosc) in enumerate(zip(variants, paths[1:])):
+            name = f"rt_{case}_{speed}_{k}"
+            out = tmp_path / "conf" / "case" / f"{name}.yaml"
+            with contextlib.redirect_stdout(io.StringIO()):
+                assert main([str(xosc), "-o", str(out), "--name", name]) == 0, (case, speed, label)
+            _, _, _, again = build(library, f"case={name}", f"ego.speed={speed}",
+                                   f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+            job = [s for s in setup.shots if s.label == label and s.replicate == 0]
+            assert_same_placements(job, [s for s in again.shots if s.replicate == 0])
