@@ -321,7 +321,7 @@ def test_a_synchronised_walk_becomes_meet_and_the_ego_stops_short(tmp_path, caps
     assert "stops 0.5 m short" in capsys.readouterr().out
 
 
-ROUND_TRIP_CASES = ["1", "2", "3", "cpnco", "cpra", "crossing", "crouch", "light", "pedestrian", "pullout", "stepout"]
+ROUND_TRIP_CASES = ["1", "2", "3", "cpnco", "cpra", "crossing", "crouch", "light", "pedestrian", "pullout", "slots", "stepout"]
 
 
 @pytest.mark.parametrize("case", ROUND_TRIP_CASES)
