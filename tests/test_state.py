@@ -221,6 +221,10 @@ def test_setenv_is_put_back_when_its_scope_is_cleared(monkeypatch):
     monkeypatch.setenv("GARAGE_TEST_KEPT", "user")
     monkeypatch.delenv("GARAGE_TEST_NEW", raising=False)
     monkeypatch.delenv("GARAGE_TEST_PROC", raising=False)
+    monkeypatch.delenv("GARAGE_TEST_LIB", raising=False)
+    state.setenv("GARAGE_TEST_LIB", "set by a library call", "command")  # outside a command: simply set
+    state.begin()
+    assert os.environ["GARAGE_TEST_LIB"] == "set by a library call"
     state.setenv("GARAGE_TEST_KEPT", "command's", "command")
     state.setenv("GARAGE_TEST_KEPT", "again", "command")  # the first earlier value is what comes back
     state.setenv("GARAGE_TEST_NEW", "x", "job")
@@ -230,6 +234,7 @@ def test_setenv_is_put_back_when_its_scope_is_cleared(monkeypatch):
     assert "GARAGE_TEST_NEW" not in os.environ and os.environ["GARAGE_TEST_KEPT"] == "again"
     state.end()
     assert os.environ["GARAGE_TEST_KEPT"] == "user" and os.environ["GARAGE_TEST_PROC"] == "p"
+    assert os.environ["GARAGE_TEST_LIB"] == "set by a library call"
     state.clear("process")
     assert "GARAGE_TEST_PROC" not in os.environ
     with pytest.raises(ValueError, match="scope must be one of"):

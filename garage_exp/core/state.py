@@ -44,6 +44,7 @@ class ProcessState:
     # What this process changed in os.environ, by scope: name -> the value before (None: it was unset). Clearing a
     # scope puts those back, so a command leaves the environment as it found it (setenv below).
     saved_env: dict[str, dict[str, str | None]] = field(default_factory=lambda: {scope: {} for scope in SCOPES})
+    in_command: bool = False  # between begin() and end(): a command runs
 
     # A request already on its way to a server that hangs must not hold a stopping command's exit either.
     STOP_ENV = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "3", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"}
@@ -63,7 +64,10 @@ class ProcessState:
             raise ValueError(f"scope must be one of {SCOPES}, got {scope!r}")
         if default and name in os.environ:
             return os.environ[name]
-        if not any(name in saved for saved in self.saved_env.values()):
+        # Outside a command (a library call: a notebook's or a test's tracking.client), a command's or job's
+        # setting is simply set, as before: only a running command has an end that puts it back, and recording it
+        # would make the next command's begin undo what its caller set in between.
+        if (scope == "process" or self.in_command) and not any(name in saved for saved in self.saved_env.values()):
             self.saved_env[scope][name] = os.environ.get(name)
         os.environ[name] = value
         return value
@@ -71,7 +75,7 @@ class ProcessState:
     def popenv(self, name: str, scope: str) -> None:
         """Unset $name for `scope`, as setenv sets it."""
         if name in os.environ:
-            if not any(name in saved for saved in self.saved_env.values()):
+            if (scope == "process" or self.in_command) and not any(name in saved for saved in self.saved_env.values()):
                 self.saved_env[scope][name] = os.environ[name]
             del os.environ[name]
 
@@ -130,12 +134,14 @@ class ProcessState:
         """A new command in this process: forget the last one's sweep, counts, outage and command caches, keep
         the warm parts."""
         self.clear("command")
+        self.in_command = True
         return self
 
     def end(self) -> None:
         """The command is over: the process (a test session, a benchmark running commands in turn) keeps no part
-        of it, nor the network time-outs its stop set."""
+        of it, nor the environment it set (its tracking store, the network time-outs its stop set)."""
         self.clear("command")
+        self.in_command = False
 
     def begin_job(self) -> ProcessState:
         """A new job of the command: forget the last job's caches."""
