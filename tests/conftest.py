@@ -281,7 +281,7 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None, entry=No
         sys.path[:] = saved[3]
         GlobalHydra.instance().clear()
         HydraConfig.instance().cfg = None  # as in a new process: no job's Hydra config
-        STATE.begin()  # nor its command scope: sweep, counts, tracking outage, command caches (warm parts stay)
+        STATE.end()  # nor its command scope: sweep, counts, tracking outage, command caches (warm parts stay)
         root.handlers[:] = handlers  # Hydra's job logging configured the root logger for the call
         root.setLevel(level)
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())

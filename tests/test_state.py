@@ -241,6 +241,20 @@ def test_setenv_is_put_back_when_its_scope_is_cleared(monkeypatch):
         state.setenv("GARAGE_TEST_NEW", "x", "forever")
 
 
+def test_a_command_takes_the_environment_as_its_caller_left_it(monkeypatch):
+    """What a caller sets between commands (a test's run_app, a user's shell) is not undone by the next command's
+    begin, even when a stale command scope recorded the variable (test_world_faults' server-away test met this)."""
+    state = ProcessState()
+    monkeypatch.setenv("GARAGE_TEST_URI", "first")
+    state.begin()
+    state.setenv("GARAGE_TEST_URI", "the command's", "command")  # recorded: "first" comes back at the end
+    os.environ["GARAGE_TEST_URI"] = "set by the caller"  # as if the command ended without end()
+    state.begin()
+    assert os.environ["GARAGE_TEST_URI"] == "set by the caller"
+    state.end()
+    assert os.environ["GARAGE_TEST_URI"] == "set by the caller"
+
+
 def test_a_command_leaves_the_tracking_store_and_logging_as_it_found_them(monkeypatch, tmp_path):
     """prepare_environment sets $MLFLOW_TRACKING_URI for the command (its workers inherit it); STATE.end puts
     back the one before, and the shell puts back logging.raiseExceptions."""

@@ -132,7 +132,11 @@ class ProcessState:
 
     def begin(self) -> ProcessState:
         """A new command in this process: forget the last one's sweep, counts, outage and command caches, keep
-        the warm parts."""
+        the warm parts. The environment is taken as the caller leaves it: what was set since the last command
+        ended (by its caller, or by a library call) is neither put back nor undone here; only what this command
+        sets is put back at its end."""
+        for scope in ("command", "job"):
+            self.saved_env[scope].clear()
         self.clear("command")
         self.in_command = True
         return self
