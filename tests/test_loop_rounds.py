@@ -90,6 +90,8 @@ def test_statistics_on_known_numbers():
     assert (got["low"], got["high"]) == pytest.approx((-0.7783, 6.2783), abs=1e-4)
     assert got["p"] == pytest.approx(0.08924, abs=1e-5)
     assert stats.paired({0: 0.5, 1: 0.7}, 0.6)["diff"] == pytest.approx(0.0)
+    # the same difference at every seed: no spread, no test (not p = 1 for none, nor p = 0 for any)
+    assert all(math.isnan(stats.paired({0: 0.5, 1: 0.5}, b)["p"]) for b in (0.5, 0.25))
     assert stats.seeds_needed(5.0, 5.0) == pytest.approx(9.94, abs=0.01)  # effect size 1: ten pairs
     assert stats.scenarios_needed(0.30, 0.25) == pytest.approx(1250.1, abs=1.0)
     table = stats.compare([{"a": "Q", "b": "R", "p": 0.01}, {"a": "T", "b": "R", "p": 0.04}])
@@ -345,4 +347,4 @@ def test_the_report_pairs_seeds_and_corrects_the_whole_family():
         ("protocol recall", "T", "D0"), ("real-photo recall", "T", "D0")]
     assert family["diff"].iloc[0] == pytest.approx(100 * 8 / 3 / 16)  # R - T: 2, 3, 3 failures of 16
     assert family.p_holm.tolist() == pytest.approx(stats.holm(family.p.tolist())[1], nan_ok=True)
-    assert family.p.iloc[3] == 1.0  # the photos' recall: the same for every seed and D0
+    assert family.p.iloc[3] != family.p.iloc[3]  # the photos' recall: the same for every seed and D0, no spread: no test

@@ -114,5 +114,8 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
           "rounds_bookkeeping.csv, power.json, loop.png)")
     print(rounds.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
     if len(family):
-        print(family.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+        shown = family.copy()
+        for col in ("p", "p_holm"):  # a comparison with no spread or one seed has no test: say so, print no p
+            shown[col] = [f"{v:.3f}" if v == v else "no test" for v in shown[col]]
+        print(shown.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     return summary

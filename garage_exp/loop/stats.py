@@ -46,11 +46,10 @@ def paired(a: dict[int, float], b: dict[int, float] | float) -> dict:
     diffs = diffs[~np.isnan(diffs)]
     mean, low, high = t_interval(diffs)
     p = math.nan
-    if len(diffs) >= 2:
-        if np.ptp(diffs) == 0:  # no spread: the same difference every seed (t is infinite, or 0/0 for none)
-            p = 1.0 if diffs[0] == 0 else 0.0
-        else:
-            p = float(stats.ttest_1samp(diffs, 0.0).pvalue)
+    # No spread (the same difference every seed): t is infinite or 0/0, so there is no test and no p-value
+    # (issue 42, item 8: never print one that was not computed); the table says "no test".
+    if len(diffs) >= 2 and np.ptp(diffs) > 0:
+        p = float(stats.ttest_1samp(diffs, 0.0).pvalue)
     return {"diff": mean, "low": low, "high": high, "p": p, "seeds": int(len(diffs))}
 
 
