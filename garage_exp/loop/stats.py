@@ -1,5 +1,5 @@
-"""The loop's statistics, from the field's libraries: Wilson intervals of failure rates (statsmodels'
-proportion_confint), paired comparisons by training seed (scipy's t-test) with Holm's correction over every
+"""The loop's statistics, from the field's libraries: Wilson intervals of failure rates (results.stats, the
+project's one), paired comparisons by training seed (scipy's t-test) with Holm's correction over every
 comparison reported (statsmodels' multipletests), and power: how many seeds and held-out scenarios make a
 difference in failure rate detectable (statsmodels' TTestPower and NormalIndPower), from a pilot's variance.
 """
@@ -11,15 +11,7 @@ import math
 import numpy as np
 import pandas as pd
 
-
-def wilson(k: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
-    """Wilson's interval of k / n (NaN ends for n = 0)."""
-    from statsmodels.stats.proportion import proportion_confint
-
-    if n == 0:
-        return math.nan, math.nan
-    low, high = proportion_confint(k, n, alpha=alpha, method="wilson")
-    return float(low), float(high)
+from garage_exp.results.stats import wilson  # the project's one Wilson interval (the loop's failure rates too)
 
 
 def t_interval(values, alpha: float = 0.05) -> tuple[float, float, float]:
