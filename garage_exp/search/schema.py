@@ -71,6 +71,11 @@ class SearchConf:
 
     mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
     trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
+    # A budget of rendered frames (0: none): the study asks no more trials once those it ran rendered this many
+    # frames in all (each trial's job count), `trials` staying its cap. The trial (batch) that crosses it finishes,
+    # so a study spends at least `frames` and less than one trial's (batch's) frames more. Generators compared at
+    # equal cost (the loop's arms) get the same frames, not the same trials: a trial's frames vary with its case.
+    frames: int = 0
     # trials asked at once and handed to the launcher as one batch (ask K, run K, tell K): a GPU worker renders a
     # batch's trials together; on the CPU they run one after another, as with 1. TPE then lies constantly about
     # the trials still running (Optuna's constant_liar), so a batch does not sample one point K times.
