@@ -195,7 +195,7 @@ def fake_steps(monkeypatch, tmp_path):
     monkeypatch.setattr(evaluate, "easy_suite", lambda *a: [])
     monkeypatch.setattr(evaluate, "score_all", lambda *a: pd.DataFrame())
     monkeypatch.setattr(app, "real_photos", lambda *a: [])
-    monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times: {
+    monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times, **kw: {
         "book": book, "detectors": detectors})
     return ran
 
@@ -374,3 +374,45 @@ def test_the_report_pairs_seeds_and_corrects_the_whole_family():
     assert family["diff"].iloc[0] == pytest.approx(100 * 8 / 3 / 16)  # R - T: 2, 3, 3 failures of 16
     assert family.p_holm.tolist() == pytest.approx(stats.holm(family.p.tolist())[1], nan_ok=True)
     assert family.p.iloc[3] != family.p.iloc[3]  # the photos' recall: the same for every seed and D0, no spread: no test
+
+
+def test_the_held_out_cells_say_which_failure_kinds_training_removed(tmp_path):
+    """Each held-out scenario's cell is measured from its own frame table (its first fair frame); per cell and
+    detector group, the share of its scenarios failed (seeds pooled); the cells an arm still fails are listed;
+    a heatmap per group is drawn."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.loop import cells
+    from garage_exp.loop.steps import Trial
+    from garage_exp.search.archive import Grid
+    from garage_exp.search.schema import DescriptorConf, SearchConf
+
+    search = OmegaConf.structured(SearchConf(descriptors=[DescriptorConf("kind", values=["car", "adult", "child"]),
+                                                          DescriptorConf("visible", edges=[0.0, 0.9, 1.0])]))
+    rows = {0: ("vehicle", "car", 0.6), 1: ("person", "child", 0.95), 2: ("person", "adult", 0.7),
+            3: ("vehicle", "car", 0.2)}  # scenario 3: never fairly visible (0.2 < min_visible)
+    held = []
+    for number, (kind, target, visible) in rows.items():
+        out = tmp_path / str(number)
+        out.mkdir()
+        pd.DataFrame({"shot": [0, 1], "camera": "front", "target_kind": kind, "target": target,
+                      "distance": [12.0, 10.0], "visible_fraction": [0.1, visible], "box_height": 60.0,
+                      "truncation": 0.0}).to_csv(out / "frames.csv", index=False)
+        held.append(Trial("heldout", number, "COMPLETE", None, out, 2))
+    held.append(Trial("heldout", 4, "FAIL", None, None, 0))
+    found = cells.cells_of(held, search)
+    assert found == {0: (0, 0), 1: (2, 1), 2: (1, 0)}  # the first FAIR frame's values (not shot 0's 0.1)
+    scores = pd.DataFrame([
+        {"arm": "D0", "round": 0, "seed": -1, "suite": "heldout", "failed": [0, 1, 2]},
+        {"arm": "Q", "round": 2, "seed": 0, "suite": "heldout", "failed": [0]},
+        {"arm": "Q", "round": 2, "seed": 1, "suite": "heldout", "failed": [0, 2]},
+        {"arm": "Q", "round": 2, "seed": 1, "suite": "easy", "failed": [1]}])  # another suite: not counted
+    grid = Grid(search.descriptors)
+    table = cells.cell_table(scores, found, grid)
+    q = table[table.arm == "Q"].set_index("cell")
+    assert q.loc["car | 0-0.9"].failed_share == 1.0 and q.loc["adult | 0-0.9"].failed_share == 0.5
+    assert q.loc["child | 0.9-1"].failures == 0 and q.loc["child | 0.9-1"].detectors == 2
+    assert cells.resisted(table, "Q", 2) == ["car | 0-0.9", "adult | 0-0.9"]
+    assert cells.resisted(table, "D0", 0) == ["car | 0-0.9", "adult | 0-0.9", "child | 0.9-1"]
+    paths = cells.draw(table, grid, tmp_path, 2)
+    assert [p.name for p in paths] == ["cells_D0.png", "cells_Q.png"] and all(p.stat().st_size > 0 for p in paths)

@@ -256,7 +256,14 @@ def run_loop(cfg: DictConfig) -> dict:
                                                                protocol, last), always=True)
     photos = loop.step(f"real photos{suffix}", lambda: real_photos(loop, last), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
-    return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times)
+    from omegaconf import OmegaConf
+
+    from garage_exp.loop.cells import cells_of
+    from garage_exp.search.schema import SearchConf
+
+    search = OmegaConf.structured(SearchConf)  # the generators' searches use the search's shipped descriptors
+    return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times,
+                        cells=cells_of(held, search), search=search)
 
 
 def real_photos(loop: Loop, detectors: dict) -> list[dict]:

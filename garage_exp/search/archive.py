@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import shlex
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -306,16 +307,28 @@ def archive_table(trials: list[FrozenTrial], search) -> pd.DataFrame:
 
 
 def heatmap(trials: list[FrozenTrial], search, path: Path) -> Path:
-    """Difficulty per cell: the first two descriptors as a panel's rows and columns, one panel per combination of
-    the others' bins; an empty cell grey, a failure cell's value in bold."""
+    """Difficulty per cell: each cell's elite's, a failure cell's value in bold (draw_cells)."""
+    grid = Grid(search.descriptors)
+    failure = float(search.archive.failure)
+    numbers = summary(trials, search)
+    values = {cell: trial.values[0] for cell, trial in elite_trials(trials, grid).items()}
+    title = (f"difficulty of each cell's elite ({numbers['archive_filled']}/{numbers['archive_cells']} cells "
+             f"filled, {numbers['archive_failure_cells']} hard-and-fair failures >= {failure:g}, bold; "
+             f"QD score {numbers['archive_qd_score']:.2f})")
+    return draw_cells(grid, values, path, title, "difficulty", bold_at=failure)
+
+
+def draw_cells(grid: Grid, values: dict, path: Path, title: str, label: str, bold_at: float = 1.0,
+               notes: dict | None = None) -> Path:
+    """A value in [0, 1] per cell: the first two descriptors as a panel's rows and columns, one panel per
+    combination of the others' bins (the third's down, the rest across); a cell without a value grey, a value at
+    least `bold_at` in bold, `notes` (cell -> text) under a cell's value (e.g. how many scenarios it holds)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    grid = Grid(search.descriptors)
     dims = grid.dims + [1] * max(0, 2 - len(grid.dims))
-    elites = elite_trials(trials, grid)
     rest = [range(n) for n in dims[2:]]
     panels = [()] if not rest else [tuple(p) for p in np.ndindex(*[len(r) for r in rest])]
     rows = dims[2] if len(dims) > 2 else 1  # the third descriptor's bins down, the others' across
@@ -325,29 +338,29 @@ def heatmap(trials: list[FrozenTrial], search, path: Path) -> Path:
                              squeeze=False, layout="constrained")
     cmap = plt.get_cmap("magma_r").copy()
     cmap.set_bad("0.85")
-    failure = float(search.archive.failure)
+    image = None
     for ax, panel in zip(axes.flat, panels):
-        values = np.full(dims[:2], np.nan)
-        for cell, trial in elites.items():
+        shown = np.full(dims[:2], np.nan)
+        texts = {}
+        for cell, value in values.items():
             full = tuple(cell) + (0,) * (len(dims) - len(cell))
             if full[2:] == panel:
-                values[full[0], full[1]] = trial.values[0]
-        image = ax.imshow(values, cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
-        for (i, j), v in np.ndenumerate(values):
+                shown[full[0], full[1]] = value
+                texts[full[:2]] = (notes or {}).get(cell, "")
+        image = ax.imshow(shown, cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
+        for (i, j), v in np.ndenumerate(shown):
             if not np.isnan(v):
-                ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=7,
-                        color="white" if v > 0.55 else "black", fontweight="bold" if v >= failure else "normal")
+                note = texts.get((i, j), "")
+                ax.text(j, i, f"{v:.2f}" + (f"\n{note}" if note else ""), ha="center", va="center", fontsize=7,
+                        color="white" if v > 0.55 else "black", fontweight="bold" if v >= bold_at else "normal")
         ax.set_yticks(range(dims[0]), grid.labels(0) if len(grid.dims) > 0 else [""], fontsize=7)
         ax.set_xticks(range(dims[1]), grid.labels(1) if len(grid.dims) > 1 else [""], fontsize=7)
         ax.set_title(", ".join(f"{grid.descriptors[k + 2].source} {grid.labels(k + 2)[i]}"
                                for k, i in enumerate(panel)) or "all", fontsize=8)
         ax.set_ylabel(str(grid.descriptors[0].source), fontsize=7)
         ax.set_xlabel(str(grid.descriptors[1].source) if len(grid.dims) > 1 else "", fontsize=7)
-    numbers = summary(trials, search)
-    fig.suptitle(f"difficulty of each cell's elite ({numbers['archive_filled']}/{numbers['archive_cells']} cells "
-                 f"filled, {numbers['archive_failure_cells']} hard-and-fair failures >= {failure:g}, bold; "
-                 f"QD score {numbers['archive_qd_score']:.2f})", fontsize=8)
-    fig.colorbar(image, ax=axes, shrink=0.6, label="difficulty")
+    fig.suptitle(textwrap.fill(title, int(fig.get_figwidth() * 12)), fontsize=8)  # ~12 characters an inch
+    fig.colorbar(image, ax=axes, shrink=0.6, label=label)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
