@@ -19,7 +19,7 @@ from garage_exp.tracking import runs as tracking
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
 FRAME_COLUMNS = {"shot", "label", "position", "camera", "ego_x", "ego_y", "ego_yaw", "target", "distance",
-                 "visible_fraction", "visible_pixels", "box_height", "truncation", "kitti", "composite",
+                 "visible_fraction", "visible_pixels", "box_height", "truncation", "kitti", "occluder", "composite",
                  "detected", "false_positives"}
 
 

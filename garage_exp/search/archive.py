@@ -2,8 +2,10 @@
 
 Each complete trial of a difficulty search is placed in a cell of a grid (ribs' GridArchive) by DESCRIPTORS
 measured from its own outputs (`search.descriptors`, each a `source` below, binned by `values` or `edges`): its
-frame table at the first fairly visible frame (who the target is, how far, how much of it is hidden, which
-camera) and its picture (how dark). A cell keeps its hardest trial, the elite; a later trial replaces it only when
+frame table at the first fairly visible frame (who the target is, what hides it, how far, how much of it is
+hidden, which camera) and its picture (how dark). A category's value that is not among its `values` joins the
+cell `merge` names for it (occluder: structure -> pillar, person -> vehicle); one neither listed nor merged
+leaves the trial without a cell (it stays out of the archive, as a trial without a fair frame does). A cell keeps its hardest trial, the elite; a later trial replaces it only when
 harder. A cell whose elite's difficulty is at least `search.archive.failure` holds a hard-and-fair failure.
 
 `search.sampler=archive` proposes trials with ribs' MAP-Elites emitters (GaussianEmitter, or IsoLineEmitter),
@@ -48,6 +50,13 @@ def _kind(first: pd.Series, _out: Path, _frame) -> str:
     return "child" if str(first.get("target", "")).startswith("child") else "adult"
 
 
+def _occluder(first: pd.Series, _out: Path, _frame) -> str:
+    """What hid most of the target's hidden pixels at its first fair frame: the frame table's `occluder` column
+    (pillar | vehicle | person | structure | none: perception/groundtruth.py); "" in a table written before it."""
+    value = first.get("occluder")
+    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else str(value)
+
+
 def _luminance(_first: pd.Series, _out: Path, frame) -> float:
     """The mean luma (Rec. 601, 0-1) of the trial's saved hardest fair frame: how dark the scene looks to the
     camera (its light, lamps and materials together), its drawn boxes a few pixels of it."""
@@ -64,6 +73,8 @@ SOURCES = {
     "kind": ("category", "the target: car, adult or child", _kind),
     "target": ("category", "the target actor's name", lambda first, _o, _f: str(first.get("target", ""))),
     "camera": ("category", "the camera of the first fair frame", lambda first, _o, _f: str(first.get("camera"))),
+    "occluder": ("category", "what hid most of the target's hidden pixels at its first fair frame: pillar, "
+                 "vehicle, person, structure or none (under 2 % of it hidden)", _occluder),
     "distance": ("number", "the target's distance (m) at its first fair frame",
                  lambda first, _o, _f: float(first["distance"])),
     "visible": ("number", "the target's visible fraction at its first fair frame (below 1: something hid part)",
@@ -73,8 +84,8 @@ SOURCES = {
 
 
 def check_descriptors(descriptors) -> None:
-    """`search.descriptors`: a known source each, once, with `values` (a category) or increasing `edges` (a
-    number); GarageError naming the entry."""
+    """`search.descriptors`: a known source each, once, with `values` (a category, and a `merge` of other values
+    into them) or increasing `edges` (a number); GarageError naming the entry."""
     seen = set()
     for k, d in enumerate(descriptors):
         where = f"search.descriptors[{k}]"
@@ -89,7 +100,11 @@ def check_descriptors(descriptors) -> None:
             if edges or len(values) < 1 or len(set(map(str, values))) != len(values):
                 raise GarageError(f"{source} is a category: give its distinct values (values: [...]), no edges",
                                   where)
-        elif values or len(edges) < 2 or any(not a < b for a, b in zip(edges, edges[1:])):
+            for other, into in dict(d.get("merge") or {}).items():
+                if str(other) in map(str, values) or str(into) not in map(str, values):
+                    raise GarageError(f"merge {other} -> {into}: merge a value that is not listed into one that "
+                                      f"is ({', '.join(map(str, values))})", f"{where}.merge")
+        elif values or d.get("merge") or len(edges) < 2 or any(not a < b for a, b in zip(edges, edges[1:])):
             raise GarageError(f"{source} is a number: give at least two increasing edges (edges: [...]), not "
                               f"{edges or values}", where)
 
@@ -124,6 +139,7 @@ class Axis:
     source: str
     values: tuple[str, ...]
     edges: tuple[float, ...]
+    merge: tuple[tuple[str, str], ...] = ()  # a category's unlisted value -> the listed value whose cell it joins
 
 
 class Grid:
@@ -131,7 +147,9 @@ class Grid:
 
     def __init__(self, descriptors):
         self.descriptors = [Axis(str(d["source"]), tuple(str(v) for v in (d.get("values") or [])),
-                                 tuple(float(e) for e in (d.get("edges") or []))) for d in descriptors]
+                                 tuple(float(e) for e in (d.get("edges") or [])),
+                                 tuple((str(k), str(v)) for k, v in dict(d.get("merge") or {}).items()))
+                            for d in descriptors]
 
     @property
     def dims(self) -> list[int]:
@@ -144,14 +162,16 @@ class Grid:
         return [f"{a:g}-{b:g}" for a, b in zip(d.edges, d.edges[1:])]
 
     def index(self, measured: dict) -> tuple[int, ...] | None:
-        """Each descriptor's bin; None when a value is missing, NaN or not among a category's values."""
+        """Each descriptor's bin; None when a value is missing, NaN, or neither among a category's values nor
+        merged into one of them."""
         cell = []
         for d in self.descriptors:
             value = measured.get(d.source)
             if d.values:
-                if str(value) not in d.values:
+                value = dict(d.merge).get(str(value), str(value))
+                if value not in d.values:
                     return None
-                cell.append(d.values.index(str(value)))
+                cell.append(d.values.index(value))
             else:
                 if value is None or not math.isfinite(float(value)):
                     return None
