@@ -53,7 +53,7 @@ def default_descriptors() -> list[DescriptorConf]:
     other things in the way), so every fair trial has a cell. The edges come from a random pilot of 8 trials on
     that space (docs/search.md): the targets are first fair at about 6 m (case 2), 14 m (case 3) and 21 m
     (case 1), 1.0, 0.74 and 0.5 visible. The picture's luminance (`luminance`) replaced by `occluder`: the real
-    look's camera exposes for the scene, so its mean luma spans only 0.42-0.45 over the four lights."""
+    look's camera exposes for the scene, so its mean luma spans only 0.41-0.46 over the four lights."""
     return [DescriptorConf("kind", values=["car", "adult", "child"]),
             DescriptorConf("occluder", values=["pillar", "vehicle", "none"],
                            merge={"structure": "pillar", "person": "vehicle"}),
