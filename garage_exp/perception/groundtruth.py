@@ -259,16 +259,20 @@ def batch_mask_stats(ids, silhouettes, actor_ids, see_through=(), occluders: Map
 def hidden_by(ids, hidden, occluders: Mapping):
     """(N, K, len(OCCLUDERS)) counts of the hidden pixels (N, K, H, W) per category: those of `occluders`' ids
     (category -> ids), then `structure`, every other drawn id (id 0 draws nothing, so hides nothing)."""
-    hidden = hidden & (ids != 0)[:, None]
-    named = ids < 0  # no id: the union of the named categories' pixels so far
-    counts = []
-    for category in OCCLUDERS[:-1]:
-        wanted = list(occluders.get(category, ()))
-        mine = arrays.isin(ids, wanted) if wanted else ids < 0
-        counts.append((hidden & mine[:, None]).sum(axis=(-2, -1)))
-        named = named | mine
-    counts.append((hidden & ~named[:, None]).sum(axis=(-2, -1)))
-    return arrays.xp(ids).stack(counts, axis=-1)
+    named = [list(occluders.get(category, ())) for category in OCCLUDERS[:-1]]
+    # Each id's category by table lookup (an id past the named ones: structure, the table's last entry).
+    lut = np.full(max((max(v) for v in named if v), default=0) + 2, len(OCCLUDERS) - 1, np.int64)
+    lut[0] = len(OCCLUDERS)  # no category
+    for c, wanted in enumerate(named):
+        lut[wanted] = c
+    code = arrays.take(arrays.table(lut, ids), ids.clip(0, len(lut) - 1))  # (N, H, W)
+    which = code[..., None] == arrays.table(np.arange(len(OCCLUDERS)), ids)  # (N, H, W, C)
+    n, k = hidden.shape[:2]
+    # One product counts every actor's hidden pixels in every category: (N, K, HW) @ (N, HW, C); float32 counts
+    # are exact up to 2^24 pixels.
+    counts = (arrays.cast(hidden, np.float32).reshape(n, k, -1)
+              @ arrays.cast(which, np.float32).reshape(n, -1, len(OCCLUDERS)))
+    return arrays.as_int(counts)
 
 
 def stats_of(batch: dict, names: Sequence[Sequence[str]]) -> list[list[MaskStats]]:
