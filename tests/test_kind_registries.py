@@ -9,6 +9,7 @@ as a user would (docs/architecture.md, "Extension points")."""
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 import numpy as np
@@ -213,6 +214,7 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
     command (core.plugins.import_plugins), and each of its kinds is then used where the shipped ones are."""
     from garage_exp.core.plugins import import_plugins
     from garage_exp.perception.detect import make_detector
+    from garage_exp.perception.detect.worker import DetectorProcess
     from garage_exp.perception.slots.detector import load
     from garage_exp.perception.slots.schema import SlotDetectorConf
     from garage_exp.render.fisheye import lens_of
@@ -229,13 +231,22 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
         make_detector(models=["centre:0.8"])
     (tmp_path / "user_plugin.py").write_text(PLUGIN_MODULE)
     monkeypatch.setenv("GARAGE_EXP_PLUGINS", "user_plugin")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")])))
     import_plugins()
 
-    # the entry kind, opened by the detector factory and run on a frame
+    # the entry kind, opened by the detector factory and run on a frame, here and in the job's detector process
     detector = make_detector(models=["centre:0.8"])
     (found,), = detector.detect([np.zeros((48, 64, 3), np.uint8)])
     assert detector.names == ["centre"] and found.scores.tolist() == pytest.approx([0.8])
     assert found.boxes.tolist() == [[16.0, 12.0, 48.0, 36.0]]
+    child = DetectorProcess(threads=1)
+    try:
+        child.load(detector)
+        child.submit(np.zeros((48, 64, 3), np.uint8))
+        (theirs,) = child.result()
+        assert child.names == ["centre"] and theirs.boxes.tolist() == found.boxes.tolist()
+    finally:
+        child.close()
     # the objective judges a job's summary, records the attribute it declares and the study shows it
     summary = {"visible_fraction_mean": 0.5, "fair_frames": 4, "frames": 10, "fair_recall": 0.75,
                "frames_missed": 1.0}
