@@ -85,6 +85,8 @@ def check_search(search) -> None:
         raise GarageError(f"a batch of {search.batch} trials: at least 1", "search.batch")
     if int(search.trials) < 1:
         raise GarageError(f"{search.trials} trials: at least 1", "search.trials")
+    if int(search.get("frames") or 0) < 0:
+        raise GarageError(f"a budget of {search.frames} frames: at least 0 (0: none)", "search.frames")
     if not 0.0 <= float(search.min_visible) <= 1.0:
         raise GarageError(f"{search.min_visible} is outside 0-1", "search.min_visible")
     if not 0.0 <= float(search.max_truncation) <= 1.0:
