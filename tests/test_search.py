@@ -333,6 +333,9 @@ def test_a_study_is_continued_only_under_the_objective_it_was_made_for(tmp_path)
     late = compose_cfg("search.objective=late", storage).search
     study = study_mod.open_study(late, "mine", 0)
     assert study.user_attrs["direction_names"] == ["lateness"] and study.metric_names == ["lateness"]
+    # the objectives' own trial attributes, as they declare them, for the report (report/trials.attr_headings)
+    assert study.user_attrs["attr_headings"] == {"late": "late", "detection_distance": "detection distance (m)",
+                                                 "ttc_at_detection": "TTC at detection (s)"}
     with pytest.raises(GarageError, match=r"made for another objective \(lateness, not difficulty\)"):
         study_mod.open_study(compose_cfg(storage).search, "mine", 0)
 

@@ -32,7 +32,6 @@ from garage_exp.search import study as study_mod
 
 log = logging.getLogger("garage_exp")
 WORKER = f"{socket.gethostname()}:{os.getpid()}"
-LATE_ATTRS = ("late", "lateness", "detection_distance", "ttc_at_detection", "fair_difficulty")
 COUNTED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL, TrialState.RUNNING)
 
 
@@ -62,8 +61,7 @@ def outcome(result, objective: str) -> Outcome:
              "recall": num(result.get("fair_recall")), "confidence": num(result.get("fair_confidence"))}
     if result.get("frame"):
         attrs["frame"] = str(result["frame"])
-    if "late_testable" in result:
-        attrs.update({k: num(result.get(k)) for k in LATE_ATTRS})
+    attrs.update(objectives.recorded(result))  # what the objectives declare beside their values (the late verdict)
     values = objectives.objective(objective).judge(result, attrs)
     if values is None:
         attrs["infeasible"] = True

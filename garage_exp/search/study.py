@@ -14,7 +14,7 @@ import optuna
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.search import storage
-from garage_exp.search.objectives import OBJECTIVES
+from garage_exp.search.objectives import OBJECTIVES, shown
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid", "archive")
 MULTI_SAMPLERS = ("nsga2", "tpe", "random", "qmc")  # those that take several values (an objective's `multi`)
@@ -242,5 +242,6 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
                           "give another search.study", "search.objective")
     study.set_user_attr("direction_names", list(goal.metrics))  # the analysis names its columns from these
     study.set_user_attr("untestable", goal.untestable)  # and says why a pruned trial was infeasible
+    study.set_user_attr("attr_headings", shown())  # and which trial attributes it shows, headed how
     study.set_metric_names(list(goal.metrics))  # optuna-dashboard's axis labels
     return study
