@@ -164,6 +164,25 @@ def test_the_sampler_mutates_elites_after_startup_seeded_by_the_trial_number():
     assert first.shape == (2,) and np.all((0 <= first) & (first <= 1))
 
 
+def test_an_elite_at_an_end_of_the_space_sends_its_offspring_elsewhere_too():
+    """Offspring past an end wrap round a choice's values and reflect off a number's ends: an elite at the last
+    case and the first light (x = 1, 0) keeps about a fifth of its offspring in its own case and light, where
+    clipping at the bounds kept nine in ten; no offspring piles on a number's end."""
+    params = {"case": CategoricalDistribution(["1", "2", "3", "pedestrian"]),
+              "light": CategoricalDistribution(["bright", "clear", "moderate", "dim"]),
+              "gap": FloatDistribution(0.0, 1.0)}
+    search = search_conf()
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=0, sigma=0.15)
+    elite = numbered([trial(0, 0.9, cell("adult"), x=[1.0, 0.0, 1.0])])[0]  # pedestrian, bright, gap 1.0
+    asked = np.array([sampler.ask_point([elite], n) for n in range(1, 301)])
+    assert np.all((asked >= 0) & (asked <= 1))
+    home = [archive.decode(x, params) for x in asked]
+    share = np.mean([v["case"] == "pedestrian" and v["light"] == "bright" for v in home])
+    assert 0.1 < share < 0.35  # wrapped: 0.45 x 0.45 = 0.2 (clipped: 0.95 x 0.95 = 0.9)
+    assert np.mean(asked[:, 2] == 1.0) == 0 and asked[:, 2].min() < 0.75  # reflected, spread below the end
+    assert archive.fold([1.1, -0.1, 1.1], params) == pytest.approx([0.1, 0.9, 0.9])
+
+
 def test_a_batch_asked_before_any_tell_is_distinct_and_its_points_are_kept_on_the_trials():
     params = {"a": FloatDistribution(0.0, 1.0)}
     search = search_conf()

@@ -203,6 +203,20 @@ def decode(x, params: dict[str, od.BaseDistribution]) -> dict:
     return out
 
 
+def fold(x, params: dict[str, od.BaseDistribution]) -> np.ndarray:
+    """A mutated point back into [0, 1]^d: a choice's coordinate wraps around (its choices have no order, so
+    stepping past the last is as near the first as any other), a number's reflects at its ends. Clipping instead
+    would pile every step past an end onto the end's value, and an elite there would keep its offspring at home."""
+    out = []
+    for u, dist in zip(np.asarray(x, float), params.values()):
+        if isinstance(dist, od.CategoricalDistribution):
+            out.append(u % 1.0)
+        else:
+            v = u % 2.0
+            out.append(2.0 - v if v > 1.0 else v)
+    return np.asarray(out, float)
+
+
 def encode(values: dict, params: dict[str, od.BaseDistribution]) -> np.ndarray:
     """A trial's values as a point of [0, 1]^d (the middle of a choice's bin): for trials the archive sampler
     did not ask (another sampler's, an enqueued one)."""
@@ -270,14 +284,16 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         archive = ribs_archive(trials, self.grid, self.params, int(seeds[0]))
         if number < self.startup or archive.empty:
             return np.random.default_rng(int(seeds[1])).uniform(size=d)
-        bounds = [(0.0, 1.0)] * d
+        # Unbounded, then folded into the cube (fold): ribs' bounds clip, which piles every step past an end onto
+        # the end, so an elite at an end of the space (the last case, the first light) kept most of its offspring
+        # in its own cell (the first loop run's Q arm: 6 trials of one cell).
         if self.emitter == "iso_line":
             emitter = IsoLineEmitter(archive, iso_sigma=self.sigma, line_sigma=0.2, x0=np.full(d, 0.5),
-                                     bounds=bounds, batch_size=1, seed=int(seeds[2]))
+                                     bounds=None, batch_size=1, seed=int(seeds[2]))
         else:
-            emitter = GaussianEmitter(archive, sigma=self.sigma, x0=np.full(d, 0.5), bounds=bounds, batch_size=1,
+            emitter = GaussianEmitter(archive, sigma=self.sigma, x0=np.full(d, 0.5), bounds=None, batch_size=1,
                                       seed=int(seeds[2]))
-        return np.clip(emitter.ask()[0], 0.0, 1.0)
+        return fold(emitter.ask()[0], self.params)
 
     def sample_relative(self, study, trial, search_space) -> dict:
         if not search_space:
