@@ -78,6 +78,27 @@ def test_cells_bin_categories_by_value_and_numbers_by_edges():
     assert grid.name((2, 1)) == "child | 6-10"
 
 
+def test_the_occluder_is_read_at_the_first_fair_frame_and_unlisted_kinds_join_the_merged_cell(tmp_path):
+    table = pd.DataFrame([row(shot=0, visible_fraction=0.2, occluder="pillar"),  # hidden: not fair
+                          row(shot=1, visible_fraction=0.7, occluder="vehicle"),  # first fair
+                          row(shot=2, visible_fraction=1.0, occluder="none")])
+    search = OmegaConf.merge(OmegaConf.structured(SearchConf), {"descriptors": [
+        {"source": "occluder", "values": ["pillar", "vehicle", "none"],
+         "merge": {"structure": "pillar", "person": "vehicle"}}]})
+    assert archive.measure(table, tmp_path, None, search) == {"occluder": "vehicle"}
+    assert archive.measure(table.drop(columns="occluder"), tmp_path, None, search) == {"occluder": ""}  # old table
+    grid = archive.Grid(search.descriptors)
+    assert [grid.index({"occluder": v}) for v in ("pillar", "vehicle", "none", "structure", "person", "")] == \
+        [(0,), (1,), (2,), (0,), (1,), None]  # merged into their cells; a value neither listed nor merged: none
+    assert archive.Grid([{"source": "occluder", "values": ["pillar", "none"]}]).index({"occluder": "person"}) is None
+    # the shipped cells: kind x occluder x distance x visible, 81, every category of what hides it placed
+    shipped = archive.Grid(OmegaConf.structured(SearchConf).descriptors)
+    assert [d.source for d in shipped.descriptors] == ["kind", "occluder", "distance", "visible"]
+    assert shipped.dims == [3, 3, 3, 3]
+    assert shipped.index({"kind": "car", "occluder": "structure", "distance": 20.0, "visible": 0.55}) == (0, 0, 2, 0)
+    archive.check_descriptors(OmegaConf.structured(SearchConf).descriptors)
+
+
 def trial(number: int, difficulty: float, descriptors: dict | None, params: dict | None = None, x=None):
     params = params if params is not None else {"a": 0.5}
     return create_trial(state=TrialState.COMPLETE, values=[difficulty], params=params,
@@ -141,6 +162,25 @@ def test_the_sampler_mutates_elites_after_startup_seeded_by_the_trial_number():
     # the startup trials are uniform, whatever the archive holds
     first = sampler.ask_point([elite], 0)
     assert first.shape == (2,) and np.all((0 <= first) & (first <= 1))
+
+
+def test_an_elite_at_an_end_of_the_space_sends_its_offspring_elsewhere_too():
+    """Offspring past an end wrap round a choice's values and reflect off a number's ends: an elite at the last
+    case and the first light (x = 1, 0) keeps about a fifth of its offspring in its own case and light, where
+    clipping at the bounds kept nine in ten; no offspring piles on a number's end."""
+    params = {"case": CategoricalDistribution(["1", "2", "3", "pedestrian"]),
+              "light": CategoricalDistribution(["bright", "clear", "moderate", "dim"]),
+              "gap": FloatDistribution(0.0, 1.0)}
+    search = search_conf()
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=0, sigma=0.15)
+    elite = numbered([trial(0, 0.9, cell("adult"), x=[1.0, 0.0, 1.0])])[0]  # pedestrian, bright, gap 1.0
+    asked = np.array([sampler.ask_point([elite], n) for n in range(1, 301)])
+    assert np.all((asked >= 0) & (asked <= 1))
+    home = [archive.decode(x, params) for x in asked]
+    share = np.mean([v["case"] == "pedestrian" and v["light"] == "bright" for v in home])
+    assert 0.1 < share < 0.35  # wrapped: 0.45 x 0.45 = 0.2 (clipped: 0.95 x 0.95 = 0.9)
+    assert np.mean(asked[:, 2] == 1.0) == 0 and asked[:, 2].min() < 0.75  # reflected, spread below the end
+    assert archive.fold([1.1, -0.1, 1.1], params) == pytest.approx([0.1, 0.9, 0.9])
 
 
 def test_a_batch_asked_before_any_tell_is_distinct_and_its_points_are_kept_on_the_trials():
