@@ -217,26 +217,37 @@ def held(prog: str, tmp: Path, stack) -> tuple[list[str], dict, str]:
     raise AssertionError(prog)
 
 
-@pytest.mark.parametrize("prog", list(HYDRA) + list(ARGPARSE))
-def test_sigterm_is_one_line_and_exit_143(prog, tmp_path):
+def signalled(prog: str, tmp: Path, sig: int) -> subprocess.CompletedProcess:
+    """The command run in a child process, held at its input, sent `sig` while it waits there."""
     import contextlib
 
     module = prog if prog in HYDRA else ARGPARSE[prog][1]
     with contextlib.ExitStack() as stack:
-        argv, env, on = held(prog, tmp_path, stack)
-        proc = subprocess.Popen([PYTHON, "-m", module, *argv], cwd=tmp_path, env=child_env(env),
+        argv, env, on = held(prog, tmp, stack)
+        proc = subprocess.Popen([PYTHON, "-m", module, *argv], cwd=tmp, env=child_env(env),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         stack.callback(lambda: proc.poll() is None and proc.kill())
         while not waiting(proc.pid, on):
             assert proc.poll() is None, f"{prog} ended before the signal: {proc.communicate()[1][-3000:]}"
             time.sleep(0.01)
         assert catches(proc.pid, signal.SIGTERM)  # the shell's handler, while the command runs
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(sig)
         out, err = proc.communicate(timeout=120)
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert proc.returncode == 143, err[-3000:]
-    assert lines[-1:] == [f"{prog}: terminated (SIGTERM)" + ("; rerun the same command to go on where it stopped"
-                                                             if prog == "garage_exp.loop" else
-                                                             "; rerun the same command with resume=true to finish "
-                                                             "the sweep" if prog == "garage_exp" else "")], err[-3000:]
-    assert "Traceback" not in err, err[-3000:]
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+@pytest.mark.parametrize("prog", list(HYDRA) + list(ARGPARSE))
+def test_sigterm_is_one_line_and_exit_143(prog, tmp_path):
+    r = signalled(prog, tmp_path, signal.SIGTERM)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    hint = {"garage_exp.loop": "; rerun the same command to go on where it stopped",
+            "garage_exp": "; rerun the same command with resume=true to finish the sweep"}.get(prog, "")
+    assert r.returncode == 143, r.stderr[-3000:]
+    assert lines[-1:] == [f"{prog}: terminated (SIGTERM){hint}"], r.stderr[-3000:]
+    assert "Traceback" not in r.stderr, r.stderr[-3000:]
+
+
+def test_ctrl_c_is_one_line_and_exit_130(tmp_path):
+    """Ctrl-C (SIGINT) the same way, here for an argparse command (the Hydra ones: test_reliability_sweeps)."""
+    r = signalled("garage_exp.plan", tmp_path, signal.SIGINT)
+    assert (r.returncode, r.stderr) == (130, "garage_exp.plan: interrupted\n")
