@@ -164,7 +164,8 @@ def test_the_command_reports_a_study_in_a_storage_and_refuses_a_wrong_name(tmp_p
     assert len(pd.read_csv(tmp_path / "out" / "hardest.csv")) == 2
     assert "# Search report: stored" in (tmp_path / "out" / "search_report.md").read_text()
     assert analysis.main(["--storage", storage, "--study", "nope"]) == 2
-    assert capsys.readouterr().err.strip().splitlines()[-1] == f"{storage}: no study named 'nope' (there are: stored)"
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"garage_exp.report.search_analysis: {storage}: no study named 'nope' (there are: stored)")
     missing = f"sqlite:///{tmp_path / 'absent.db'}"
     assert analysis.main(["--storage", missing]) == 2 and not (tmp_path / "absent.db").exists()
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import REFUSED
@@ -199,3 +200,43 @@ def test_the_wait_for_a_server_is_the_environments_seconds(monkeypatch):
     monkeypatch.setenv("GARAGE_EXP_TRACKING_WAIT", "soon")
     assert client.tracking_wait() == 180.0
 
+
+
+def test_a_tracked_run_ends_finished_killed_or_failed_with_its_error(tmp_path):
+    """tracking.tracked_run, the one way gym, train, verify and the job end their run: FINISHED, KILLED on Ctrl-C or
+    SIGTERM (KeyboardInterrupt, which the shell raises for both), FAILED with the error (and its traceback with
+    traceback_file); a run the body ended itself is left as it ended it."""
+    import shutil
+
+    from conftest import store_template
+
+    from garage_exp.core.exits import Terminated
+
+    shutil.copy(store_template(), tmp_path / "m.db")
+    mlc = runs.client(f"sqlite:///{tmp_path / 'm.db'}")
+    exp = runs.experiment_id(mlc, "t")
+
+    def run_through(exc: BaseException | None, **kw):
+        run = jobrun.JobRun(mlc, mlc.create_run(exp).info.run_id, exp)
+        try:
+            with runs.tracked_run(run, **kw):
+                if exc is not None:
+                    raise exc
+        except BaseException as raised:
+            assert raised is exc  # the exception goes on to the shell
+        return mlc.get_run(run.run_id)
+
+    assert run_through(None).info.status == "FINISHED"
+    killed = run_through(Terminated("signal 15 (SIGTERM)"))
+    assert killed.info.status == "KILLED" and killed.data.tags["error"] == "Terminated: signal 15 (SIGTERM)"
+    assert run_through(KeyboardInterrupt()).info.status == "KILLED"
+    failed = run_through(ValueError("bad"), traceback_file=True)
+    assert failed.info.status == "FAILED" and failed.data.tags["error"] == "ValueError: bad"
+    text = Path(mlc.download_artifacts(failed.info.run_id, "error.txt", str(tmp_path))).read_text()
+    assert text.startswith("Traceback") and "ValueError: bad" in text
+    run = jobrun.JobRun(mlc, mlc.create_run(exp).info.run_id, exp)
+    with pytest.raises(OSError):
+        with runs.tracked_run(run):
+            run.end("FAILED")  # as a full disk closes it, with its own reason
+            raise OSError("No space left on device")
+    assert mlc.get_run(run.run_id).info.status == "FAILED" and "error" not in mlc.get_run(run.run_id).data.tags

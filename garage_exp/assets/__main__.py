@@ -15,6 +15,7 @@ import logging
 import sys
 
 from garage_exp.assets import locate
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
 
 
@@ -91,17 +92,21 @@ def _people(verbose: bool = True) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m garage_exp.assets", description=__doc__.splitlines()[0])
-    parser.add_argument("command", choices=("where", "ensure", "fetch", "convert", "people"))
-    args = parser.parse_args(argv)
+COMMAND = shell.Command("garage_exp.assets")
+COMMANDS = {"where": _where, "ensure": _ensure, "fetch": _fetch, "convert": _convert, "people": _people}
+
+
+def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
-    try:
-        return {"where": _where, "ensure": _ensure, "fetch": _fetch, "convert": _convert,
-                "people": _people}[args.command]()
-    except GarageError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return COMMANDS[args.command]()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command in the one shell (garage_exp.core.shell): bad input one line and 2, Ctrl-C 130, SIGTERM 143;
+    `where` and `ensure` exit 1 when something is still missing."""
+    parser = argparse.ArgumentParser(prog="python -m garage_exp.assets", description=__doc__.splitlines()[0])
+    parser.add_argument("command", choices=tuple(COMMANDS))
+    return COMMAND.run_args(parser, run, argv)
 
 
 if __name__ == "__main__":

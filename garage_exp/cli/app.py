@@ -45,15 +45,8 @@ def main(cfg: DictConfig) -> float | dict:
     try:
         return run_job(cfg)
     except Infeasible as exc:
-        from pathlib import Path
-
-        from hydra.core.hydra_config import HydraConfig
-        from hydra.types import RunMode
-
-        hc = HydraConfig.get()
-        if cfg.search.trial is None or hc.mode != RunMode.MULTIRUN:
-            raise
-        shell.remove_untouched(Path(hc.runtime.output_dir))
+        if cfg.search.trial is None or not shell.refuse_job():
+            raise  # a job's bad input: the shell says it in one line
         return {"error": str(exc), "infeasible": True}
 
 

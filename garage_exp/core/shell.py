@@ -1,23 +1,30 @@
-"""The one shell around every Hydra command (`python -m garage_exp`, `.gym`, `.train`, `.loop`, `.verify`).
+"""The one shell around every command: the Hydra ones (`python -m garage_exp`, `.gym`, `.train`, `.loop`,
+`.verify`: `Command.run`) and the argparse ones (`.plan`, `.report`, `.report.search_analysis`, `.exports`,
+`.assets`, `.scenario.import`, `.tracking.store`, `.tracking.ui`: `Command.run_args`).
 
-Each command is a thin task, `task(cfg) -> result`, and a `Command` naming it, its config and its schemas; the
-shell does the rest the same way for all of them (as lightning-hydra-template's `task_wrapper` does):
-- composition: the `${garage_root:}` resolver and the schemas registered, the config composed by Hydra from
-  `conf/<config>.yaml`, numeric group choices quoted (`case=1`);
-- the process state: `STATE.begin()` before the command, `STATE.end()` after it;
-- exit codes: 0 done; 2 bad input (a `GarageError` or Hydra's own input errors: one line on stderr starting with
-  the command's name, nothing written); 1 a sweep finished with failed jobs, a sweep stopped by a fault every
-  later job would meet too, or a crash (traceback); 130 Ctrl-C and 143 SIGTERM, after the running job's MLflow
-  run ended KILLED (each task ends its run on KeyboardInterrupt, which both signals raise);
+Each command is a thin task - `task(cfg) -> result` for Hydra, `body(args) -> exit code` for argparse - and a
+`Command` naming it (and, for Hydra, its config and its schemas); the shell does the rest the same way for all of
+them (as lightning-hydra-template's `task_wrapper` does):
+- composition (Hydra): the `${garage_root:}` resolver and the schemas registered, the config composed by Hydra
+  from `conf/<config>.yaml`, numeric group choices quoted (`case=1`);
+- the process state: `STATE.begin()` before the command, `STATE.end()` after it (`command_scope`);
+- exit codes: 0 done; 2 bad input (a `GarageError`, Hydra's own input errors or argparse's usage errors: one line
+  on stderr starting with the command's name, `garage_exp.train: ...`, nothing written); 1 a sweep finished with
+  failed jobs, a sweep stopped by a fault every later job would meet too, or a crash (traceback); 130 Ctrl-C and
+  143 SIGTERM with one line, after the running job's MLflow run ended KILLED (each task's run is a
+  `tracking.runs.tracked_run`, which ends it KILLED on KeyboardInterrupt, which both signals raise);
 - output clean-up: Hydra makes the run dir before the task starts; a task refused for bad input leaves nothing
-  (`remove_untouched`).
+  (`remove_untouched`, `refuse_job`).
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import logging
 import signal
 import sys
+import threading
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,13 +98,57 @@ def remove_untouched(out: Path) -> None:
         pass
 
 
+def multirun() -> bool:
+    """Whether the running Hydra job is one job of a multirun (`-m`)."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    return HydraConfig.get().mode == RunMode.MULTIRUN
+
+
+def refuse_job() -> bool:
+    """The running Hydra job is refused (bad input, an infeasible trial, no room left): its run dir goes while it
+    holds nothing but Hydra's own files (`remove_untouched`). Returns whether the job is one of a multirun: there
+    the sweep decides what comes next (it goes on, prunes the trial, or stops), a single run exits."""
+    from hydra.core.hydra_config import HydraConfig
+
+    remove_untouched(Path(HydraConfig.get().runtime.output_dir))
+    return multirun()
+
+
+@contextlib.contextmanager
+def command_scope():
+    """What every command runs in: the process state begun for it (this command's sweep, counts and outages; the
+    warm renderer and detector stay) and ended after it; Ctrl-C and SIGTERM raising KeyboardInterrupt and
+    Terminated where the command is (signal handlers exist only in the main thread: a command run from another
+    thread keeps the process's); logging quiet about records it cannot write. Yields STATE."""
+    from garage_exp.core.state import STATE
+
+    state = STATE.begin()
+    # On a full disk every log record that cannot be written would print a traceback of its own (Python's
+    # logging default); the job reports the full disk once instead. Only for the command: put back after it.
+    raise_exceptions, logging.raiseExceptions = logging.raiseExceptions, False
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous = {sig: signal.signal(sig, handler) for sig, handler in
+                    ((signal.SIGTERM, on_sigterm), (signal.SIGINT, on_sigint))}
+    try:
+        yield state
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        logging.raiseExceptions = raise_exceptions
+        STATE.end()
+
+
 @dataclass(frozen=True)
 class Command:
-    """A Hydra command: `prog` names it at the start of its one-line errors (`garage_exp.train`); its config is
-    `conf/<config_name>.yaml`, typed by the schemas its `schemas` functions store."""
+    """A command: `prog` names it at the start of its one-line errors (`garage_exp.train`, `garage_exp.plan`). A
+    Hydra command's config is `conf/<config_name>.yaml`, typed by the schemas its `schemas` functions store; an
+    argparse command has none."""
 
     prog: str
-    config_name: str
+    config_name: str | None = None
     schemas: tuple[Callable[[], None], ...] = ()
     # After Ctrl-C or SIGTERM: how to go on (a sweep resumes with resume=true, the loop by its own rerun).
     resume_hint: str = ""
@@ -112,22 +163,18 @@ class Command:
         """`task` as Hydra runs it for each job: bad input is cleaned up after and becomes one line and exit 2;
         in a sweep that goes on past failed jobs (`failed_job`), the job's error is its result instead."""
         def job(cfg):
-            from hydra.core.hydra_config import HydraConfig
-            from hydra.types import RunMode
-
-            hc = HydraConfig.get()
-            sweeping = self.failed_job is not None and hc.mode == RunMode.MULTIRUN
+            sweeping = self.failed_job is not None and multirun()
             try:
                 import_plugins()  # the user's registrations ($GARAGE_EXP_PLUGINS) before the config is checked
                 return task(cfg)
             except GarageError as exc:
-                remove_untouched(Path(hc.runtime.output_dir))
-                print(f"{self.prog}: {exc}", file=sys.stderr)
+                refuse_job()
+                self.say(exc)
                 if not sweeping:
                     sys.exit(EXIT_INPUT)
                 error = str(exc)
             except JobFault as exc:  # the job's run ended FAILED, its partial outputs kept: one line, no traceback
-                print(f"{self.prog}: {exc}", file=sys.stderr)
+                self.say(exc)
                 if not sweeping:
                     sys.exit(EXIT_FAILED_JOBS)
                 error = f"{type(exc).__name__}: {exc}"
@@ -144,52 +191,85 @@ class Command:
         return job
 
     def run(self, task: Callable[[Any], Any], argv: Sequence[str] | None = None) -> None:
-        """Run the command on `argv` (default: the process's), with its exit code as the docstring above says;
-        returns on success (exit 0)."""
+        """Run the Hydra command on `argv` (default: the process's), with its exit code as the docstring above
+        says; returns on success (exit 0)."""
         import hydra
-
-        from garage_exp.core.state import STATE
 
         sys.argv[1:] = quote_numeric_choices(sys.argv[1:] if argv is None else list(argv))
         register(*self.schemas)
-        state = STATE.begin()  # this command's sweep, counts and outages; the warm renderer and detector stay
         install_error_report(self.prog)
-        # On a full disk every log record that cannot be written would print a traceback of its own (Python's
-        # logging default); the job reports the full disk once instead. Only for the command: put back after it.
-        raise_exceptions, logging.raiseExceptions = logging.raiseExceptions, False
         main = hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name=self.config_name)(
             self.task(task))
-        previous = {sig: signal.signal(sig, handler) for sig, handler in
-                    ((signal.SIGTERM, on_sigterm), (signal.SIGINT, on_sigint))}
-        try:
-            main()
+        with command_scope() as state:
+            try:
+                main()
+            except BaseException as exc:
+                if self.on_abort is not None:
+                    self.on_abort(exc)
+                code = self.exit_code(exc, state)
+                if code is not None:
+                    sys.exit(code)
+                raise
             failed = state.sweep is not None and state.sweep.failures
-        except BaseException as exc:
-            if self.on_abort is not None:
-                self.on_abort(exc)
-            self.exit_for(exc, state)
-            raise
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-            logging.raiseExceptions = raise_exceptions
-            STATE.end()
         if failed:
             sys.exit(EXIT_FAILED_JOBS)
 
-    def exit_for(self, exc: BaseException, state) -> None:
-        """Exit with the code and the one line for an exception that ends the command; returns for a bug (its
-        traceback follows) and for an exit already decided."""
+    def run_args(self, parser: argparse.ArgumentParser, body: Callable[[argparse.Namespace], int | None],
+                 argv: Sequence[str] | None = None) -> int:
+        """Run the argparse command: `argv` (default: the process's) parsed by `parser`, then `body(args)`; returns
+        the exit code (the caller's `sys.exit` ends the process with it): body's own (None: 0), 2 bad input (a
+        GarageError or a usage error: one line, `prog: ...`), 130 Ctrl-C and 143 SIGTERM (one line); a crash
+        propagates with its traceback (exit 1)."""
+        args = self.parse(parser, argv)
+        if isinstance(args, int):
+            return args
+        with command_scope() as state:
+            try:
+                return int(body(args) or 0)
+            except GarageError as exc:
+                self.say(exc)
+                return EXIT_INPUT
+            except BaseException as exc:
+                code = self.exit_code(exc, state)
+                if code is None:
+                    raise
+                return code
+
+    def parse(self, parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> argparse.Namespace | int:
+        """The parsed arguments, or the exit code when parsing ended the command: 0 after --help, 2 after a usage
+        error, said in one line (argparse's own usage block and `error:` line folded into it)."""
+        import io
+
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err):
+                return parser.parse_args(argv)
+        except SystemExit as exc:
+            if not exc.code:
+                return 0
+            last = ([ln for ln in err.getvalue().splitlines() if ln.strip()] or ["bad arguments"])[-1]
+            message = last.split(": error: ", 1)[-1]
+            self.say(f"{message} (see {parser.prog} --help)")
+            return EXIT_INPUT
+
+    def say(self, line: Any) -> None:
+        """One line on stderr, the command's name first: how every command says an error or why it stopped."""
+        print(f"{self.prog}: {line}", file=sys.stderr)
+
+    def exit_code(self, exc: BaseException, state) -> int | None:
+        """The exit code for an exception that ends the command, its one line said; None for a bug (its traceback
+        follows) and for an exit already decided."""
         if isinstance(exc, SweepStopped):  # a full disk, a tracking server away: the job said what it kept
             sweep = state.sweep
             jobs = sweep.jobs if sweep is not None and sweep.in_process else None
-            print(f"{self.prog}: {exc.line(state.finished_jobs, jobs)}", file=sys.stderr)
-            sys.exit(EXIT_FAILED_JOBS)
+            self.say(exc.line(state.finished_jobs, jobs))
+            return EXIT_FAILED_JOBS
         if isinstance(exc, KeyboardInterrupt):  # the job's run already ended KILLED, its partial outputs kept
             terminated = isinstance(exc, Terminated)
             hint = f"; {self.resume_hint}" if self.resume_hint else ""
-            print(f"{self.prog}: {'terminated (SIGTERM)' if terminated else 'interrupted'}{hint}", file=sys.stderr)
-            sys.exit(128 + (signal.SIGTERM if terminated else signal.SIGINT))
+            self.say(f"{'terminated (SIGTERM)' if terminated else 'interrupted'}{hint}")
+            return 128 + (signal.SIGTERM if terminated else signal.SIGINT)
         if isinstance(exc, ValueError) and str(exc).startswith("Only one of --run"):  # Hydra's own flag check
-            print(f"{self.prog}: {exc} (--cfg prints a single job's config: drop -m)", file=sys.stderr)
-            sys.exit(EXIT_INPUT)
+            self.say(f"{exc} (--cfg prints a single job's config: drop -m)")
+            return EXIT_INPUT
+        return None

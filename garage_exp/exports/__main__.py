@@ -9,29 +9,31 @@ import argparse
 import sys
 from pathlib import Path
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core import shell
+
+COMMAND = shell.Command("garage_exp.exports")
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m garage_exp.exports", description=__doc__.splitlines()[0])
-    ap.add_argument("dataset", type=Path, help="a job's dataset directory (dataset=true), or its slots/ directory")
-    ap.add_argument("image", nargs="?", help="an image's file name in coco.json (default: the first)")
-    ap.add_argument("-o", "--output", type=Path, help="PNG to write (default: exports_IMAGE here)")
-    args = ap.parse_args(argv)
-    try:
-        from PIL import Image
+def run(args: argparse.Namespace) -> int:
+    from PIL import Image
 
-        from garage_exp.exports import show, slots
+    from garage_exp.exports import show, slots
 
-        slot_export = (args.dataset / "coco_keypoints.json").exists()
-        rgb, name = (slots.draw if slot_export else show.draw)(args.dataset, args.image)
-    except GarageError as exc:
-        print(f"garage_exp.exports: {exc}", file=sys.stderr)
-        return 2
+    slot_export = (args.dataset / "coco_keypoints.json").exists()
+    rgb, name = (slots.draw if slot_export else show.draw)(args.dataset, args.image)
     out = args.output or Path(f"exports_{name}")
     Image.fromarray(rgb).save(out)
     print(out)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command in the one shell (garage_exp.core.shell): bad input one line and 2, Ctrl-C 130, SIGTERM 143."""
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.exports", description=__doc__.splitlines()[0])
+    ap.add_argument("dataset", type=Path, help="a job's dataset directory (dataset=true), or its slots/ directory")
+    ap.add_argument("image", nargs="?", help="an image's file name in coco.json (default: the first)")
+    ap.add_argument("-o", "--output", type=Path, help="PNG to write (default: exports_IMAGE here)")
+    return COMMAND.run_args(ap, run, argv)
 
 
 if __name__ == "__main__":

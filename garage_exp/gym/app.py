@@ -113,7 +113,7 @@ def run_train(cfg: DictConfig, env, out: Path, venv=None) -> dict:
     g = cfg.gym
     tags = {"kind": "gym", "case": str(cfg.case.name), "output_dir": str(out)}
     run = tracking.start_job_run(cfg, f"adversary on {cfg.case.name}, {g.timesteps} steps, seed {g.seed}", tags, None)
-    try:
+    with tracking.tracked_run(run):  # ends FINISHED, or KILLED/FAILED with the error
         result = train(cfg, env, venv)
         rows = result["before"] + result["train"] + result["after"]
         table = pd.DataFrame(rows)
@@ -136,11 +136,6 @@ def run_train(cfg: DictConfig, env, out: Path, venv=None) -> dict:
             run.log_artifact(path)
         for path in files:
             run.log_artifact(path, "suite" if path.parent == suite_root else "suite/scenario")
-    except BaseException as exc:
-        run.set_tag("error", f"{type(exc).__name__}: {exc}"[:2000])
-        run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
-        raise
-    run.end("FINISHED")
     summary.update(run_id=run.run_id, policy=str(out / "policy.zip"), suite=str(suite_root))
     (out / "result.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.gym: {rates_line(before, after)}; {len(result['train'])} training episodes, "

@@ -9,7 +9,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core import shell
 from garage_exp.plan.classify import LANE_TYPES, PARKING_TYPES, Classified, classify
 from garage_exp.plan.load import load_plan
 
@@ -46,27 +46,30 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+COMMAND = shell.Command("garage_exp.plan")
+
+
+def run(args: argparse.Namespace) -> int:
     if args.command == "generate":
         from garage_exp.plan.generate import write_plans
 
         for path in write_plans(*([args.output] if args.output else [])):
             print(path)
         return 0
-    try:
-        classified = classify(load_plan(args.plan_file))
-        if args.command == "map":
-            from garage_exp.plan.draw import draw_map  # matplotlib only when drawing
+    classified = classify(load_plan(args.plan_file))
+    if args.command == "map":
+        from garage_exp.plan.draw import draw_map  # matplotlib only when drawing
 
-            out = args.output or Path(f"{args.plan_file.stem}_map.png")
-            print(draw_map(classified, out))
-        else:
-            print(summary(classified))
-    except GarageError as exc:
-        print(f"garage_exp.plan: {exc}", file=sys.stderr)
-        return 2
+        out = args.output or Path(f"{args.plan_file.stem}_map.png")
+        print(draw_map(classified, out))
+    else:
+        print(summary(classified))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command in the one shell (garage_exp.core.shell): bad input one line and 2, Ctrl-C 130, SIGTERM 143."""
+    return COMMAND.run_args(_parser(), run, argv)
 
 
 if __name__ == "__main__":

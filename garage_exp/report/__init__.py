@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from garage_exp.core import shell
+from garage_exp.core.errors import GarageError
 from garage_exp.results import stats
 from garage_exp.tracking import runs as tracking
 from garage_exp.report import plots, slots, visibility
@@ -147,24 +149,32 @@ def write_report(mlc, parent_run_id: str, runs: pd.DataFrame, out: Path) -> None
 def latest_parent(mlc, experiment: str) -> str:
     exp = mlc.get_experiment_by_name(experiment)
     if exp is None:
-        raise SystemExit(f"garage_exp.report: no experiment {experiment!r} in {tracking.tracking_uri()}")
+        raise GarageError(f"no experiment {experiment!r}", tracking.tracking_uri())
     runs = mlc.search_runs([exp.experiment_id], filter_string="tags.sweep = 'parent'", max_results=1,
                            order_by=["attributes.start_time DESC"])
     if not runs:
-        raise SystemExit(f"garage_exp.report: no sweep in experiment {experiment!r}")
+        raise GarageError(f"no sweep in experiment {experiment!r}", tracking.tracking_uri())
     return runs[0].info.run_id
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m garage_exp.report", description=__doc__.splitlines()[0])
-    ap.add_argument("--parent", help="the sweep's parent run id (default: the latest sweep)")
-    ap.add_argument("--experiment", default="garage_exp")
-    ap.add_argument("--uri", default=None, help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI or outputs/mlflow.db)")
-    ap.add_argument("-o", "--out", default="outputs/reports", help="where to write the report")
-    args = ap.parse_args(argv)
-    mlc = tracking.client(args.uri)
+COMMAND = shell.Command("garage_exp.report")
+
+
+def run(args: argparse.Namespace) -> int:
+    mlc = tracking.existing_client(args.uri)
     parent = args.parent or latest_parent(mlc, args.experiment)
     path = sweep_report(mlc, parent, Path(args.out) / parent)
     print(path.read_text())
     print(f"written: {path}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command in the one shell (garage_exp.core.shell): bad input (no store, experiment or sweep) one line
+    and 2, Ctrl-C 130, SIGTERM 143."""
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.report", description=__doc__.splitlines()[0])
+    ap.add_argument("--parent", help="the sweep's parent run id (default: the latest sweep)")
+    ap.add_argument("--experiment", default="garage_exp")
+    ap.add_argument("--uri", default=None, help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI or outputs/mlflow.db)")
+    ap.add_argument("-o", "--out", default="outputs/reports", help="where to write the report")
+    return COMMAND.run_args(ap, run, argv)

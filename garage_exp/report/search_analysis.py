@@ -27,6 +27,7 @@ import pandas as pd
 from optuna.distributions import CategoricalDistribution
 from optuna.trial import FrozenTrial
 
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.report import sensitivity
@@ -209,26 +210,29 @@ def load(storage: str, name: str | None) -> optuna.Study:
     return optuna.load_study(study_name=name or names[-1], storage=storage)
 
 
+COMMAND = shell.Command("garage_exp.report.search_analysis")
+
+
+def run(args: argparse.Namespace) -> int:
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if args.storage.startswith("sqlite:///") and not Path(args.storage.removeprefix("sqlite:///")).is_file():
+        raise GarageError("no such file", args.storage)  # sqlite would create an empty store
+    study = load(args.storage, args.study)
+    out = Path(args.out) if args.out else OUTPUTS_DIR / "search" / study.study_name
+    analyse(study, out, top=args.top)
+    print(f"written: {out / 'search_report.md'} (and .html)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The command in the one shell (garage_exp.core.shell): bad input one line and 2, Ctrl-C 130, SIGTERM 143."""
     ap = argparse.ArgumentParser(prog="python -m garage_exp.report.search_analysis",
                                  description="A search study's figures, importances, sensitivity and report.")
     ap.add_argument("--storage", default=STORAGE, help=f"Optuna storage URL (default: {STORAGE})")
     ap.add_argument("--study", default=None, help="the study's name (default: the storage's latest study)")
     ap.add_argument("-o", "--out", default=None, help="where to write (default: outputs/search/<study>)")
     ap.add_argument("--top", type=int, default=5, help="how many hardest scenarios the report lists")
-    args = ap.parse_args(argv)
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    try:
-        if args.storage.startswith("sqlite:///") and not Path(args.storage.removeprefix("sqlite:///")).is_file():
-            raise GarageError("no such file", args.storage)  # sqlite would create an empty store
-        study = load(args.storage, args.study)
-    except GarageError as exc:
-        print(exc, file=sys.stderr)
-        return 2
-    out = Path(args.out) if args.out else OUTPUTS_DIR / "search" / study.study_name
-    analyse(study, out, top=args.top)
-    print(f"written: {out / 'search_report.md'} (and .html)")
-    return 0
+    return COMMAND.run_args(ap, run, argv)
 
 
 if __name__ == "__main__":

@@ -5,19 +5,17 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import traceback
 from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.state import STATE
 from garage_exp.tracking import runs as tracking
 from garage_exp.core.exits import SweepStopped
 from garage_exp.run.diskspace import NotEnoughSpace, full_disk
-from garage_exp.core.errors import GarageError, JobFault
-from garage_exp.core.shell import remove_untouched
+from garage_exp.core.errors import JobFault
+from garage_exp.core import shell
 from garage_exp.run.preflight import preflight
 
 
@@ -128,14 +126,13 @@ def run_job(cfg: DictConfig) -> float | dict:
 def _run_job(cfg: DictConfig) -> float | dict:
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)
-    multirun = hc.mode == RunMode.MULTIRUN
+    multirun = shell.multirun()
     try:
         prepared = preflight(cfg)  # bad input fails here, before anything is logged
-    except GarageError as exc:  # the command's shell removes the run dir Hydra made and says it in one line
-        if multirun and isinstance(exc, NotEnoughSpace):  # the disk filled since the sweep's own check
-            remove_untouched(out)
+    except NotEnoughSpace as exc:  # the disk filled since the sweep's own check: a sweep stops here
+        if shell.refuse_job():
             raise SweepStopped(str(exc), "free space and rerun with resume=true") from None
-        raise
+        raise  # a single run: the command's shell says it in one line, as any bad input
     name_levels(cfg, prepared.classified.plan.name)
     digest = tracking.config_hash(cfg, tracking.file_digest(prepared.plan_path))
     if cfg.resume:
@@ -162,41 +159,18 @@ def _run_job(cfg: DictConfig) -> float | dict:
     run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
     run.pending = out / tracking.PENDING_FILE  # calls the tracking server cannot take wait there
     try:
-        if cfg.resume:  # the runs this one replaces (left RUNNING by a killed sweep, or failed)
-            gone = tracking.supersede(run.mlc, tracking.experiment_id(run.mlc, cfg.tracking.experiment), digest,
-                                      run.run_id)
-            if gone:
-                print(f"garage_exp: rerunning {run_name(cfg)!r}: replaces unfinished run(s) {', '.join(gone)}")
-        (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-        run.log_artifact(out / "config.yaml")
-        if trial is None:  # a search trial's map is its study's: the parent holds it
-            run.log_artifact(plan_map(prepared.classified, out / "plan_map.png"))
-        if cfg.export.openscenario and trial is None:  # a search exports its hardest trials itself
-            from garage_exp.run.openscenario import export
-
-            for path in export(cfg, out / "openscenario", prepared):
-                run.log_artifact(path, "openscenario")
-        if cfg.dry_run:
-            summary = {"difficulty": math.nan}
-        else:
-            from garage_exp.run.frames import run_frames
-
-            summary = run_frames(cfg, prepared, out, run)
-    except BaseException as exc:
-        where = full_disk(exc) if isinstance(exc, Exception) else None
-        if where is not None:
-            where = where or str(out)
-            _close_on_full_disk(run, out, where)
-            raise SweepStopped(f"disk full at {where}", "free space and rerun with resume=true") from None
-        try:
-            run.set_tag("error", f"{type(exc).__name__}: {exc}".strip())
-            run.log_text(traceback.format_exc(), "error.txt")
-        finally:
-            run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
-        if isinstance(exc, JobFault):  # an expected fault: its one line says what ended and what is kept
-            raise JobFault(f"{exc}; its run {run.run_id} ended FAILED, {kept_frames(out)}") from None
-        raise
-    run.end("FINISHED")
+        with tracking.tracked_run(run, traceback_file=True):
+            try:
+                summary = _run_body(cfg, prepared, out, run, digest)
+            except Exception as exc:
+                where = full_disk(exc)
+                if where is None:
+                    raise
+                where = where or str(out)
+                _close_on_full_disk(run, out, where)  # the run ends FAILED its own way: tracked_run leaves it
+                raise SweepStopped(f"disk full at {where}", "free space and rerun with resume=true") from None
+    except JobFault as exc:  # an expected fault: its one line says what ended and what is kept
+        raise JobFault(f"{exc}; its run {run.run_id} ended FAILED, {kept_frames(out)}") from None
     if run.kept:
         raise SweepStopped(f"tracking server {tracking.tracking_uri(cfg.tracking.uri)} away: job {run_name(cfg)!r} "
                            f"finished, its outputs kept in {out}", AWAY_HINT + " (it logs them without rendering again)")
@@ -206,3 +180,30 @@ def _run_job(cfg: DictConfig) -> float | dict:
     if trial is not None:  # the search's sweeper tells Optuna from this
         return {**summary, "run_id": run.run_id, "output_dir": str(out)}
     return float(summary["difficulty"])
+
+
+def _run_body(cfg: DictConfig, prepared, out: Path, run, digest: str) -> dict:
+    """What a job's run holds: the runs it replaces superseded, its config and map, its OpenSCENARIO export and
+    its frames; the frames' summary."""
+    trial = cfg.search.trial
+    if cfg.resume:  # the runs this one replaces (left RUNNING by a killed sweep, or failed)
+        gone = tracking.supersede(run.mlc, tracking.experiment_id(run.mlc, cfg.tracking.experiment), digest,
+                                  run.run_id)
+        if gone:
+            print(f"garage_exp: rerunning {run_name(cfg)!r}: replaces unfinished run(s) {', '.join(gone)}")
+    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    run.log_artifact(out / "config.yaml")
+    if trial is None:  # a search trial's map is its study's: the parent holds it
+        run.log_artifact(plan_map(prepared.classified, out / "plan_map.png"))
+    if cfg.export.openscenario and trial is None:  # a search exports its hardest trials itself
+        from garage_exp.run.openscenario import export
+
+        for path in export(cfg, out / "openscenario", prepared):
+            run.log_artifact(path, "openscenario")
+    if cfg.dry_run:
+        summary = {"difficulty": math.nan}
+    else:
+        from garage_exp.run.frames import run_frames
+
+        summary = run_frames(cfg, prepared, out, run)
+    return summary

@@ -28,6 +28,7 @@ from pathlib import Path
 import yaml
 
 from garage_exp.assets.vehicles import SIZES_OF_KIND, size_class_for, size_class_of
+from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
 from garage_exp.scenario.xosc_read import Read, read
 
@@ -335,7 +336,37 @@ def _key(name: str) -> str:
     return out if not out[0].isdigit() else f"a_{out}"
 
 
+COMMAND = shell.Command("garage_exp.scenario.import")
+
+
+def run(args: argparse.Namespace) -> int:
+    params = {}
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise GarageError(f"{item!r} is not NAME=VALUE", "--param")
+        params[key] = value
+    r = read(args.xosc, params)
+    name = _key(args.name or args.xosc.stem)
+    classified, site = load_site(args.plan or own_plan(r) or "research", args.site)
+    case, notes = to_case(r, classified, site, name, args.margin, args.target)
+    check_runs(case, r)
+    out = args.output or Path("case") / f"{name}.yaml"
+    lines = [*r.left_out, *notes]
+    head = [f"# Imported from {args.xosc} by python -m garage_exp.scenario.import"
+            + (f" ({', '.join(f'{k}={v}' for k, v in params.items())})" if params else ""),
+            *(f"# {line}" for line in lines)]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(head) + "\n" + yaml.safe_dump(case, sort_keys=False))
+    for line in lines:
+        print(line)
+    print(f"garage_exp.scenario.import: wrote {out} ({len(case['actors'])} actors; {len(r.left_out)} element(s) "
+          "left out)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The command in the one shell (garage_exp.core.shell): bad input one line and 2, Ctrl-C 130, SIGTERM 143."""
     ap = argparse.ArgumentParser(prog="python -m garage_exp.scenario.import", description=__doc__.splitlines()[0])
     ap.add_argument("xosc", type=Path, help="an OpenSCENARIO 1.0-1.3 scenario file")
     ap.add_argument("-o", "--output", type=Path, help="the case YAML to write (default: case/NAME.yaml here, "
@@ -349,34 +380,7 @@ def main(argv: list[str] | None = None) -> int:
                     "garage_exp.role target, else its first pedestrian, else its first moving actor)")
     ap.add_argument("--margin", type=float, default=0.5,
                     help="a foreign file is placed with its rearmost actor's back this far past the lane's start (m)")
-    args = ap.parse_args(argv)
-    try:
-        params = {}
-        for item in args.param:
-            key, sep, value = item.partition("=")
-            if not sep or not key:
-                raise GarageError(f"{item!r} is not NAME=VALUE", "--param")
-            params[key] = value
-        r = read(args.xosc, params)
-        name = _key(args.name or args.xosc.stem)
-        classified, site = load_site(args.plan or own_plan(r) or "research", args.site)
-        case, notes = to_case(r, classified, site, name, args.margin, args.target)
-        check_runs(case, r)
-    except GarageError as exc:
-        print(f"garage_exp.scenario.import: {exc}", file=sys.stderr)
-        return 2
-    out = args.output or Path("case") / f"{name}.yaml"
-    lines = [*r.left_out, *notes]
-    head = [f"# Imported from {args.xosc} by python -m garage_exp.scenario.import"
-            + (f" ({', '.join(f'{k}={v}' for k, v in params.items())})" if params else ""),
-            *(f"# {line}" for line in lines)]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(head) + "\n" + yaml.safe_dump(case, sort_keys=False))
-    for line in lines:
-        print(line)
-    print(f"garage_exp.scenario.import: wrote {out} ({len(case['actors'])} actors; {len(r.left_out)} element(s) "
-          "left out)")
-    return 0
+    return COMMAND.run_args(ap, run, argv)
 
 
 def cli() -> None:

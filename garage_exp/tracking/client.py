@@ -63,6 +63,18 @@ def client(uri: str | None = None):
     return _CLIENTS[uri]
 
 
+def existing_client(uri: str | None = None):
+    """client() of a store that must hold runs already (a report, the UI's links): a sqlite store that does not
+    exist is bad input (GarageError naming it), not created empty."""
+    from garage_exp.core.errors import GarageError
+    from garage_exp.tracking.store import sqlite_path
+
+    path = sqlite_path(tracking_uri(uri))
+    if path is not None and not path.is_file():
+        raise GarageError("no MLflow store here (a run or a sweep makes one)", str(path))
+    return client(uri)
+
+
 class TrackingAway(Exception):
     """The tracking server stayed away longer than the wait allowed (or a signal came while it was away)."""
 

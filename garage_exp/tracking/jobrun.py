@@ -3,8 +3,10 @@ in a file while the tracking server is away (replayed by `resume=true`)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +32,7 @@ class JobRun:
     def __init__(self, mlc, run_id: str, experiment_id: str | None = None, pending: Path | None = None):
         self.mlc, self.run_id, self.experiment_id, self.pending = mlc, run_id, experiment_id, pending
         self.kept = 0  # calls kept in the pending file
+        self.ended = False  # end() was called (a job that met a full disk ends its run itself)
 
     def _call(self, op: str, *args) -> None:
         try:
@@ -90,6 +93,7 @@ class JobRun:
 
     def end(self, status: str = "FINISHED") -> None:
         self._call("end", status)
+        self.ended = True
 
     def _end(self, status) -> None:
         retry(lambda: self.mlc.set_terminated(self.run_id, status))
@@ -107,6 +111,27 @@ def forget_artifact_repo(run_id: str) -> None:
     cache = getattr(utils, "_artifact_repos_cache", None)
     if isinstance(cache, dict):
         cache.pop(run_id, None)
+
+
+@contextlib.contextmanager
+def tracked_run(run: JobRun, *, traceback_file: bool = False):
+    """The body of a command's run, and how the run ends: FINISHED when the body ends; on an exception, its
+    error as the `error` tag (and the traceback as error.txt with `traceback_file`), then KILLED for Ctrl-C or
+    SIGTERM (KeyboardInterrupt: the command's shell raises it for both) or FAILED for anything else, and the
+    exception goes on. A run the body already ended (a full disk closes it its own way) is left as it is."""
+    try:
+        yield run
+    except BaseException as exc:
+        if not run.ended:
+            try:
+                run.set_tag("error", f"{type(exc).__name__}: {exc}".strip())
+                if traceback_file:
+                    run.log_text(traceback.format_exc(), "error.txt")
+            finally:
+                run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
+        raise
+    if not run.ended:
+        run.end("FINISHED")
 
 
 def start_job_run(cfg: DictConfig, run_name: str, tags: dict[str, str], parent_run_id: str | None) -> JobRun:

@@ -89,22 +89,22 @@ def diagnose(path: Path, exc: BaseException) -> str | None:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m garage_exp.tracking.store PATH`: create the sqlite store at PATH (under its lock) or check that MLflow
-    can open it; `make ui` runs it first, so a broken store is one line instead of the UI's traceback."""
-    import sys
+    can open it; `make ui` runs it first, so a broken store is one line (exit 2, the one shell's:
+    garage_exp.core.shell) instead of the UI's traceback."""
+    import argparse
 
-    import mlflow
+    from garage_exp.core import shell
 
-    args = sys.argv[1:] if argv is None else argv
-    if len(args) != 1:
-        print("usage: python -m garage_exp.tracking.store PATH_TO_SQLITE_STORE", file=sys.stderr)
-        return 2
-    uri = f"sqlite:///{Path(args[0]).absolute()}"
-    try:
+    def run(args) -> int:
+        import mlflow
+
+        uri = f"sqlite:///{args.path.absolute()}"
         open_store(uri, lambda: mlflow.MlflowClient(uri))
-    except GarageError as exc:
-        print(f"garage_exp: {exc}", file=sys.stderr)
-        return 2
-    return 0
+        return 0
+
+    ap = argparse.ArgumentParser(prog="python -m garage_exp.tracking.store", description=main.__doc__.splitlines()[0])
+    ap.add_argument("path", type=Path, metavar="PATH_TO_SQLITE_STORE")
+    return shell.Command("garage_exp.tracking.store").run_args(ap, run, argv)
 
 
 if __name__ == "__main__":

@@ -74,9 +74,23 @@ def links(uri: str | None = None) -> str:
     return "\n".join(lines)
 
 
-if __name__ == "__main__":
+def main(argv: list[str] | None = None) -> int:
+    """`python -m garage_exp.tracking.ui [--uri URI]`, in the one shell (garage_exp.core.shell): a store that is
+    not MLflow's is one line and exit 2, Ctrl-C 130, SIGTERM 143."""
     import argparse
+
+    from garage_exp.core import shell
+
+    def run(args) -> int:
+        print(links(args.uri))  # a store that is not there yet is made, as `make ui` makes it
+        return 0
 
     ap = argparse.ArgumentParser(prog="python -m garage_exp.tracking.ui", description=links.__doc__)
     ap.add_argument("--uri", default=None, help="the MLflow store (default: $MLFLOW_TRACKING_URI or outputs/mlflow.db)")
-    print(links(ap.parse_args().uri))
+    return shell.Command("garage_exp.tracking.ui").run_args(ap, run, argv)
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

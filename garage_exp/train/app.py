@@ -91,34 +91,30 @@ def train(cfg: DictConfig) -> dict:
         base = calibrated_base(cfg, plan, base, out)
     tags = {"base": str(cfg.base), "study": str(cfg.study or ""), "output_dir": str(out), "kind": "train"}
     run = tracking.start_job_run(cfg, run_name(cfg, plan), tags, None)
-    for name in ("manifest.csv", "data.yaml", "train.txt", "val.txt"):
-        run.log_artifact(out / "data" / name, "data")
-    run.log_metrics({"train_frames": len(plan.train), "replay_frames": len(plan.replay), "val_frames": len(plan.val),
-                     "train_scenarios": len(plan.scenarios("train")), "val_scenarios": len(plan.scenarios("val"))})
-    try:
+    # ends FINISHED, or KILLED/FAILED with the error (also when logging or registering fails)
+    with tracking.tracked_run(run):
+        for name in ("manifest.csv", "data.yaml", "train.txt", "val.txt"):
+            run.log_artifact(out / "data" / name, "data")
+        run.log_metrics({"train_frames": len(plan.train), "replay_frames": len(plan.replay),
+                         "val_frames": len(plan.val), "train_scenarios": len(plan.scenarios("train")), "val_scenarios": len(plan.scenarios("val"))})
         result = fit(cfg, plan, base, data_yaml, out, run)
-    except BaseException as exc:
-        run.set_tag("error", f"{type(exc).__name__}: {exc}"[:2000])
-        run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
-        raise
-    weights_dir = out / "weights"
-    weights_dir.mkdir(exist_ok=True)
-    weights = weights_dir / "best.pt"
-    shutil.copyfile(result["weights"], weights)
-    run.log_artifact(weights, "weights")
-    results_csv = out / "ultralytics" / "results.csv"
-    if results_csv.is_file():
-        run.log_artifact(results_csv)
-    run.log_metrics({"train_images_per_s": result["images_per_s"], "train_wall_s": result["wall_s"],
-                     **{f"final/{k}": v for k, v in result["metrics"].items()}})
-    run.set_tag("device", result["device"])
-    mlc = run.mlc
-    version = None
-    if cfg.register:
-        artifact_uri = mlc.get_run(run.run_id).info.artifact_uri
-        version = register(run.run_id, artifact_uri, cfg, base, plan, mlc)
-        run.set_tag("registered_model", f"models:/{cfg.registered_name}/{version}")
-    run.end("FINISHED")
+        weights_dir = out / "weights"
+        weights_dir.mkdir(exist_ok=True)
+        weights = weights_dir / "best.pt"
+        shutil.copyfile(result["weights"], weights)
+        run.log_artifact(weights, "weights")
+        results_csv = out / "ultralytics" / "results.csv"
+        if results_csv.is_file():
+            run.log_artifact(results_csv)
+        run.log_metrics({"train_images_per_s": result["images_per_s"], "train_wall_s": result["wall_s"],
+                         **{f"final/{k}": v for k, v in result["metrics"].items()}})
+        run.set_tag("device", result["device"])
+        mlc = run.mlc
+        version = None
+        if cfg.register:
+            artifact_uri = mlc.get_run(run.run_id).info.artifact_uri
+            version = register(run.run_id, artifact_uri, cfg, base, plan, mlc)
+            run.set_tag("registered_model", f"models:/{cfg.registered_name}/{version}")
     summary = {"run_id": run.run_id, "weights": str(weights), "version": version,
                "model": f"models:/{cfg.registered_name}/{version}" if version else str(weights),
                "metrics": result["metrics"], "images_per_s": result["images_per_s"], "wall_s": result["wall_s"],

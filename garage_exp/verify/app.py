@@ -77,7 +77,7 @@ def verify(cfg: DictConfig) -> dict:
     name = str(cfg.name) or f"{what} on {Path(str(data.source)).parent.name}/{Path(str(data.source)).name}"
     run = tracking.start_job_run(cfg, name, {"kind": "verify", "data": str(data.source), "output_dir": str(out),
                                              "rendered": str(data.rendered).lower()}, None)
-    try:
+    with tracking.tracked_run(run):  # ends FINISHED, or KILLED/FAILED with the error
         groups = detector.scoring()  # the listed classes plus detector.class_map's
         scored = score(lambda rgb: detector.detect([rgb])[0], list(detector.names), data, groups["classes"],
                        groups["person_classes"], float(d.iou), float(d.threshold))
@@ -89,11 +89,6 @@ def verify(cfg: DictConfig) -> dict:
         scored.images.to_csv(report / "images.csv", index=False)
         run.log_metrics({k: v for k, v in metrics.items() if v == v})  # NaN (an empty band) is left out
         tracking.log_report(run.mlc, run.run_id, report)
-    except BaseException as exc:
-        run.set_tag("error", f"{type(exc).__name__}: {exc}"[:2000])
-        run.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
-        raise
-    run.end("FINISHED")
     summary_ = {"run_id": run.run_id, "report": str(report / "report.md"), "rendered": data.rendered,
                 "metrics": metrics}
     (out / "result.json").write_text(json.dumps(summary_, indent=1))
