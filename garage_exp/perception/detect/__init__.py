@@ -8,9 +8,9 @@ from garage_exp.core.offline import prepare_offline
 from garage_exp.perception.detect.base import Detections, Entry, EntrySettings, Intrinsics
 from garage_exp.perception.detect.detector import Detector, build_detector, make_detector
 from garage_exp.perception.detect.entries import EntryKind, register, resolve
-from garage_exp.perception.detect.matching import (MATCH_MODES, PERSON_CLASSES, VEHICLE_CLASSES, GTBox, TargetScore,
-                                                   iou, iou_many, score_target)
+from garage_exp.perception.detect.matching import (MATCH_MODES, PERSON_CLASSES, VEHICLE_CLASSES, GTBox, Scoring,
+                                                   TargetScore, iou, iou_many, score_target)
 
 __all__ = ["Detections", "Entry", "EntrySettings", "Intrinsics", "Detector", "build_detector",
            "make_detector", "EntryKind", "register", "resolve", "MATCH_MODES", "VEHICLE_CLASSES", "PERSON_CLASSES",
-           "GTBox", "TargetScore", "iou", "iou_many", "score_target", "prepare_offline"]
+           "GTBox", "Scoring", "TargetScore", "iou", "iou_many", "score_target", "prepare_offline"]
