@@ -28,3 +28,14 @@ def as_object(node: Any) -> Any:
     if not isinstance(node, DictConfig):
         return node
     return OmegaConf.to_object(node) if OmegaConf.get_type(node) is not dict else OmegaConf.to_container(node)
+
+
+def structured(schema: type, *nodes: Any):
+    """A config node of `schema` (a dataclass) with `nodes` (nodes, dicts, or YAML files as paths) merged over its
+    defaults: how a command outside Hydra (the scenario importer) makes the node a job would have."""
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+
+    return OmegaConf.merge(OmegaConf.structured(schema),
+                           *(OmegaConf.load(n) if isinstance(n, Path) else n for n in nodes))
