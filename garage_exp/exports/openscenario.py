@@ -779,13 +779,13 @@ def check_export(cfg) -> None:
                           "ScenarioRunner)", "export.openscenario_version")
 
 
-def check_version(cfg, setup) -> None:
+def check_version(version: str, setup) -> None:
     """Refuse, at the job's preflight, a scenario the export's version cannot say (check_tracks): the ego's
     first and last frame of each variant tell whether it reverses."""
     ego = next(e for e in setup.vehicles if e.name == "ego")
     for label in dict.fromkeys(s.label for s in setup.shots if s.replicate == 0):
         shots = [s for s in setup.shots if s.label == label and s.replicate == 0]
-        check_tracks(str(cfg.export.openscenario_version), label, [Track("ego", ego, shots[0].ego, shots[-1].ego, 1.0)])
+        check_tracks(version, label, [Track("ego", ego, shots[0].ego, shots[-1].ego, 1.0)])
 
 
 def check_tracks(version: str, label: str, moving: list[Track]) -> None:

@@ -66,7 +66,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> JobSummary:
     table_path = out / "frames.csv"
     fisheye = any(cam.fisheye for cam in scene.cameras)
     slots = SlotFrames.open(cfg, prepared, out) if slot_frames_wanted(cfg) else None
-    pipeline = FramePipeline(cfg, scene, renderer, sensor, sensor_rng, detector, classes)
+    pipeline = FramePipeline(cfg, scene, renderer, sensor, sensor_rng, detector, classes, spec.scoring)
     frames = pipeline.frames(setup.shots, progress=f"case {spec.names.case}")
     try:
         for item, dets in pipeline.detected(frames):

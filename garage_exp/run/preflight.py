@@ -178,7 +178,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     if cfg.export.openscenario:
         from garage_exp.exports.openscenario import check_version
 
-        check_version(cfg, setup)
+        check_version(str(cfg.export.openscenario_version), setup)
     if not cfg.dry_run:
         prepared.scene, prepared.setup, prepared.detector = scene, setup, detector
     from garage_exp.run.spec import job_spec

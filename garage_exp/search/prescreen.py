@@ -105,7 +105,7 @@ def frames_table(cfg: DictConfig, detector, scale: float, prepared=None) -> tupl
     renderer.load(prepared.scene)
     sensor = build(spec.sensor, "a sensor model", "sensor._target_")
     pipeline = FramePipeline(cheap, prepared.scene, renderer, sensor, np.random.default_rng(spec.seed + 1),
-                             detector, detector.scoring() if detector is not None else {})
+                             detector, detector.scoring() if detector is not None else {}, spec.scoring)
     scored = spec.primary
     rows = []
     for item in pipeline.frames(prepared.setup.shots):
