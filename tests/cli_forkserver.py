@@ -52,6 +52,9 @@ def call_cli(entry=None) -> int:
 def child(request: dict) -> int:
     os.chdir(request["cwd"])
     os.environ.update(request.get("env") or {})
+    # as a fresh interpreter starts: the request's PYTHONPATH first on sys.path (a $GARAGE_EXP_PLUGINS module lies there)
+    path = (request.get("env") or {}).get("PYTHONPATH", "")
+    sys.path[:0] = [p for p in path.split(os.pathsep) if p and p not in sys.path]
     out = os.open(request["stdout"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     err = os.open(request["stderr"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(out, 1)

@@ -78,6 +78,27 @@ def test_cells_bin_categories_by_value_and_numbers_by_edges():
     assert grid.name((2, 1)) == "child | 6-10"
 
 
+def test_the_occluder_is_read_at_the_first_fair_frame_and_unlisted_kinds_join_the_merged_cell(tmp_path):
+    table = pd.DataFrame([row(shot=0, visible_fraction=0.2, occluder="pillar"),  # hidden: not fair
+                          row(shot=1, visible_fraction=0.7, occluder="vehicle"),  # first fair
+                          row(shot=2, visible_fraction=1.0, occluder="none")])
+    search = OmegaConf.merge(OmegaConf.structured(SearchConf), {"descriptors": [
+        {"source": "occluder", "values": ["pillar", "vehicle", "none"],
+         "merge": {"structure": "pillar", "person": "vehicle"}}]})
+    assert archive.measure(table, tmp_path, None, search) == {"occluder": "vehicle"}
+    assert archive.measure(table.drop(columns="occluder"), tmp_path, None, search) == {"occluder": ""}  # old table
+    grid = archive.Grid(search.descriptors)
+    assert [grid.index({"occluder": v}) for v in ("pillar", "vehicle", "none", "structure", "person", "")] == \
+        [(0,), (1,), (2,), (0,), (1,), None]  # merged into their cells; a value neither listed nor merged: none
+    assert archive.Grid([{"source": "occluder", "values": ["pillar", "none"]}]).index({"occluder": "person"}) is None
+    # the shipped cells: kind x occluder x distance x visible, 81, every category of what hides it placed
+    shipped = archive.Grid(OmegaConf.structured(SearchConf).descriptors)
+    assert [d.source for d in shipped.descriptors] == ["kind", "occluder", "distance", "visible"]
+    assert shipped.dims == [3, 3, 3, 3]
+    assert shipped.index({"kind": "car", "occluder": "structure", "distance": 20.0, "visible": 0.55}) == (0, 0, 2, 0)
+    archive.check_descriptors(OmegaConf.structured(SearchConf).descriptors)
+
+
 def trial(number: int, difficulty: float, descriptors: dict | None, params: dict | None = None, x=None):
     params = params if params is not None else {"a": 0.5}
     return create_trial(state=TrialState.COMPLETE, values=[difficulty], params=params,

@@ -19,7 +19,7 @@ from garage_exp.tracking import runs as tracking
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
 FRAME_COLUMNS = {"shot", "label", "position", "camera", "ego_x", "ego_y", "ego_yaw", "target", "distance",
-                 "visible_fraction", "visible_pixels", "box_height", "truncation", "kitti", "composite",
+                 "visible_fraction", "visible_pixels", "box_height", "truncation", "kitti", "occluder", "composite",
                  "detected", "false_positives"}
 
 
@@ -102,6 +102,9 @@ def test_pillar_at_the_corner_hides_the_target_in_case_1(pipeline):
     for (_, a, _, _), (_, b, _, _) in zip(with_pillar, without):
         assert a.visible_fraction < b.visible_fraction - 0.05
     assert any(a.visible_fraction < 0.9 for _, a, _, _ in with_pillar)
+    # what hides it, from the id picture (issue 39's occluder descriptor): the pillar; without it, not a pillar
+    assert any(a.occluder == "pillar" for _, a, _, _ in with_pillar), [a.occluder for _, a, _, _ in with_pillar]
+    assert not any(b.occluder == "pillar" for _, b, _, _ in without), [b.occluder for _, b, _, _ in without]
     hidden = np.mean([score.composite for _, _, score, _ in with_pillar])
     restored = np.mean([score.composite for _, _, score, _ in without])
     assert restored > hidden + 0.05, (hidden, restored)

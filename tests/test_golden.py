@@ -63,7 +63,12 @@ def golden_name(job: Path) -> str:
             + ("_blank" if cfg["blank"] else ""))
 
 
+# Columns the frame table gained after the tables were pinned (issue 39: what hides the target), not compared.
+ADDED = ("occluder",)
+
+
 def compare(table: pd.DataFrame, golden: pd.DataFrame, name: str) -> None:
+    table = table.drop(columns=[c for c in ADDED if c not in golden.columns and c in table.columns])
     assert list(table.columns) == list(golden.columns), name
     assert len(table) == len(golden), name
     for col in golden.columns:

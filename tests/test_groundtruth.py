@@ -220,3 +220,60 @@ def test_truncation_at_the_top_border_depends_on_the_camera_height():
     assert projected_truncation(frame, world_corners(car(), Pose(d, 0.0, 0.0, 90.0))) == 0.0  # all in view
     wholly_above = world_corners(car(), Pose(d, 0.0, centre_z + 3.0, 90.0))
     assert projected_truncation(frame, wholly_above) == 1.0  # clipped to 1, not above
+
+
+# --- what hides the target (`occluder`): the category covering most of its hidden pixels, from the id picture ---
+
+PILLAR, PARKED, WALKER, WALL, SHADOW, TARGET = 3, 9, 11, 4, 6, 7
+
+
+def occluder_of(paint: dict[int, float], pose: Pose = Pose(10.0, 0.0, 0.0, 90.0)) -> VehicleTruth:
+    """The target at `pose` with, from its left edge on, `paint`'s ids painted over that share of its columns
+    each: a merged pillar body (Frame.pillars), a parked car and a person (their own ids, by their entities), a
+    wall (an id nothing names: structure), a contact shadow (a decal) or 0 (nothing drawn)."""
+    target = car("car", pose)
+    frame = make_frame(np.zeros((H, W), np.int32), {"car": pose})
+    frame.pillars, frame.see_through = frozenset({PILLAR}), frozenset({SHADOW})
+    silhouette = projected_mask(frame, target, pose)
+    frame.ids[silhouette] = TARGET
+    x1, _, x2, _ = mask_box(silhouette)
+    at = x1
+    for i, share in paint.items():
+        columns = int(round(share * (x2 - x1)))
+        frame.ids[:, at:at + columns] = i
+        at += columns
+    scene = Scene("s", [target, car("parked", Pose(5.0, 0.0, 0.0, 90.0), role="parked"),
+                        Entity("walker", "moving", Pose(4.0, 0.0, 0.0), extent=(0.3, 0.5, 1.7), static=False,
+                               kind="person")])
+    [truth] = ground_truth(frame, {"car": silhouette}, scene, {"car": TARGET, "parked": PARKED, "walker": WALKER})
+    return truth
+
+
+def test_the_occluder_is_what_covers_most_of_the_hidden_pixels():
+    assert occluder_of({PILLAR: 0.3, PARKED: 0.1}).occluder == "pillar"
+    assert occluder_of({PILLAR: 0.1, PARKED: 0.4}).occluder == "vehicle"
+    assert occluder_of({WALKER: 0.2, PILLAR: 0.1}).occluder == "person"
+    assert occluder_of({WALL: 0.3, PILLAR: 0.2}).occluder == "structure"  # an id nothing names: the building
+    assert occluder_of({}).occluder == "none"
+
+
+def test_nothing_hides_a_target_under_two_percent_hidden_or_cut_by_the_border_or_a_decal():
+    assert occluder_of({PILLAR: 0.01}).occluder == "none"  # under MIN_HIDDEN of its silhouette
+    assert occluder_of({PILLAR: 0.05}).occluder == "pillar"
+    assert occluder_of({SHADOW: 0.5, 0: 0.3}).occluder == "none"  # a decal and nothing drawn hide nothing
+    # half of it outside the image, nothing in the way: truncated, not hidden
+    fx = intrinsics_of(CameraSpec("c", Pose(), width=W, height=H))[0]
+    cut = occluder_of({}, Pose(12.0, -(W / 2) / fx * 12.0, 0.0, 90.0))
+    assert cut.truncation > 0.4 and cut.visible_fraction == 1.0 and cut.occluder == "none"
+
+
+def test_a_pillar_with_its_own_id_is_a_pillar_and_a_box_occluder_is_structure():
+    from garage_exp.perception.groundtruth import occluder_ids
+
+    frame = make_frame(np.zeros((H, W), np.int32), {})
+    frame.pillars = frozenset({40})
+    scene = Scene("s", [Entity("pillar_1_2", "structure", Pose()), Entity("wall_N_0", "structure", Pose()),
+                        car("ego", role="ego"), Entity("crate", "occluder", Pose(), extent=(1, 1, 1), kind="box"),
+                        Entity("kid", "target", Pose(), extent=(0.3, 0.4, 1.2), kind="person")])
+    got = occluder_ids(frame, scene, {"pillar_1_2": 5, "wall_N_0": 6, "ego": 7, "crate": 8, "kid": 9, "old": 10})
+    assert got == {"pillar": [5, 40], "vehicle": [7], "person": [9]}  # the wall, the crate, the unknown: structure

@@ -51,20 +51,23 @@ def test_batched_stats_and_records_equal_the_numpy_ones(seed):
     names, frames, silhouettes = random_frames(seed)
     ids = {m: i + 1 for i, m in enumerate(names)}
     see = sorted(frames[0].see_through)
+    # what hides each actor, counted per category: 1-2 vehicles, 3 a person, 6 a pillar, 0 nothing, others structure
+    occluders = {"pillar": [6], "vehicle": [1, 2], "person": [3]}
     batch = batch_mask_stats(torch.from_numpy(np.stack([f.ids for f in frames])),
                              torch.from_numpy(np.stack(silhouettes)),
-                             torch.tensor([[ids[m] for m in names]] * len(frames), dtype=torch.int32), see)
+                             torch.tensor([[ids[m] for m in names]] * len(frames), dtype=torch.int32), see, occluders)
     got = stats_of(batch, [names] * len(frames))
     # car0 has no extent: its truncation comes from the silhouette touching the border
     scene = Scene("s", [Entity(names[0], "target", Pose(), static=False)]
                   + [car(m, Pose(8.0, 0.0, 0.0, 90.0)) for m in names[1:]])
     for frame, sil, stats in zip(frames, silhouettes, got):
-        want = mask_stats(frame, dict(zip(names, sil)), ids)
+        want = mask_stats(frame, dict(zip(names, sil)), ids, occluders)
         assert stats == want
+        assert all(len(s.hidden_by) == 4 for s in want if s.full_box) and any(sum(s.hidden_by) for s in want)
         tensors = {m: torch.from_numpy(x) for m, x in zip(names, sil)}
         frame_t = make_frame(torch.from_numpy(frame.ids), frame.poses)
         frame_t.see_through = frame.see_through
-        assert mask_stats(frame_t, tensors, ids) == want  # one frame, torch
+        assert mask_stats(frame_t, tensors, ids, occluders) == want  # one frame, torch
         assert truth_records(frame, stats, scene) == truth_records(frame, want, scene)
     assert any(s.full_box is None for s in got[0])  # the empty silhouette is there, and gives no record
 

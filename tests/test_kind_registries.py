@@ -1,22 +1,34 @@
-"""Camera views, sensor kinds (and tone curves) and slot detector kinds are registries with the registration beside
-what it registers (scene/views.py `@register_view`, perception/sensor.py `@register_sensor_kind`, `@register_tone_curve`,
-perception/slots/detector.py `@register_slot_kind`): adding one is one module. Each test adds one from a temporary module
-and uses it where the shipped ones are used."""
+"""Every kind a config names by a word is a registry with the registration beside what it registers: camera views
+(scene/views.py `@register_view`), sensor kinds and tone curves (perception/sensor.py `@register_sensor_kind`,
+`@register_tone_curve`), slot detector kinds (perception/slots/detector.py `@register_slot_kind`), detector entry
+kinds (perception/detect/kinds.py `@register_entry_kind`), objectives (search/objectives.py `register_objective`)
+and camera models (scene/lenses.py `register_camera_model`): adding one is one module. Each test adds some from a
+temporary module and uses them where the shipped ones are used; one adds one of each through $GARAGE_EXP_PLUGINS,
+as a user would (docs/architecture.md, "Extension points")."""
 
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 import numpy as np
 import pytest
 import torch
 from conftest import compose_cfg, schema_node
+from omegaconf import OmegaConf
+from optuna.trial import TrialState
 
 from garage_exp.core.errors import GarageError
+from garage_exp.perception.detect.kinds import KINDS as ENTRY_KINDS
 from garage_exp.perception.sensor import KINDS, TONES, make_sensor
 from garage_exp.perception.slots.detector import KINDS as SLOT_KINDS
+from garage_exp.scene.lenses import MODELS
 from garage_exp.scene.views import VIEWS
+from garage_exp.search.objectives import OBJECTIVES
+
+REGISTRIES = (VIEWS, KINDS, TONES, SLOT_KINDS, ENTRY_KINDS, MODELS, OBJECTIVES)
+MODULES = ("user_view", "user_sensor", "user_slots", "user_plugin")
 
 VIEW_MODULE = '''
 from dataclasses import dataclass
@@ -67,7 +79,7 @@ class Nothing(SlotKind):
 @pytest.fixture
 def plugin(tmp_path, monkeypatch):
     """Import a module written to a temporary directory; its registrations are removed afterwards."""
-    before = {id(r): dict(r) for r in (VIEWS, KINDS, TONES, SLOT_KINDS)}
+    before = [registry.copy() for registry in REGISTRIES]
     monkeypatch.syspath_prepend(str(tmp_path))
 
     def load(name: str, text: str):
@@ -75,10 +87,10 @@ def plugin(tmp_path, monkeypatch):
         return importlib.import_module(name)
 
     yield load
-    for registry in (VIEWS, KINDS, TONES, SLOT_KINDS):
+    for registry, kept in zip(REGISTRIES, before):
         registry.clear()
-        registry.update(before[id(registry)])
-    for name in ("user_view", "user_sensor", "user_slots"):
+        (registry.extend if isinstance(registry, list) else registry.update)(kept)
+    for name in MODULES:
         sys.modules.pop(name, None)
 
 
@@ -124,3 +136,144 @@ def test_a_slot_detector_kind_from_a_module_of_its_own(plugin):
     plugin("user_slots", SLOT_MODULE)
     found = load(conf)(np.zeros((30, 40, 3), np.uint8), 0.05)
     assert found.slots == [] and found.size == (40, 30) and found.meters_per_pixel == 0.05
+
+
+PLUGIN_MODULE = '''
+"""One of each kind a config names by a word, each registered beside what it registers."""
+import numpy as np
+
+from garage_exp.perception.detect.base import Detections, Entry
+from garage_exp.perception.detect.kinds import register_entry_kind
+from garage_exp.perception.sensor import register_sensor_kind
+from garage_exp.perception.slots.detector import SlotKind, register_slot_kind
+from garage_exp.perception.slots.marks import MarkingPoint, SlotFrame
+from garage_exp.render.fisheye import Fisheye
+from garage_exp.scene.lenses import NO_K, CameraModel, register_camera_model
+from garage_exp.search.objectives import NOT_VISIBLE, Objective, register_objective
+
+
+@register_entry_kind("centre", prefix="centre:")
+class CentreBox(Entry):
+    """A car in the middle half of every frame at the confidence the entry names (centre:0.8)."""
+
+    kind = "centre"
+
+    def __init__(self, entry, settings):
+        super().__init__(entry, settings)
+        self.name, self.score = "centre", float(self.entry[len("centre:"):])
+
+    def check(self, intrinsics=None):
+        self.classes = ("car",)
+
+    def detect(self, frames, intrinsics):
+        return [Detections(np.array([[f.shape[1] / 4, f.shape[0] / 4, f.shape[1] * 3 / 4, f.shape[0] * 3 / 4]],
+                                    np.float32), np.array([self.score], np.float32), ["car"]) for f in frames]
+
+
+def judge_missed(result, attrs):
+    return None if attrs["recall"] is None else [1.0 - attrs["recall"]]
+
+
+register_objective(Objective("missed", ("missed",), ("maximize",), judge_missed,
+                             lambda values, attrs: f"missed {values[0]:.2f} ({attrs['frames_missed']:g} frames)",
+                             NOT_VISIBLE, attrs={"frames_missed": "frames missed"}))
+
+
+def equidistant(spec):
+    """A fisheye whose image radius grows evenly with the angle off its axis (Kannala-Brandt with k = 0)."""
+    return Fisheye(spec.width, spec.height, spec.fov, NO_K)
+
+
+register_camera_model(CameraModel("equidistant", check=lambda cam, rig, where: None,
+                                  spec=lambda cam, view: {"fov": float(cam.fov), "k": NO_K, "view": view},
+                                  lens="user_plugin.equidistant", pinhole_frames=False))
+
+
+@register_sensor_kind("green")
+def green(model, frames, rng):
+    """A mono sensor behind a green filter: the green channel in all three (numpy or torch alike)."""
+    return frames[..., [1, 1, 1]]
+
+
+@register_slot_kind("centre_point")
+class CentrePoint(SlotKind):
+    """One marking point at the image's centre."""
+
+    @staticmethod
+    def load(conf):
+        def detect(image, mpp):
+            h, w = image.shape[:2]
+            return SlotFrame([MarkingPoint(w / 2, h / 2, 0.0, "T", 1.0)], [], mpp, (w, h))
+        return detect
+'''
+
+
+def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor_kind_and_a_slot_detector(
+        plugin, tmp_path, monkeypatch):
+    """Each kind is one module plus its registration: a module named in $GARAGE_EXP_PLUGINS is imported by the
+    command (core.plugins.import_plugins), and each of its kinds is then used where the shipped ones are."""
+    from garage_exp.core.plugins import import_plugins
+    from garage_exp.perception.detect import make_detector
+    from garage_exp.perception.detect.worker import DetectorProcess
+    from garage_exp.perception.slots.detector import load
+    from garage_exp.perception.slots.schema import SlotDetectorConf
+    from garage_exp.render.fisheye import lens_of
+    from garage_exp.scene.camera import check_camera, rig_specs
+    from garage_exp.search import objectives
+    from garage_exp.search.loop import outcome
+
+    rig = OmegaConf.create({"name": "test", "roof": True, "view": "raw", "cameras": [
+        {"name": "front", "x": 0.0, "y": 0.0, "z": 0.3, "yaw": 0.0, "pitch": 0.0, "fovy": 60.0, "width": 64,
+         "height": 48, "model": "equidistant", "fov": 180.0, "k": [0.0, 0.0, 0.0, 0.0]}]})
+    with pytest.raises(GarageError, match="unknown camera model 'equidistant'"):
+        check_camera(rig)
+    with pytest.raises(GarageError, match="model not found"):
+        make_detector(models=["centre:0.8"])
+    (tmp_path / "user_plugin.py").write_text(PLUGIN_MODULE)
+    monkeypatch.setenv("GARAGE_EXP_PLUGINS", "user_plugin")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")])))
+    import_plugins()
+
+    # the entry kind, opened by the detector factory and run on a frame, here and in the job's detector process
+    detector = make_detector(models=["centre:0.8"])
+    (found,), = detector.detect([np.zeros((48, 64, 3), np.uint8)])
+    assert detector.names == ["centre"] and found.scores.tolist() == pytest.approx([0.8])
+    assert found.boxes.tolist() == [[16.0, 12.0, 48.0, 36.0]]
+    child = DetectorProcess(threads=1)
+    try:
+        child.load(detector)
+        child.submit(np.zeros((48, 64, 3), np.uint8))
+        (theirs,) = child.result()
+        assert child.names == ["centre"] and theirs.boxes.tolist() == found.boxes.tolist()
+    finally:
+        child.close()
+    # the objective judges a job's summary, records the attribute it declares and the study shows it
+    summary = {"visible_fraction_mean": 0.5, "fair_frames": 4, "frames": 10, "fair_recall": 0.75,
+               "frames_missed": 1.0}
+    done = outcome(summary, "missed")
+    assert done.state == TrialState.COMPLETE and done.values == [0.25] and done.attrs["frames_missed"] == 1.0
+    assert objectives.objective("missed").scored(done.values, done.attrs) == "missed 0.25 (1 frames)"
+    assert objectives.shown()["frames_missed"] == "frames missed"
+    # the lens: checked, specced, and its lens (named by a dotted name under the plugin) projects a ray
+    check_camera(rig)
+    (spec,) = rig_specs(rig, (4.77, 1.96, 1.5))
+    assert spec.model == "equidistant" and spec.fisheye
+    lens = lens_of(spec)
+    u, v = lens.project(np.array([[1.0, 0.0, 0.0], [np.sqrt(0.5), -np.sqrt(0.5), 0.0]]))
+    assert u.tolist() == pytest.approx([32.0, 48.0]) and v.tolist() == pytest.approx([24.0, 24.0])  # 45 deg: r/4
+    # the sensor kind processes an image
+    rgb = np.random.default_rng(0).integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    seen = make_sensor(name="mono", kind="green").apply(rgb, np.random.default_rng(1))
+    assert np.array_equal(seen, np.repeat(rgb[..., 1:2], 3, axis=-1))
+    # the slot detector detects on a tiny image
+    frame = load(schema_node(SlotDetectorConf, {"kind": "centre_point"}))(np.zeros((30, 40, 3), np.uint8), 0.05)
+    assert [(p.x, p.y) for p in frame.points] == [(20.0, 15.0)] and frame.size == (40, 30)
+
+
+def test_a_plugin_that_cannot_be_imported_is_one_line_naming_the_variable(monkeypatch):
+    from garage_exp.core.plugins import import_plugins
+
+    monkeypatch.setenv("GARAGE_EXP_PLUGINS", "no_such_plugin_module")
+    with pytest.raises(GarageError, match=r"\$GARAGE_EXP_PLUGINS: cannot import plugin 'no_such_plugin_module': no "
+                                          "module 'no_such_plugin_module' on the Python path"):
+        import_plugins()

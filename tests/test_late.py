@@ -120,6 +120,7 @@ def test_trajectories_and_the_job_summary_from_a_frame_table():
     assert list(per.label) == ["early", "late", "hidden"]
     assert list(per.testable) == [True, True, False] and list(per.late) == [False, True, False]
     s = late.summary(per, EGO)
+    assert tuple(s) == late.METRICS  # what the sweep report reads of a job's run
     assert s["late"] == 0.5 and s["late_testable"] == 2 and s["late_trajectories"] == 1
     assert s["detection_distance"] == pytest.approx((10.0 + 4.0) / 2)  # over the confirmed trajectories
     assert "1 of 2 testable" in late.line(s)

@@ -84,7 +84,7 @@ def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch
 
     monkeypatch.setattr(steps, "run", fake_run)
     monkeypatch.setattr(steps, "trials", lambda cfg, study: [])
-    monkeypatch.setattr(steps, "study_done", lambda cfg, study, n: False)  # interrupted: 4 of 4 never finished
+    monkeypatch.setattr(steps, "study_done", lambda cfg, study, n, frames=0: False)  # interrupted: 4 of 4 never finished
     cfg = compose_cfg(f"dir={tmp_path}", "tracking.uri=sqlite:///x.db", config="loop")
     study = ("base", ["research"], 4, "qmc", 0)
     loop = Loop(cfg)

@@ -114,7 +114,7 @@ def test_unequal_budgets_are_refused_in_one_line(tmp_path):
     r = run_in_process([f"dir={tmp_path}/loop", "epochs=2", "arms.Q.epochs=5", *NO_ARCHIVE], tmp_path, entry=cli)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "garage_exp.loop: arms.Q.epochs: unequal budgets: arm Q has epochs=5, arm R 2 (every arm gets the same "
-        "generator trials, training frames, epochs, image size and replay per round)"]
+        "generator frames and trials, training frames, epochs, image size and replay per round)"]
     assert not (tmp_path / "loop").exists()
 
 
@@ -175,8 +175,11 @@ def fake_steps(monkeypatch, tmp_path):
                 "imgsz": int(arg(cmd, "imgsz"))}))
         elif "hydra/sweeper=search" in cmd:
             name, n = arg(cmd, "search.study"), int(arg(cmd, "search.trials"))
+            budget = int(next((a.split("=")[1] for a in cmd if a.startswith("search.frames=")), 0))
             made = []
             for k in range(n):
+                if budget and 4 * k >= budget:  # the search's frame budget (4 frames a trial): spent
+                    break
                 d = tmp_path / "fake" / name / str(k)
                 (d / "dataset" / "images").mkdir(parents=True, exist_ok=True)
                 (d / "dataset" / "data.yaml").write_text("names: {0: person}\n")
@@ -187,12 +190,12 @@ def fake_steps(monkeypatch, tmp_path):
 
     monkeypatch.setattr(steps, "run", fake_run)
     monkeypatch.setattr(steps, "trials", lambda cfg, name: studies.get(name, []))
-    monkeypatch.setattr(steps, "study_done", lambda cfg, name, n: len(studies.get(name, [])) >= n)
+    monkeypatch.setattr(steps, "study_done", lambda cfg, name, n, frames=0: name in studies)
     monkeypatch.setattr(heldout, "enqueue", lambda *a: None)
     monkeypatch.setattr(evaluate, "easy_suite", lambda *a: [])
     monkeypatch.setattr(evaluate, "score_all", lambda *a: pd.DataFrame())
     monkeypatch.setattr(app, "real_photos", lambda *a: [])
-    monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times: {
+    monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times, **kw: {
         "book": book, "detectors": detectors})
     return ran
 
@@ -212,8 +215,8 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
     from garage_exp.loop.app import run_loop
 
     ran = fake_steps(monkeypatch, tmp_path)
-    args = [f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0,1]", "trials=4",
-            "train_frames=8", "base_trials=4", "heldout_trials=3", "photos=false",
+    args = [f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0,1]", "trials=6",
+            "frames=14", "train_frames=8", "base_trials=4", "heldout_trials=3", "photos=false",
             "arms.Q.sampler=tpe"]
     out = run_loop(small(args))
     searches = [c for c in ran if "hydra/sweeper=search" in c]
@@ -225,8 +228,10 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
     assert all(f"detector.models=[{d0}]" in c for c in searches[2:])  # round 1 searches D0
     assert all(f"base={d0}" in c and "bn_calibrate=64" in c and "warmup_bias_lr=0.0" in c for c in trainings)
     assert [c for c in searches[2:] if "search.seed=1000" in c] == searches[2:5]  # pairs by seed: one search seed
+    assert all("search.frames=14" in c and "search.trials=6" in c for c in searches[2:])  # a frame budget, capped
     book = pd.DataFrame(out["book"])
     assert book.train_frames.tolist() == [8] * 6
+    assert book.rendered_frames.tolist() == [16] * 6 and book.trials.tolist() == [4] * 6  # 4 trials: 16 >= 14
     assert book[book.arm == "R"].joined.tolist() == [4, 4] and book[book.arm == "T"].joined.tolist() == [2, 2]
 
     ran.clear()
@@ -245,11 +250,30 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
     assert book[book["round"] == 2].suite_scenarios.tolist() == [8, 4, 4, 8, 4, 4]  # the suites grew
 
 
+def test_each_generator_spends_its_frame_budget_or_the_loop_stops(tmp_path):
+    """After a round, every arm's generator rendered at least its frames and less than one trial more; one that hit
+    its cap of trials short of the budget stops the loop in one line (raise trials)."""
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop import budget
+    from garage_exp.loop.steps import Trial
+
+    def found(*frames):
+        return [Trial("s", k, "COMPLETE", 0.5, None, f) for k, f in enumerate(frames)]
+
+    budget.assert_equal_frames({"R": found(10, 26, 8), "Q": found(8, 8, 8, 8, 14)}, 44, "round 1, seed 0")
+    budget.assert_equal_frames({"R": found(8)}, 0, "no frame budget: trials are the budget")
+    with pytest.raises(GarageError, match="arm Q's generator rendered 16 frames in its 2 trials, short of its "
+                                          "budget of 44: raise trials"):
+        budget.assert_equal_frames({"R": found(26, 26), "Q": found(8, 8)}, 44, "round 1, seed 0")
+    with pytest.raises(AssertionError, match="did not stop at its budget"):
+        budget.assert_equal_frames({"T": found(26, 26, 26)}, 44, "round 1, seed 0")
+
+
 def test_the_cost_model_adds_up():
     from garage_exp.loop import cost
     from garage_exp.loop.schema import ArmConf
 
-    cfg = small(["rounds=1", "seeds=[0]", "base_trials=4", "heldout_trials=2", "trials=3", "train_frames=10",
+    cfg = small(["rounds=1", "seeds=[0]", "base_trials=4", "heldout_trials=2", "trials=3", "frames=0", "train_frames=10",
                  "epochs=2", "replay_fraction=1.0", "val_fraction=0.5", "photos=true", "cost.search_s=20",
                  "cost.render_s_per_frame=1", "cost.trial_overhead_s=2", "cost.command_s=10",
                  "cost.train_s_per_image_epoch=0.5", "cost.val_s_per_image=0.1", "cost.detect_s_per_frame=0.1",
@@ -260,6 +284,8 @@ def test_the_cost_model_adds_up():
     assert parts["held-out sample"] == 20 + 2 * 7
     assert parts["protocol suite"] == 10 + 2 * 7
     assert parts["generators"] == 20 + 3 * 7
+    cfg.frames = 10  # a frame budget, crossed on average by half a trial's 5 frames: 12.5 frames, 2.5 trials
+    assert cost.estimate(cfg)["generators"] == pytest.approx(20 + 12.5 * 1 + 2.5 * 2)
     assert parts["fine-tunings"] == pytest.approx(10 + 2 * 20 * 0.5 + 3 * 10 * 0.1)  # 10 val frames: half of 4 x 5
     assert parts["evaluation"] == pytest.approx(2 * (3 + 2 * 5 * 0.1) + 2 * 2 * 5 * 0.1)  # D0 and R's: both suites
     assert parts["real photos"] == 10 + 2 * 4  # one command, D0 and R's detector
@@ -348,3 +374,45 @@ def test_the_report_pairs_seeds_and_corrects_the_whole_family():
     assert family["diff"].iloc[0] == pytest.approx(100 * 8 / 3 / 16)  # R - T: 2, 3, 3 failures of 16
     assert family.p_holm.tolist() == pytest.approx(stats.holm(family.p.tolist())[1], nan_ok=True)
     assert family.p.iloc[3] != family.p.iloc[3]  # the photos' recall: the same for every seed and D0, no spread: no test
+
+
+def test_the_held_out_cells_say_which_failure_kinds_training_removed(tmp_path):
+    """Each held-out scenario's cell is measured from its own frame table (its first fair frame); per cell and
+    detector group, the share of its scenarios failed (seeds pooled); the cells an arm still fails are listed;
+    a heatmap per group is drawn."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.loop import cells
+    from garage_exp.loop.steps import Trial
+    from garage_exp.search.archive import Grid
+    from garage_exp.search.schema import DescriptorConf, SearchConf
+
+    search = OmegaConf.structured(SearchConf(descriptors=[DescriptorConf("kind", values=["car", "adult", "child"]),
+                                                          DescriptorConf("visible", edges=[0.0, 0.9, 1.0])]))
+    rows = {0: ("vehicle", "car", 0.6), 1: ("person", "child", 0.95), 2: ("person", "adult", 0.7),
+            3: ("vehicle", "car", 0.2)}  # scenario 3: never fairly visible (0.2 < min_visible)
+    held = []
+    for number, (kind, target, visible) in rows.items():
+        out = tmp_path / str(number)
+        out.mkdir()
+        pd.DataFrame({"shot": [0, 1], "camera": "front", "target_kind": kind, "target": target,
+                      "distance": [12.0, 10.0], "visible_fraction": [0.1, visible], "box_height": 60.0,
+                      "truncation": 0.0}).to_csv(out / "frames.csv", index=False)
+        held.append(Trial("heldout", number, "COMPLETE", None, out, 2))
+    held.append(Trial("heldout", 4, "FAIL", None, None, 0))
+    found = cells.cells_of(held, search)
+    assert found == {0: (0, 0), 1: (2, 1), 2: (1, 0)}  # the first FAIR frame's values (not shot 0's 0.1)
+    scores = pd.DataFrame([
+        {"arm": "D0", "round": 0, "seed": -1, "suite": "heldout", "failed": [0, 1, 2]},
+        {"arm": "Q", "round": 2, "seed": 0, "suite": "heldout", "failed": [0]},
+        {"arm": "Q", "round": 2, "seed": 1, "suite": "heldout", "failed": [0, 2]},
+        {"arm": "Q", "round": 2, "seed": 1, "suite": "easy", "failed": [1]}])  # another suite: not counted
+    grid = Grid(search.descriptors)
+    table = cells.cell_table(scores, found, grid)
+    q = table[table.arm == "Q"].set_index("cell")
+    assert q.loc["car | 0-0.9"].failed_share == 1.0 and q.loc["adult | 0-0.9"].failed_share == 0.5
+    assert q.loc["child | 0.9-1"].failures == 0 and q.loc["child | 0.9-1"].detectors == 2
+    assert cells.resisted(table, "Q", 2) == ["car | 0-0.9", "adult | 0-0.9"]
+    assert cells.resisted(table, "D0", 0) == ["car | 0-0.9", "adult | 0-0.9", "child | 0.9-1"]
+    paths = cells.draw(table, grid, tmp_path, 2)
+    assert [p.name for p in paths] == ["cells_D0.png", "cells_Q.png"] and all(p.stat().st_size > 0 for p in paths)

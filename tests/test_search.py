@@ -333,5 +333,28 @@ def test_a_study_is_continued_only_under_the_objective_it_was_made_for(tmp_path)
     late = compose_cfg("search.objective=late", storage).search
     study = study_mod.open_study(late, "mine", 0)
     assert study.user_attrs["direction_names"] == ["lateness"] and study.metric_names == ["lateness"]
+    # the objectives' own trial attributes, as they declare them, for the report (report/trials.attr_headings)
+    assert study.user_attrs["attr_headings"] == {"late": "late", "detection_distance": "detection distance (m)",
+                                                 "ttc_at_detection": "TTC at detection (s)"}
     with pytest.raises(GarageError, match=r"made for another objective \(lateness, not difficulty\)"):
         study_mod.open_study(compose_cfg(storage).search, "mine", 0)
+
+
+def test_a_frame_budget_stops_the_study_once_its_trials_rendered_that_many(tmp_path):
+    """search.frames: trials are asked until their jobs' frames reach the budget (the one that crosses it ends),
+    `trials` staying the cap; a resumed study spent already counts."""
+    from garage_exp.search.loop import rendered_frames
+
+    def launch(batch, idx):  # each job renders 3 frames
+        return [Ret({**fake_job(list(job)), "frames": 3.0}) for job in batch]
+
+    study = run_loop(tmp_path, 20, launch=launch, frames=7)
+    assert len(study.trials) == 3 and rendered_frames(study) == 9  # 3 + 3 < 7 <= 3 + 3 + 3
+    again = run_loop(tmp_path, 20, launch=launch, frames=7)
+    assert len(again.trials) == 3  # spent: nothing more
+    assert len(run_loop(tmp_path, 4, launch=launch, frames=100).trials) == 4  # the cap
+
+
+def test_a_negative_frame_budget_is_refused(tmp_path):
+    with pytest.raises(GarageError, match="search.frames"):
+        study_mod.check_search(search_node(tmp_path, frames=-1).search)

@@ -14,6 +14,7 @@ from garage_exp.core.errors import GarageError
 from garage_exp.report import search_analysis as analysis, sensitivity
 from garage_exp.report.trials import distributions, rerun_overrides, trial_table
 from garage_exp.report.why_hard import why_hard
+from garage_exp.search import objectives
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 
@@ -251,6 +252,7 @@ def test_the_trial_table_names_its_column_by_the_objective_and_the_rerun_keeps_t
     study = optuna.create_study(directions=["maximize"], study_name="late")
     study.set_user_attr("direction_names", ["lateness"])
     study.set_user_attr("untestable", "never fairly visible before the critical distance")
+    study.set_user_attr("attr_headings", objectives.shown())  # as search.study.open_study stores them
     study.add_trial(create_trial(params={"light.intensity": 0.2}, distributions={"light.intensity": SPACE["light.intensity"]},
                                  state=TrialState.PRUNED, user_attrs={"overrides": ["case=stepout"], "infeasible": True}))
     for k, value in enumerate([0.2, 0.7, 0.4]):
@@ -265,10 +267,14 @@ def test_the_trial_table_names_its_column_by_the_objective_and_the_rerun_keeps_t
     assert "lateness" in trials and "difficulty" not in trials and trials.lateness.tolist()[1:] == [0.2, 0.7, 0.4]
     assert trials.why[0] == "infeasible: never fairly visible before the critical distance"
     assert hard.lateness.tolist() == [0.7, 0.4] and "difficulty" not in hard
+    # the late objective's own attributes, as it declares them: those the trials hold, not the empty TTC
+    assert hard.detection_distance.tolist() == [7.0, 7.0] and "ttc_at_detection" not in hard
+    assert trials.ttc_at_detection.isna().all()
     assert rerun_overrides(study.trials[2]) == ["case=stepout", "search.min_visible=0.3",
                                                          "light.intensity=0.5"]
     report = (tmp_path / "search_report.md").read_text()
     assert "### 1. trial 2: lateness 0.70" in report
+    assert "| late | detection distance (m) |" in report
     assert "1 pruned as infeasible (never fairly visible before the critical distance)" in report
     assert "python -m garage_exp case=stepout search.min_visible=0.3 light.intensity=0.5\n" in report
 

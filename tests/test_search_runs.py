@@ -164,6 +164,9 @@ def test_a_late_search_names_lateness_in_its_lines_table_and_parent_run(late_sea
     assert not any("difficulty" in ln for ln in lines)
     trials = pd.read_csv(tmp / "sweep" / "search" / "trials.csv")
     assert "lateness" in trials and "difficulty" not in trials
+    # the late objective's own attributes, as it declares them, stored by the study and read back by the report
+    assert {"late", "detection_distance", "ttc_at_detection"} <= set(trials)
+    assert trials.loc[trials.state == "COMPLETE", "late"].notna().all()
     mlc = tracking.client(f"sqlite:///{tmp / 'mlflow.db'}")
     exp = mlc.get_experiment_by_name("garage_exp")
     parent = next(run for run in mlc.search_runs([exp.experiment_id]) if run.data.tags.get("sweep") == "parent")

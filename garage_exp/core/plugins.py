@@ -5,6 +5,11 @@ a scenario's own site function); `build` makes it with `hydra.utils.instantiate`
 component's settings and the caller's arguments (the scene, the plan) beside them. Configs are data: they may
 only name code under `garage_exp.` or under the module prefixes listed, comma-separated, in
 $GARAGE_EXP_MODIFIER_MODULES; they cannot import arbitrary code.
+
+Kinds that a config names by a plain word (a detector entry kind, an objective, a camera model or view, a sensor
+kind, a slot detector kind) are registries filled by `@register_*` beside what they register. A module of the
+user's that registers some is named in $GARAGE_EXP_PLUGINS (comma-separated module names): every command imports
+them before its job starts (`import_plugins`), and code under them may be named by configs too.
 """
 
 from __future__ import annotations
@@ -21,7 +26,23 @@ PROJECT_MODULES = ("garage_exp.",)
 
 def allowed_modules() -> tuple[str, ...]:
     return PROJECT_MODULES + tuple(p.strip() for p in os.environ.get("GARAGE_EXP_MODIFIER_MODULES", "").split(",")
-                                   if p.strip())
+                                   if p.strip()) + tuple(f"{m}." for m in plugin_modules())
+
+
+def plugin_modules() -> tuple[str, ...]:
+    """The modules named in $GARAGE_EXP_PLUGINS."""
+    return tuple(m.strip() for m in os.environ.get("GARAGE_EXP_PLUGINS", "").split(",") if m.strip())
+
+
+def import_plugins() -> None:
+    """Import the modules $GARAGE_EXP_PLUGINS names, so that their registrations take effect (each once: Python
+    keeps an imported module); one GarageError naming the variable when one cannot be imported."""
+    for module in plugin_modules():
+        try:
+            importlib.import_module(module)
+        except Exception as exc:  # noqa: BLE001 - the user's module: which import failed and why, in one line
+            raise GarageError(f"cannot import plugin {module!r}: {import_failure(module, exc)}",
+                              "$GARAGE_EXP_PLUGINS") from None
 
 
 def check_target(target: str, what: str, where: str) -> None:

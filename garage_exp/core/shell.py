@@ -28,6 +28,7 @@ from garage_exp.core.exits import (EXIT_FAILED_JOBS, EXIT_INPUT, SweepStopped, T
                                    on_sigint, on_sigterm)
 from garage_exp.core.overrides import quote_numeric_choices
 from garage_exp.core.paths import OUTPUTS_DIR, PROJECT_ROOT
+from garage_exp.core.plugins import import_plugins
 
 log = logging.getLogger("garage_exp")
 CONF_DIR = PROJECT_ROOT / "conf"
@@ -117,6 +118,7 @@ class Command:
             hc = HydraConfig.get()
             sweeping = self.failed_job is not None and hc.mode == RunMode.MULTIRUN
             try:
+                import_plugins()  # the user's registrations ($GARAGE_EXP_PLUGINS) before the config is checked
                 return task(cfg)
             except GarageError as exc:
                 remove_untouched(Path(hc.runtime.output_dir))

@@ -94,8 +94,10 @@ class StepOutEnv(gymnasium.Env):
         self._check_reach()
         self.critical = reward.critical(job.ego)
         self.objective = str(self.cfg.gym.objective)
-        if self.objective not in reward.OBJECTIVES:
-            raise GarageError(f"unknown objective {self.objective!r} ({' | '.join(reward.OBJECTIVES)})",
+        # The episode's verdict each objective rewards, by the gym's name (search/objectives.py: seen too late to
+        # stop, or hard over its fair frames), read from the registry when the env is made.
+        if self.objective not in gym_objectives():
+            raise GarageError(f"unknown objective {self.objective!r} ({' | '.join(gym_objectives())})",
                               "gym.objective")
         self.shaping = float(self.cfg.gym.shaping)
         self.stop_when_decided = bool(self.cfg.gym.stop_when_decided)
@@ -180,7 +182,7 @@ class StepOutEnv(gymnasium.Env):
         info = {"frame": row}
         if terminated:
             verdict = self.verdict()
-            r += 1.0 if verdict[reward.OBJECTIVES[self.objective]] else 0.0
+            r += 1.0 if verdict[goal.verdict] else 0.0
             verdict["return"] = self.ret + r
             info["episode_verdict"] = verdict
         self.ret += r

@@ -12,12 +12,8 @@ import pandas as pd
 from garage_exp.core.errors import GarageError
 from garage_exp.results import late
 from garage_exp.results.table import fair_mask
-from garage_exp.search.objectives import gym_objectives
 
 HARD = 0.6  # a hard-and-fair episode: difficulty (1 - mean confidence over its fair frames) at least this
-# The episode's verdict each objective rewards, by the gym's name: seen too late to stop (late), or hard over its
-# fair frames (hard: the search's difficulty, the benchmark's other failure); search/objectives.py holds them.
-OBJECTIVES = {name: goal.verdict for name, goal in gym_objectives().items()}
 
 
 def check_ego(ego) -> None:

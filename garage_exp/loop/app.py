@@ -36,8 +36,8 @@ def check_budgets(cfg: DictConfig) -> None:
         for key in schema.BUDGET_KEYS:
             if mine[key] != first[key]:
                 raise GarageError(f"unequal budgets: arm {arm} has {key}={mine[key]}, arm {arms[0]} {first[key]} "
-                                  "(every arm gets the same generator trials, training frames, epochs, image size "
-                                  "and replay per round)", f"arms.{arm}.{key}")
+                                  "(every arm gets the same generator frames and trials, training frames, "
+                                  "epochs, image size and replay per round)", f"arms.{arm}.{key}")
 
 
 def check_loop(cfg: DictConfig) -> None:
@@ -47,6 +47,7 @@ def check_loop(cfg: DictConfig) -> None:
     for key in ("base_trials", "trials", "train_frames", "heldout_trials", "epochs", "base_epochs", "batch",
                 "rounds"):
         check_range(cfg[key], 1, 100_000, key)
+    check_range(cfg.frames, 0, 10_000_000, "frames")
     check_range(cfg.bn_calibrate, 0, 100_000, "bn_calibrate")
     check_range(cfg.replay_fraction, 0, 10, "replay_fraction")
     check_range(cfg.hard_below, 0, 1, "hard_below")
@@ -132,10 +133,13 @@ class Loop:
         print(f"garage_exp.loop: {self.name} ...", flush=True)  # said once its inputs passed the check
         steps.run(cmd, self.log)
 
-    def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None, before=None, startup=None):
-        """A search (`before`: called once its inputs passed the check and before it runs, e.g. to enqueue)."""
-        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models, startup)
-        if not self.reuse(name, cmd, steps.study_done(self.cfg, name, trials), [Path(m) for m in models or ()]):
+    def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None, before=None, startup=None,
+              frames: int = 0):
+        """A search (`before`: called once its inputs passed the check and before it runs, e.g. to enqueue);
+        `frames`: its budget of rendered frames, `trials` then its cap."""
+        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models, startup, frames)
+        done = steps.study_done(self.cfg, name, trials, frames)
+        if not self.reuse(name, cmd, done, [Path(m) for m in models or ()]):
             if before is not None:
                 before()
             self._run(cmd)
@@ -211,7 +215,7 @@ def run_loop(cfg: DictConfig) -> dict:
     for k in range(1, int(cfg.rounds) + 1):
         for seed in cfg.seeds:
             seed = int(seed)
-            trained = {}
+            trained, generated = {}, {}
             for arm in cfg.arms:
                 b = arm_budget(cfg, arm)
                 prev = detectors["D0"] if k == 1 else detectors[f"{arm}_r{k - 1}_s{seed}{suffix}"]
@@ -219,7 +223,9 @@ def run_loop(cfg: DictConfig) -> dict:
                 label = f"round {k} arm {arm} seed {seed}{suffix}"
                 found = loop.step(f"{label}: search", lambda name=name, arm=arm, b=b, p=prev:
                                   loop.study(f"gen_{name}", plans, int(b["trials"]), cfg.arms[arm].sampler,
-                                             1000 * k + seed, [p["weights"]], startup=int(cfg.startup)))
+                                             1000 * k + seed, [p["weights"]], startup=int(cfg.startup),
+                                             frames=int(b["frames"])))
+                generated[arm] = found
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
                 try:
@@ -241,6 +247,7 @@ def run_loop(cfg: DictConfig) -> dict:
                              "replay_frames": trained[arm]["replay_frames"], "epochs": trained[arm]["epochs"],
                              "imgsz": trained[arm]["imgsz"]})
             budget.assert_equal_budget(trained)
+            budget.assert_equal_frames(generated, int(b["frames"]), f"round {k}, seed {seed}{suffix}")
     # 5. Evaluation: every detector on the failure-rate sample (and its easy third), D0 and the last round on the
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
@@ -249,7 +256,14 @@ def run_loop(cfg: DictConfig) -> dict:
                                                                protocol, last), always=True)
     photos = loop.step(f"real photos{suffix}", lambda: real_photos(loop, last), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
-    return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times)
+    from omegaconf import OmegaConf
+
+    from garage_exp.loop.cells import cells_of
+    from garage_exp.search.schema import SearchConf
+
+    search = OmegaConf.structured(SearchConf)  # the generators' searches use the search's shipped descriptors
+    return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times,
+                        cells=cells_of(held, search), search=search)
 
 
 def real_photos(loop: Loop, detectors: dict) -> list[dict]:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import yaml
 
+from garage_exp.core.errors import GarageError
 from garage_exp.loop.steps import Trial
 
 
@@ -95,3 +96,20 @@ def assert_equal_budget(trained: dict[str, dict]) -> None:
         unequal = {k: (first.get(k), trained[arm].get(k)) for k in BUDGET_KEYS if first.get(k) != trained[arm].get(k)}
         if unequal:
             raise AssertionError(f"unequal budgets between the arms ({arms[0]}, {arm}): {unequal}")
+
+
+def assert_equal_frames(generated: dict[str, list[Trial]], frames: int, where: str) -> None:
+    """The arms' generators of one round and seed (their trials, by arm) each rendered their budget of frames:
+    at least `frames`, and less than one of its own trials' frames more (the trial that crossed the budget ends).
+    GarageError when one stopped short at its cap of trials (raise `trials`); nothing to check without a frame
+    budget (the arms then spend equal trials)."""
+    if frames <= 0:
+        return
+    for arm, found in generated.items():
+        spent = rendered(found)
+        if spent < frames:
+            raise GarageError(f"arm {arm}'s generator rendered {spent} frames in its {len(found)} trials, short of "
+                              f"its budget of {frames}: raise trials (the generators' cap)", where)
+        if spent - max(t.frames for t in found) >= frames:
+            raise AssertionError(f"arm {arm}'s generator rendered {spent} frames, over its budget of {frames} by more "
+                                 "than one of its trials: the search did not stop at its budget")

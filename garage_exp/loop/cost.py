@@ -19,6 +19,11 @@ def estimate(cfg) -> dict[str, float]:
         return c.search_s + trials * per_trial
 
     runs = len(cfg.arms) * int(cfg.rounds) * len(cfg.seeds)  # searches, and as many fine-tunings
+    if int(cfg.get("frames") or 0) > 0:  # a frame budget: crossed, on average, by half a trial's frames
+        spent = int(cfg.frames) + c.frames_per_trial / 2
+        generator = c.search_s + spent * c.render_s_per_frame + spent / c.frames_per_trial * c.trial_overhead_s
+    else:
+        generator = study(int(cfg.trials))
     images = int(cfg.train_frames) * (1.0 + float(cfg.replay_fraction))
     val_frames = float(cfg.val_fraction) * int(cfg.base_trials) * c.frames_per_trial
     epochs = int(cfg.epochs)
@@ -29,7 +34,7 @@ def estimate(cfg) -> dict[str, float]:
     out = {"base data": study(int(cfg.base_trials)),
            "held-out sample": study(int(cfg.heldout_trials)),
            "protocol suite": len(cfg.protocol) * c.command_s + protocol_jobs * per_trial,
-           "generators": runs * study(int(cfg.trials)),
+           "generators": runs * generator,
            "fine-tunings": runs * training,
            "evaluation": detectors(cfg) * (c.load_s + held_frames * c.detect_s_per_frame)
            + last * protocol_jobs * c.frames_per_trial * c.detect_s_per_frame,

@@ -89,7 +89,9 @@ def power(scores: pd.DataFrame, arms: list[str], k: int) -> dict:
 
 
 def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[dict], detectors: dict,
-          times: dict) -> dict:
+          times: dict, cells: dict | None = None, search=None) -> dict:
+    """The result files; `cells` (held-out trial number -> archive cell, loop.cells.cells_of) and the search
+    config they were measured with add cells.csv and the per-group heatmaps."""
     from garage_exp.loop.figure import draw
 
     out.mkdir(parents=True, exist_ok=True)
@@ -106,12 +108,22 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     estimate = power(scores, arms, k)
     (out / "power.json").write_text(json.dumps(estimate, indent=1))
     draw(rounds, scores, photo_table, out / "loop.png")
+    resisting = {}
+    if cells and "failed" in scores:
+        from garage_exp.loop import cells as cells_mod
+        from garage_exp.search.archive import Grid
+
+        grid = Grid(search.descriptors)
+        table = cells_mod.cell_table(scores, cells, grid)
+        table.to_csv(out / "cells.csv", index=False)
+        cells_mod.draw(table, grid, out, k)
+        resisting = {arm: cells_mod.resisted(table, arm, k) for arm in arms}
     summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms}, "seeds": list(cfg.seeds),
                "detectors": {n: d.get("weights") for n, d in detectors.items()}, "power": estimate,
-               "times_s": times}
+               "times_s": times, "cells_resisting": resisting}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.loop: results in {out} (failure_rate.csv, comparisons.csv, scores.csv, photos.csv, "
-          "rounds_bookkeeping.csv, power.json, loop.png)")
+          "rounds_bookkeeping.csv, power.json, loop.png" + (", cells.csv, cells_*.png" if resisting else "") + ")")
     print(rounds.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
     if len(family):
         shown = family.copy()

@@ -10,7 +10,7 @@ from hydra.core.config_store import ConfigStore
 from garage_exp.core.schema import TrackingConf
 
 # What an arm spends per round and training seed; every arm must spend the same (app.check_budgets).
-BUDGET_KEYS = ("trials", "train_frames", "epochs", "imgsz", "replay_fraction")
+BUDGET_KEYS = ("frames", "trials", "train_frames", "epochs", "imgsz", "replay_fraction")
 
 
 @dataclass
@@ -20,6 +20,7 @@ class ArmConf:
 
     sampler: str = "random"  # the search's sampler that finds the arm's scenarios (random | tpe | archive | ...)
     keep: str = "failures"  # failures: the hard-and-fair failures join the suite | all: every scenario (arm R)
+    frames: Optional[int] = None
     trials: Optional[int] = None
     train_frames: Optional[int] = None
     epochs: Optional[int] = None
@@ -72,7 +73,11 @@ class LoopConf:
     arms: dict[str, ArmConf] = field(default_factory=lambda: {
         "R": ArmConf("random", "all"), "T": ArmConf("tpe"), "Q": ArmConf("archive")})
     # Each arm's budget per round and training seed (an arm may repeat them, never change them).
-    trials: int = 8  # its generator's trials (scenarios rendered and scored by the arm's detector)
+    # its generator's budget: frames rendered (and scored by the arm's detector) per round and seed; the search
+    # stops asking for scenarios once its trials rendered this many (search.frames), so arms are compared at equal
+    # rendering cost (a trial's frames vary with its case: 8-26 at step 4). 0: by trials alone.
+    frames: int = 0
+    trials: int = 8  # its generator's trials: the cap under a frame budget, else the budget itself
     startup: int = 10  # the generators' search.startup: random trials before TPE's (or GP's) model guides
     train_frames: int = 64  # frames of its suite it is fine-tuned on
     epochs: int = 3

@@ -37,7 +37,7 @@ def storage(cfg: DictConfig) -> str:
 
 
 def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, sampler: str, seed: int,
-                   models: list[str] | None = None, startup: int | None = None) -> list[str]:
+                   models: list[str] | None = None, startup: int | None = None, frames: int = 0) -> list[str]:
     """`python -m garage_exp -m hydra/sweeper=search ...` over the loop's space on `plans`, each trial with its
     dataset; scored by `models` (None: the shipped detectors)."""
     plan = f"plan=choice({','.join(plans)})" if len(plans) > 1 else f"plan={plans[0]}"
@@ -50,6 +50,8 @@ def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, s
         cmd += [f"detector.models=[{','.join(models)}]", f"detector.imgsz={cfg.imgsz}"]
     if startup is not None:
         cmd.append(f"search.startup={startup}")
+    if frames:
+        cmd.append(f"search.frames={frames}")  # the generator's budget of rendered frames; `trials` its cap
     return cmd
 
 
@@ -148,12 +150,14 @@ def trials(cfg: DictConfig, study: str) -> list[Trial]:
     return out
 
 
-def study_done(cfg: DictConfig, study: str, n: int) -> bool:
+def study_done(cfg: DictConfig, study: str, n: int, frames: int = 0) -> bool:
+    """Whether the study holds its n trials or, under a frame budget, rendered its frames."""
     try:
         # WAITING (enqueued, not run yet) and RUNNING trials are not done
-        return len([t for t in trials(cfg, study) if t.state in ("COMPLETE", "PRUNED", "FAIL")]) >= n
+        done = [t for t in trials(cfg, study) if t.state in ("COMPLETE", "PRUNED", "FAIL")]
     except KeyError:  # no such study yet
         return False
+    return len(done) >= n or (frames > 0 and sum(t.frames for t in done) >= frames)
 
 
 def digests(paths: list[Path]) -> list[str]:

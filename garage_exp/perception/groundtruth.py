@@ -21,6 +21,14 @@ pixels): fully visible >= 0.85, partly occluded >= 0.5, largely occluded > 0, fu
 - moderate: height >= 25 px, at most partly occluded, truncation <= 0.30
 - hard: height >= 25 px, at most largely occluded, truncation <= 0.50
 - otherwise "ignored" (a fully occluded vehicle is always ignored).
+
+What hides an actor (`occluder`): the category of whatever covers the largest share of its hidden pixels (its
+unoccluded silhouette inside the image minus its visible pixels), read from the frame's id picture: `pillar`
+(the structure's pillars, `Frame.pillars`), `vehicle` (any other car: parked, moving, the case's occluder car,
+the ego), `person`, `structure` (every other drawn thing: walls, ceiling, beams, obstacle blocks, ramps, lamps,
+clutter, a box occluder), or `none` when fewer than MIN_HIDDEN of its silhouette is hidden (a part outside the
+image is truncation, not hiding: the silhouette stops at the border). Pixels where nothing is drawn (id 0) and
+floor decals hide nothing. On a tie the earlier category of OCCLUDERS wins.
 """
 
 from __future__ import annotations
@@ -34,7 +42,7 @@ import numpy as np
 from garage_exp.core import arrays
 from garage_exp.render import Frame
 from garage_exp.scene.camera import to_camera, to_pixels
-from garage_exp.scene.description import Box, Entity, Pose, Scene
+from garage_exp.scene.description import VEHICLE_ROLES, Box, Entity, Pose, Scene
 
 BoxXYXY = tuple[int, int, int, int]
 Kitti = Literal["easy", "moderate", "hard", "ignored"]
@@ -48,6 +56,10 @@ KITTI_LEVELS: tuple[tuple[str, int, int, float], ...] = (
     ("hard", 25, 2, 0.50),
 )
 OCCLUSION_NAMES = ("fully_visible", "partly_occluded", "largely_occluded", "fully_occluded")
+# What may hide an actor (see the module doc), in the order that breaks ties; `structure` is every other drawn id.
+OCCLUDERS = ("pillar", "vehicle", "person", "structure")
+NO_OCCLUDER = "none"
+MIN_HIDDEN = 0.02  # hidden pixels under this share of the silhouette: nothing hides the actor
 
 
 @dataclass(frozen=True)
@@ -65,6 +77,7 @@ class VehicleTruth:
     kitti: Kitti
     kind: str = "vehicle"  # "vehicle" | "person" (the record is the same for both)
     off_axis: float = float("nan")  # degrees between the optical axis and the ray to the 3D box's centre
+    occluder: str = NO_OCCLUDER  # what hides most of it: OCCLUDERS or "none" (see the module doc)
 
     @property
     def box_height(self) -> int:
@@ -89,6 +102,33 @@ def kitti_level(box_height: float, visible_fraction: float, truncation: float) -
         if box_height >= min_height and occ <= worst_occlusion and truncation <= max_truncation:
             return name  # type: ignore[return-value]
     return "ignored"
+
+
+def occluder_category(hidden_by: Sequence[int], unoccluded_pixels: int) -> str:
+    """The category (OCCLUDERS) holding most of an actor's hidden pixels (`hidden_by`: a count per category), or
+    "none" when they are fewer than MIN_HIDDEN of its silhouette."""
+    hidden = sum(hidden_by)
+    if not hidden or hidden < MIN_HIDDEN * unoccluded_pixels:
+        return NO_OCCLUDER
+    return OCCLUDERS[max(range(len(hidden_by)), key=lambda k: (hidden_by[k], -k))]
+
+
+def occluder_ids(frame: Frame, scene: Scene, ids: Mapping[str, int]) -> dict[str, list[int]]:
+    """The ids of each named category but `structure` (every other drawn id): pillars (`frame.pillars`, and a
+    pillar with its own id), vehicles and people (the entities of `ids`, name -> id, by their scene entity)."""
+    entities = {e.name: e for e in scene.entities}
+    out: dict[str, set[int]] = {"pillar": set(frame.pillars), "vehicle": set(), "person": set()}
+    for name, i in ids.items():
+        entity = entities.get(name)
+        if entity is None:
+            continue
+        if entity.is_pillar:
+            out["pillar"].add(int(i))
+        elif entity.is_person:
+            out["person"].add(int(i))
+        elif entity.role in VEHICLE_ROLES and entity.kind != "box":  # a box occluder is structure
+            out["vehicle"].add(int(i))
+    return {k: sorted(v) for k, v in out.items()}
 
 
 def mask_box(mask) -> BoxXYXY | None:
@@ -160,8 +200,8 @@ def _edge_points(local: np.ndarray, per_edge: int = 9) -> np.ndarray:
 @dataclass(frozen=True)
 class MaskStats:
     """The pixel work of one actor's ground truth: its unoccluded silhouette and visible pixels, counted and
-    boxed (None: empty), and whether the silhouette touches the image border (`batch_mask_stats`, `stats_of`);
-    `truth_records` turns them into records."""
+    boxed (None: empty), whether the silhouette touches the image border, and its hidden pixels per category of
+    OCCLUDERS (empty: not counted) (`batch_mask_stats`, `stats_of`); `truth_records` turns them into records."""
 
     name: str
     unoccluded_pixels: int
@@ -169,6 +209,7 @@ class MaskStats:
     full_box: BoxXYXY | None
     visible_box: BoxXYXY | None
     touches_border: bool
+    hidden_by: tuple[int, ...] = ()
 
 
 def mask_boxes(masks):
@@ -183,13 +224,15 @@ def mask_boxes(masks):
     return arrays.xp(masks).stack([x1, y1, x2, y2], axis=-1), ~rows.any(axis=-1)
 
 
-def batch_mask_stats(ids, silhouettes, actor_ids, see_through=()) -> dict:
+def batch_mask_stats(ids, silhouettes, actor_ids, see_through=(), occluders: Mapping | None = None) -> dict:
     """The pixel statistics of K actors in each of N frames, numpy or torch (on the pictures' device).
 
     ids: (N, H, W) integer entity-id pictures. silhouettes: (N, K, H, W) bool, each actor rendered with
     everything else hidden. actor_ids: (N, K) each actor's id (any value for padding). see_through: ids of floor
-    decals that hide nothing. Returns arrays of the inputs' kind: unoccluded (N, K), visible (N, K), full_box /
-    visible_box (N, K, 4), full_empty / visible_empty (N, K) bool, border (N, K) bool.
+    decals that hide nothing. occluders: category -> ids for OCCLUDERS but the last (`occluder_ids`); None: what
+    hides the actors is not counted. Returns arrays of the inputs' kind: unoccluded (N, K), visible (N, K),
+    full_box / visible_box (N, K, 4), full_empty / visible_empty (N, K) bool, border (N, K) bool, and with
+    occluders hidden_by (N, K, len(OCCLUDERS)): hidden pixels per category.
     """
     if len(ids.shape) != 3 or len(silhouettes.shape) != 4 or silhouettes.shape[0] != ids.shape[0] \
             or tuple(silhouettes.shape[2:]) != tuple(ids.shape[1:]) \
@@ -205,9 +248,31 @@ def batch_mask_stats(ids, silhouettes, actor_ids, see_through=()) -> dict:
     visible_box, visible_empty = mask_boxes(visible)
     border = (silhouettes[..., 0, :].any(axis=-1) | silhouettes[..., -1, :].any(axis=-1)
               | silhouettes[..., :, 0].any(axis=-1) | silhouettes[..., :, -1].any(axis=-1))
-    return {"unoccluded": silhouettes.sum(axis=(-2, -1)), "visible": visible.sum(axis=(-2, -1)),
-            "full_box": full_box, "full_empty": full_empty, "visible_box": visible_box,
-            "visible_empty": visible_empty, "border": border}
+    out = {"unoccluded": silhouettes.sum(axis=(-2, -1)), "visible": visible.sum(axis=(-2, -1)),
+           "full_box": full_box, "full_empty": full_empty, "visible_box": visible_box,
+           "visible_empty": visible_empty, "border": border}
+    if occluders is not None:
+        out["hidden_by"] = hidden_by(ids, silhouettes & ~shown, occluders)
+    return out
+
+
+def hidden_by(ids, hidden, occluders: Mapping):
+    """(N, K, len(OCCLUDERS)) counts of the hidden pixels (N, K, H, W) per category: those of `occluders`' ids
+    (category -> ids), then `structure`, every other drawn id (id 0 draws nothing, so hides nothing)."""
+    named = [list(occluders.get(category, ())) for category in OCCLUDERS[:-1]]
+    # Each id's category by table lookup (an id past the named ones: structure, the table's last entry).
+    lut = np.full(max((max(v) for v in named if v), default=0) + 2, len(OCCLUDERS) - 1, np.int64)
+    lut[0] = len(OCCLUDERS)  # no category
+    for c, wanted in enumerate(named):
+        lut[wanted] = c
+    code = arrays.take(arrays.table(lut, ids), ids.clip(0, len(lut) - 1))  # (N, H, W)
+    which = code[..., None] == arrays.table(np.arange(len(OCCLUDERS)), ids)  # (N, H, W, C)
+    n, k = hidden.shape[:2]
+    # One product counts every actor's hidden pixels in every category: (N, K, HW) @ (N, HW, C); float32 counts
+    # are exact up to 2^24 pixels.
+    counts = (arrays.cast(hidden, np.float32).reshape(n, k, -1)
+              @ arrays.cast(which, np.float32).reshape(n, -1, len(OCCLUDERS)))
+    return arrays.as_int(counts)
 
 
 def stats_of(batch: dict, names: Sequence[Sequence[str]]) -> list[list[MaskStats]]:
@@ -222,15 +287,18 @@ def stats_of(batch: dict, names: Sequence[Sequence[str]]) -> list[list[MaskStats
                 row.append(MaskStats(name, 0, 0, None, None, False))
                 continue
             visible_box = None if host["visible_empty"][n][k] else tuple(host["visible_box"][n][k])
+            hidden = tuple(int(c) for c in host["hidden_by"][n][k]) if "hidden_by" in host else ()
             row.append(MaskStats(name, int(host["unoccluded"][n][k]), int(host["visible"][n][k]),
-                                 tuple(host["full_box"][n][k]), visible_box, bool(host["border"][n][k])))
+                                 tuple(host["full_box"][n][k]), visible_box, bool(host["border"][n][k]), hidden))
         out.append(row)
     return out
 
 
-def mask_stats(frame: Frame, silhouettes: Mapping[str, object], ids: Mapping[str, int]) -> list[MaskStats]:
+def mask_stats(frame: Frame, silhouettes: Mapping[str, object], ids: Mapping[str, int],
+               occluders: Mapping | None = None) -> list[MaskStats]:
     """Each actor's `MaskStats` on one frame, in the order of `silhouettes` (see `ground_truth`): a batch of one
-    frame. The frame's ids and the silhouettes are numpy arrays or torch tensors alike."""
+    frame. The frame's ids and the silhouettes are numpy arrays or torch tensors alike. occluders: as
+    `batch_mask_stats` (`occluder_ids`; None: what hides them is not counted)."""
     names = list(silhouettes)
     if not names:
         return []
@@ -243,7 +311,7 @@ def mask_stats(frame: Frame, silhouettes: Mapping[str, object], ids: Mapping[str
     if str(masks.dtype).rsplit(".", 1)[-1] != "bool":
         masks = masks != 0
     actor_ids = arrays.table(np.array([[ids[m] for m in names]], dtype=np.int32), frame.ids)
-    batch = batch_mask_stats(frame.ids[None], masks, actor_ids, sorted(frame.see_through))
+    batch = batch_mask_stats(frame.ids[None], masks, actor_ids, sorted(frame.see_through), occluders)
     return stats_of(batch, [names])[0]
 
 
@@ -256,7 +324,7 @@ def ground_truth(frame: Frame, silhouettes: Mapping[str, np.ndarray], scene: Sce
     (`renderer.ids`). Poses come from the frame (where the vehicles stood when it was rendered), falling back to
     the description's.
     """
-    return truth_records(frame, mask_stats(frame, silhouettes, ids), scene)
+    return truth_records(frame, mask_stats(frame, silhouettes, ids, occluder_ids(frame, scene, ids)), scene)
 
 
 def truth_records(frame: Frame, stats: list[MaskStats], scene: Scene) -> list[VehicleTruth]:
@@ -284,7 +352,8 @@ def truth_records(frame: Frame, stats: list[MaskStats], scene: Scene) -> list[Ve
             visible_fraction=fraction, visible_box=st.visible_box, full_box=full_box,
             distance=float(np.linalg.norm(centre - camera)), truncation=truncation, occlusion=occ,
             kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation),
-            kind="person" if entity.is_person else "vehicle", off_axis=_off_axis(frame, centre)))
+            kind="person" if entity.is_person else "vehicle", off_axis=_off_axis(frame, centre),
+            occluder=occluder_category(st.hidden_by, st.unoccluded_pixels)))
     return out
 
 

@@ -43,6 +43,9 @@ class Frame:
     # Ids of flat pictures on the floor (contact shadows, painted arrows): they may cover an actor's lowest
     # millimetres, and ground truth counts such pixels as the actor's, not as occluded.
     see_through: frozenset[int] = frozenset()
+    # Ids of the structure's pillars (merged static bodies made only of pillars, or pillars with their own id):
+    # ground truth names what hides an actor `pillar` when these pixels cover it (perception/groundtruth.py).
+    pillars: frozenset[int] = frozenset()
 
     @property
     def width(self) -> int:

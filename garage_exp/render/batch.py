@@ -282,6 +282,7 @@ class CudaGroup:
         self.rest = {e.name: e.pose for e in scene.entities}
         self.vehicles, self.ego = first.vehicles, first.ego
         self.see_through = first.decal_ids
+        self.pillars = first.pillar_ids
 
     def render(self, shots: Sequence, cameras: Sequence[str], actors: Sequence[Sequence[str]]) -> list[Take]:
         import torch
@@ -310,7 +311,8 @@ class CudaGroup:
                 rgb, ids, masks = frames[camera]
                 spec = self.specs[camera]
                 frame = Frame(camera, rgb[k], ids[k], camera_to_world(shot.ego, spec), *intrinsics_of(spec),
-                              self._vehicle_poses(shot), see_through=self.see_through)
+                              self._vehicle_poses(shot), see_through=self.see_through,
+                              pillars=self.pillars)
                 takes.append(Take(shot, camera, frame, {a: masks[a][k] for a in actors[k]}, self.subs[k].ids))
         return takes
 

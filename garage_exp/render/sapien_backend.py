@@ -224,7 +224,7 @@ class SapienRenderer:
             rgb[ids == 0] = BLANK_GREY
         fx, fy, cx, cy = intrinsics_of(cam.spec)
         return Frame(camera_name, rgb, ids, pose, fx, fy, cx, cy, self._vehicle_poses(),
-                     see_through=frozenset(self._built.decal_ids))
+                     see_through=frozenset(self._built.decal_ids), pillars=self.pillar_ids)
 
     def _render_fisheye(self, cam: SapienCamera, pose: np.ndarray) -> Frame:
         """Each cube face, stacked in an atlas and remapped: colour bilinear, ids nearest; then the view the
@@ -250,9 +250,10 @@ class SapienRenderer:
         see_through = frozenset(self._built.decal_ids)
         if getattr(lens, "model", "") == "pinhole":  # a perspective view is a plain pinhole frame
             return Frame(cam.spec.name, rgb, ids, pose, lens.fx, lens.fy, lens.cx, lens.cy, poses,
-                         see_through=see_through)
+                         see_through=see_through, pillars=self.pillar_ids)
         f = lens.f
-        return Frame(cam.spec.name, rgb, ids, pose, f, f, lens.cx, lens.cy, poses, lens=lens, see_through=see_through)
+        return Frame(cam.spec.name, rgb, ids, pose, f, f, lens.cx, lens.cy, poses, lens=lens, see_through=see_through,
+                     pillars=self.pillar_ids)
 
     def unoccluded_ids(self, camera_name: str, names: Iterable[str]) -> dict[str, np.ndarray]:
         """Each named vehicle's unoccluded silhouette (HxW bool) as this camera would see it alone.
@@ -334,6 +335,11 @@ class SapienRenderer:
     def decal_ids(self) -> frozenset[int]:
         """Ids of flat pictures on the floor that hide nothing (`Frame.see_through`)."""
         return frozenset(self._built.decal_ids)
+
+    @property
+    def pillar_ids(self) -> frozenset[int]:
+        """Ids of the structure's pillars (`Frame.pillars`)."""
+        return frozenset(self._built.pillar_ids)
 
     def render_shapes(self, name: str) -> list:
         """The SAPIEN render shapes of entity `name` and of its decals (its contact shadow), which move with it."""

@@ -70,37 +70,41 @@ class SceneBuilder:
         self.vehicles: set[str] = set()
         self.materials: dict[Material, object] = {}  # one RenderMaterial per description material and load
         self.decal_ids: set[int] = set()  # bodies that are only decals (Frame.see_through)
+        self.pillar_ids: set[int] = set()  # bodies that are only pillars (Frame.pillars)
 
     # ---- statics --------------------------------------------------------------------------------------------
 
     def add_statics(self, entities: Iterable[Entity]) -> None:
         """Merge static shapes per material and per STATIC_TILE square (by the shape's centre), so that a frame
         can hide the tiles outside its view; materials keep their order, meshes come last."""
-        merged: dict[Material | None, dict[tuple[int, int], list[tuple[Pose, Box | Mesh]]]] = {}
+        merged: dict[Material | None, dict[tuple[int, int], list[tuple[Pose, Box | Mesh, Entity]]]] = {}
         for entity in entities:
             for shape in entity.shapes:
                 world = entity.pose.compose(shape.offset)
                 key = shape.material if isinstance(shape, (Box, Decal)) else None
                 tile = (math.floor(world.x / STATIC_TILE), math.floor(world.y / STATIC_TILE))
-                merged.setdefault(key, {}).setdefault(tile, []).append((world, shape))
+                merged.setdefault(key, {}).setdefault(tile, []).append((world, shape, entity))
         for material in [m for m in merged if m is not None] + ([None] if None in merged else []):
             for (a, b), shapes in merged[material].items():
                 self._add_merged(f"static:{material.name if material else 'meshes'}:{a}:{b}", shapes)
 
-    def _add_merged(self, name: str, shapes: Sequence[tuple[Pose, Box | Mesh]]) -> None:
+    def _add_merged(self, name: str, shapes: Sequence[tuple[Pose, Box | Mesh, Entity]]) -> None:
         import sapien
         import sapien.render as sr
 
         body = sr.RenderBodyComponent()
-        for world, shape in shapes:
+        for world, shape, _ in shapes:
             body.attach(self.shape(shape, world, name, world))
         node = sapien.Entity()
         node.name = name
         node.add_component(body)
         self.scene.add_entity(node)
         self.merged.append(body)
-        if all(isinstance(shape, Decal) for _, shape in shapes):
+        if all(isinstance(shape, Decal) for _, shape, _ in shapes):
             self.decal_ids.add(int(node.per_scene_id))
+        # Pillars have materials of their own (pillar_paint, pillar_band), so a body holds pillars only or none.
+        if all(entity.is_pillar for _, _, entity in shapes):
+            self.pillar_ids.add(int(node.per_scene_id))
 
     def recolour(self, change: dict[Material, Material]) -> None:
         """Give each loaded RenderMaterial its new values; shapes keep their material objects."""
@@ -150,6 +154,8 @@ class SceneBuilder:
         self.bodies[entity.name] = body
         self.ids[entity.name] = int(node.per_scene_id)
         self.poses[entity.name] = entity.pose
+        if entity.is_pillar:  # a pillar with its own id (renderer.batch_static=false)
+            self.pillar_ids.add(int(node.per_scene_id))
         if entity.role in VEHICLE_ROLES:
             self.vehicles.add(entity.name)
         decals = [shape for shape in entity.shapes if isinstance(shape, Decal)]
@@ -171,6 +177,7 @@ class SceneBuilder:
         """Remove every entity with its own id; the merged statics and the materials stay."""
         for node in self.entities.values():
             self.decal_ids.discard(int(node.per_scene_id))  # before the removal, which sets the id to 0
+            self.pillar_ids.discard(int(node.per_scene_id))
             self.scene.remove_entity(node)
         self.entities, self.bodies, self.ids, self.poses, self.vehicles = {}, {}, {}, {}, set()
 

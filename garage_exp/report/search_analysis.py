@@ -31,7 +31,7 @@ from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.report import sensitivity
 from garage_exp.report.study_figures import figures
-from garage_exp.report.trials import (ATTRS, LATE_ATTRS, distributions, first_value, hardest, objective_names,
+from garage_exp.report.trials import (ATTRS, attr_headings, distributions, first_value, hardest, objective_names,
                                       overrides, rerun_overrides, trial_table, untestable)
 from garage_exp.report.why_hard import FANOVA_SEED, importances, what_makes_it_hard, why_hard
 from garage_exp.tracking.page import html_page
@@ -96,7 +96,8 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
     top_trials = hardest(study, top)
     name = objective_names(study)[0]
     by_number = table.set_index("trial")
-    late = [c for c in LATE_ATTRS if by_number[c].notna().any()]
+    headings = attr_headings(study)
+    late = [c for c in headings if by_number[c].notna().any()]
     hard = by_number.loc[[t.number for t in top_trials]].reset_index()[
         ["trial", name, *ATTRS, *late, "overrides", "run_id", "frame"]]
     hard.insert(0, "rank", range(1, len(hard) + 1))
@@ -106,8 +107,7 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
     if not top_trials:
         return [*lines, "No complete trial: nothing to rank.", ""], written
     lines += [*md_table(hard[["rank", "trial", name, "visible_fraction", "fair_frames", "frames", *late]].rename(
-        columns={"visible_fraction": "visible fraction", "fair_frames": "fair frames",
-                 "detection_distance": "detection distance (m)", "ttc_at_detection": "TTC at detection (s)"})), ""]
+        columns={"visible_fraction": "visible fraction", "fair_frames": "fair frames", **headings})), ""]
     dists = distributions(study)
     higher_is_harder = study.directions[0] == optuna.study.StudyDirection.MAXIMIZE
     for rank, t in enumerate(top_trials, 1):

@@ -8,13 +8,12 @@ import math
 
 import pandas as pd
 
+from garage_exp.results import late as late_metrics
 from garage_exp.results import stats
 from garage_exp.tracking import runs as tracking
 
 METRICS = ("confidence_mean", "recall", "difficulty", "visible_fraction_mean")
 RESPONSES = ["confidence_mean", "recall"]
-# A moving ego's verdict (garage_exp/results/late.py): logged by jobs whose case drives the ego.
-LATE = ("late", "lateness", "late_testable", "detection_distance", "ttc_at_detection", "critical_distance")
 # Per-job mean confidence per label (colour, placement), per model and, in scenes with people, per target kind.
 BREAKDOWNS = ("label.", "model.", "kind.")
 
@@ -45,7 +44,8 @@ def child_runs(mlc, parent_run_id: str, resumed: list[str] = ()) -> pd.DataFrame
                "threshold": float(r.data.params.get("detector.threshold", 0.5))}
         row.update({f"factor.{k}": v for k, v in parse_overrides(r.data.tags.get("overrides", "")).items()})
         row.update({m: r.data.metrics.get(m) for m in METRICS})
-        row.update({m: r.data.metrics[m] for m in LATE if m in r.data.metrics})
+        # a moving ego's verdict (results/late.py), logged by jobs whose case drives the ego
+        row.update({m: r.data.metrics[m] for m in late_metrics.METRICS if m in r.data.metrics})
         row.update({m: v for m, v in r.data.metrics.items() if m.startswith(BREAKDOWNS)})
         rows.append(row)
     return pd.DataFrame(rows)
@@ -283,7 +283,5 @@ def late_table(runs: pd.DataFrame) -> pd.DataFrame:
     if "late_testable" not in runs:
         return pd.DataFrame()
     done = runs[runs.late_testable.notna()]
-    cols = {"run_name": "run", "late": "late (share)", "late_testable": "testable trajectories",
-            "detection_distance": "detection distance (m)", "ttc_at_detection": "TTC at detection (s)",
-            "critical_distance": "critical distance (m)"}
+    cols = {"run_name": "run", **late_metrics.LABELS}
     return done.reindex(columns=list(cols)).rename(columns=cols).sort_values("late (share)", ascending=False)

@@ -3,7 +3,8 @@ command that reruns it, one table row per trial, the hardest complete trials.
 
 The sweeper's contract (values: the search objective's, named by the study's user_attr direction_names: difficulty,
 lateness, ...; user_attrs: overrides, visible_fraction, fair_frames, frames, recall, confidence, frame, and
-"infeasible" on a pruned trial or "error" on a failed one) is read here and nowhere else in the report.
+"infeasible" on a pruned trial or "error" on a failed one; the objectives' own attributes, named with their
+headings by the study's user_attr attr_headings: the late verdict's) is read here and nowhere else in the report.
 """
 
 from __future__ import annotations
@@ -17,8 +18,6 @@ from optuna.distributions import BaseDistribution
 from optuna.trial import FrozenTrial, TrialState
 
 ATTRS = ("visible_fraction", "fair_frames", "frames", "recall", "confidence")
-# a moving ego's verdict, when the trials' case drives the ego (search.objective=late ranks by lateness)
-LATE_ATTRS = ("late", "detection_distance", "ttc_at_detection")
 # The search settings a job reads itself: which frames are fair tests (its fair_* metrics and late verdict).
 JOB_SEARCH_KEYS = ("search.min_visible=", "search.min_box=", "search.max_truncation=")
 
@@ -37,6 +36,12 @@ def objective_names(study: optuna.Study) -> list[str]:
         return list(names)
     return ["difficulty", "visible_fraction"][:len(study.directions)] + [
         f"objective_{k}" for k in range(2, len(study.directions))]
+
+
+def attr_headings(study: optuna.Study) -> dict[str, str]:
+    """The objectives' own trial attributes the report shows (a moving ego's late verdict), with their headings, as
+    the search stored them (search/objectives.py); none for a study made before it stored them."""
+    return dict(study.user_attrs.get("attr_headings") or {})
 
 
 def untestable(study: optuna.Study) -> str:
@@ -68,7 +73,7 @@ def trial_table(study: optuna.Study) -> pd.DataFrame:
     for t in study.get_trials(deepcopy=False):
         done = t.state == TrialState.COMPLETE
         row = {"trial": t.number, "state": t.state.name, name: first_value(t) if done else np.nan}
-        for key in (*ATTRS, *LATE_ATTRS):
+        for key in (*ATTRS, *attr_headings(study)):
             row[key] = t.user_attrs.get(key, np.nan)
         if multi and done and pd.isna(row["visible_fraction"]):
             row["visible_fraction"] = t.values[1]

@@ -158,6 +158,15 @@ def trajectories(table: pd.DataFrame, times: dict[int, float], fair: pd.Series, 
     return pd.DataFrame(rows)
 
 
+# The job's late metrics (`summary`'s keys, logged with its run), and those that tables show, in words (the sweep
+# report's per-run table, a search report's trials).
+METRICS = ("late", "lateness", "late_trajectories", "late_testable", "detection_distance", "ttc_at_detection",
+           "stopping_distance", "critical_distance")
+LABELS = {"late": "late (share)", "late_testable": "testable trajectories",
+          "detection_distance": "detection distance (m)", "ttc_at_detection": "TTC at detection (s)",
+          "critical_distance": "critical distance (m)"}
+
+
 def summary(per: pd.DataFrame, ego) -> dict[str, float]:
     """The job's late metrics over its trajectories: `late` is the share of testable trajectories that were
     late (NaN when none is testable), `lateness` their mean grade, detection distance and TTC over the

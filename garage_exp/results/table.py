@@ -27,6 +27,8 @@ def frame_row(shot, camera: str, target, score, model_names: list[str], target_k
         "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
         "truncation": round(target.truncation, 4) if target else math.nan,
         "kitti": target.kitti if target else "out_of_view",
+        # what hides most of the target: pillar | vehicle | person | structure | none (perception/groundtruth.py)
+        "occluder": target.occluder if target else "out_of_view",
     }
     if target_kind is not None:
         row["target_kind"] = target_kind

@@ -17,6 +17,7 @@ Role = Literal["structure", "marking", "lamp", "parked", "target", "occluder", "
 # truth. The name is older than the people; `Entity.kind` tells them apart.
 VEHICLE_ROLES = ("parked", "target", "occluder", "ego", "moving")
 ACTOR_ROLES = VEHICLE_ROLES
+PILLAR_PREFIX = "pillar_"  # the structure's pillars are named pillar_<a>_<b> (scene/structure.py)
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,11 @@ class Entity:
     @property
     def is_person(self) -> bool:
         return self.kind == "person"
+
+    @property
+    def is_pillar(self) -> bool:
+        """One of the structure's pillars (what ground truth names an occluder `pillar`)."""
+        return self.role == "structure" and self.name.startswith(PILLAR_PREFIX)
 
 
 @dataclass(frozen=True)

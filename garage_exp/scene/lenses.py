@@ -13,8 +13,9 @@ function spec -> lens object with `rays()` (each pixel's unit ray in the camera 
 field) and `project(d)` (continuous pixel coordinates of rays), from which render/fisheye.cube_map makes the
 faces and remaps that render it, ground truth projects boxes and slots, and render/bev.py stitches the BEV.
 
-Adding a camera model is one entry in MODELS (its check below it; a lens class beside render/fisheye.Fisheye
-when it is drawn from a cube map); docs/architecture.md, "Extension points".
+Adding a camera model is one `register_camera_model(CameraModel(...))` in a module of its own (its check beside
+it; a function spec -> lens, named by `lens`, when it is drawn from a cube map: render/fisheye.Fisheye is one);
+docs/architecture.md, "Extension points".
 """
 
 from __future__ import annotations
@@ -81,12 +82,19 @@ def _fisheye_spec(cam, view: str) -> dict:
     return {"fov": float(cam.fov), "k": tuple(float(v) for v in cam.k), "view": view}
 
 
-MODELS: dict[str, CameraModel] = {m.name: m for m in (
-    CameraModel("pinhole", _check_pinhole, _pinhole_spec),
-    # OpenCV's Kannala-Brandt fisheye, `fov` degrees across the image width (render/fisheye.py)
-    CameraModel("fisheye", _check_fisheye, _fisheye_spec, lens="garage_exp.render.fisheye.kannala_brandt",
-                bev=True, pinhole_frames=False),
-)}
+MODELS: dict[str, CameraModel] = {}
+
+
+def register_camera_model(model: CameraModel) -> CameraModel:
+    """Register a camera model under its name (`camera.cameras[k].model`), replacing one of that name."""
+    MODELS[model.name] = model
+    return model
+
+
+register_camera_model(CameraModel("pinhole", _check_pinhole, _pinhole_spec))
+# OpenCV's Kannala-Brandt fisheye, `fov` degrees across the image width (render/fisheye.py)
+register_camera_model(CameraModel("fisheye", _check_fisheye, _fisheye_spec,
+                                  lens="garage_exp.render.fisheye.kannala_brandt", bev=True, pinhole_frames=False))
 DEFAULT = "pinhole"
 
 

@@ -11,7 +11,7 @@ from garage_exp.plan.classify import Cell, Classified
 from garage_exp.plan.model import OPPOSITE
 from garage_exp.scene import materials as mat
 from garage_exp.scene.bays import BEAM_DEPTH, Rect, beams, pillar_centre
-from garage_exp.scene.description import Box, Entity, Material, Pose, Scene
+from garage_exp.scene.description import PILLAR_PREFIX, Box, Entity, Material, Pose, Scene
 from garage_exp.scene.lamps import build_lamps
 from garage_exp.scene.markings import build_markings
 
@@ -96,7 +96,7 @@ def build_pillars(classified: Classified, garage) -> list[Entity]:
     size, height = float(garage.pillar_size), float(garage.ceiling_height)
     out = []
     for p in classified.pillars:
-        out.append(banded_entity(f"pillar_{p.a}_{p.b}", pillar_centre(plan, p, size), (size, size), height,
+        out.append(banded_entity(f"{PILLAR_PREFIX}{p.a}_{p.b}", pillar_centre(plan, p, size), (size, size), height,
                                  PILLAR_BAND_HEIGHT, mat.PILLAR_BAND, mat.PILLAR_PAINT))
     return out
 

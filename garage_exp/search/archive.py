@@ -2,8 +2,10 @@
 
 Each complete trial of a difficulty search is placed in a cell of a grid (ribs' GridArchive) by DESCRIPTORS
 measured from its own outputs (`search.descriptors`, each a `source` below, binned by `values` or `edges`): its
-frame table at the first fairly visible frame (who the target is, how far, how much of it is hidden, which
-camera) and its picture (how dark). A cell keeps its hardest trial, the elite; a later trial replaces it only when
+frame table at the first fairly visible frame (who the target is, what hides it, how far, how much of it is
+hidden, which camera) and its picture (how dark). A category's value that is not among its `values` joins the
+cell `merge` names for it (occluder: structure -> pillar, person -> vehicle); one neither listed nor merged
+leaves the trial without a cell (it stays out of the archive, as a trial without a fair frame does). A cell keeps its hardest trial, the elite; a later trial replaces it only when
 harder. A cell whose elite's difficulty is at least `search.archive.failure` holds a hard-and-fair failure.
 
 `search.sampler=archive` proposes trials with ribs' MAP-Elites emitters (GaussianEmitter, or IsoLineEmitter),
@@ -20,6 +22,7 @@ from __future__ import annotations
 import logging
 import math
 import shlex
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +50,13 @@ def _kind(first: pd.Series, _out: Path, _frame) -> str:
     return "child" if str(first.get("target", "")).startswith("child") else "adult"
 
 
+def _occluder(first: pd.Series, _out: Path, _frame) -> str:
+    """What hid most of the target's hidden pixels at its first fair frame: the frame table's `occluder` column
+    (pillar | vehicle | person | structure | none: perception/groundtruth.py); "" in a table written before it."""
+    value = first.get("occluder")
+    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else str(value)
+
+
 def _luminance(_first: pd.Series, _out: Path, frame) -> float:
     """The mean luma (Rec. 601, 0-1) of the trial's saved hardest fair frame: how dark the scene looks to the
     camera (its light, lamps and materials together), its drawn boxes a few pixels of it."""
@@ -63,6 +73,8 @@ SOURCES = {
     "kind": ("category", "the target: car, adult or child", _kind),
     "target": ("category", "the target actor's name", lambda first, _o, _f: str(first.get("target", ""))),
     "camera": ("category", "the camera of the first fair frame", lambda first, _o, _f: str(first.get("camera"))),
+    "occluder": ("category", "what hid most of the target's hidden pixels at its first fair frame: pillar, "
+                 "vehicle, person, structure or none (under 2 % of it hidden)", _occluder),
     "distance": ("number", "the target's distance (m) at its first fair frame",
                  lambda first, _o, _f: float(first["distance"])),
     "visible": ("number", "the target's visible fraction at its first fair frame (below 1: something hid part)",
@@ -72,8 +84,8 @@ SOURCES = {
 
 
 def check_descriptors(descriptors) -> None:
-    """`search.descriptors`: a known source each, once, with `values` (a category) or increasing `edges` (a
-    number); GarageError naming the entry."""
+    """`search.descriptors`: a known source each, once, with `values` (a category, and a `merge` of other values
+    into them) or increasing `edges` (a number); GarageError naming the entry."""
     seen = set()
     for k, d in enumerate(descriptors):
         where = f"search.descriptors[{k}]"
@@ -88,7 +100,11 @@ def check_descriptors(descriptors) -> None:
             if edges or len(values) < 1 or len(set(map(str, values))) != len(values):
                 raise GarageError(f"{source} is a category: give its distinct values (values: [...]), no edges",
                                   where)
-        elif values or len(edges) < 2 or any(not a < b for a, b in zip(edges, edges[1:])):
+            for other, into in dict(d.get("merge") or {}).items():
+                if str(other) in map(str, values) or str(into) not in map(str, values):
+                    raise GarageError(f"merge {other} -> {into}: merge a value that is not listed into one that "
+                                      f"is ({', '.join(map(str, values))})", f"{where}.merge")
+        elif values or d.get("merge") or len(edges) < 2 or any(not a < b for a, b in zip(edges, edges[1:])):
             raise GarageError(f"{source} is a number: give at least two increasing edges (edges: [...]), not "
                               f"{edges or values}", where)
 
@@ -123,6 +139,7 @@ class Axis:
     source: str
     values: tuple[str, ...]
     edges: tuple[float, ...]
+    merge: tuple[tuple[str, str], ...] = ()  # a category's unlisted value -> the listed value whose cell it joins
 
 
 class Grid:
@@ -130,7 +147,9 @@ class Grid:
 
     def __init__(self, descriptors):
         self.descriptors = [Axis(str(d["source"]), tuple(str(v) for v in (d.get("values") or [])),
-                                 tuple(float(e) for e in (d.get("edges") or []))) for d in descriptors]
+                                 tuple(float(e) for e in (d.get("edges") or [])),
+                                 tuple((str(k), str(v)) for k, v in dict(d.get("merge") or {}).items()))
+                            for d in descriptors]
 
     @property
     def dims(self) -> list[int]:
@@ -143,14 +162,16 @@ class Grid:
         return [f"{a:g}-{b:g}" for a, b in zip(d.edges, d.edges[1:])]
 
     def index(self, measured: dict) -> tuple[int, ...] | None:
-        """Each descriptor's bin; None when a value is missing, NaN or not among a category's values."""
+        """Each descriptor's bin; None when a value is missing, NaN, or neither among a category's values nor
+        merged into one of them."""
         cell = []
         for d in self.descriptors:
             value = measured.get(d.source)
             if d.values:
-                if str(value) not in d.values:
+                value = dict(d.merge).get(str(value), str(value))
+                if value not in d.values:
                     return None
-                cell.append(d.values.index(str(value)))
+                cell.append(d.values.index(value))
             else:
                 if value is None or not math.isfinite(float(value)):
                     return None
@@ -306,16 +327,28 @@ def archive_table(trials: list[FrozenTrial], search) -> pd.DataFrame:
 
 
 def heatmap(trials: list[FrozenTrial], search, path: Path) -> Path:
-    """Difficulty per cell: the first two descriptors as a panel's rows and columns, one panel per combination of
-    the others' bins; an empty cell grey, a failure cell's value in bold."""
+    """Difficulty per cell: each cell's elite's, a failure cell's value in bold (draw_cells)."""
+    grid = Grid(search.descriptors)
+    failure = float(search.archive.failure)
+    numbers = summary(trials, search)
+    values = {cell: trial.values[0] for cell, trial in elite_trials(trials, grid).items()}
+    title = (f"difficulty of each cell's elite ({numbers['archive_filled']}/{numbers['archive_cells']} cells "
+             f"filled, {numbers['archive_failure_cells']} hard-and-fair failures >= {failure:g}, bold; "
+             f"QD score {numbers['archive_qd_score']:.2f})")
+    return draw_cells(grid, values, path, title, "difficulty", bold_at=failure)
+
+
+def draw_cells(grid: Grid, values: dict, path: Path, title: str, label: str, bold_at: float = 1.0,
+               notes: dict | None = None) -> Path:
+    """A value in [0, 1] per cell: the first two descriptors as a panel's rows and columns, one panel per
+    combination of the others' bins (the third's down, the rest across); a cell without a value grey, a value at
+    least `bold_at` in bold, `notes` (cell -> text) under a cell's value (e.g. how many scenarios it holds)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    grid = Grid(search.descriptors)
     dims = grid.dims + [1] * max(0, 2 - len(grid.dims))
-    elites = elite_trials(trials, grid)
     rest = [range(n) for n in dims[2:]]
     panels = [()] if not rest else [tuple(p) for p in np.ndindex(*[len(r) for r in rest])]
     rows = dims[2] if len(dims) > 2 else 1  # the third descriptor's bins down, the others' across
@@ -325,29 +358,29 @@ def heatmap(trials: list[FrozenTrial], search, path: Path) -> Path:
                              squeeze=False, layout="constrained")
     cmap = plt.get_cmap("magma_r").copy()
     cmap.set_bad("0.85")
-    failure = float(search.archive.failure)
+    image = None
     for ax, panel in zip(axes.flat, panels):
-        values = np.full(dims[:2], np.nan)
-        for cell, trial in elites.items():
+        shown = np.full(dims[:2], np.nan)
+        texts = {}
+        for cell, value in values.items():
             full = tuple(cell) + (0,) * (len(dims) - len(cell))
             if full[2:] == panel:
-                values[full[0], full[1]] = trial.values[0]
-        image = ax.imshow(values, cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
-        for (i, j), v in np.ndenumerate(values):
+                shown[full[0], full[1]] = value
+                texts[full[:2]] = (notes or {}).get(cell, "")
+        image = ax.imshow(shown, cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
+        for (i, j), v in np.ndenumerate(shown):
             if not np.isnan(v):
-                ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=7,
-                        color="white" if v > 0.55 else "black", fontweight="bold" if v >= failure else "normal")
+                note = texts.get((i, j), "")
+                ax.text(j, i, f"{v:.2f}" + (f"\n{note}" if note else ""), ha="center", va="center", fontsize=7,
+                        color="white" if v > 0.55 else "black", fontweight="bold" if v >= bold_at else "normal")
         ax.set_yticks(range(dims[0]), grid.labels(0) if len(grid.dims) > 0 else [""], fontsize=7)
         ax.set_xticks(range(dims[1]), grid.labels(1) if len(grid.dims) > 1 else [""], fontsize=7)
         ax.set_title(", ".join(f"{grid.descriptors[k + 2].source} {grid.labels(k + 2)[i]}"
                                for k, i in enumerate(panel)) or "all", fontsize=8)
         ax.set_ylabel(str(grid.descriptors[0].source), fontsize=7)
         ax.set_xlabel(str(grid.descriptors[1].source) if len(grid.dims) > 1 else "", fontsize=7)
-    numbers = summary(trials, search)
-    fig.suptitle(f"difficulty of each cell's elite ({numbers['archive_filled']}/{numbers['archive_cells']} cells "
-                 f"filled, {numbers['archive_failure_cells']} hard-and-fair failures >= {failure:g}, bold; "
-                 f"QD score {numbers['archive_qd_score']:.2f})", fontsize=8)
-    fig.colorbar(image, ax=axes, shrink=0.6, label="difficulty")
+    fig.suptitle(textwrap.fill(title, int(fig.get_figwidth() * 12)), fontsize=8)  # ~12 characters an inch
+    fig.colorbar(image, ax=axes, shrink=0.6, label=label)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -33,7 +33,6 @@ from garage_exp.search import study as study_mod
 
 log = logging.getLogger("garage_exp")
 WORKER = f"{socket.gethostname()}:{os.getpid()}"
-LATE_ATTRS = ("late", "lateness", "detection_distance", "ttc_at_detection", "fair_difficulty")
 COUNTED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL, TrialState.RUNNING)
 
 
@@ -66,8 +65,7 @@ def outcome(result, objective: str) -> Outcome:
              "recall": num(result.fair_recall), "confidence": num(result.fair_confidence)}
     if result.frame:
         attrs["frame"] = result.frame
-    if result.late_testable is not None:
-        attrs.update({k: num(result.metric(k)) for k in LATE_ATTRS})
+    attrs.update(objectives.recorded(result))  # what the objectives declare beside their values (the late verdict)
     values = objectives.objective(objective).judge(result, attrs)
     if values is None:
         attrs["infeasible"] = True
@@ -124,7 +122,7 @@ class SearchLoop:
     def run(self) -> list[int]:
         """Ask a batch, pre-screen each trial, launch the rest as one batch, tell each its outcome; until the
         budget is spent or `stop` says so (asked between batches: a suite's last batch may overfill a band)."""
-        while not self.stop(self.study):
+        while not self.stop(self.study) and not self.frames_spent():
             trials = self.next_trials()
             if not trials:
                 break
@@ -140,6 +138,11 @@ class SearchLoop:
             if batch:
                 self.run_batch(batch)
         return self.ran
+
+    def frames_spent(self) -> bool:
+        """Whether the study's trials rendered its budget of frames (`search.frames`; 0: no such budget)."""
+        budget = int(self.search.get("frames") or 0)
+        return budget > 0 and rendered_frames(self.study) >= budget
 
     def run_batch(self, batch: list[tuple[optuna.Trial, list[str]]]) -> None:
         """The batch's trials as one launch (each trial's number is its job's: workers sharing a sweep dir never
@@ -223,6 +226,13 @@ class SearchLoop:
               f"{'never fairly visible: infeasible' if seen.why == 'infeasible' else 'clearly easy'}; not rendered "
               "in full")
         return True
+
+
+def rendered_frames(study: optuna.Study) -> int:
+    """Frames the study's finished trials rendered in all (each trial's job count; a pre-screened or infeasible
+    trial rendered none in full)."""
+    done = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)
+    return sum(int(t.user_attrs.get("frames") or 0) for t in study.get_trials(deepcopy=False, states=done))
 
 
 def describe(attrs: dict, search) -> dict | None:

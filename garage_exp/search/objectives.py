@@ -11,16 +11,22 @@ names its columns the same way without knowing the objectives), the parent run's
 (sweep.log_on_parent), the suite's manifest and the summary. Names follow the objective that was asked for,
 never the values a trial happened to return.
 
-Adding an objective is one entry in OBJECTIVES (its judge and words below it); docs/architecture.md, "Extension
-points".
+The trial's own attributes are the objective's too: `attrs` names the job summary's values a trial records beside
+its value (the late objective's verdict: late, detection distance, TTC), with their headings in the search report;
+the trial loop records them (`recorded`), and the study stores the headings (`shown`) for the report, which reads
+them from the study as it reads the value names.
+
+Adding an objective is one `register_objective(Objective(...))` in a module of its own (its judge and words beside
+it); the shipped ones are registered below. docs/architecture.md, "Extension points".
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from garage_exp.results.late import LABELS
 from garage_exp.results.summary import JobSummary
 
 NOT_VISIBLE = "no fairly visible frame"
@@ -53,6 +59,10 @@ class Objective:
     # The objective judges only what happens before the ego's critical distance (late detection): the gym's dense
     # reward counts fair frames before it, and an episode is decided once the target is confirmed or passed.
     until_critical: bool = False
+    # The job summary's values a trial records as attributes whenever its summary holds them, whatever objective
+    # the search asked for (a difficulty search on a case that drives the ego records the late verdict too), each
+    # with its heading in the search report's tables (None: recorded, not shown).
+    attrs: dict[str, str | None] = field(default_factory=dict)
 
     @property
     def metric(self) -> str:
@@ -161,7 +171,16 @@ def _needs_slots(job) -> str | None:
             f"{job.case.name} on rig {job.camera.name}")
 
 
-OBJECTIVES: dict[str, Objective] = {o.name: o for o in (
+OBJECTIVES: dict[str, Objective] = {}
+
+
+def register_objective(goal: Objective) -> Objective:
+    """Register an objective under its name (`search.objective`), replacing one of that name."""
+    OBJECTIVES[goal.name] = goal
+    return goal
+
+
+for _goal in (
     Objective("difficulty", ("difficulty",), ("maximize",), _judge_difficulty, _difficulty, NOT_VISIBLE,
               screen=_screen_difficulty, confidence=True, gym="hard", verdict="hard_fair"),
     # the difficulty against the target's visible fraction, both maximised
@@ -169,15 +188,29 @@ OBJECTIVES: dict[str, Objective] = {o.name: o for o in (
               NOT_VISIBLE, confidence=True),
     Objective("late", ("lateness",), ("maximize",), _judge_late, _late,
               "never fairly visible before the critical distance", needs=_needs_late, screen=_screen_late,
-              gym="late", verdict="late", until_critical=True),
+              gym="late", verdict="late", until_critical=True,
+              attrs={"late": "late", "lateness": None, "detection_distance": LABELS["detection_distance"],
+                     "ttc_at_detection": LABELS["ttc_at_detection"], "fair_difficulty": None}),
     Objective("slots", ("slot_miss",), ("maximize",), _judge_slots, _slots, "no fair slot in any BEV frame",
               needs=_needs_slots),
-)}
+):
+    register_objective(_goal)
 
 
 def objective(name: str) -> Objective:
     """The objective `search.objective` names (check_search has refused unknown names)."""
     return OBJECTIVES[name]
+
+
+def recorded(result: JobSummary) -> dict:
+    """The registered objectives' `attrs` that a job's summary holds, as a trial records them."""
+    values = result.as_dict(trial=False)
+    return {k: num(values[k]) for goal in OBJECTIVES.values() for k in goal.attrs if k in values}
+
+
+def shown() -> dict[str, str]:
+    """Each recorded attribute the search report shows, by name, with its heading (stored in the study)."""
+    return {k: words for goal in OBJECTIVES.values() for k, words in goal.attrs.items() if words}
 
 
 def gym_objectives() -> dict[str, Objective]:

@@ -35,22 +35,28 @@ class PrescreenConf:
 class DescriptorConf:
     """One axis of the archive of failure kinds (garage_exp/search/archive.py): a quantity measured from each
     trial's own outputs (`source`, one of archive.SOURCES), binned by `values` (a categorical source: one cell
-    per value) or `edges` (a numeric source: bins between increasing edges, values outside go to the end bins)."""
+    per value) or `edges` (a numeric source: bins between increasing edges, values outside go to the end bins).
+    merge: a categorical source's values that are not listed -> the listed value whose cell they join; a value
+    neither listed nor merged leaves the trial without a cell (out of the archive)."""
 
     source: str = ""
     values: list[str] = field(default_factory=list)
     edges: list[float] = field(default_factory=list)
+    merge: dict[str, str] = field(default_factory=dict)
 
 
 def default_descriptors() -> list[DescriptorConf]:
     """The failure kinds of the shipped space (conf/loop.yaml: cases 1, 2, 3 and pedestrian, four lights, two
-    plans): who the target is, how dark its picture is, how far it is and how much of it is hidden when first
-    fairly visible (3 x 3 x 3 x 3 = 81 cells). The edges come from a random pilot of 8 trials on that space
-    (docs/search.md): the real look's camera exposes for the scene, so a picture's mean luma spans only about
-    0.41-0.46 over the four lights; the targets are first fair at about 6 m (case 2), 14 m (case 3) and 21 m
-    (case 1), 1.0, 0.74 and 0.5 visible."""
+    plans): who the target is, what hides it, how far it is and how much of it is hidden when first fairly
+    visible (3 x 3 x 3 x 3 = 81 cells). What hides it: a pillar, another vehicle, or nothing (under 2 % hidden);
+    the building's other parts (walls, ceiling, beams) join the pillar's cell and a person the vehicle's (the
+    other things in the way), so every fair trial has a cell. The edges come from a random pilot of 8 trials on
+    that space (docs/search.md): the targets are first fair at about 6 m (case 2), 14 m (case 3) and 21 m
+    (case 1), 1.0, 0.74 and 0.5 visible. The picture's luminance (`luminance`) replaced by `occluder`: the real
+    look's camera exposes for the scene, so its mean luma spans only 0.41-0.46 over the four lights."""
     return [DescriptorConf("kind", values=["car", "adult", "child"]),
-            DescriptorConf("luminance", edges=[0.0, 0.43, 0.45, 1.0]),
+            DescriptorConf("occluder", values=["pillar", "vehicle", "none"],
+                           merge={"structure": "pillar", "person": "vehicle"}),
             DescriptorConf("distance", edges=[0.0, 8.0, 16.0, 100.0]),
             DescriptorConf("visible", edges=[0.0, 0.6, 0.9, 1.0])]
 
@@ -71,6 +77,11 @@ class SearchConf:
 
     mode: str = "search"  # search: the hardest fair scenarios | suite: K scenarios per difficulty band
     trials: int = 20  # trials of the study in all (a resumed or shared study counts the ones it has)
+    # A budget of rendered frames (0: none): the study asks no more trials once those it ran rendered this many
+    # frames in all (each trial's job count), `trials` staying its cap. The trial (batch) that crosses it finishes,
+    # so a study spends at least `frames` and less than one trial's (batch's) frames more. Generators compared at
+    # equal cost (the loop's arms) get the same frames, not the same trials: a trial's frames vary with its case.
+    frames: int = 0
     # trials asked at once and handed to the launcher as one batch (ask K, run K, tell K): a GPU worker renders a
     # batch's trials together; on the CPU they run one after another, as with 1. TPE then lies constantly about
     # the trials still running (Optuna's constant_liar), so a batch does not sample one point K times.

@@ -14,7 +14,7 @@ import optuna
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.search import storage
-from garage_exp.search.objectives import OBJECTIVES
+from garage_exp.search.objectives import OBJECTIVES, shown
 
 SAMPLERS = ("tpe", "cmaes", "gp", "random", "qmc", "nsga2", "saltelli", "grid", "archive")
 MULTI_SAMPLERS = ("nsga2", "tpe", "random", "qmc")  # those that take several values (an objective's `multi`)
@@ -85,6 +85,8 @@ def check_search(search) -> None:
         raise GarageError(f"a batch of {search.batch} trials: at least 1", "search.batch")
     if int(search.trials) < 1:
         raise GarageError(f"{search.trials} trials: at least 1", "search.trials")
+    if int(search.get("frames") or 0) < 0:
+        raise GarageError(f"a budget of {search.frames} frames: at least 0 (0: none)", "search.frames")
     if not 0.0 <= float(search.min_visible) <= 1.0:
         raise GarageError(f"{search.min_visible} is outside 0-1", "search.min_visible")
     if not 0.0 <= float(search.max_truncation) <= 1.0:
@@ -240,5 +242,6 @@ def open_study(search, name: str, seed: int, params: dict | None = None) -> optu
                           "give another search.study", "search.objective")
     study.set_user_attr("direction_names", list(goal.metrics))  # the analysis names its columns from these
     study.set_user_attr("untestable", goal.untestable)  # and says why a pruned trial was infeasible
+    study.set_user_attr("attr_headings", shown())  # and which trial attributes it shows, headed how
     study.set_metric_names(list(goal.metrics))  # optuna-dashboard's axis labels
     return study

@@ -159,7 +159,9 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     store = tracked_in(config)
     total = budget(search, space, study)
     held = len(study.get_trials(deepcopy=False))
-    print(f"garage_exp: study {name!r} in {study_mod.storage_url(search)}: {held} trial(s) held, up to {total}")
+    frames = f" or {int(search.frames)} rendered frames" if int(search.get("frames") or 0) > 0 else ""
+    print(f"garage_exp: study {name!r} in {study_mod.storage_url(search)}: {held} trial(s) held, up to {total}"
+          f"{frames}")
     say_moved(study, name, store)
     from garage_exp.search.loop import SearchLoop
 

@@ -20,10 +20,12 @@ import numpy as np
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect.base import (Detections, Entry, EntrySettings, Intrinsics, checked, message_of,
                                                probe_frame)
+from garage_exp.perception.detect.kinds import register_entry_kind
 
 PREFIX = "callable:"
 
 
+@register_entry_kind("callable", prefix=PREFIX)
 class CallableEntry(Entry):
     kind = "callable"
 

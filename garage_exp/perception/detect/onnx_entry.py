@@ -21,6 +21,7 @@ from garage_exp.core.state import STATE
 from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, Intrinsics, checked,
                                                probe_frame)
 from garage_exp.perception.detect.devices import pick_device
+from garage_exp.perception.detect.kinds import register_entry_kind
 
 ROLES = ("boxes", "scores", "labels")
 NAME_HINTS = {"boxes": ("box", "bbox"), "scores": ("score", "conf"), "labels": ("label", "class", "cls")}
@@ -72,6 +73,17 @@ def parse_names(text: str) -> list[str]:
     return [str(v) for v in value]
 
 
+def is_ultralytics_onnx(entry: str) -> bool:
+    """An ONNX file exported by ultralytics: its metadata names the exporter (checked without the weights); the
+    ultralytics kind loads it."""
+    return Path(entry).suffix == ".onnx" and "Ultralytics" in onnx_metadata(entry).get("author", "")
+
+
+def other_onnx(entry: str) -> bool:
+    return Path(entry).suffix == ".onnx" and Path(entry).is_file() and not is_ultralytics_onnx(entry)
+
+
+@register_entry_kind("onnx", other_onnx, says="a .onnx file")
 class OnnxEntry(Entry):
     kind = "onnx"
 

@@ -35,6 +35,7 @@ from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.perception.detect import tensors
 from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, checked,
                                                probe_frame)
+from garage_exp.perception.detect.kinds import register_entry_kind
 
 DATATYPES = {"UINT8": np.uint8, "FP32": np.float32}
 RETRIES = 3  # a dropped connection is tried again this many times (0.5 s, 1 s, 2 s apart)
@@ -94,6 +95,10 @@ def parse(entry: str, where: str = WHERE) -> Endpoint:
                     parts[4] if len(parts) == 5 else "", timeout, batch)
 
 
+# A model server (KServe v2 / Triton): one kind per scheme; grpc:// is refused in one line (`parse`).
+@register_entry_kind("server grpc", prefix="grpc://")
+@register_entry_kind("server https", prefix="https://")
+@register_entry_kind("server http", prefix="http://")
 class ServerEntry(Entry):
     """One model on a KServe v2 server (see the module's doc): `check()` before use; `detect(frames)` sends the
     frames in batches and returns one Detections per frame, in the frame's pixels, scores >= detector.conf."""

@@ -17,6 +17,7 @@ from garage_exp.core.errors import did_you_mean
 from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, Intrinsics, checked,
                                                is_tensor, probe_frame)
 from garage_exp.perception.detect.devices import pick_device
+from garage_exp.perception.detect.kinds import register_entry_kind, resolve_path
 
 PREFIX = "torchvision:"
 ARCHS = ("fasterrcnn_resnet50_fpn", "fasterrcnn_resnet50_fpn_v2", "fasterrcnn_mobilenet_v3_large_fpn",
@@ -63,12 +64,17 @@ def mismatch(expected: dict, given, shown: int = 2) -> str:
     return "; ".join(parts)
 
 
+def concrete(entry: str) -> str:
+    """torchvision:ARCH:FILE with FILE found as a model file is (left as written when it has no file part)."""
+    arch, sep, file = entry[len(PREFIX):].partition(":")
+    return f"{PREFIX}{arch}:{resolve_path(file)}" if sep and file else entry
+
+
+@register_entry_kind("torchvision", prefix=PREFIX, resolve=concrete)
 class TorchvisionEntry(Entry):
     kind = "torchvision"
 
     def __init__(self, entry: str, settings: EntrySettings):
-        from garage_exp.perception.detect.entries import resolve_path
-
         super().__init__(entry, settings)
         arch, sep, file = self.entry[len(PREFIX):].partition(":")
         if not sep or not file:

@@ -21,7 +21,8 @@ from garage_exp.core.environment import prepare_environment
 from garage_exp.core.logfile import FILE_LOG
 from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, Intrinsics, is_tensor
 from garage_exp.perception.detect.devices import cuda_available, pick_device
-from garage_exp.perception.detect.entries import OPENVINO_SUFFIX
+from garage_exp.perception.detect.kinds import OPENVINO_SUFFIX, register_entry_kind
+from garage_exp.perception.detect.onnx_entry import is_ultralytics_onnx
 from garage_exp.perception.detect.tensors import PAD_VALUE, Letterbox
 
 log = logging.getLogger("garage_exp")
@@ -43,6 +44,22 @@ def model_format(path: Path) -> str:
     return "openvino" if path.is_dir() else FORMATS[path.suffix]
 
 
+def is_openvino_dir(entry: str) -> bool:
+    path = Path(entry)
+    return path.is_dir() and path.name.endswith(OPENVINO_SUFFIX)
+
+
+def ultralytics_file(entry: str) -> bool:
+    """A file or folder ultralytics loads: weights, a TensorRT engine, TorchScript, an OpenVINO export folder or
+    an ONNX file ultralytics exported."""
+    path = Path(entry)
+    if path.is_dir():
+        return is_openvino_dir(entry)
+    return path.suffix in (".pt", ".engine", ".torchscript") or is_ultralytics_onnx(entry)
+
+
+@register_entry_kind("ultralytics", ultralytics_file,
+                     says=f"a .pt, .engine or .torchscript file, a *{OPENVINO_SUFFIX} folder")
 class UltralyticsEntry(Entry):
     kind = "ultralytics"
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.core.logfile import FILE_LOG
+from garage_exp.core.plugins import import_plugins
 from garage_exp.core.state import STATE
 from garage_exp.perception.detect.base import Detections, Intrinsics, as_batch, message_of, per_frame
 from garage_exp.perception.detect.detector import Detector
@@ -294,6 +295,9 @@ def _serve(conn, threads: int) -> None:
     # stops this child itself, and if it dies outright the pipe's end-of-file ends this loop.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    # The user's entry kinds ($GARAGE_EXP_PLUGINS), registered before a detector naming one arrives (the parent
+    # imported them already, so they import here too).
+    import_plugins()
     records = _Collect()
     log.addHandler(records)
     log.setLevel(logging.INFO)
