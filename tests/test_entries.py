@@ -353,7 +353,7 @@ def test_every_caller_gets_its_detector_from_the_one_factory():
     assert built_by_hand == []
     for caller in ("run/preflight.py", "search/prescreen.py", "loop/evaluate.py"):
         assert "build_detector(" in (here / caller).read_text(), caller
-    assert "prepared.detector" in (here / "run/frames.py").read_text()
+    assert "spec.detector" in (here / "run/frames.py").read_text()  # the preflight's, in the job spec
     assert "prepared.detector" in (here / "gym/env.py").read_text()
 
 

@@ -45,7 +45,9 @@ def built(monkeypatch) -> list:
 
     def run_frames(cfg, prepared, out, run):
         seen.append(prepared)
-        return {"difficulty": 0.5, "frames": 0, "fair_frames": 0}  # a search prunes such a trial
+        from garage_exp.results.summary import JobSummary
+
+        return JobSummary(difficulty=0.5, frames=0, fair_frames=0)  # a search prunes such a trial
 
     monkeypatch.setattr("garage_exp.run.frames.run_frames", run_frames)
     return seen

@@ -10,6 +10,7 @@ import pytest
 from conftest import run_app
 
 from garage_exp.results.table import camera_line, per_camera, summarise
+from garage_exp.results.table import summarise as frame_summary
 
 
 def frames(rows):
@@ -42,15 +43,17 @@ def test_each_camera_is_scored_where_it_sees_the_target():
 def test_a_rigs_headline_counts_and_scores_the_same_camera():
     """Issue 31, item 4: the headline counted the frames of all four cameras and scored the front one; it now
     counts the frames it scores (the primary camera's) and names that camera."""
-    from types import SimpleNamespace
-
-    from garage_exp.results.table import one_line
+    from garage_exp.results.summary import JobSummary
+    from garage_exp.results.table import JobNames, one_line
 
     table = frames([(s, "black", cam, 0.5, 0.9 if cam == "rear" else 0.0)
                     for s in range(7) for cam in ("front", "rear", "left", "right")])
-    names = SimpleNamespace(name="x")
-    cfg = SimpleNamespace(case=SimpleNamespace(name="slots"), light=names, sensor=names, plan=names)
+    cfg = JobNames("slots", "x", "x", "x")
     rig = ["front", "rear", "left", "right"]
+
+    def summarise(*args, **kw):
+        return JobSummary.of(frame_summary(*args, **kw))
+
     line = one_line(cfg, summarise(table, 0.5, primary="front"), rig, "front")
     assert ": front camera (the primary of 4; cameras.csv scores each), 7 frames, " in line
     assert line.endswith("recall 0.00, difficulty 1.000")

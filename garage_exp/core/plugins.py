@@ -101,9 +101,9 @@ def build(node: Any, what: str, where: str, *args: Any, **kwargs: Any) -> Any:
     target that cannot be imported or refuses its arguments is one GarageError naming `where`."""
     from hydra.errors import InstantiationException
     from hydra.utils import instantiate
-    from omegaconf import DictConfig, OmegaConf
+    from garage_exp.core.plain import plain
 
-    settings = OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node or {})
+    settings = plain(node)
     target = str(settings.get("_target_") or "")
     resolve(target, what, where)  # checked and imported here, so that its errors name the config's place
     try:

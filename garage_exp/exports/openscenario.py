@@ -50,6 +50,23 @@ PREFIX = "garage_exp."  # Properties keys carrying what an entity was made from 
 CATEGORIES = {"car": "car", "suv": "car", "pickup": "van", "van": "van", "bus": "bus", "truck": "truck"}
 
 
+@dataclass(frozen=True)
+class ExportInfo:
+    """What the files say about the job besides its tracks (built from the job's config by run/openscenario.py):
+    the version written, the names and values in each scenario's description, the garage's dimensions."""
+
+    version: str  # export.openscenario_version
+    case: str
+    site: str
+    step: float  # case.motion.step: a variant's step when its frames do not say one
+    plan: str
+    light: str
+    ego_speed: float  # km/h
+    pillar_size: float
+    ceiling_height: float
+    wall_thickness: float
+
+
 @dataclass
 class Track:
     """One actor in one variant: where it starts and, if it moves, where it ends, how fast and from when."""
@@ -618,7 +635,7 @@ def _lane_position(s, offset, lane: EgoLane, yaw: float):
                                               reference=xosc.ReferenceContext.absolute))
 
 
-def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str,
+def write_xosc(info: ExportInfo, moving: list[Track], label: str, notes: list[str], path: Path, xodr_name: str,
                target: str = "", step: float | None = None, lane: EgoLane | None = None,
                runs: list | None = None, minor: int = OSC_MINOR) -> Path:
     """One variant's scenario. The ego drives its declared lane (`lane`; LanePositions with the parameters EgoS,
@@ -717,10 +734,9 @@ def write_xosc(cfg, moving: list[Track], label: str, notes: list[str], path: Pat
     stop.add_conditiongroup(cap)
     board = xosc.StoryBoard(init, stop)
     board.add_story(story)
-    case = cfg.case
-    description = (f"garage_exp case={case.name} variant={label!r} plan={cfg.plan.name} site={case.site} "
-                   f"light={cfg.light.name} step={step or float(case.motion.step):g} target={target} "
-                   f"ego.speed={float(cfg.ego.speed):g} km/h"
+    description = (f"garage_exp case={info.case} variant={label!r} plan={info.plan} site={info.site} "
+                   f"light={info.light} step={step or info.step:g} target={target} "
+                   f"ego.speed={info.ego_speed:g} km/h"
                    + "".join(f"; {n}" for n in notes))
     scenario = xosc.Scenario(description, AUTHOR, params, entities, board,
                              xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=minor)
@@ -763,13 +779,13 @@ def check_export(cfg) -> None:
                           "ScenarioRunner)", "export.openscenario_version")
 
 
-def check_version(cfg, setup) -> None:
+def check_version(version: str, setup) -> None:
     """Refuse, at the job's preflight, a scenario the export's version cannot say (check_tracks): the ego's
     first and last frame of each variant tell whether it reverses."""
     ego = next(e for e in setup.vehicles if e.name == "ego")
     for label in dict.fromkeys(s.label for s in setup.shots if s.replicate == 0):
         shots = [s for s in setup.shots if s.label == label and s.replicate == 0]
-        check_tracks(str(cfg.export.openscenario_version), label, [Track("ego", ego, shots[0].ego, shots[-1].ego, 1.0)])
+        check_tracks(version, label, [Track("ego", ego, shots[0].ego, shots[-1].ego, 1.0)])
 
 
 def check_tracks(version: str, label: str, moving: list[Track]) -> None:
@@ -781,11 +797,11 @@ def check_tracks(version: str, label: str, moving: list[Track]) -> None:
                           f"variant {label!r}; export it as 1.2", "export.openscenario_version")
 
 
-def write(cfg, classified, variants: list[tuple[str, str, float | None, list[Track], list[str]]], out: Path
-          ) -> list[Path]:
+def write(info: ExportInfo, classified, variants: list[tuple[str, str, float | None, list[Track], list[str]]],
+          out: Path) -> list[Path]:
     """`out`/garage.xodr and one .xosc per variant (label, its target, its frames' step, its actors' tracks,
     notes): `scenario.xosc`, `scenario_2.xosc`, ...; the paths."""
-    version = str(cfg.export.openscenario_version)
+    version = info.version
     for label, _, _, moving, _ in variants:
         check_tracks(version, label, moving)
     runs = lane_runs(classified)
@@ -793,12 +809,11 @@ def write(cfg, classified, variants: list[tuple[str, str, float | None, list[Tra
     # one garage, one rule: the side the ego keeps to (a case's variants drive the same side)
     rule = next((lane.rule for lane in lanes if lane is not None), "RHT")
     lanes = [lane if lane is None or lane.rule == rule else None for lane in lanes]
-    garage = cfg.garage
     xodr_path = write_xodr(classified, out / "garage.xodr", rule, garage_things(
-        classified, float(garage.pillar_size), float(garage.ceiling_height), float(garage.wall_thickness)))
+        classified, info.pillar_size, info.ceiling_height, info.wall_thickness))
     paths = [xodr_path]
     for k, ((label, target, step, moving, notes), lane) in enumerate(zip(variants, lanes), start=1):
         name = "scenario.xosc" if k == 1 else f"scenario_{k}.xosc"
-        paths.append(write_xosc(cfg, moving, label, notes, out / name, xodr_path.name, target, step, lane,
+        paths.append(write_xosc(info, moving, label, notes, out / name, xodr_path.name, target, step, lane,
                                 runs, VERSIONS[version]))
     return paths

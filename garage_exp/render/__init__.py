@@ -32,9 +32,9 @@ def open_renderer(conf) -> Renderer:
     """The process's renderer of the backend `conf._target_` names, set up from the `renderer` group. `scenes` is
     the render scene's (render/batch.py), not the backend's: a user's backend is not handed a key it never asked
     for."""
-    from omegaconf import DictConfig, OmegaConf
+    from garage_exp.core.plain import plain
 
-    settings = OmegaConf.to_container(conf, resolve=True) if isinstance(conf, DictConfig) else dict(conf or {})
+    settings = plain(conf)
     settings.pop("scenes", None)
     return build(settings, "a renderer", "renderer._target_")
 

@@ -9,12 +9,17 @@ import numpy as np
 import pandas as pd
 
 from garage_exp.results.labels import PERSON_CLASSES
-from garage_exp.results.table import fair_mask
+from garage_exp.results.table import JobNames, fair_mask
 
 
-def plot_confidence(table: pd.DataFrame, path: Path, xlabel: str, cfg) -> Path:
+def title(names: JobNames) -> str:
+    """The confidence plot's title: the job's levels."""
+    return f"case {names.case}, light {names.light}, sensor {names.sensor}, plan {names.plan}"
+
+
+def plot_confidence(table: pd.DataFrame, path: Path, xlabel: str, threshold: float, heading: str) -> Path:
     """Composite confidence against position per label, visible fraction on a second axis (as the
-    research's figures)."""
+    research's figures); a dotted line at the detection `threshold`, `heading` on top (`title`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -33,13 +38,13 @@ def plot_confidence(table: pd.DataFrame, path: Path, xlabel: str, cfg) -> Path:
         style = "o" if single_frame else "-o"
         ax.plot(g.position, g.composite, style, color=c, ms=3, label=f"confidence {label}")
         ax2.plot(g.position, g.visible_fraction, "--", color=c, alpha=0.5, lw=1)
-    ax.axhline(cfg.detector.threshold, color="grey", lw=0.8, ls=":")
+    ax.axhline(threshold, color="grey", lw=0.8, ls=":")
     ax.set_ylim(-0.02, 1.02)
     ax2.set_ylim(-0.02, 1.02)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("composite confidence (mean over models)")
     ax2.set_ylabel("visible fraction (dashed)")
-    ax.set_title(f"case {cfg.case.name}, light {cfg.light.name}, sensor {cfg.sensor.name}, plan {cfg.plan.name}")
+    ax.set_title(heading)
     if len(labels) <= 14:
         ax.legend(loc="lower left", fontsize=7, ncol=2)
     fig.tight_layout()

@@ -4,6 +4,7 @@ visible ones, per camera)."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import pandas as pd
 
@@ -78,8 +79,33 @@ def summarise(table: pd.DataFrame, threshold: float, primary: str) -> dict[str, 
     return out
 
 
+@dataclass(frozen=True)
+class FairRule:
+    """When a frame is a fair test of the detector (the job spec's rule; its values are `search.min_visible`,
+    `search.min_box`, `search.max_truncation`, a search or not)."""
+
+    min_visible: float = 0.5
+    min_box: float = 25
+    max_truncation: float = 0.5
+
+    @classmethod
+    def of(cls, node) -> "FairRule":
+        """The rule from any node with the three values (the `search` group, a SearchConf)."""
+        return cls(float(node.min_visible), float(node.min_box), float(node.max_truncation))
+
+
+@dataclass(frozen=True)
+class JobNames:
+    """What a job's headline and plot title name: the levels of case, light, sensor and plan."""
+
+    case: str
+    light: str
+    sensor: str
+    plan: str
+
+
 def fair_mask(table: pd.DataFrame, search) -> pd.Series:
-    """Frames that are a fair test of the detector (the search's rule, `search.*`): the target at least
+    """Frames that are a fair test of the detector (a `FairRule`, or any node with its three values): the target at least
     `min_visible` visible, its full box at least `min_box` pixels tall and at most `max_truncation` of it outside
     the image (KITTI's "hard" level allows 25 px and 0.5). A hidden, tiny or cut-off target is not hard, it is
     untestable."""
@@ -139,12 +165,12 @@ def _metric_key(label: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "_-./" else "_" for ch in text)
 
 
-def one_line(cfg, summary: dict, cameras: list[str], primary: str) -> str:
+def one_line(names: JobNames, summary, cameras: list[str], primary: str) -> str:
     """The job's headline. One rule for every rig: it counts and scores the primary camera's frames (the camera
     the case names in `case.camera`, else the rig's first: the frames the summary metrics cover) and names it;
     cameras.csv and the `cameras:` line score every camera."""
     rig = (f"{primary} camera (the primary of {len(cameras)}; cameras.csv scores each), "
            if len(cameras) > 1 else "")
-    return (f"case={cfg.case.name} light={cfg.light.name} sensor={cfg.sensor.name} plan={cfg.plan.name}: {rig}"
-            f"{int(summary['frames'])} frames, confidence mean {summary['confidence_mean']:.3f} "
-            f"min {summary['confidence_min']:.3f}, recall {summary['recall']:.2f}, difficulty {summary['difficulty']:.3f}")
+    return (f"case={names.case} light={names.light} sensor={names.sensor} plan={names.plan}: {rig}"
+            f"{int(summary.frames)} frames, confidence mean {summary.confidence_mean:.3f} "
+            f"min {summary.confidence_min:.3f}, recall {summary.recall:.2f}, difficulty {summary.difficulty:.3f}")

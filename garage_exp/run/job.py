@@ -16,6 +16,7 @@ from garage_exp.core.exits import SweepStopped
 from garage_exp.run.diskspace import NotEnoughSpace, full_disk
 from garage_exp.core.errors import JobFault
 from garage_exp.core import shell
+from garage_exp.results.summary import JobSummary
 from garage_exp.run.preflight import preflight
 
 
@@ -112,9 +113,10 @@ def kept_frames(out: Path) -> str:
     return f"the {rows} frame(s) scored before it kept in {table}"
 
 
-def run_job(cfg: DictConfig) -> float | dict:
+def run_job(cfg: DictConfig) -> float | JobSummary:
     """Run one job and return its difficulty (1 - mean composite confidence), NaN for a plan-only job; a
-    search trial (`search.trial` set) returns its summary metrics with its run id and dir instead. A tracking
+    search trial (`search.trial` set) returns its summary (results.summary.JobSummary) with its run id and dir
+    instead. A tracking
     server that stays away stops the sweep (every later job would wait for it too)."""
     STATE.begin_job()  # the last job's job-scoped caches go
     try:
@@ -123,7 +125,7 @@ def run_job(cfg: DictConfig) -> float | dict:
         raise SweepStopped(str(exc), AWAY_HINT) from None
 
 
-def _run_job(cfg: DictConfig) -> float | dict:
+def _run_job(cfg: DictConfig) -> float | JobSummary:
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)
     multirun = shell.multirun()
@@ -134,6 +136,9 @@ def _run_job(cfg: DictConfig) -> float | dict:
             raise SweepStopped(str(exc), "free space and rerun with resume=true") from None
         raise  # a single run: the command's shell says it in one line, as any bad input
     name_levels(cfg, prepared.classified.plan.name)
+    from garage_exp.run.spec import job_names
+
+    prepared.spec = prepared.spec.renamed(job_names(cfg))  # the names the run logs
     digest = tracking.config_hash(cfg, tracking.file_digest(prepared.plan_path))
     if cfg.resume:
         done = tracking.finished_run(cfg, digest)
@@ -178,11 +183,11 @@ def _run_job(cfg: DictConfig) -> float | dict:
     if not multirun:  # a sweep prints its own link, to all its runs
         print(f"garage_exp: MLflow UI: {tracking.ui_link(cfg.tracking.uri, run.experiment_id, run.run_id)}")
     if trial is not None:  # the search's sweeper tells Optuna from this
-        return {**summary, "run_id": run.run_id, "output_dir": str(out)}
-    return float(summary["difficulty"])
+        return summary.with_(run_id=run.run_id, output_dir=str(out))
+    return float(summary.difficulty)
 
 
-def _run_body(cfg: DictConfig, prepared, out: Path, run, digest: str) -> dict:
+def _run_body(cfg: DictConfig, prepared, out: Path, run, digest: str) -> JobSummary:
     """What a job's run holds: the runs it replaces superseded, its config and map, its OpenSCENARIO export and
     its frames; the frames' summary."""
     trial = cfg.search.trial
@@ -201,7 +206,7 @@ def _run_body(cfg: DictConfig, prepared, out: Path, run, digest: str) -> dict:
         for path in export(cfg, out / "openscenario", prepared):
             run.log_artifact(path, "openscenario")
     if cfg.dry_run:
-        summary = {"difficulty": math.nan}
+        summary = JobSummary()  # difficulty NaN, nothing measured
     else:
         from garage_exp.run.frames import run_frames
 

@@ -27,10 +27,20 @@ def export(cfg: DictConfig, out: Path, prepared=None) -> list[Path]:
     if prepared is None:
         from garage_exp.run.preflight import preflight
 
-        prepared = preflight(cfg, check_space=False)
+        prepared = preflight(cfg, check_space=False, load=False)  # its scene only: no model loads for a file
     variants = [(label, shots[0].target, frame_step(shots), *tracks(cfg, prepared.setup, shots))
                 for label, shots in variants_of(prepared.setup)]
-    return openscenario.write(cfg, prepared.classified, variants, out)
+    return openscenario.write(export_info(cfg), prepared.classified, variants, out)
+
+
+def export_info(cfg: DictConfig):
+    """The job's names and values the files carry (exports.openscenario.ExportInfo)."""
+    from garage_exp.exports.openscenario import ExportInfo
+
+    garage = cfg.garage
+    return ExportInfo(str(cfg.export.openscenario_version), str(cfg.case.name), str(cfg.case.site),
+                      float(cfg.case.motion.step), str(cfg.plan.name), str(cfg.light.name), float(cfg.ego.speed),
+                      float(garage.pillar_size), float(garage.ceiling_height), float(garage.wall_thickness))
 
 
 def frame_step(shots: list[Shot]) -> float | None:

@@ -30,6 +30,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from garage_exp import exports
+from garage_exp.perception.detect.matching import Scoring
 from garage_exp.perception.groundtruth import VehicleTruth
 from garage_exp.render.batch import RenderScene, Take
 from garage_exp.scenario import Shot
@@ -89,7 +90,8 @@ def batches(items: Iterable, size: int) -> Iterator[list]:
 class FramePipeline:
     """A job's (or an environment's) frame pipeline over a render scene.
 
-    cfg: the job's composed config (look, materials, seed, dataset, detector's iou/match/threshold). renderer: a
+    cfg: the job's composed config (look, materials, seed, dataset; the detector's iou/match/threshold unless `rule`
+    gives the job spec's). renderer: a
     `render.batch.RenderScene` (N sub-scenes), or one loaded `Renderer`, which becomes a scene of one sub-scene.
     sensor: the camera model (`perception.sensor.SensorModel` or any `apply(rgb, rng)`), drawing from
     `sensor_rng`. detector: what `detected` sends frames to (`submit`/`result`:
@@ -104,12 +106,15 @@ class FramePipeline:
     sensor_rng: np.random.Generator
     detector: object | None = None
     scoring: dict = field(default_factory=dict)
+    rule: Scoring | None = None  # the job spec's matching rule; None: the config's `detector` group's
 
     def __post_init__(self) -> None:
         from garage_exp.scenario.assemble import HIDDEN
 
         self.stage = (self.renderer if isinstance(self.renderer, RenderScene)
                       else RenderScene.over(self.renderer, HIDDEN))
+        if self.rule is None:
+            self.rule = Scoring.of(self.cfg.detector)
 
     @cached_property
     def intrinsics(self) -> dict:
@@ -186,11 +191,7 @@ class FramePipeline:
 
     def score(self, item: Rendered, dets: list):
         """The target's score in one frame (`perception.detect.score_target` with the job's matching rule)."""
-        from garage_exp.perception.detect import score_target
-
-        d = self.cfg.detector
-        return score_target(dets, item.target, item.truth, iou_threshold=d.iou, match=d.match,
-                            threshold=d.threshold, **self.scoring)
+        return self.rule.score(dets, item.target, item.truth, **self.scoring)
 
 
 def overlapped(frames: Iterable[Rendered], detector, cameras: dict) -> Iterator[tuple[Rendered, list]]:

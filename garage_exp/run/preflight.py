@@ -32,6 +32,13 @@ class PreparedJob:
     bytes_store: int = 0  # estimated bytes into a local sqlite store and its artifacts (0 for a server)
     detector: Any = None  # garage_exp.perception.detect.Detector, checked (every entry loaded); None for a dry run
     loaded: bool = False  # the detector's models were loaded (load_models); a job runs only a loaded one
+    spec: Any = None  # garage_exp.run.spec.JobSpec: what the stages below the job are told (never the config)
+    opened: Any = None  # the detector's warm process (worker.open_detector), opened once by load_models
+
+    def open_detector(self):
+        """The detector the job's frames go to: the one load_models opened and checked (opened here if the
+        preflight did not load it)."""
+        return load_models(self).opened
 
 
 def resolve_plan_path(plan_cfg) -> Path:
@@ -171,9 +178,12 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     if cfg.export.openscenario:
         from garage_exp.exports.openscenario import check_version
 
-        check_version(cfg, setup)
+        check_version(str(cfg.export.openscenario_version), setup)
     if not cfg.dry_run:
         prepared.scene, prepared.setup, prepared.detector = scene, setup, detector
+    from garage_exp.run.spec import job_spec
+
+    prepared.spec = job_spec(cfg, detector)
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig
@@ -189,7 +199,7 @@ def load_models(prepared: PreparedJob) -> PreparedJob:
     """The preflight's last check, the only one that loads models: every detector entry loads and answers a
     probe frame of the job's first camera (nothing to load in a dry run)."""
     if prepared.detector is not None and not prepared.loaded:
-        check_loads(prepared.detector, prepared.scene)
+        prepared.opened = check_loads(prepared.detector, prepared.scene)
         prepared.loaded = True
     return prepared
 
@@ -197,12 +207,13 @@ def load_models(prepared: PreparedJob) -> PreparedJob:
 def check_loads(detector, scene):
     """Every entry of the detector loads and answers a probe frame of the job's first camera, in the process
     that will detect (the detector's child, kept for the job): a file that is not a model is refused before
-    anything is written. The same detector is checked once per process."""
+    anything is written. The opened detector is the one the job's frames go to (not opened again)."""
     from garage_exp.perception.detect import Intrinsics
     from garage_exp.perception.detect.worker import open_detector
 
-    open_detector(detector, Intrinsics.of(scene.cameras[0])).names  # noqa: B018 - waits; raises the load's error
-    return detector
+    opened = open_detector(detector, Intrinsics.of(scene.cameras[0]))
+    opened.names  # noqa: B018 - waits; raises the load's error
+    return opened
 
 
 def store_dir(cfg: DictConfig) -> Path:

@@ -3,7 +3,6 @@ occupancy, the camera rig and the scene modifiers. Plain data: nothing here rend
 
 from __future__ import annotations
 
-from omegaconf import DictConfig
 
 from garage_exp.core.errors import GarageError
 from garage_exp.plan.classify import Classified
@@ -14,7 +13,7 @@ from garage_exp.scene.description import CameraSpec, Pose, Scene
 HIDDEN = Pose(0.0, 0.0, -500.0, 0.0)  # vehicles a shot does not use wait far below the floor
 
 
-def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[Scene, CaseSetup]:
+def build_scene(cfg, classified: Classified, library, rng) -> tuple[Scene, CaseSetup]:
     """The garage from the plan, the case's vehicles, parked cars by occupancy, cameras and modifiers."""
     from garage_exp.scene.look import dress
     from garage_exp.scene.modifiers import apply_modifiers, remove_entity, resize_pillar
@@ -41,12 +40,12 @@ def build_scene(cfg: DictConfig, classified: Classified, library, rng) -> tuple[
     return scene, setup
 
 
-def marking_wear(cfg: DictConfig) -> float:
+def marking_wear(cfg) -> float:
     """How worn the line paint is by the `wear` factor (its modifier's value, else the garage's)."""
     wear = (cfg.get("modifiers") or {}).get("wear") or {}
     return float(wear.get("wear", cfg.garage.marking_wear))
 
 
-def cameras(cfg: DictConfig, setup: CaseSetup) -> list[CameraSpec]:
+def cameras(cfg, setup: CaseSetup) -> list[CameraSpec]:
     ego = next(v for v in setup.vehicles if v.role == "ego")
     return rig_specs(cfg.camera, ego.extent)

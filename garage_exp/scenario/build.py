@@ -12,9 +12,9 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.plain import as_object
 from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
@@ -177,7 +177,7 @@ def variants(case, actors: dict, colours: list[str]) -> tuple[list[Variant], dic
 def frame_values(case, actor, site: Site, length: float, bays: dict) -> list[float]:
     """The motion's values: listed, or start..end by step; a distance the actor's path has no room for is an
     error, or trimmed to the room with the actor's `clip: true`."""
-    m = OmegaConf.to_object(case.motion)  # a DictConfig's `.values` is its method, not the key
+    m = as_object(case.motion)  # a DictConfig's `.values` is its method, not the key
     on_path = m.key == "distance" and actor.path and not actor.before and not actor.relative \
         and actor.align == "centre"
     if m.values or m.start is None or m.end is None:

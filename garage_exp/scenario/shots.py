@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
-from omegaconf import OmegaConf
 
 from garage_exp.core.schema import ActorConf
 from garage_exp.core.errors import GarageError
+from garage_exp.core.plain import as_object
 from garage_exp.scene.description import Entity, Pose
 
 
@@ -50,4 +50,4 @@ def actor_confs(nodes, prefix: str) -> dict:
         if extra:
             raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
                               f"{prefix}.{name}.{extra[0]}")
-    return {str(n): OmegaConf.to_object(a) for n, a in (nodes or {}).items()}
+    return {str(n): as_object(a) for n, a in (nodes or {}).items()}

@@ -41,9 +41,8 @@ BODIES = {"car": "car", "van": "van", "bus": "bus", "truck": "truck", "semitrail
 
 
 def load_site(plan: str, site_name: str):
-    from omegaconf import OmegaConf
-
     from garage_exp.core.paths import PLANS_DIR, PROJECT_ROOT
+    from garage_exp.core.plain import structured
     from garage_exp.core.schema import GarageConf
     from garage_exp.plan import classify, load_plan
     from garage_exp.scenario.sites import find_site
@@ -51,8 +50,7 @@ def load_site(plan: str, site_name: str):
     path = Path(plan) if Path(plan).suffix else PLANS_DIR / f"{plan}.yaml"
     if not path.is_file():
         raise GarageError(f"no plan {plan!r} (a shipped plan's name or a plan file)", "--plan")
-    garage = OmegaConf.merge(OmegaConf.structured(GarageConf),
-                             OmegaConf.load(PROJECT_ROOT / "conf" / "garage" / "default.yaml"))
+    garage = structured(GarageConf, PROJECT_ROOT / "conf" / "garage" / "default.yaml")
     classified = classify(load_plan(path))
     site = find_site(site_name, classified, garage)
     if "lane" not in site.paths or not site.bays:
@@ -229,13 +227,12 @@ def to_case(r: Read, classified, site, name: str, margin: float, target: str | N
 def check_runs(case: dict, r: Read) -> None:
     """What a job asks of the case before it has a plan (the scenario's own checks: its schema, its motion, each
     variant's target), so that a case that would fail as a job is refused here, naming the file."""
-    from omegaconf import OmegaConf
-
+    from garage_exp.core.plain import structured
     from garage_exp.core.schema import CaseConf
     from garage_exp.scenario.build import _check_motion, variants
 
     try:
-        conf = OmegaConf.merge(OmegaConf.structured(CaseConf), case)
+        conf = structured(CaseConf, case)
         _check_motion(conf)
         variants(conf, dict(conf.actors), [])
     except GarageError as exc:

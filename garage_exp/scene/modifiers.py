@@ -66,13 +66,11 @@ def marking_wear(scene: Scene, classified, garage, wear: float = 0.0) -> None:
 
 
 def replace_conf(conf, **changes):
-    """A copy of a dataclass or DictConfig with some fields changed."""
-    from omegaconf import DictConfig, OmegaConf
+    """A copy of a dataclass or config node (or dict) with some fields changed."""
+    from garage_exp.core.plain import as_object
 
-    if isinstance(conf, DictConfig):
-        copy = OmegaConf.to_object(conf) if OmegaConf.get_type(conf) is not dict else OmegaConf.to_container(conf)
-        return replace(copy, **changes) if not isinstance(copy, dict) else {**copy, **changes}
-    return replace(conf, **changes)
+    copy = as_object(conf)
+    return {**copy, **changes} if isinstance(copy, dict) else replace(copy, **changes)
 
 
 def check_modifiers(modifiers: dict[str, Any]) -> None:

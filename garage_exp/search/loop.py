@@ -24,6 +24,7 @@ from optuna.trial import TrialState
 
 from garage_exp.core.errors import Infeasible
 from garage_exp.core.exits import SweepStopped
+from garage_exp.results.summary import JobSummary
 from garage_exp.search import objectives
 from garage_exp.search.objectives import num
 from garage_exp.search import space as space_mod
@@ -45,22 +46,25 @@ class Outcome:
 
 
 def outcome(result, objective: str) -> Outcome:
-    """A trial's state and values from its job's return: the summary (run.frames.run_frames), or {"error": ...}.
+    """A trial's state and values from its job's return: the summary (run.frames.run_frames' JobSummary, or its
+    flat mapping, `as_dict()`), or {"error": ...}.
     The objective judges it (objectives.py); no values -> PRUNED (infeasible): a target nobody could see, in the
     objective's sense, is untestable, not hard; nor is a scene whose sampled values put two actors in one another
     (the job refused it: core.errors.Infeasible)."""
     if isinstance(result, dict) and result.get("infeasible"):  # its values put actors in one another
         return Outcome(TrialState.PRUNED, None, {"infeasible": True, "placement": str(result["error"])[:2000],
                                                  "fair_frames": 0, "frames": 0})
-    if not isinstance(result, dict) or "error" in result:
+    if isinstance(result, dict) and "error" not in result:
+        result = JobSummary.of(result)
+    if not isinstance(result, JobSummary):
         error = result.get("error") if isinstance(result, dict) else f"the job returned {result!r}"
         return Outcome(TrialState.FAIL, None, {"error": str(error)[:2000]})
-    attrs = {"run_id": result.get("run_id"), "output_dir": result.get("output_dir"),
-             "visible_fraction": float(result.get("visible_fraction_mean", 0.0)),
-             "fair_frames": int(result.get("fair_frames", 0)), "frames": int(result.get("frames", 0)),
-             "recall": num(result.get("fair_recall")), "confidence": num(result.get("fair_confidence"))}
-    if result.get("frame"):
-        attrs["frame"] = str(result["frame"])
+    attrs = {"run_id": result.run_id, "output_dir": result.output_dir,
+             "visible_fraction": float(result.visible_fraction_mean or 0.0),
+             "fair_frames": int(result.fair_frames or 0), "frames": int(result.frames or 0),
+             "recall": num(result.fair_recall), "confidence": num(result.fair_confidence)}
+    if result.frame:
+        attrs["frame"] = result.frame
     attrs.update(objectives.recorded(result))  # what the objectives declare beside their values (the late verdict)
     values = objectives.objective(objective).judge(result, attrs)
     if values is None:

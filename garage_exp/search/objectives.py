@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from garage_exp.results.late import LABELS
+from garage_exp.results.summary import JobSummary
 
 NOT_VISIBLE = "no fairly visible frame"
 # What the pre-screen's judge returns: run the trial in full, or prune it as infeasible or as clearly easy.
@@ -38,9 +39,9 @@ class Objective:
     name: str  # `search.objective`
     metrics: tuple[str, ...]  # each of the study's values, in order: trials.csv's columns, best_<metrics[0]>
     directions: tuple[str, ...]  # Optuna's "maximize" | "minimize" for each value (the harder end)
-    # The study's values from a job's summary (run.frames.run_frames) and the trial's attributes so far (which
-    # it may add to); None: the trial is untestable, pruned as infeasible.
-    judge: Callable[[dict, dict], list[float] | None]
+    # The study's values from a job's summary (results.summary.JobSummary, from run.frames.run_frames) and the
+    # trial's attributes so far (which it may add to); None: the trial is untestable, pruned as infeasible.
+    judge: Callable[[JobSummary, dict], list[float] | None]
     scored: Callable[[list[float], dict], str]  # a complete trial's words, from its values and attributes
     untestable: str  # why a trial is pruned as infeasible (stored in the study for its report)
     # What the composed job must be for this objective (a driving ego, a slot case on a rig with a BEV): the
@@ -85,12 +86,12 @@ def num(value) -> float | None:
 
 # --- difficulty (and pareto): 1 - the mean composite confidence over the fairly visible frames (results/table.py)
 
-def _judge_difficulty(result: dict, attrs: dict) -> list[float] | None:
-    difficulty = num(result.get("fair_difficulty", math.nan))
+def _judge_difficulty(result: JobSummary, attrs: dict) -> list[float] | None:
+    difficulty = num(result.fair_difficulty)
     return None if attrs["fair_frames"] == 0 or difficulty is None else [difficulty]
 
 
-def _judge_pareto(result: dict, attrs: dict) -> list[float] | None:
+def _judge_pareto(result: JobSummary, attrs: dict) -> list[float] | None:
     values = _judge_difficulty(result, attrs)
     return None if values is None else [*values, attrs["visible_fraction"]]
 
@@ -113,9 +114,9 @@ def _screen_difficulty(table, fair, setup, cfg, detect: bool, attrs: dict) -> st
 
 # --- late: how much of the fairly visible approach went by before the target was confirmed (results/late.py)
 
-def _judge_late(result: dict, attrs: dict) -> list[float] | None:
-    lateness = num(result.get("lateness"))
-    return None if not result.get("late_testable") or lateness is None else [lateness]
+def _judge_late(result: JobSummary, attrs: dict) -> list[float] | None:
+    lateness = num(result.lateness)
+    return None if not result.late_testable or lateness is None else [lateness]
 
 
 def _late(values: list[float], attrs: dict) -> str:
@@ -150,9 +151,9 @@ def _screen_late(table, fair, setup, cfg, detect: bool, attrs: dict) -> str:
 
 # --- slots: 1 - recall of the fair slots (a slot case, docs/slots.md)
 
-def _judge_slots(result: dict, attrs: dict) -> list[float] | None:
-    recall, fair = num(result.get("slot_recall")), num(result.get("slot_truth_fair"))
-    attrs.update({"slot_recall": recall, "slot_fair": fair, "slot_precision": num(result.get("slot_precision"))})
+def _judge_slots(result: JobSummary, attrs: dict) -> list[float] | None:
+    recall, fair = num(result.metric("slot_recall")), num(result.metric("slot_truth_fair"))
+    attrs.update({"slot_recall": recall, "slot_fair": fair, "slot_precision": num(result.metric("slot_precision"))})
     return None if recall is None or not fair else [1.0 - recall]
 
 
@@ -201,9 +202,10 @@ def objective(name: str) -> Objective:
     return OBJECTIVES[name]
 
 
-def recorded(result: dict) -> dict:
+def recorded(result: JobSummary) -> dict:
     """The registered objectives' `attrs` that a job's summary holds, as a trial records them."""
-    return {k: num(result[k]) for goal in OBJECTIVES.values() for k in goal.attrs if k in result}
+    values = result.as_dict(trial=False)
+    return {k: num(values[k]) for goal in OBJECTIVES.values() for k in goal.attrs if k in values}
 
 
 def shown() -> dict[str, str]:

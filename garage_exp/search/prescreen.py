@@ -23,10 +23,10 @@ from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, open_dict
 
 from garage_exp.core.errors import GarageError
-from garage_exp.scene.camera import scored_camera
+from garage_exp.results.table import FairRule
 from garage_exp.search.objectives import objective
 
 LEVELS = ("none", "truth", "detector")
@@ -71,32 +71,42 @@ def _scaled(pixels, scale: float) -> int:
     return max(32, int(round(int(pixels) * scale / 2)) * 2)
 
 
-def cheap_detector(detector_conf, scale: float):
-    """The first model of the trial's detectors at `scale` of its input size, on the process's one warm detector
-    (the jobs' detector child, core.state.STATE.detector: its models load once, in one process)."""
-    from garage_exp.perception.detect import build_detector
+def cheap_detector(detector, scale: float):
+    """The first model of the trial's detectors (a built `Detector`, or the `detector` node) at `scale` of its
+    input size, on the process's one warm detector (the jobs' detector child, core.state.STATE.detector: its
+    models load once, in one process)."""
+    from garage_exp.perception.detect import Detector, build_detector
     from garage_exp.perception.detect.worker import WarmDetector
 
-    return WarmDetector(build_detector(detector_conf).cheap(scale))  # checked, as in the job
+    built = detector if isinstance(detector, Detector) else build_detector(detector)
+    return WarmDetector(built.cheap(scale))  # checked, as in the job
 
 
-def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame, object]:
+def prepare(cfg: DictConfig, scale: float):
+    """The trial's cheap job (`cheap_config`) prepared: its scene and spec, its detector built but not loaded
+    (the cheap look loads the first model alone, `cheap_detector`)."""
+    from garage_exp.run.preflight import preflight
+
+    return preflight(cheap_config(cfg, scale), check_space=False, load=False)
+
+
+def frames_table(cfg: DictConfig, detector, scale: float, prepared=None) -> tuple[pd.DataFrame, object]:
     """The frames' table at `scale` of the resolution (ground truth; with `detector`, a `Detector` or a `WarmDetector`,
-    its scores too) and the job's setup."""
+    its scores too) and the job's setup. `prepared`: the cheap job (`prepare`) when at hand, else prepared here."""
     from garage_exp.core.plugins import build
     from garage_exp.render import open_renderer
     from garage_exp.results.table import frame_row
     from garage_exp.run.pipeline import FramePipeline
-    from garage_exp.run.preflight import preflight
 
     cheap = cheap_config(cfg, scale)
-    prepared = preflight(cheap, check_space=False)
-    renderer = open_renderer(cheap.renderer)
+    prepared = prepared if prepared is not None else prepare(cfg, scale)
+    spec = prepared.spec
+    renderer = open_renderer(spec.renderer)
     renderer.load(prepared.scene)
-    sensor = build(cheap.sensor, "a sensor model", "sensor._target_")
-    pipeline = FramePipeline(cheap, prepared.scene, renderer, sensor, np.random.default_rng(cfg.seed + 1),
-                             detector, detector.scoring() if detector is not None else {})
-    scored = scored_camera(cheap.camera, str(cheap.case.get("camera") or ""))
+    sensor = build(spec.sensor, "a sensor model", "sensor._target_")
+    pipeline = FramePipeline(cheap, prepared.scene, renderer, sensor, np.random.default_rng(spec.seed + 1),
+                             detector, detector.scoring() if detector is not None else {}, spec.scoring)
+    scored = spec.primary
     rows = []
     for item in pipeline.frames(prepared.setup.shots):
         if item.camera != scored:
@@ -107,26 +117,28 @@ def frames_table(cfg: DictConfig, detector, scale: float) -> tuple[pd.DataFrame,
             dets = detector.detect([item.rgb], pipeline.intrinsics[item.camera])[0]  # the scored camera's own
             score = pipeline.score(item, dets)
         rows.append(frame_row(item.shot, item.camera, item.target, score, detector.names if detector else [],
-                              replicated=cfg.replicates > 1))
+                              replicated=spec.replicates > 1))
     return pd.DataFrame(rows), prepared.setup
 
 
-def lenient(search, scale: float, slack_visible: float) -> DictConfig:
+def lenient(rule: FairRule, scale: float, slack_visible: float) -> FairRule:
     """The fairness rule loosened for the cheap look: a box at the small scale, a visible fraction short by
     `slack_visible` (the small silhouettes' edges round the other way)."""
-    return OmegaConf.create({"min_visible": max(0.0, float(search.min_visible) - slack_visible),
-                             "min_box": float(search.min_box) * scale * 0.8,
-                             "max_truncation": min(1.0, float(search.max_truncation) + slack_visible)})
+    return FairRule(max(0.0, rule.min_visible - slack_visible), rule.min_box * scale * 0.8,
+                    min(1.0, rule.max_truncation + slack_visible))
 
 
-def look(cfg: DictConfig) -> Look:
-    """The cheap look at one trial's composed config."""
+def look(cfg: DictConfig, prepared=None) -> Look:
+    """The cheap look at one trial's composed config; `prepared`: its cheap job (`prepare`) when at hand."""
     from garage_exp.results.table import fair_mask
 
     conf = cfg.search.prescreen
     scale, detect = float(conf.scale), conf.level == "detector"
-    table, setup = frames_table(cfg, cheap_detector(cfg.detector, scale) if detect else None, scale)
-    rule = lenient(cfg.search, scale, float(conf.slack_visible))
+    prepared = prepared if prepared is not None else prepare(cfg, scale)
+    spec = prepared.spec
+    detector = cheap_detector(spec.detector if spec.detector is not None else cfg.detector, scale) if detect else None
+    table, setup = frames_table(cfg, detector, scale, prepared)
+    rule = lenient(spec.fair, scale, float(conf.slack_visible))
     fair = fair_mask(table, rule) if len(table) else pd.Series(dtype=bool)
     attrs = {"prescreen_frames": len(table)}
     why = objective(str(cfg.search.objective)).screen(table, fair, setup, cfg, detect, attrs)

@@ -23,6 +23,7 @@ from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 
 from garage_exp.core.paths import OUTPUTS_DIR
+from garage_exp.results.summary import JobSummary
 from garage_exp.search.objectives import objective
 
 # Keys a scenario file leaves out: how and where a run is tracked is the rerunning user's, not the scenario's.
@@ -143,10 +144,10 @@ def write_dataset(root: Path, reruns: list[tuple[str, list[str], str | None]], l
     images, merged = [], {"images": [], "annotations": [], "categories": []}
     for (scenario, _, trial_dir), ret in zip(reruns, returns):
         result = ret.return_value
-        if not isinstance(result, dict) or "output_dir" not in result:
+        if not isinstance(result, JobSummary) or result.output_dir is None:
             print(f"garage_exp: suite scenario {scenario}: its dataset rerun failed: {result}")
             continue
-        out = Path(result["output_dir"])
+        out = Path(result.output_dir)
         if trial_dir and not pd.read_csv(out / "frames.csv").equals(pd.read_csv(Path(trial_dir) / "frames.csv")):
             print(f"garage_exp: suite scenario {scenario}: the rerun's frames differ from its trial's ({out})")
         source = out / "dataset"

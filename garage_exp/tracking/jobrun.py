@@ -10,7 +10,6 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
 
 from garage_exp.tracking.client import TrackingAway, client, retry
 from garage_exp.tracking.experiments import experiment_id
@@ -134,7 +133,7 @@ def tracked_run(run: JobRun, *, traceback_file: bool = False):
         run.end("FINISHED")
 
 
-def start_job_run(cfg: DictConfig, run_name: str, tags: dict[str, str], parent_run_id: str | None) -> JobRun:
+def start_job_run(cfg, run_name: str, tags: dict[str, str], parent_run_id: str | None) -> JobRun:
     """A new run of the job in the config's experiment, with the git commit, the given tags and the config's
     params (under a parent run when given)."""
     from mlflow.entities import Param
@@ -153,7 +152,7 @@ def start_job_run(cfg: DictConfig, run_name: str, tags: dict[str, str], parent_r
     return job
 
 
-def replay_pending(cfg: DictConfig, run_id: str, pending: Path) -> None:
+def replay_pending(cfg, run_id: str, pending: Path) -> None:
     """Log the calls a job kept while the server was away, in order, into its run (which ends FINISHED)."""
     run = JobRun(client(cfg.tracking.uri), run_id)
     for line in pending.read_text().splitlines():

@@ -9,7 +9,7 @@ import subprocess
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from garage_exp.core.plain import plain
 
 from garage_exp.core.state import STATE
 from garage_exp.core.paths import PROJECT_ROOT
@@ -43,8 +43,8 @@ def flatten(node: Any, prefix: str = "") -> dict[str, str]:
     return out
 
 
-def config_params(cfg: DictConfig) -> dict[str, str]:
-    container = OmegaConf.to_container(cfg, resolve=True)
+def config_params(cfg) -> dict[str, str]:
+    container = plain(cfg)
     container.pop("hydra", None)
     return flatten(container)
 
@@ -53,10 +53,10 @@ def file_digest(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def config_hash(cfg: DictConfig, plan_digest: str = "") -> str:
+def config_hash(cfg, plan_digest: str = "") -> str:
     """Identity of a job: the composed config without the keys that do not change its result, plus the
     content of its plan file (an edited plan is a different job, though its name is the same)."""
-    container = OmegaConf.to_container(cfg, resolve=True)
+    container = plain(cfg)
     for key in ("hydra", "resume", "tracking"):
         container.pop(key, None)
     if isinstance(container.get("detector"), dict):  # where `models:/` entries are looked up: the tracking store

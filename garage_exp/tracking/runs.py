@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from omegaconf import DictConfig
 
 from garage_exp.tracking.client import (TRANSIENT, UNREACHABLE, TrackingAway, client, existing_client, retry, tracking_uri,
                                        tracking_wait)
@@ -30,13 +29,13 @@ from garage_exp.tracking.ui import (EXPERIMENT_KIND, UI_ADDRESS, UI_VIEW, VIEW_K
                                     experiment_tags, links, saved_view, ui_command, ui_link)
 
 
-def finished_run(cfg: DictConfig, digest: str) -> str | None:
+def finished_run(cfg, digest: str) -> str | None:
     """The id of a FINISHED run of the same config in this experiment, if any."""
     runs = runs_of_config(cfg, digest, "FINISHED", 1)
     return runs[0].info.run_id if runs else None
 
 
-def runs_of_config(cfg: DictConfig, digest: str, status: str, limit: int) -> list:
+def runs_of_config(cfg, digest: str, status: str, limit: int) -> list:
     """Runs of this config (by its hash) in the config's experiment with the given status."""
     mlc = client(cfg.tracking.uri)
     exp = retry(lambda: mlc.get_experiment_by_name(cfg.tracking.experiment))
@@ -46,7 +45,7 @@ def runs_of_config(cfg: DictConfig, digest: str, status: str, limit: int) -> lis
                                          filter_string=f"tags.config_hash = '{digest}' and attributes.status = '{status}'"))
 
 
-def kept_run(cfg: DictConfig, digest: str) -> tuple[str, Path] | None:
+def kept_run(cfg, digest: str) -> tuple[str, Path] | None:
     """An unfinished run of this config whose job finished its outputs while the tracking server was away
     (its pending file ends with the run's end): (run id, pending file), or None."""
     for r in runs_of_config(cfg, digest, "RUNNING", 100):

@@ -30,6 +30,25 @@ class GTBox:
     kind: str = "vehicle"  # "vehicle" | "person"
 
 
+@dataclass(frozen=True)
+class Scoring:
+    """The job's matching rule (the `detector` group's iou, match and threshold, in the job spec): how a
+    detection counts as the target's, and the composite confidence that counts as detected."""
+
+    threshold: float = 0.5
+    iou: float = 0.5
+    match: str = "full"
+
+    @classmethod
+    def of(cls, node) -> "Scoring":
+        return cls(float(node.threshold), float(node.iou), str(node.match))
+
+    def score(self, dets: Sequence[Any], target: Any, truth: Sequence[Any] = (), **classes) -> "TargetScore":
+        """`score_target` under this rule; classes: the detector's (`Detector.scoring()`)."""
+        return score_target(dets, target, truth, iou_threshold=self.iou, match=self.match,
+                            threshold=self.threshold, **classes)
+
+
 @dataclass
 class TargetScore:
     per_model: list[float]  # best matching confidence (of the target's classes) per model, 0 when missed

@@ -18,9 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
-
 from garage_exp.core.errors import GarageError, check_range, did_you_mean
+from garage_exp.core.plain import plain
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 
 KEYPOINTS = ("corners", "points")
@@ -122,8 +121,7 @@ class Lines(SlotKind):
         from garage_exp.perception.slots.schema import SlotLinesConf
 
         # plain attribute reads in the detector's loops (a config node's are slow); missing keys take the defaults
-        params = SlotLinesConf(**OmegaConf.to_container(conf.lines, resolve=True)) \
-            if isinstance(conf.lines, DictConfig) else conf.lines
+        params = conf.lines if isinstance(conf.lines, SlotLinesConf) else SlotLinesConf(**plain(conf.lines))
         return lambda image, mpp: detect_lines(image, float(mpp), params)
 
 

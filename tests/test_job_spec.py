@@ -1,0 +1,97 @@
+"""The job's typed spec and summary (issue 41, item 2): the preflight hands the stages below the job a frozen spec
+with no config node in it, the summary is a typed record whose flat mapping is the metrics the job always logged,
+and a job opens its detector once."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+
+import pytest
+from conftest import compose_cfg, require, run_app
+
+from garage_exp.results.summary import JobSummary
+
+METRICS = {"confidence_mean": 0.4, "confidence_min": 0.1, "recall": 0.5, "frames_under_threshold": 3.0,
+           "visible_fraction_mean": 0.7, "false_positives": 0.0, "frames": 6.0, "difficulty": 0.6,
+           "confidence_mean_low": 0.3, "confidence_mean_high": 0.5, "replicates": 2.0, "label.black": 0.4,
+           "model.yolov8n": 0.4, "camera.rear": 0.2, "fair_frames": 4.0, "fair_confidence": 0.45,
+           "fair_difficulty": 0.55, "fair_recall": 0.5, "late": 1.0, "lateness": 1.0, "late_trajectories": 1.0,
+           "late_testable": 1.0, "detection_distance": math.nan, "ttc_at_detection": math.nan,
+           "stopping_distance": 4.2, "critical_distance": 6.7, "slot_recall": 0.8, "slot_truth_fair": 3.0}
+
+
+def test_the_summary_record_gives_back_the_logged_metrics_key_for_key_and_in_order():
+    summary = JobSummary.of(METRICS)
+    flat = summary.as_dict()
+    assert list(flat) == list(METRICS)
+    assert all(flat[k] == v or (math.isnan(v) and math.isnan(flat[k])) for k, v in METRICS.items())
+    assert summary.fair_difficulty == 0.55 and summary.breakdown["label.black"] == 0.4
+    assert summary.metric("slot_recall") == 0.8 and summary.metric("late") == 1.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        summary.difficulty = 0.0  # type: ignore[misc]
+    # a part the job did not measure is left out, not logged as NaN; a trial's run and dir are no metrics
+    static = {k: v for k, v in METRICS.items() if not k.startswith(("late", "detection", "ttc", "stopping",
+                                                                    "critical", "slot_"))}
+    trial = JobSummary.of(static).with_(run_id="r1", output_dir="/x")
+    assert trial.late_testable is None and trial.as_dict(trial=False) == static
+    assert trial.as_dict()["run_id"] == "r1"
+    assert JobSummary().as_dict() == {"difficulty": pytest.approx(math.nan, nan_ok=True)}  # a dry run
+
+
+def _config_nodes(value, path="spec") -> list[str]:
+    """Where a config node (DictConfig, ListConfig) sits inside `value`."""
+    from omegaconf import Container
+
+    if isinstance(value, Container):
+        return [path]
+    if dataclasses.is_dataclass(value) and not isinstance(value, type) and type(value).__module__.startswith(
+            ("garage_exp.run", "garage_exp.results", "garage_exp.perception.detect.matching")):
+        return [p for f in dataclasses.fields(value) for p in _config_nodes(getattr(value, f.name), f"{path}.{f.name}")]
+    if isinstance(value, Mapping):
+        return [p for k, v in value.items() for p in _config_nodes(v, f"{path}[{k!r}]")]
+    if isinstance(value, (list, tuple)):
+        return [p for k, v in enumerate(value) for p in _config_nodes(v, f"{path}[{k}]")]
+    return []
+
+
+def test_the_preflight_hands_a_frozen_typed_spec_without_a_config_node():
+    require("assets")
+    from garage_exp.perception.detect.matching import Scoring
+    from garage_exp.results.late import EgoConf
+    from garage_exp.results.table import FairRule
+    from garage_exp.run.preflight import preflight
+    from garage_exp.run.spec import JobSpec
+
+    cfg = compose_cfg("plan=tiny", "search.min_visible=0.3", "detector.threshold=0.4", "ego.speed=7",
+                      "renderer.save_frames=none", "dataset=true")
+    prepared = preflight(cfg, check_space=False, load=False)
+    spec = prepared.spec
+    assert isinstance(spec, JobSpec) and _config_nodes(spec) == []
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.seed = 1  # type: ignore[misc]
+    assert spec.fair == FairRule(0.3, 25.0, 0.5) and spec.scoring == Scoring(0.4, float(cfg.detector.iou),
+                                                                              str(cfg.detector.match))
+    assert isinstance(spec.ego, EgoConf) and spec.ego.speed == 7.0
+    assert spec.detector is prepared.detector and spec.sensor["_target_"] == cfg.sensor._target_
+    assert (spec.outputs.save_frames, spec.outputs.dataset, spec.outputs.lean) == ("none", True, False)
+    assert spec.primary == "front" and spec.names.case == str(cfg.case.name)
+
+
+@pytest.mark.render
+@pytest.mark.detect
+@pytest.mark.slow
+def test_a_job_opens_its_detector_once(tmp_path, mlflow_uri, monkeypatch):
+    """The preflight opens the detector (its models loaded and checked in the detector's process) and the frames
+    run on that one; before, the frames opened it a second time."""
+    from garage_exp.perception.detect import worker
+
+    opened = []
+    real = worker.open_detector
+    monkeypatch.setattr(worker, "open_detector", lambda *a, **k: opened.append(a[0]) or real(*a, **k))
+    r = run_app(["plan=tiny", "case.motion.start=4.0", "case.motion.end=4.0", "renderer.save_frames=none",
+                 "camera.width=160", "camera.height=120", "detector.models=[yolov8n_int8_openvino_model]",
+                 f"tracking.uri={mlflow_uri}"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert len(opened) == 1, opened
