@@ -299,6 +299,26 @@ def sigterm_here(*args, **kwargs):
     raise AssertionError("SIGTERM was not handled")
 
 
+def inject_fault(monkeypatch, spec: str) -> None:
+    """What GARAGE_EXP_FAULT=SPEC (tests/faults/sitecustomize.py) injects into a new interpreter, in this process
+    for the test (undone with its monkeypatch), so the command can run warm through run_app. Only the faults that
+    strike through the sensor model (`frame:...`, `disk:fill:JOB:N`): a job builds it by name at call time, so a
+    module attribute wrapped now is the one it calls; the other faults patch modules as they are first imported."""
+    import importlib.util
+
+    import garage_exp.perception.sensor as sensor
+
+    assert all(s.startswith("frame:") or (s.startswith("disk:fill:") and s.count(":") == 3)
+               for s in spec.split(";")), f"{spec}: only sensor-model faults can be injected in-process"
+    hooks = importlib.util.spec_from_file_location("faults_in_process", ROOT / "tests" / "faults" / "sitecustomize.py")
+    faults = importlib.util.module_from_spec(hooks)
+    monkeypatch.delenv("GARAGE_EXP_FAULT", raising=False)  # the hooks read it when loaded: none installed then
+    hooks.loader.exec_module(faults)
+    monkeypatch.setattr(sensor, "make_sensor", sensor.make_sensor)  # restored after the test
+    for one in spec.split(";"):
+        faults._install(one)
+
+
 def run_statuses(uri: str, experiment: str) -> list[str]:
     """The status of every run in the store's experiment."""
     from garage_exp.tracking import runs as tracking

@@ -10,7 +10,7 @@ import subprocess
 import optuna
 import pandas as pd
 import pytest
-from conftest import PYTHON, ROOT, child_env, require, run_app
+from conftest import PYTHON, child_env, inject_fault, require, run_app
 from optuna.trial import TrialState
 
 from garage_exp.tracking import runs as tracking
@@ -64,15 +64,17 @@ def test_two_workers_share_one_study_and_its_parent_run(tmp_path):
 @pytest.mark.render
 @pytest.mark.detect
 @pytest.mark.slow
-def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp_path):
+def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp_path, monkeypatch):
     require("vulkan", "vehicles", "models")
+    # trial 1 crashes in its first frame: the fault tests/faults injects, here in this process (warm renderer and
+    # detector, shared with this file's other searches) rather than in a new interpreter paying their start-up
+    inject_fault(monkeypatch, "frame:raise:1:0")
     suite = tmp_path / "suite"
     args = [*SEARCH, "search.mode=suite", "search.trials=3", "search.suite.per_band=2", f"search.suite.dir={suite}",
             "+search.suite.bands.any=[0.0,1.01]", "search.min_visible=0.0", "search.min_box=0", "search.max_truncation=1.0", "dataset=true",
             "export.openscenario=true", "palette.target_colours=[black]", "case.motion.start=5", "case.motion.end=4", "case.motion.step=1",
             "light.intensity=interval(0.3,1.0)", "case.actors.target.distance=interval(4.0,6.0)", *stores(tmp_path)]
-    r = run_app(args, tmp_path, env={"PYTHONPATH": str(ROOT / "tests" / "faults"),
-                                     "GARAGE_EXP_FAULT": "frame:raise:1:0"})  # trial 1 crashes in its first frame
+    r = run_app(args, tmp_path)
     # the study went on past the crash; like a sweep with a failed job, the command exits 1 and says so
     assert r.returncode == 1, r.stderr[-3000:]
     assert "1 failed" in r.stdout and "trial 2/3 failed: RuntimeError" in r.stdout, r.stdout[-3000:]
