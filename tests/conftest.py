@@ -300,22 +300,26 @@ def sigterm_here(*args, **kwargs):
 
 
 def inject_fault(monkeypatch, spec: str) -> None:
-    """What GARAGE_EXP_FAULT=SPEC (tests/faults/sitecustomize.py) injects into a new interpreter, in this process
-    for the test (undone with its monkeypatch), so the command can run warm through run_app. Only the faults that
-    strike through the sensor model (`frame:...`, `disk:fill:JOB:N`): a job builds it by name at call time, so a
-    module attribute wrapped now is the one it calls; the other faults patch modules as they are first imported."""
+    """What GARAGE_EXP_FAULT=SPEC (tests/faults/sitecustomize.py) injects into a new interpreter, here in this
+    process for the test (undone with its monkeypatch), so the command runs through run_app on the warm renderer
+    and detector. The hooks are tests/faults' own; each wraps an attribute garage_exp looks up at call time (the
+    sensor maker a job builds by name, the job module's plan_map, DetectorProcess.submit), so wrapping the loaded
+    module now is what wrapping it as it is first imported does in a new interpreter."""
+    import importlib
     import importlib.util
 
-    import garage_exp.perception.sensor as sensor
-
-    assert all(s.startswith("frame:") or (s.startswith("disk:fill:") and s.count(":") == 3)
-               for s in spec.split(";")), f"{spec}: only sensor-model faults can be injected in-process"
     hooks = importlib.util.spec_from_file_location("faults_in_process", ROOT / "tests" / "faults" / "sitecustomize.py")
     faults = importlib.util.module_from_spec(hooks)
     monkeypatch.delenv("GARAGE_EXP_FAULT", raising=False)  # the hooks read it when loaded: none installed then
     hooks.loader.exec_module(faults)
-    monkeypatch.setattr(sensor, "make_sensor", sensor.make_sensor)  # restored after the test
-    for one in spec.split(";"):
+    faults.after_import = lambda name, patch: patch(importlib.import_module(name))  # loaded already: patch now
+    import garage_exp.perception.sensor as sensor
+    import garage_exp.run.job as job
+    from garage_exp.perception.detect import worker
+
+    for owner, name in ((sensor, "make_sensor"), (job, "plan_map"), (worker.DetectorProcess, "submit")):
+        monkeypatch.setattr(owner, name, getattr(owner, name))  # each put back after the test
+    for one in filter(None, spec.split(";")):
         faults._install(one)
 
 
