@@ -1,7 +1,8 @@
 """Whole jobs: the garage rendered, the target scored by the detectors, everything logged.
 
-The in-process tests share the process's renderer and detectors (loaded once); the sweep tests run the app in
-a subprocess as a user would. Skipped, with the reason, only where a Vulkan device or the weights are missing.
+The tests share the process's renderer and detectors (loaded once); the commands run as `python -m` runs them,
+in this process (conftest.run_app, run_in_process). Skipped, with the reason, only where a Vulkan device or the
+weights are missing.
 """
 
 from __future__ import annotations
@@ -341,9 +342,11 @@ def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
 def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
     """`python -m garage_exp.report` (the latest sweep) and `--parent RUN_ID` write the report the sweep
     logged: the same main effects."""
-    import subprocess
+    import sys
 
-    from conftest import PYTHON
+    from conftest import run_in_process
+
+    from garage_exp import report
 
     tmp, mlc, runs = sweep
     parent = next(r for r in runs if r.data.tags.get("sweep") == "parent").info.run_id
@@ -351,8 +354,8 @@ def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
     for extra in ([], ["--parent", parent]):
         out = tmp_path / ("latest" if not extra else "parent")
-        r = subprocess.run([PYTHON, "-m", "garage_exp.report", "--uri", uri, "-o", str(out), *extra],
-                           capture_output=True, text=True, timeout=300, cwd=tmp_path)
+        # as `python -m garage_exp.report ARGS` (its __main__: sys.exit(main())), in this process
+        r = run_in_process(["--uri", uri, "-o", str(out), *extra], tmp_path, entry=lambda: sys.exit(report.main()))
         assert r.returncode == 0, r.stderr[-3000:]
         written = out / parent / "report" / "report.md"
         assert f"written: {written}" in r.stdout and "# Sweep report" in r.stdout
