@@ -1,5 +1,6 @@
 """Every level of every config group, every experiment and every case composes, and a plan-only job
-(dry_run=true) runs with each. Fast: compose in-process, dry runs through the fork server two at a time."""
+(dry_run=true) runs with each. Fast: compose in-process, dry runs in this process one after another, each a run in
+one MLflow store."""
 
 from __future__ import annotations
 
