@@ -287,6 +287,15 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None, entry=No
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
 
 
+def run_module(module: str, args: list[str], cwd: Path, env: dict | None = None):
+    """`python -m MODULE ARGS` (another command than garage_exp's: garage_exp.plan, garage_exp.report, ...), in
+    this process as run_in_process runs the main one: the module run as __main__ (runpy, as -m does), argv,
+    working dir and environment set for the call and restored after it, SystemExit as the return code."""
+    import runpy
+
+    return run_in_process(args, cwd, env, entry=lambda: runpy.run_module(module, run_name="__main__", alter_sys=True))
+
+
 # --- a signal in the middle of a command, in this process -----------------------------------------------------------
 def sigterm_here(*args, **kwargs):
     """Stands in for a command's long part (a training, a step, a scoring): SIGTERM to this process, as a
