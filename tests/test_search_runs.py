@@ -39,13 +39,16 @@ def test_a_bad_search_space_is_one_line_exit_2_and_nothing_written(tmp_path, spa
 
 def test_two_workers_share_one_study_and_its_parent_run(tmp_path):
     """Two processes on one sqlite study (dry-run trials: no rendering) finish exactly the asked trials, each
-    number once, each trial a child run of the study's one parent."""
+    number once, each trial a child run of the study's one parent. The second process is this one (the command
+    line in-process, while the first runs)."""
     args = [*SEARCH, "dry_run=true", "search.trials=6", "light.intensity=interval(0.2,1.0)", *stores(tmp_path)]
-    procs = [subprocess.Popen([PYTHON, "-m", "garage_exp", *args, f"hydra.sweep.dir={tmp_path}/sweep{k}"],
-                              cwd=tmp_path, env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for k in range(2)]
-    outs = [p.communicate(timeout=300) for p in procs]
-    assert [p.returncode for p in procs] == [0, 0], outs
+    other = subprocess.Popen([PYTHON, "-m", "garage_exp", *args, f"hydra.sweep.dir={tmp_path}/sweep0"],
+                             cwd=tmp_path, env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    (tmp_path / "here").mkdir()
+    # fresh_store: the store is the product's to create under its lock, as the other process may be doing now
+    here = run_app(args, tmp_path / "here", fresh_store=True)
+    outs = [other.communicate(timeout=300), (here.stdout, here.stderr)]
+    assert [other.returncode, here.returncode] == [0, 0], outs
     study = optuna.load_study(study_name=optuna.get_all_study_names(f"sqlite:///{tmp_path / 'optuna.db'}")[0],
                               storage=f"sqlite:///{tmp_path / 'optuna.db'}")
     assert sorted(t.number for t in study.trials) == list(range(6))
