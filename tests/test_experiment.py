@@ -342,11 +342,7 @@ def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
 def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
     """`python -m garage_exp.report` (the latest sweep) and `--parent RUN_ID` write the report the sweep
     logged: the same main effects."""
-    import sys
-
-    from conftest import run_in_process
-
-    from garage_exp import report
+    from conftest import run_module
 
     tmp, mlc, runs = sweep
     parent = next(r for r in runs if r.data.tags.get("sweep") == "parent").info.run_id
@@ -354,8 +350,7 @@ def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
     for extra in ([], ["--parent", parent]):
         out = tmp_path / ("latest" if not extra else "parent")
-        # as `python -m garage_exp.report ARGS` (its __main__: sys.exit(main())), in this process
-        r = run_in_process(["--uri", uri, "-o", str(out), *extra], tmp_path, entry=lambda: sys.exit(report.main()))
+        r = run_module("garage_exp.report", ["--uri", uri, "-o", str(out), *extra], tmp_path)
         assert r.returncode == 0, r.stderr[-3000:]
         written = out / parent / "report" / "report.md"
         assert f"written: {written}" in r.stdout and "# Sweep report" in r.stdout
