@@ -7,6 +7,11 @@ Protocol: one JSON object per line on stdin {"argv", "cwd", "env", "stdout", "st
 command's cli as "module:function", e.g. "garage_exp.verify.app:cli"}, all before stdin
 closes; one per line on stdout {"id" (the request's index), "rc"} as the children finish. Only for tests
 (tests/test_reliability_inputs.py, which also runs a few entries as real subprocesses to compare).
+
+The detectors' libraries (ultralytics and torch, OpenVINO, ONNX) are imported here too, for children that run
+with GARAGE_EXP_DETECT_PROCESS=0: their detector checks then load in the child itself, forked with the libraries
+in place, instead of in a detector process each that starts an interpreter and imports them anew (half the time
+of an entry whose job reaches its detectors). Importing starts no thread in them, so the fork is safe.
 """
 
 from __future__ import annotations
@@ -27,6 +32,11 @@ def preload() -> None:
     from hydra.core.plugins import Plugins
 
     Plugins.instance()  # plugin discovery scans site-packages once
+    import onnx  # noqa: F401  the detector entries' loaders (see the module's docstring)
+    import onnxruntime  # noqa: F401
+    import openvino  # noqa: F401
+    import torchvision  # noqa: F401
+    import ultralytics  # noqa: F401
 
 
 def call_cli(entry=None) -> int:

@@ -287,6 +287,15 @@ def run_in_process(args: list[str], cwd: Path, env: dict | None = None, entry=No
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
 
 
+def run_module(module: str, args: list[str], cwd: Path, env: dict | None = None):
+    """`python -m MODULE ARGS` (another command than garage_exp's: garage_exp.plan, garage_exp.report, ...), in
+    this process as run_in_process runs the main one: the module run as __main__ (runpy, as -m does), argv,
+    working dir and environment set for the call and restored after it, SystemExit as the return code."""
+    import runpy
+
+    return run_in_process(args, cwd, env, entry=lambda: runpy.run_module(module, run_name="__main__", alter_sys=True))
+
+
 # --- a signal in the middle of a command, in this process -----------------------------------------------------------
 def sigterm_here(*args, **kwargs):
     """Stands in for a command's long part (a training, a step, a scoring): SIGTERM to this process, as a
@@ -297,6 +306,30 @@ def sigterm_here(*args, **kwargs):
     os.kill(os.getpid(), signal.SIGTERM)
     time.sleep(30)  # the handler raises before this ends
     raise AssertionError("SIGTERM was not handled")
+
+
+def inject_fault(monkeypatch, spec: str) -> None:
+    """What GARAGE_EXP_FAULT=SPEC (tests/faults/sitecustomize.py) injects into a new interpreter, here in this
+    process for the test (undone with its monkeypatch), so the command runs through run_app on the warm renderer
+    and detector. The hooks are tests/faults' own; each wraps an attribute garage_exp looks up at call time (the
+    sensor maker a job builds by name, the job module's plan_map, DetectorProcess.submit), so wrapping the loaded
+    module now is what wrapping it as it is first imported does in a new interpreter."""
+    import importlib
+    import importlib.util
+
+    hooks = importlib.util.spec_from_file_location("faults_in_process", ROOT / "tests" / "faults" / "sitecustomize.py")
+    faults = importlib.util.module_from_spec(hooks)
+    monkeypatch.delenv("GARAGE_EXP_FAULT", raising=False)  # the hooks read it when loaded: none installed then
+    hooks.loader.exec_module(faults)
+    faults.after_import = lambda name, patch: patch(importlib.import_module(name))  # loaded already: patch now
+    import garage_exp.perception.sensor as sensor
+    import garage_exp.run.job as job
+    from garage_exp.perception.detect import worker
+
+    for owner, name in ((sensor, "make_sensor"), (job, "plan_map"), (worker.DetectorProcess, "submit")):
+        monkeypatch.setattr(owner, name, getattr(owner, name))  # each put back after the test
+    for one in filter(None, spec.split(";")):
+        faults._install(one)
 
 
 def run_statuses(uri: str, experiment: str) -> list[str]:

@@ -9,7 +9,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from conftest import PYTHON, ROOT, child_env, require
+from conftest import PYTHON, ROOT, child_env, require, run_module
 
 
 def make_n(target: str) -> str:
@@ -23,10 +23,9 @@ def test_make_map_draws_every_shipped_plan(tmp_path):
     assert "plans/*.yaml plans/*.csv" in line and "-o outputs/maps/" in line
     plans = sorted([*ROOT.glob("plans/*.yaml"), *ROOT.glob("plans/*.csv")])
     assert len(plans) >= 5
-    for plan in plans:  # what the loop runs, writing into tmp_path instead of outputs/maps/
+    for plan in plans:  # what the loop runs, writing into tmp_path instead of outputs/maps/ (in this process)
         out = tmp_path / f"{plan.stem}.png"
-        r = subprocess.run([PYTHON, "-m", "garage_exp.plan", "map", str(plan), "-o", str(out)], cwd=ROOT,
-                           capture_output=True, text=True, timeout=120)
+        r = run_module("garage_exp.plan", ["map", str(plan), "-o", str(out)], ROOT)
         assert r.returncode == 0, (plan.name, r.stderr[-2000:])
         assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 5000, plan.name
 

@@ -1,7 +1,8 @@
 """Whole jobs: the garage rendered, the target scored by the detectors, everything logged.
 
-The in-process tests share the process's renderer and detectors (loaded once); the sweep tests run the app in
-a subprocess as a user would. Skipped, with the reason, only where a Vulkan device or the weights are missing.
+The tests share the process's renderer and detectors (loaded once); the commands run as `python -m` runs them,
+in this process (conftest.run_app, run_in_process). Skipped, with the reason, only where a Vulkan device or the
+weights are missing.
 """
 
 from __future__ import annotations
@@ -344,9 +345,7 @@ def test_a_new_factor_by_yaml_alone_is_swept(tmp_path):
 def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
     """`python -m garage_exp.report` (the latest sweep) and `--parent RUN_ID` write the report the sweep
     logged: the same main effects."""
-    import subprocess
-
-    from conftest import PYTHON
+    from conftest import run_module
 
     tmp, mlc, runs = sweep
     parent = next(r for r in runs if r.data.tags.get("sweep") == "parent").info.run_id
@@ -354,8 +353,7 @@ def test_report_command_rebuilds_the_sweeps_report(sweep, tmp_path):
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
     for extra in ([], ["--parent", parent]):
         out = tmp_path / ("latest" if not extra else "parent")
-        r = subprocess.run([PYTHON, "-m", "garage_exp.report", "--uri", uri, "-o", str(out), *extra],
-                           capture_output=True, text=True, timeout=300, cwd=tmp_path)
+        r = run_module("garage_exp.report", ["--uri", uri, "-o", str(out), *extra], tmp_path)
         assert r.returncode == 0, r.stderr[-3000:]
         written = out / parent / "report" / "report.md"
         assert f"written: {written}" in r.stdout and "# Sweep report" in r.stdout

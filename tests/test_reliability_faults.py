@@ -15,17 +15,13 @@ kills changed nothing: the same frame table.
 from __future__ import annotations
 
 import io
-import os
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import run_app
+from conftest import inject_fault, run_app
 from mlflow_server import Server
 
-# The fault-injection hooks, ahead of the caller's own PYTHONPATH (a work tree testing its own garage_exp).
-FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
-                         *filter(None, [os.environ.get("PYTHONPATH")])])
 # All the randomness the product has: parked cars drawn (busy palette), target models drawn from the library
 # (not pinned), sensor noise (noisy), lamps switched on at random (dim light).
 JOB = ["plan=research", "case=light", "detector.models=[yolov8n_int8_openvino_model]",
@@ -70,9 +66,12 @@ def repeat_run(tmp_path_factory):
 @pytest.fixture(scope="module")
 def faulty_sweep(repeat_run, mlflow_server, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("faulty_sweep")
-    env = {"MLFLOW_TRACKING_URI": mlflow_server["uri"], "PYTHONPATH": FAULTS,
-           "GARAGE_EXP_FAULT": "frame:raise:0:3;detector:kill:1:2,5"}
-    proc = run_app(["-m", *JOB, "light=bright,dim"], tmp, env=env, timeout=900)
+    # tests/faults' hooks, in this process (the warm renderer and detector; the determinism tests compare with
+    # repeat_run's own processes)
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        inject_fault(monkeypatch, "frame:raise:0:3;detector:kill:1:2,5")
+        proc = run_app(["-m", *JOB, "light=bright,dim"], tmp, env={"MLFLOW_TRACKING_URI": mlflow_server["uri"]},
+                       timeout=900)
     from garage_exp.tracking import runs as tracking
 
     mlc = tracking.client(mlflow_server["uri"])

@@ -10,7 +10,7 @@ import subprocess
 import optuna
 import pandas as pd
 import pytest
-from conftest import PYTHON, ROOT, child_env, require, run_app
+from conftest import PYTHON, child_env, inject_fault, require, run_app
 from optuna.trial import TrialState
 
 from garage_exp.tracking import runs as tracking
@@ -39,13 +39,16 @@ def test_a_bad_search_space_is_one_line_exit_2_and_nothing_written(tmp_path, spa
 
 def test_two_workers_share_one_study_and_its_parent_run(tmp_path):
     """Two processes on one sqlite study (dry-run trials: no rendering) finish exactly the asked trials, each
-    number once, each trial a child run of the study's one parent."""
+    number once, each trial a child run of the study's one parent. The second process is this one (the command
+    line in-process, while the first runs)."""
     args = [*SEARCH, "dry_run=true", "search.trials=6", "light.intensity=interval(0.2,1.0)", *stores(tmp_path)]
-    procs = [subprocess.Popen([PYTHON, "-m", "garage_exp", *args, f"hydra.sweep.dir={tmp_path}/sweep{k}"],
-                              cwd=tmp_path, env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for k in range(2)]
-    outs = [p.communicate(timeout=300) for p in procs]
-    assert [p.returncode for p in procs] == [0, 0], outs
+    other = subprocess.Popen([PYTHON, "-m", "garage_exp", *args, f"hydra.sweep.dir={tmp_path}/sweep0"],
+                             cwd=tmp_path, env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    (tmp_path / "here").mkdir()
+    # fresh_store: the store is the product's to create under its lock, as the other process may be doing now
+    here = run_app(args, tmp_path / "here", fresh_store=True)
+    outs = [other.communicate(timeout=300), (here.stdout, here.stderr)]
+    assert [other.returncode, here.returncode] == [0, 0], outs
     study = optuna.load_study(study_name=optuna.get_all_study_names(f"sqlite:///{tmp_path / 'optuna.db'}")[0],
                               storage=f"sqlite:///{tmp_path / 'optuna.db'}")
     assert sorted(t.number for t in study.trials) == list(range(6))
@@ -64,15 +67,17 @@ def test_two_workers_share_one_study_and_its_parent_run(tmp_path):
 @pytest.mark.render
 @pytest.mark.detect
 @pytest.mark.slow
-def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp_path):
+def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp_path, monkeypatch):
     require("vulkan", "vehicles", "models")
+    # trial 1 crashes in its first frame: the fault tests/faults injects, here in this process (warm renderer and
+    # detector, shared with this file's other searches) rather than in a new interpreter paying their start-up
+    inject_fault(monkeypatch, "frame:raise:1:0")
     suite = tmp_path / "suite"
     args = [*SEARCH, "search.mode=suite", "search.trials=3", "search.suite.per_band=2", f"search.suite.dir={suite}",
             "+search.suite.bands.any=[0.0,1.01]", "search.min_visible=0.0", "search.min_box=0", "search.max_truncation=1.0", "dataset=true",
             "export.openscenario=true", "palette.target_colours=[black]", "case.motion.start=5", "case.motion.end=4", "case.motion.step=1",
             "light.intensity=interval(0.3,1.0)", "case.actors.target.distance=interval(4.0,6.0)", *stores(tmp_path)]
-    r = run_app(args, tmp_path, env={"PYTHONPATH": str(ROOT / "tests" / "faults"),
-                                     "GARAGE_EXP_FAULT": "frame:raise:1:0"})  # trial 1 crashes in its first frame
+    r = run_app(args, tmp_path)
     # the study went on past the crash; like a sweep with a failed job, the command exits 1 and says so
     assert r.returncode == 1, r.stderr[-3000:]
     assert "1 failed" in r.stdout and "trial 2/3 failed: RuntimeError" in r.stdout, r.stdout[-3000:]

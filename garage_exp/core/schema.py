@@ -427,10 +427,22 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+# What register() last stored: (group, name, dataclass) -> the ConfigStore entry it made.
+_STORED = STATE.cache("core.schema.stored", "process")
+
+
 def register() -> None:
+    """Store the config schema and each group's schema in Hydra's ConfigStore. Every command calls it (and every
+    composition outside one); storing converts each dataclass (OmegaConf.structured, 0.1-0.2 s in all), so a
+    dataclass whose entry is still in the store is not stored again: a process running many commands (a test
+    session, a notebook) pays it once."""
     cs = ConfigStore.instance()
     # A group, so that a command whose config composes the experiment's (conf/gym.yaml) types it with its own
     # subclass of Config: `override config_schema: gym`.
-    cs.store(group="config_schema", name="experiment", node=config_schema(), package="_global_")
-    for group, schema in GROUPS.items():
-        cs.store(group=group, name=f"{group}_schema", node=schema_of(schema))
+    nodes = [("config_schema", "experiment", config_schema(), "_global_")]
+    nodes += [(group, f"{group}_schema", schema_of(schema), None) for group, schema in GROUPS.items()]
+    for group, name, node, package in nodes:
+        entries = cs.repo.get(group, {})
+        if _STORED.get((group, name, node)) is None or entries.get(f"{name}.yaml") is not _STORED[group, name, node]:
+            cs.store(group=group, name=name, node=node, package=package)
+            _STORED[group, name, node] = cs.repo[group][f"{name}.yaml"]
