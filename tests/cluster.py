@@ -181,19 +181,29 @@ def mlflow_server(root: Path, backend: str, artifacts: Path) -> tuple[Process, s
     shares (clients write there themselves: --no-serve-artifacts)."""
     import urllib.request
 
-    port = free_port()
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MLFLOW_TRACKING_URI")}
-    proc = Process([str(BIN / "mlflow"), "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
-                    "--backend-store-uri", backend, "--no-serve-artifacts", "--default-artifact-root",
-                    str(artifacts)], root / "mlflow_server.log", env=env, cwd=root)
-    uri = f"http://127.0.0.1:{port}"
+    log = root / "mlflow_server.log"
+    for attempt in range(3):
+        # a free port can be taken before the server binds it (Ray's workers open ports all the time, and the
+        # server takes seconds to start): then the server exits saying so, and another port is tried
+        port, seen = free_port(), log.stat().st_size if log.exists() else 0
+        proc = Process([str(BIN / "mlflow"), "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
+                        "--backend-store-uri", backend, "--no-serve-artifacts", "--default-artifact-root",
+                        str(artifacts)], log, env=env, cwd=root)
+        uri = f"http://127.0.0.1:{port}"
 
-    def up():
-        with urllib.request.urlopen(f"{uri}/health", timeout=2) as r:
-            return r.status == 200
+        def up():
+            with urllib.request.urlopen(f"{uri}/health", timeout=2) as r:
+                return r.status == 200
 
-    wait_for(up, "mlflow server", 180, proc.proc, proc.log)
-    return proc, uri
+        try:
+            wait_for(up, "mlflow server", 180, proc.proc, proc.log)
+            return proc, uri
+        except AssertionError:
+            taken = proc.proc.poll() is not None and "address already in use" in log.read_text()[seen:]
+            if not taken or attempt == 2:
+                raise
+    raise AssertionError("unreachable")
 
 
 # Ray 2.60 turns token authentication on for a head started where a token file exists (~/.ray/auth_token, which

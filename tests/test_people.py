@@ -209,7 +209,7 @@ def test_dataset_labels_a_person_with_coco_id_0(tmp_path, adult):
 def test_frame_rows_name_the_target_kind_only_in_scenes_with_people():
     shot = SimpleNamespace(index=0, label="adult", position=8.0, ego=Pose(), target="walker")
     truth = SimpleNamespace(distance=8.0, visible_fraction=1.0, visible_pixels=100, full_box=(0, 0, 10, 50),
-                            truncation=0.0, kitti="easy")
+                            truncation=0.0, kitti="easy", occluder="none")
     score = SimpleNamespace(per_model=[0.8], composite=0.8, detected=True, false_positives=0)
     assert "target_kind" not in frame_row(shot, "front", truth, score, ["m"])
     import pandas as pd
