@@ -55,10 +55,11 @@ run: setup
 
 # GARAGE_EXP_PROVISIONED: setup provided Vulkan, vehicles and weights, so a render/detect/slow skip is an error.
 # -n auto --dist loadfile: a worker per core, each test file on one worker (its module-scoped sweeps run once, its
-# jobs share that worker's warm renderer and detector).
+# jobs share that worker's warm renderer and detector). --no-loadscope-reorder: the files go out in the order
+# tests/conftest.py gives them, the slowest first (tests/file_seconds.json), not xdist's most-tests-first.
 test: setup docs
 	$(BIN)/lint-imports --no-cache
-	GARAGE_EXP_PROVISIONED=1 $(BIN)/python -m pytest -q -p no:cacheprovider -n auto --dist loadfile
+	GARAGE_EXP_PROVISIONED=1 $(BIN)/python -m pytest -q -p no:cacheprovider -n auto --dist loadfile --no-loadscope-reorder
 
 # The docs site (mkdocs.yml, docs/) into outputs/site. --strict: a broken link, anchor or image fails the build, and
 # `make test` builds it first. mkdocs-material is in the `test` extra; installed here too if the venv lacks it.

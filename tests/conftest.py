@@ -130,6 +130,29 @@ def pytest_runtest_makereport(item, call):
         report.longrepr = f"skip is an error here ({why}): {reason}"
 
 
+# --- the slowest files first ---------------------------------------------------------------------------------------
+# `make test` runs `--dist loadfile --no-loadscope-reorder`: xdist hands each worker a whole file at a time in
+# collection order. Ordering the files by their measured seconds (tests/file_seconds.json, written from a JUnit
+# report by scripts/test_weights.py), longest first, is the greedy schedule for two workers: no 100 s file is left
+# to run alone at the end. A file not in the table (new) counts as its number of tests in seconds. Within a file
+# the order is unchanged.
+def file_order_key(weights: dict[str, float], counts: dict[str, int]):
+    return lambda path: -weights.get(path, float(counts[path]))
+
+
+def pytest_collection_modifyitems(session, config, items):
+    import json
+
+    table = ROOT / "tests" / "file_seconds.json"
+    weights = json.loads(table.read_text()) if table.is_file() else {}
+    counts: dict[str, int] = {}
+    for item in items:
+        path = item.nodeid.split("::", 1)[0]
+        counts[path] = counts.get(path, 0) + 1
+    key = file_order_key(weights, counts)
+    items[:] = sorted(items, key=lambda item: key(item.nodeid.split("::", 1)[0]))  # stable: a file's order kept
+
+
 @pytest.fixture
 def mlflow_uri(tmp_path) -> str:
     return f"sqlite:///{tmp_path / 'mlflow.db'}"
