@@ -4,6 +4,7 @@ and a job opens its detector once."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 from collections.abc import Mapping
@@ -95,3 +96,75 @@ def test_a_job_opens_its_detector_once(tmp_path, mlflow_uri, monkeypatch):
                  f"tracking.uri={mlflow_uri}"], tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
     assert len(opened) == 1, opened
+
+
+BELOW_RUN = ("plan", "scene", "scenario", "render", "perception", "results", "tracking", "exports")
+
+
+@contextlib.contextmanager
+def config_nodes_handed_below_run():
+    """Every call into a layer below the job (BELOW_RUN) whose arguments hold a config node, as
+    (module, function, argument, caller) - watched with a profile hook on this thread and the threads it starts."""
+    import sys
+    import threading
+    from pathlib import Path
+
+    from omegaconf import DictConfig, ListConfig
+
+    import garage_exp
+
+    root = str(Path(garage_exp.__file__).parent) + "/"
+    handed: list[tuple[str, str, str, str]] = []
+
+    def watch(frame, event, arg):
+        if event != "call" or not frame.f_code.co_filename.startswith(root):
+            return
+        module = frame.f_code.co_filename[len(root):]
+        if module.split("/")[0] not in BELOW_RUN:
+            return
+        code = frame.f_code
+        for name in code.co_varnames[:code.co_argcount + code.co_kwonlyargcount]:
+            if isinstance(frame.f_locals.get(name), (DictConfig, ListConfig)):
+                caller = frame.f_back.f_code
+                handed.append((module, code.co_name, name, f"{caller.co_filename.removeprefix(root)}:{caller.co_name}"))
+
+    sys.setprofile(watch)
+    threading.setprofile(watch)
+    try:
+        yield handed
+    finally:
+        sys.setprofile(None)
+        threading.setprofile(None)
+
+
+def test_the_watch_sees_a_config_node_handed_below_run():
+    """The watch below can fail: a node handed to a scene check is seen."""
+    from garage_exp.scene.structure import check_garage
+
+    cfg = compose_cfg("plan=tiny")
+    with config_nodes_handed_below_run() as handed:
+        check_garage(cfg.garage)
+    assert [(m, f, a) for m, f, a, _ in handed] == [("scene/structure.py", "check_garage", "garage")]
+
+
+@pytest.mark.render
+@pytest.mark.detect
+@pytest.mark.slow
+def test_no_stage_below_the_job_is_handed_a_config_node(tmp_path, mlflow_uri):
+    """A job that reaches most stages (replicates, random materials, worn paint, an OpenSCENARIO export, a
+    dataset) and an adversary's episode hand the layers below `run` plain data only: Settings, the spec's
+    records, never a DictConfig (issue 41 item 2)."""
+    from garage_exp.gym.env import StepOutEnv
+
+    with config_nodes_handed_below_run() as handed:
+        r = run_app(["plan=tiny", "case.motion.start=4.0", "case.motion.end=3.5", "replicates=2",
+                     "materials=random", "wear=worn", "export.openscenario=true", "dataset=true",
+                     "renderer.save_frames=none", "camera.width=160", "camera.height=120",
+                     "detector.models=[yolov8n_int8_openvino_model]", f"tracking.uri={mlflow_uri}"], tmp_path)
+        assert r.returncode == 0, r.stderr[-3000:]
+        env = StepOutEnv(overrides=["camera.width=160", "camera.height=120",
+                                    "detector.models=[yolov8n_int8_openvino_model]"])
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        env.close()
+    assert not handed, "\n".join(map(str, sorted(set(handed))))

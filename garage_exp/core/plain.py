@@ -1,11 +1,79 @@
-"""Config nodes as plain data: the one place below the job (`run`) where a DictConfig is turned into dicts and
-dataclasses, so that the stages under it (plan, scene, render, perception, results) import no OmegaConf
-(pyproject.toml's import-linter contract) and take a node, a dict or a dataclass alike."""
+"""Config nodes as plain data: the one place where a DictConfig is turned into dicts, `Settings` and dataclasses.
+The job (`run`) and the commands above it hand the stages under it (plan, scene, scenario, render, perception,
+results, tracking, exports) `Settings`, never a config node: those stages import no OmegaConf (pyproject.toml's
+import-linter contract), and tests/test_spec.py watches every call into them during a job, a search and an
+adversary's episode for a node among the arguments."""
 
 from __future__ import annotations
 
 from dataclasses import is_dataclass
 from typing import Any
+
+
+class Settings(dict):
+    """A config group's values as plain, read-only data: a dict whose keys read as attributes too (`garage.width`
+    as a node reads), nested groups `Settings`, lists tuples, interpolations resolved. Read-only because the
+    layers below the job are told the job's settings; none of them may change what the next one reads."""
+
+    __slots__ = ()
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def _refuse(self, *args: Any, **kwargs: Any):
+        raise TypeError("a job's settings are read-only (core.plain.Settings)")
+
+    __setattr__ = __setitem__ = __delitem__ = __delattr__ = _refuse
+    pop = popitem = clear = update = setdefault = _refuse
+
+    def __copy__(self) -> "Settings":
+        return self
+
+    def __deepcopy__(self, memo: dict) -> "Settings":
+        return self
+
+    def __reduce__(self):  # a pickle (a Ray task's arguments) builds it back through the constructor
+        return (Settings, (dict(self),))
+
+
+def frozen(value: Any) -> Any:
+    """A container's values as Settings and tuples (leaves as they are)."""
+    if isinstance(value, dict):
+        return Settings({k: frozen(v) for k, v in value.items()})
+    if isinstance(value, (list, tuple)):
+        return tuple(frozen(v) for v in value)
+    return value
+
+
+def settings(node: Any) -> Any:
+    """A config node (or a dict, a dataclass, a list) as read-only plain data: `Settings` and tuples; None as None."""
+    from omegaconf import DictConfig, ListConfig, OmegaConf
+
+    if isinstance(node, Settings):
+        return node
+    if isinstance(node, DictConfig) and "hydra" in node:  # composed with Hydra's own node (tests): not a setting,
+        # and its sweep keys resolve only inside a sweep; the other keys resolve against the whole config as before
+        return Settings({k: settings(child) if isinstance(child := node._get_node(k), (DictConfig, ListConfig))
+                         else frozen(node[k]) for k in node if k != "hydra"})
+    if isinstance(node, (DictConfig, ListConfig)):
+        return frozen(OmegaConf.to_container(node, resolve=True))
+    if is_dataclass(node) and not isinstance(node, type):
+        from dataclasses import asdict
+
+        return frozen(asdict(node))
+    return frozen(node)
+
+
+def thawed(value: Any) -> Any:
+    """Settings and tuples back as dicts and lists (to write them, or to merge them into a node)."""
+    if isinstance(value, dict):
+        return {k: thawed(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return [thawed(v) for v in value]
+    return value
 
 
 def plain(node: Any) -> dict:
@@ -18,7 +86,7 @@ def plain(node: Any) -> dict:
         from dataclasses import asdict
 
         return asdict(node)
-    return dict(node or {})
+    return thawed(dict(node or {}))
 
 
 def as_object(node: Any) -> Any:

@@ -12,6 +12,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.plain import settings
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.gym import schema
@@ -112,7 +113,8 @@ def run_train(cfg: DictConfig, env, out: Path, venv=None) -> dict:
 
     g = cfg.gym
     tags = {"kind": "gym", "case": str(cfg.case.name), "output_dir": str(out)}
-    run = tracking.start_job_run(cfg, f"adversary on {cfg.case.name}, {g.timesteps} steps, seed {g.seed}", tags, None)
+    run = tracking.start_job_run(settings(cfg), f"adversary on {cfg.case.name}, {g.timesteps} steps, seed {g.seed}",
+                                 tags, None)
     with tracking.tracked_run(run):  # ends FINISHED, or KILLED/FAILED with the error
         result = train(cfg, env, venv)
         rows = result["before"] + result["train"] + result["after"]

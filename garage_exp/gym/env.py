@@ -34,6 +34,7 @@ from gymnasium import spaces
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.plain import settings
 from garage_exp.gym import limits, reward
 from garage_exp.search.objectives import gym_objectives
 
@@ -70,9 +71,9 @@ class StepOutEnv(gymnasium.Env):
 
         super().__init__()
         self.cfg = cfg if cfg is not None else compose(overrides)
-        self.job = job = job_config(self.cfg)
-        self.ego = job.ego
-        reward.check_ego(job.ego)
+        self.job = job = job_config(self.cfg)  # the node: preflight checks it, an export writes it
+        self.ego = settings(job.ego)  # what the stages below are handed: plain data
+        reward.check_ego(self.ego)
         case = job.case
         if str(case.motion.actor) != EGO:
             raise GarageError(f"the environment drives the ego by the case's motion; case {case.name!r} moves "
@@ -81,10 +82,12 @@ class StepOutEnv(gymnasium.Env):
         prepared = preflight(job, check_space=False)
         self.scene, self.setup = prepared.scene, prepared.setup
         self.checked_detector = prepared.detector  # every entry loaded by the preflight (perception.detect)
-        self.live = LiveScenario(job, prepared.classified, self.setup, int(self.cfg.gym.variant))
+        self.job_spec = prepared.spec  # (gymnasium's `spec` is the env's registration)
+        self.search = settings(job.search)
+        self.live = LiveScenario(self.job_spec.scene, prepared.classified, self.setup, int(self.cfg.gym.variant))
         ego_conf = self.live.actors[EGO]
-        self.drive = [float(v) for v in frame_values(case, ego_conf, self.live.site, self.live.made[EGO].extent[0],
-                                                     self.live.bays)]
+        self.drive = [float(v) for v in frame_values(self.job_spec.scene.case, ego_conf, self.live.site,
+                                                     self.live.made[EGO].extent[0], self.live.bays)]
         if len(self.drive) < 2:
             raise GarageError("the ego's motion has a single frame: nothing to drive", "case.motion")
         self.step_m = abs(self.drive[1] - self.drive[0])
@@ -92,7 +95,7 @@ class StepOutEnv(gymnasium.Env):
         self.drive_key = str(case.motion.key)
         self.movers = limits.resolve_movers(self.cfg.gym.movers, self.live.actors, MOVABLE)
         self._check_reach()
-        self.critical = reward.critical(job.ego)
+        self.critical = reward.critical(self.ego)
         self.objective = str(self.cfg.gym.objective)
         # The episode's verdict each objective rewards, by the gym's name (search/objectives.py: seen too late to
         # stop, or hard over its fair frames), read from the registry when the env is made.
@@ -128,7 +131,7 @@ class StepOutEnv(gymnasium.Env):
             self.detector = open_detector(self.checked_detector, Intrinsics.of(self.scene.cameras[0]))
         if self.sensor is None:
             self.sensor = build(job.sensor, "a sensor model", "sensor._target_")
-        self.renderer = open_renderer(job.renderer)
+        self.renderer = open_renderer(self.job_spec.config.renderer)
         if getattr(self.renderer, "description", None) is not self.scene:  # another env's scene was loaded since
             self.renderer.load(self.scene)
 
@@ -290,7 +293,7 @@ class StepOutEnv(gymnasium.Env):
         from garage_exp.run.pipeline import FramePipeline
 
         if self.pipeline is None or self.pipeline.renderer is not self.renderer:
-            self.pipeline = FramePipeline(self.job, self.scene, self.renderer, self.sensor, self.sensor_rng,
+            self.pipeline = FramePipeline(self.job_spec.config, self.scene, self.renderer, self.sensor, self.sensor_rng,
                                           self.detector, self.checked_detector.scoring())
         return self.pipeline
 
@@ -306,7 +309,7 @@ class StepOutEnv(gymnasium.Env):
                "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
                "truncation": round(target.truncation, 4) if target else math.nan,
                "composite": round(float(score.composite), 6), "detected": bool(score.detected)}
-        row["fair"] = reward.fair(row, self.job.search)
+        row["fair"] = reward.fair(row, self.search)
         return row
 
     def _observation(self) -> np.ndarray:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from garage_exp.core.plain import settings
 from garage_exp.search.schema import SearchConf
 from garage_exp.exports.coco import CATEGORY_IDS
 from garage_exp.loop.steps import Trial
@@ -41,7 +42,8 @@ def score_frames(model: Path, imgsz: int, trials: list[Trial], threshold: float,
     from garage_exp.perception.detect import build_detector
 
     # The project's one factory, with the defaults a job uses (classes, conf 0.05), this model alone.
-    detector = build_detector(OmegaConf.structured(DetectorConf), models=[str(model)], imgsz=imgsz, registry=None)
+    detector = build_detector(settings(OmegaConf.structured(DetectorConf)), models=[str(model)], imgsz=imgsz,
+                              registry=None)
     detector.check()
     rows = []
     for trial in trials:

@@ -65,6 +65,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> JobSummary:
     kinds = {e.name: e.kind or "vehicle" for e in scene.actors()} if scene.people() else {}
     table_path = out / "frames.csv"
     fisheye = any(cam.fisheye for cam in scene.cameras)
+    cfg = spec.config or cfg  # the job's config as plain data: its stages below are handed no config node
     slots = SlotFrames.open(cfg, prepared, out) if slot_frames_wanted(cfg) else None
     pipeline = FramePipeline(cfg, scene, renderer, sensor, sensor_rng, detector, classes, spec.scoring)
     frames = pipeline.frames(setup.shots, progress=f"case {spec.names.case}")

@@ -57,7 +57,7 @@ def plan_map(classified, path: Path) -> Path:
 
 
 def run_name(cfg: DictConfig) -> str:
-    return (tracking.run_name(HydraConfig.get().overrides.task)
+    return (tracking.run_name(list(HydraConfig.get().overrides.task))
             or f"plan={cfg.plan.name} case={cfg.case.name} light={cfg.light.name}")
 
 
@@ -138,19 +138,22 @@ def _run_job(cfg: DictConfig) -> float | JobSummary:
     name_levels(cfg, prepared.classified.plan.name)
     from garage_exp.run.spec import job_names
 
-    prepared.spec = prepared.spec.renamed(job_names(cfg))  # the names the run logs
-    digest = tracking.config_hash(cfg, tracking.file_digest(prepared.plan_path))
+    from garage_exp.core.plain import settings
+
+    config = settings(cfg)  # as renamed: what tracking logs and hashes, as plain data
+    prepared.spec = prepared.spec.renamed(job_names(cfg), config)  # the names the run logs
+    digest = tracking.config_hash(config, tracking.file_digest(prepared.plan_path))
     if cfg.resume:
-        done = tracking.finished_run(cfg, digest)
+        done = tracking.finished_run(config, digest)
         if done:
             print(f"garage_exp: skipped {run_name(cfg)!r}: finished before as run {done}")
             if multirun:
                 tracking.add_resumed(hc.sweep.dir, done)  # the sweep report counts it
             _count_finished()
             return math.nan
-        kept = tracking.kept_run(cfg, digest)
+        kept = tracking.kept_run(config, digest)
         if kept:  # finished while the tracking server was away: log what it kept, do not render again
-            tracking.replay_pending(cfg, *kept)
+            tracking.replay_pending(config, *kept)
             print(f"garage_exp: logged {run_name(cfg)!r} from the outputs kept in {kept[1].parent} (run {kept[0]}); "
                   "not rendered again")
             _count_finished()
@@ -161,7 +164,7 @@ def _run_job(cfg: DictConfig) -> float | JobSummary:
             "output_dir": str(out), "config_hash": digest, "host": os.uname().nodename, "pid": str(os.getpid())}
     if trial is not None:
         tags["search_trial"] = str(trial)
-    run = tracking.start_job_run(cfg, run_name(cfg), tags, parent)
+    run = tracking.start_job_run(config, run_name(cfg), tags, parent)
     run.pending = out / tracking.PENDING_FILE  # calls the tracking server cannot take wait there
     try:
         with tracking.tracked_run(run, traceback_file=True):

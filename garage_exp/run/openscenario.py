@@ -28,6 +28,9 @@ def export(cfg: DictConfig, out: Path, prepared=None) -> list[Path]:
         from garage_exp.run.preflight import preflight
 
         prepared = preflight(cfg, check_space=False, load=False)  # its scene only: no model loads for a file
+    from garage_exp.core.plain import settings
+
+    cfg = settings(cfg)  # the exporter is handed plain data
     variants = [(label, shots[0].target, frame_step(shots), *tracks(cfg, prepared.setup, shots))
                 for label, shots in variants_of(prepared.setup)]
     return openscenario.write(export_info(cfg), prepared.classified, variants, out)

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from typing import Any
+
 from omegaconf import DictConfig
 
 from garage_exp import exports
@@ -57,7 +59,7 @@ def in_view(scene: Scene, poses: dict, placed_only: bool = False) -> list[str]:
             if v.role != "ego" and v.kind != "box" and poses.get(v.name, None if placed_only else v.pose)]
 
 
-def replicate_materials(cfg: DictConfig, scene: Scene, replicate: int, loaded: int) -> dict:
+def replicate_materials(cfg, scene: Scene, replicate: int, loaded: int) -> dict:
     """Old -> new materials that turn the loaded replicate's surfaces into `replicate`'s: each replicate draws
     its own stains, cracks and (materials=random) its own grime, wetness and tint: domain randomisation within a
     job, the same draw in every cell of a sweep."""
@@ -68,7 +70,7 @@ def replicate_materials(cfg: DictConfig, scene: Scene, replicate: int, loaded: i
         return {}
 
     def draw(k):
-        return dress_for(cfg.materials, int(cfg.seed) + k, marking_wear(cfg))
+        return dress_for(cfg.materials, int(cfg.seed) + k, marking_wear(cfg))  # cfg: plain (FramePipeline)
 
     back = redress(scene, draw(loaded))  # the scene holds replicate 0's materials; the renderer `loaded`'s
     return {back[m]: new for m, new in redress(scene, draw(replicate)).items()}
@@ -99,7 +101,7 @@ class FramePipeline:
     `score_target` (`Detector.scoring()`).
     """
 
-    cfg: DictConfig
+    cfg: Any  # a config node or its Settings; kept as Settings
     scene: Scene
     renderer: object
     sensor: object
@@ -109,8 +111,10 @@ class FramePipeline:
     rule: Scoring | None = None  # the job spec's matching rule; None: the config's `detector` group's
 
     def __post_init__(self) -> None:
+        from garage_exp.core.plain import settings
         from garage_exp.scenario.assemble import HIDDEN
 
+        self.cfg = settings(self.cfg)  # plain data for the stages below (a node given is read once, here)
         self.stage = (self.renderer if isinstance(self.renderer, RenderScene)
                       else RenderScene.over(self.renderer, HIDDEN))
         if self.rule is None:

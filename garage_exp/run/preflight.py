@@ -14,6 +14,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.plain import settings
 from garage_exp.core.paths import PLANS_DIR
 from garage_exp.core.state import STATE
 from garage_exp.scenario.fits import hint
@@ -80,9 +81,9 @@ def _library():
     return shared_library(vehicles_dir())  # missing assets fail in vehicles_dir, saying what to set or run
 
 
-def check_config(cfg: DictConfig) -> None:
+def check_config(cfg) -> None:
     """Every group's values, by its owner's check (the schema already checked the types); no plan or assets
-    needed."""
+    needed. `cfg`: the composed config, or it as `Settings` (what the checks are handed: plain data)."""
     from garage_exp.perception.detect.detector import check_detector
     from garage_exp.perception.slots.detector import check_slot_detector
     from garage_exp.render import check_renderer
@@ -99,15 +100,19 @@ def check_config(cfg: DictConfig) -> None:
     from garage_exp.core.plugins import build
     from garage_exp.exports.openscenario import check_export
 
+    from garage_exp.run.spec import scene_spec
+
+    cfg = settings(cfg)
     for key in ("seed", "light.seed", "palette.seed", "materials.seed"):
-        value = OmegaConf.select(cfg, key)
+        group, _, name = key.rpartition(".")
+        value = (cfg.get(group) or {}).get(name) if group else cfg.get(name)
         if value is not None and int(value) < 0:
             raise GarageError(f"{value} is negative (seeds are >= 0)", key)
     check_garage(cfg.garage)
     check_light(cfg.light)
     check_palette(cfg.palette)
     check_camera(cfg.camera, dataset=bool(cfg.dataset))
-    check_case(cfg)
+    check_case(scene_spec(cfg))
     check_ego(cfg.ego, moving=moves_ego(cfg.case))
     check_detector(cfg.detector)
     check_slot_detector(cfg.slot_detector)
@@ -121,7 +126,7 @@ def check_config(cfg: DictConfig) -> None:
     check_export(cfg)
 
 
-def check_slots(cfg: DictConfig) -> None:
+def check_slots(cfg) -> None:
     """A bird's-eye view (`camera.bev.enabled`, or a case with `slots: true` on a fisheye rig) is stitched from
     raw fisheye pictures over a sane extent. A slot case on a rig without fisheyes runs as an object case
     (run/slots.py)."""
@@ -154,22 +159,26 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
     plan_path = resolve_plan_path(cfg.plan)
     prepared = PreparedJob(plan_path, classified_plan(plan_path))
-    check_config(cfg)
+    config = settings(cfg)  # the layers below are handed plain data, never the config node
+    check_config(config)
     import numpy as np
 
+    from garage_exp.run.spec import job_spec, scene_spec
     from garage_exp.scenario.assemble import build_scene
+
+    job = scene_spec(config)
 
     detector = None
     if not cfg.dry_run:
         from garage_exp.perception.detect import build_detector
         from garage_exp.perception.slots.detector import check_slot_weights
 
-        detector = build_detector(cfg.detector)  # a missing file or unknown format fails here (nothing downloaded)
-        check_slot_weights(cfg.slot_detector)
+        detector = build_detector(config.detector)  # a missing file or unknown format fails here (nothing downloaded)
+        check_slot_weights(config.slot_detector)
     # A dry run builds the scene description too (~0.1 s, no rendering): it refuses every job the real run would
     # refuse at scene build (placements, overlaps, reach), in the same words. It keeps none of it.
     try:
-        scene, setup = build_scene(cfg, prepared.classified, _library(), np.random.default_rng(int(cfg.seed)))
+        scene, setup = build_scene(job, prepared.classified, _library(), np.random.default_rng(job.seed))
     except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
         where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file, refused=True)
         if not where:
@@ -181,9 +190,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
         check_version(str(cfg.export.openscenario_version), setup)
     if not cfg.dry_run:
         prepared.scene, prepared.setup, prepared.detector = scene, setup, detector
-    from garage_exp.run.spec import job_spec
-
-    prepared.spec = job_spec(cfg, detector)
+    prepared.spec = job_spec(cfg, detector, job, config)
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig

@@ -71,7 +71,8 @@ class SlotFrames:
     pictures: list = field(default_factory=list)  # the BEV frames written (for the run's artifacts)
 
     @classmethod
-    def open(cls, cfg: DictConfig, prepared, out: Path) -> "SlotFrames":
+    def open(cls, cfg, prepared, out: Path) -> "SlotFrames":
+        from garage_exp.core.plain import settings
         from garage_exp.exports.slots import SlotExports
         from garage_exp.perception.slots.truth import world_bays
         from garage_exp.render.bev import bev_maps
@@ -79,6 +80,7 @@ class SlotFrames:
 
         from garage_exp.scene.look import dress_for
 
+        cfg = settings(cfg)  # the stages below are handed plain data
         scene = prepared.scene
         ego = next(v for v in scene.vehicles() if v.role == "ego")
         spec = bev_spec(cfg)

@@ -10,10 +10,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from garage_exp.core.plain import plain
+from garage_exp.core.plain import Settings, plain, settings
 from garage_exp.perception.detect.matching import Scoring
 from garage_exp.results.late import EgoConf
 from garage_exp.results.table import FairRule, JobNames
+from garage_exp.scenario.spec import SceneSpec
 
 
 @dataclass(frozen=True)
@@ -47,28 +48,43 @@ class JobSpec:
     seed: int
     replicates: int
     primary: str  # the camera whose frames the summary scores (case.camera, else the rig's first)
+    scene: SceneSpec | None = None  # what the scene builder is told (scene_spec)
+    config: Settings | None = None  # the whole composed config as plain data: what tracking logs and hashes
     plan_file: str | None = None  # plan.file, for the hint where a case fits
 
-    def renamed(self, names: JobNames) -> "JobSpec":
-        """The spec under the names the job logs (run.job.name_levels settles them after the preflight)."""
-        return replace(self, names=names)
+    def renamed(self, names: JobNames, config: Settings | None = None) -> "JobSpec":
+        """The spec under the names the job logs (run.job.name_levels settles them after the preflight), with the
+        config as renamed."""
+        return replace(self, names=names, config=config if config is not None else self.config)
 
 
 def job_names(cfg) -> JobNames:
     return JobNames(str(cfg.case.name), str(cfg.light.name), str(cfg.sensor.name), str(cfg.plan.name))
 
 
-def job_spec(cfg, detector=None) -> JobSpec:
+def scene_spec(cfg) -> SceneSpec:
+    """The scene builder's settings from the job's composed config (a job's, a search trial's, the adversary's)."""
+    group = lambda key: settings(cfg.get(key)) or Settings()  # noqa: E731 - a config without the group: none set
+    return SceneSpec(garage=group("garage"), light=group("light"), palette=group("palette"), camera=group("camera"),
+                     case=group("case"), occluder=group("occluder"), replicate=group("replicate"), look=group("look"),
+                     materials=group("materials"), clutter=group("clutter"), modifiers=group("modifiers"),
+                     ego=group("ego"), seed=int(cfg.get("seed") or 0), replicates=int(cfg.get("replicates", 1)),
+                     blank=bool(cfg.get("blank")))
+
+
+def job_spec(cfg, detector=None, scene: SceneSpec | None = None, config: Settings | None = None) -> JobSpec:
     """The job's spec from its composed (and checked) config; `detector`: the one the preflight built."""
     from garage_exp.scenario.build import moves_ego
     from garage_exp.scene.camera import scored_camera
 
+    config = config or settings(cfg)
+    scene = scene or scene_spec(config)
     return JobSpec(
-        names=job_names(cfg), scoring=Scoring.of(cfg.detector), fair=FairRule.of(cfg.search),
-        ego=EgoConf(**plain(cfg.ego)), moving=bool(moves_ego(cfg.case)), sensor=plain(cfg.sensor),
+        names=job_names(cfg), scoring=Scoring.of(settings(cfg.detector)), fair=FairRule.of(settings(cfg.search)),
+        ego=EgoConf(**plain(cfg.ego)), moving=bool(moves_ego(scene.case)), sensor=plain(cfg.sensor),
         renderer=plain(cfg.renderer), detector=detector,
         outputs=Outputs(str(cfg.renderer.save_frames), bool(cfg.get("dataset")), bool(cfg.export.openscenario),
                         None if cfg.search.trial is None else int(cfg.search.trial)),
         seed=int(cfg.seed), replicates=int(cfg.replicates),
-        primary=scored_camera(cfg.camera, str(cfg.case.get("camera") or "")),
+        primary=scored_camera(scene.camera, str(scene.case.get("camera") or "")), scene=scene, config=config,
         plan_file=None if not cfg.plan.file else str(cfg.plan.file))

@@ -31,7 +31,7 @@ def vehicle_entity(name: str, role: str, model, pose: Pose = Pose()) -> Entity:
                   kind="vehicle")
 
 
-def make(name: str, actor, cfg, library, site, bays: dict, rng, source: str = "", bay=None) -> Made:
+def make(name: str, actor, job, library, site, bays: dict, rng, source: str = "", bay=None) -> Made:
     """The actor's entity. `bay`: the bay it was given (a free bay near the focus), when not named."""
     where = source = source or f"case.actors.{name}"
     if actor.role not in ROLES:
@@ -41,7 +41,7 @@ def make(name: str, actor, cfg, library, site, bays: dict, rng, source: str = ""
     fit = bay or (own[0] if actor.bay != "" else None)
     used = [_bay_key(b) for b in own + ([bay] if bay else [])]
     if actor.kind == "vehicle":
-        model = vehicle_model(where, actor, cfg, library, rng, fit, narrow=bay is not None)
+        model = vehicle_model(where, actor, job, library, rng, fit, narrow=bay is not None)
         entity = vehicle_entity(name, actor.role, model)
     elif actor.kind == "person":
         entity = person_entity(name, actor, where)
@@ -56,11 +56,11 @@ def _bay_key(bay) -> tuple[int, int, int]:
     return (bay.i, bay.j, bay.index)
 
 
-def vehicle_model(where: str, actor, cfg, library, rng, bay=None, narrow: bool = False):
+def vehicle_model(where: str, actor, job, library, rng, bay=None, narrow: bool = False):
     """The named model; else the palette's pinned target of the actor's colour (targets copied per palette
     colour); else a model drawn from the library by size class, colour and body that fits the garage."""
-    palette = cfg.palette
-    ceiling = cfg.garage.ceiling_height - 0.1
+    palette = job.palette
+    ceiling = job.garage.ceiling_height - 0.1
     for value, allowed, key in ((actor.colour, COLOURS, "colour"), (actor.size, SIZE_CLASSES, "size"),
                                 (actor.body, VEHICLE_KINDS, "body")):
         if value and value not in allowed:

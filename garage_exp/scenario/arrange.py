@@ -17,17 +17,17 @@ from garage_exp.scene.description import Pose
 EGO = "ego"
 
 
-def arrange(cfg, classified, library, site: Site, bays: dict, rng, made: dict, shots: list[Shot],
+def arrange(job, classified, library, site: Site, bays: dict, rng, made: dict, shots: list[Shot],
             taken: set) -> None:
     """The occluder arrangement's own actors, static, around the site's focus, added to every shot."""
-    extra = actor_confs(cfg.occluder.get("actors"), "occluder.actors")
+    extra = actor_confs(job.occluder.get("actors"), "occluder.actors")
     if not extra:
         return
     for name in extra:
         if name in made:
             raise GarageError(f"the scenario already has an actor {name!r}", f"occluder.actors.{name}")
     focus = site.focus or sightline(shots[0])
-    free = sorted((b for b in all_bays(classified, cfg.garage) if (b.i, b.j, b.index) not in taken),
+    free = sorted((b for b in all_bays(classified, job.garage) if (b.i, b.j, b.index) not in taken),
                   key=lambda b: math.hypot(b.x - focus.x, b.y - focus.y))
     axis = (math.cos(math.radians(focus.yaw)), math.sin(math.radians(focus.yaw)))
     for name, a in extra.items():
@@ -39,7 +39,7 @@ def arrange(cfg, classified, library, site: Site, bays: dict, rng, made: dict, s
             bay = free[a.nearest_bay]
         elif a.relative != "focus":
             raise GarageError("an arrangement's actor stands in a nearest_bay or relative: focus", where)
-        made[name] = kinds.make(name, a, cfg, library, site, bays, rng, where, bay=bay)
+        made[name] = kinds.make(name, a, job, library, site, bays, rng, where, bay=bay)
         if bay:
             pose = pose_in_bay(site, replace(a, bay=site_bay(bay)), made[name].extent[0], bays, where)
         else:

@@ -14,15 +14,17 @@ from dataclasses import replace
 import numpy as np
 
 from garage_exp.core.errors import GarageError
-from garage_exp.core.plain import as_object
+
 from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
 from garage_exp.scenario.replicate import build_replicate, merge
-from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
+from garage_exp.core.schema import MotionConf
+from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs, typed
 from garage_exp.scenario.place import (check_overlaps, farthest, no_room, pose_between, pose_in_bay,
                                        pose_on_path, pose_relative, site_bay, site_path, sweep_clash)
 from garage_exp.scenario.sites import Site, find_site
+from garage_exp.scenario.spec import SceneSpec
 from garage_exp.scenario.timing import start_time, travelled
 from garage_exp.scene.camera import scored_camera
 from garage_exp.scene.description import Pose
@@ -34,18 +36,18 @@ PLACEMENT = (*MOVABLE, "path", "align", "before", "bay", "between", "relative")
 GAP_SEARCH = 3.0  # m each side of a gap's middle that an overlap message looks for a person's room in
 
 
-def check_case(cfg) -> None:
+def check_case(job: SceneSpec) -> None:
     """What a scenario's values say before the plan is known (the rest needs the site: `make_case`)."""
-    if int(cfg.get("replicates", 1)) < 1:
-        raise GarageError(f"replicates must be >= 1, got {cfg.replicates}", "replicates")
+    if int(job.get("replicates", 1)) < 1:
+        raise GarageError(f"replicates must be >= 1, got {job.replicates}", "replicates")
     for key in ("offset", "yaw", "ego_offset"):
-        if float(cfg.replicate[key]) < 0:
-            raise GarageError(f"a range is >= 0, got {cfg.replicate[key]}", f"replicate.{key}")
+        if float(job.replicate[key]) < 0:
+            raise GarageError(f"a range is >= 0, got {job.replicate[key]}", f"replicate.{key}")
     try:
-        _check_motion(cfg.case)
-        scored_camera(cfg.camera, str(cfg.case.get("camera") or ""))
+        _check_motion(job.case)
+        scored_camera(job.camera, str(job.case.get("camera") or ""))
     except GarageError as exc:
-        raise exc.again(str(exc), level_file(cfg, "case")) from None
+        raise exc.again(str(exc), level_file(job, "case")) from None
 
 
 def _check_motion(case) -> None:
@@ -177,7 +179,7 @@ def variants(case, actors: dict, colours: list[str]) -> tuple[list[Variant], dic
 def frame_values(case, actor, site: Site, length: float, bays: dict) -> list[float]:
     """The motion's values: listed, or start..end by step; a distance the actor's path has no room for is an
     error, or trimmed to the room with the actor's `clip: true`."""
-    m = as_object(case.motion)  # a DictConfig's `.values` is its method, not the key
+    m = typed(case.motion, MotionConf)  # a mapping's `.values` is its method, not the key
     on_path = m.key == "distance" and actor.path and not actor.before and not actor.relative \
         and actor.align == "centre"
     if m.values or m.start is None or m.end is None:
@@ -206,7 +208,7 @@ def _check_room(site: Site, actor, name: str, length: float, values: list[tuple[
             raise no_room(path, actor.path, f"case.actors.{name}", f"{value:g} m", length, f"case.motion.{key}")
 
 
-def level_file(cfg, group: str) -> str:
+def level_file(job: SceneSpec, group: str) -> str:
     """The YAML file the group's values came from, for error messages: a scenario file of the command's
     (`--config-dir SUITE +scenario=NAME`, a `# @package _global_` file that sets the group's keys: an exported
     scenario) when one set them, else the group's level (named as its `name`); else `group=NAME`."""
@@ -226,7 +228,7 @@ def level_file(cfg, group: str) -> str:
                for path in [_file_of(folders, other, str(level))] if path and _sets(path, group)]
     if setting:  # the last one in the defaults list wins, as its values do
         return str(setting[-1])
-    return str(_file_of(folders, group, str(cfg[group].name)) or f"{group}={cfg[group].name}")
+    return str(_file_of(folders, group, str(job[group].name)) or f"{group}={job[group].name}")
 
 
 def _file_of(folders: list[str], group: str, level: str):
@@ -247,25 +249,25 @@ def _sets(path, group: str) -> bool:
     return isinstance(data, dict) and isinstance(data.get(group), dict)
 
 
-def make_case(cfg, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
+def make_case(job: SceneSpec, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
     """The scenario's shot list, replicate after replicate (`replicates`); an error in the scenario or the
     arrangement names its file and key path."""
     try:
-        setup = build_case(cfg, classified, library, rng)
-        for k in range(1, int(cfg.get("replicates", 1))):
-            setup = merge(setup, build_replicate(build_case, cfg, classified, library, k), k)
+        setup = build_case(job, classified, library, rng)
+        for k in range(1, int(job.get("replicates", 1))):
+            setup = merge(setup, build_replicate(build_case, job, classified, library, k), k)
         return setup
     except GarageError as exc:
         group = (exc.where or "").split(".")[0]
         if group in ("case", "occluder"):
-            raise exc.again(str(exc), level_file(cfg, group)) from None
+            raise exc.again(str(exc), level_file(job, group)) from None
         raise
 
 
-def build_case(cfg, classified: Classified, library, rng: np.random.Generator, adjust=None) -> CaseSetup:
+def build_case(job: SceneSpec, classified: Classified, library, rng: np.random.Generator, adjust=None) -> CaseSetup:
     """One replicate of the case. `adjust(actors, targets)`: a replicate's variation of the actors' values."""
-    case = cfg.case
-    site = find_site(case.site, classified, cfg.garage)
+    case = job.case
+    site = find_site(case.site, classified, job.garage)
     conf = actor_confs(case.actors, "case.actors")
     if EGO not in conf or conf[EGO].role != "ego":
         raise GarageError("a scenario needs an actor named 'ego' with role ego", "case.actors")
@@ -273,14 +275,14 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
     if case.motion.actor and case.motion.actor not in conf and case.motion.actor != "target":
         raise GarageError(f"no actor {case.motion.actor!r} to move (have {', '.join(conf)})", "case.motion.actor")
     _check_motion(case)
-    runs, conf = variants(case, conf, list(cfg.palette.target_colours))
+    runs, conf = variants(case, conf, list(job.palette.target_colours))
     if adjust is not None:
         conf = adjust(conf, {v.target for v in runs})
     # Actors are made in order of first use (the ego first): model draws from rng follow the scenario's order.
     made: dict[str, kinds.Made] = {}
     for name in dict.fromkeys([EGO] + [n for v in runs for n in v.show]):
         source = name if name in case.actors else name.rpartition("_")[0]  # palette copies: the original
-        made[name] = kinds.make(name, conf[name], cfg, library, site, bays, rng, f"case.actors.{source}")
+        made[name] = kinds.make(name, conf[name], job, library, site, bays, rng, f"case.actors.{source}")
 
     shots: list[Shot] = []
     for variant in runs:
@@ -298,9 +300,9 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
             mover = variant.target
         values = (frame_values(case, actors[mover], site, _longest(made, made[mover].source), bays) if mover
                   else [float("nan")])
-        times = frame_times(values, float(cfg.ego.speed)) if mover == EGO else [0.0] * len(values)
+        times = frame_times(values, float(job.ego.speed)) if mover == EGO else [0.0] * len(values)
         def time_at(x: float) -> float:
-            return frame_times([values[0], x], float(cfg.ego.speed))[1]
+            return frame_times([values[0], x], float(job.ego.speed))[1]
 
         alongs = [(n, a, start_time(a, time_at)) for n, a in (case.motion.get("along") or {}).items() if n in actors]
         for frame, (value, time) in enumerate(zip(values, times)):
@@ -320,7 +322,7 @@ def build_case(cfg, classified: Classified, library, rng: np.random.Generator, a
                               time=round(time, 6)))
     free = [site_bay(site, ref, bays, "case.keep_free").bay for ref in case.keep_free]
     taken = {b for m in made.values() for b in m.bays} | {(b.i, b.j, b.index) for b in free}
-    arrange(cfg, classified, library, site, bays, rng, made, shots, taken)
+    arrange(job, classified, library, site, bays, rng, made, shots, taken)
     for name, m in made.items():
         first = next((s.poses.get(name) for s in shots if s.poses.get(name)), None)
         m.entity.pose = shots[0].ego if name == EGO else first or m.entity.pose

@@ -19,13 +19,13 @@ from garage_exp.scene.description import Pose
 
 
 class LiveScenario:
-    """One variant of `cfg.case` on the classified plan, with the entities of `setup` (the job's case set-up)."""
+    """One variant of `job.case` on the classified plan, with the entities of `setup` (the job's case set-up)."""
 
-    def __init__(self, cfg, classified, setup: CaseSetup, variant: int = 0):
-        case = cfg.case
-        self.site = find_site(case.site, classified, cfg.garage)
+    def __init__(self, job, classified, setup: CaseSetup, variant: int = 0):
+        case = job.case
+        self.site = find_site(case.site, classified, job.garage)
         self.bays = {str(k): str(v) for k, v in (case.bays or {}).items()}
-        runs, conf = variants(case, actor_confs(case.actors, "case.actors"), list(cfg.palette.target_colours))
+        runs, conf = variants(case, actor_confs(case.actors, "case.actors"), list(job.palette.target_colours))
         if not 0 <= variant < len(runs):
             raise GarageError(f"the case has {len(runs)} variant(s): 0..{len(runs) - 1}", "gym.variant")
         run = runs[variant]

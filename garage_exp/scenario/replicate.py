@@ -25,7 +25,7 @@ def replicate_rng(seed: int, k: int, attempt: int = 0) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(k)] + ([attempt] if attempt else []))
 
 
-def jitter(spec, rng: np.random.Generator, cfg, library):
+def jitter(spec, rng: np.random.Generator, job, library):
     """A function that moves a case's actors for one replicate at a given scale: `adjust(conf, targets, scale)`.
     The draws are made once, on first use, in the scenario's actor order, so every scale moves the same way."""
     draws: dict[str, tuple[float, float, str]] = {}
@@ -34,10 +34,10 @@ def jitter(spec, rng: np.random.Generator, cfg, library):
         if name not in draws:
             offset, yaw = (float(v) for v in rng.uniform(-1.0, 1.0, size=2))
             model = ""
-            if is_target and spec.models and pinned(actor, cfg.palette):
+            if is_target and spec.models and pinned(actor, job.palette):
                 # as the build draws an unpinned target (scenario/actors.py: vehicle_model)
                 model = library.choose(size_class=actor.size or "medium", colour=actor.colour,
-                                       kind=actor.body or "car", max_height=cfg.garage.ceiling_height - 0.1,
+                                       kind=actor.body or "car", max_height=job.garage.ceiling_height - 0.1,
                                        rng=rng).name
             draws[name] = (offset, yaw, model)
         return draws[name]
@@ -68,15 +68,15 @@ def pinned(actor, palette) -> bool:
         palette.target or actor.colour in (palette.get("target_models") or {}))
 
 
-def build_replicate(build, cfg, classified, library, k: int) -> CaseSetup:
+def build_replicate(build, job, classified, library, k: int) -> CaseSetup:
     """Replicate k of the case. When its draws make two actors overlap (a jitter too wide, or a wider model in
     a neighbouring bay), it draws again from a generator seeded (seed, k, attempt) with half the jitter: still
     the same in every cell and every rerun."""
     for attempt in range(ATTEMPTS):
-        rng = replicate_rng(cfg.seed, k, attempt)
-        adjust = jitter(cfg.replicate, rng, cfg, library)
+        rng = replicate_rng(job.seed, k, attempt)
+        adjust = jitter(job.replicate, rng, job, library)
         try:
-            return build(cfg, classified, library, rng, adjust=lambda c, t, s=0.5 ** attempt: adjust(c, t, s))
+            return build(job, classified, library, rng, adjust=lambda c, t, s=0.5 ** attempt: adjust(c, t, s))
         except Infeasible:  # two actors in one another: draw again, closer in
             if attempt == ATTEMPTS - 1:
                 raise

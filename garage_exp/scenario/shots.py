@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, fields
 
 from garage_exp.core.schema import ActorConf
 from garage_exp.core.errors import GarageError
-from garage_exp.core.plain import as_object
+from garage_exp.core.plain import as_object, thawed
 from garage_exp.scene.description import Entity, Pose
 
 
@@ -50,4 +50,12 @@ def actor_confs(nodes, prefix: str) -> dict:
         if extra:
             raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
                               f"{prefix}.{name}.{extra[0]}")
-    return {str(n): as_object(a) for n, a in (nodes or {}).items()}
+    return {str(n): typed(a, ActorConf) for n, a in (nodes or {}).items()}
+
+
+def typed(node, schema: type):
+    """A group's values as the dataclass of its schema: a config node's own (as_object), or plain settings'
+    (`Settings`, whose keys are the schema's fields). Needed where fields are replaced (dataclasses.replace) or
+    a key shadows a dict's method (the motion's `values`)."""
+    obj = as_object(node)
+    return schema(**thawed(obj)) if isinstance(obj, dict) else obj

@@ -67,10 +67,10 @@ def marking_wear(scene: Scene, classified, garage, wear: float = 0.0) -> None:
 
 def replace_conf(conf, **changes):
     """A copy of a dataclass or config node (or dict) with some fields changed."""
-    from garage_exp.core.plain import as_object
+    from garage_exp.core.plain import as_object, frozen
 
     copy = as_object(conf)
-    return {**copy, **changes} if isinstance(copy, dict) else replace(copy, **changes)
+    return frozen({**copy, **changes}) if isinstance(copy, dict) else replace(copy, **changes)
 
 
 def check_modifiers(modifiers: dict[str, Any]) -> None:

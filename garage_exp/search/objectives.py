@@ -26,6 +26,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from garage_exp.core.plain import settings
 from garage_exp.results.late import LABELS
 from garage_exp.results.summary import JobSummary
 
@@ -128,6 +129,7 @@ def _late(values: list[float], attrs: dict) -> str:
 def _needs_late(job) -> str | None:
     from garage_exp.scenario.build import moves_ego
 
+    job = settings(job)  # the stages below are handed plain data
     if moves_ego(job.case):  # a static ego has no stopping distance to be late for
         return None
     return (f"the late objective needs a case whose motion drives the ego; case {job.case.name} moves "
@@ -137,6 +139,7 @@ def _needs_late(job) -> str | None:
 def _screen_late(table, fair, setup, cfg, detect: bool, attrs: dict) -> str:
     from garage_exp.results import late
 
+    cfg = settings(cfg)  # the stages below are handed plain data
     per = late.trajectories(table, {s.index: s.time for s in setup.shots}, fair, cfg.ego, cfg.detector.threshold)
     if not per.testable.any():
         return INFEASIBLE
@@ -165,6 +168,7 @@ def _slots(values: list[float], attrs: dict) -> str:
 def _needs_slots(job) -> str | None:
     from garage_exp.scene.lenses import rig_has
 
+    job = settings(job)  # the stages below are handed plain data
     if job.case.get("slots", False) and rig_has(job.camera, "bev"):
         return None
     return (f"the slots objective needs a slot case on a fisheye rig (case=slots camera=fisheye4), not case "

@@ -78,7 +78,9 @@ def cheap_detector(detector, scale: float):
     from garage_exp.perception.detect import Detector, build_detector
     from garage_exp.perception.detect.worker import WarmDetector
 
-    built = detector if isinstance(detector, Detector) else build_detector(detector)
+    from garage_exp.core.plain import settings
+
+    built = detector if isinstance(detector, Detector) else build_detector(settings(detector))
     return WarmDetector(built.cheap(scale))  # checked, as in the job
 
 
@@ -98,13 +100,12 @@ def frames_table(cfg: DictConfig, detector, scale: float, prepared=None) -> tupl
     from garage_exp.results.table import frame_row
     from garage_exp.run.pipeline import FramePipeline
 
-    cheap = cheap_config(cfg, scale)
     prepared = prepared if prepared is not None else prepare(cfg, scale)
     spec = prepared.spec
     renderer = open_renderer(spec.renderer)
     renderer.load(prepared.scene)
     sensor = build(spec.sensor, "a sensor model", "sensor._target_")
-    pipeline = FramePipeline(cheap, prepared.scene, renderer, sensor, np.random.default_rng(spec.seed + 1),
+    pipeline = FramePipeline(spec.config, prepared.scene, renderer, sensor, np.random.default_rng(spec.seed + 1),
                              detector, detector.scoring() if detector is not None else {}, spec.scoring)
     scored = spec.primary
     rows = []

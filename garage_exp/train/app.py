@@ -13,6 +13,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from garage_exp.core.plain import settings
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.train import schema
@@ -90,7 +91,7 @@ def train(cfg: DictConfig) -> dict:
     if cfg.bn_calibrate:
         base = calibrated_base(cfg, plan, base, out)
     tags = {"base": str(cfg.base), "study": str(cfg.study or ""), "output_dir": str(out), "kind": "train"}
-    run = tracking.start_job_run(cfg, run_name(cfg, plan), tags, None)
+    run = tracking.start_job_run(settings(cfg), run_name(cfg, plan), tags, None)
     # ends FINISHED, or KILLED/FAILED with the error (also when logging or registering fails)
     with tracking.tracked_run(run):
         for name in ("manifest.csv", "data.yaml", "train.txt", "val.txt"):

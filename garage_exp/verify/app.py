@@ -12,6 +12,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from garage_exp.core.plain import settings
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
 from garage_exp.verify import schema
@@ -27,7 +28,7 @@ def check_verify(cfg: DictConfig) -> None:
     refuse_unknown_keys(cfg, schema.VerifyConf)
     if str(cfg.split) not in ("train", "val", "test"):
         raise GarageError(f"{cfg.split!r} is not one of train, val, test", "split")
-    check_detector(cfg.detector)
+    check_detector(settings(cfg.detector))
 
 
 def load_detector(cfg: DictConfig):
@@ -35,7 +36,7 @@ def load_detector(cfg: DictConfig):
     unreachable server, a class map that matches nothing: GarageError naming the entry)."""
     from garage_exp.perception.detect import build_detector
 
-    detector = build_detector(cfg.detector)
+    detector = build_detector(settings(cfg.detector))
     detector.check()
     return detector
 
@@ -75,8 +76,8 @@ def verify(cfg: DictConfig) -> dict:
     d = cfg.detector
     what = detector_title(str(d.name), list(detector.names))
     name = str(cfg.name) or f"{what} on {Path(str(data.source)).parent.name}/{Path(str(data.source)).name}"
-    run = tracking.start_job_run(cfg, name, {"kind": "verify", "data": str(data.source), "output_dir": str(out),
-                                             "rendered": str(data.rendered).lower()}, None)
+    tags = {"kind": "verify", "data": str(data.source), "output_dir": str(out), "rendered": str(data.rendered).lower()}
+    run = tracking.start_job_run(settings(cfg), name, tags, None)
     with tracking.tracked_run(run):  # ends FINISHED, or KILLED/FAILED with the error
         groups = detector.scoring()  # the listed classes plus detector.class_map's
         scored = score(lambda rgb: detector.detect([rgb])[0], list(detector.names), data, groups["classes"],
