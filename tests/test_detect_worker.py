@@ -61,32 +61,45 @@ def spec():
     return Detector(default_models(), classes=("car", "truck", "bus"), conf=0.05, imgsz=640, device="cpu")
 
 
+@pytest.fixture(scope="module")
+def children():
+    """The module's detector child: started once (a new interpreter importing torch and OpenVINO), shared by the
+    tests that talk to it; a test that closes it leaves the next one a new child."""
+    held = []
+    yield held
+    for child in held:
+        child.close()
+
+
+@pytest.fixture
+def child(children):
+    if not children or not children[-1].alive():
+        children.append(worker.DetectorProcess(threads=1))
+    return children[-1]
+
+
 @pytest.mark.detect
-def test_child_detections_equal_in_process_ones(spec):
+def test_child_detections_equal_in_process_ones(spec, child):
     from test_detect import bus_image
 
     _, rgb = bus_image()
     frames = [rgb, np.zeros((480, 640, 3), np.uint8), np.ascontiguousarray(rgb[::2, ::2])]
     here = spec
-    child = worker.DetectorProcess(threads=1)
-    try:
-        child.load(spec)
-        assert child.names == here.names
-        for frame in frames:
-            child.submit(frame)
-        for frame in frames:
-            theirs, ours = child.result(), here.detect([frame])[0]
-            for a, b in zip(theirs, ours):
-                assert a.model == b.model and a.classes == b.classes
-                np.testing.assert_allclose(a.scores, b.scores, atol=1e-6)
-                np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-3)
-    finally:
-        child.close()
+    child.load(spec)
+    assert child.names == here.names
+    for frame in frames:
+        child.submit(frame)
+    for frame in frames:
+        theirs, ours = child.result(), here.detect([frame])[0]
+        for a, b in zip(theirs, ours):
+            assert a.model == b.model and a.classes == b.classes
+            np.testing.assert_allclose(a.scores, b.scores, atol=1e-6)
+            np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-3)
 
 
 @pytest.mark.detect
-def test_child_errors_are_garage_errors_and_the_child_survives(spec):
-    child = worker.DetectorProcess(threads=1)
+def test_child_errors_are_garage_errors_and_the_child_survives(spec, child):
+    """The child that answered the test above (when it ran first): a refused spec, then the good one again."""
     try:
         from dataclasses import replace
 

@@ -274,8 +274,9 @@ def job_env() -> dict:
 
 @pytest.mark.render
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["pt", "onnx", "torchscript", "openvino", "onnx_graph", "torchvision", "callable"])
+@pytest.mark.parametrize("kind", ["pt", "onnx", "torchscript", "openvino", "torchvision"])
 def test_a_job_runs_with_each_entry_kind(models, kind, tmp_path, mlflow_uri):
+    """(The other two kinds, onnx_graph and callable, run in the sweep's jobs below.)"""
     import pandas as pd
 
     require("vulkan", "vehicles")
@@ -290,6 +291,7 @@ def test_a_job_runs_with_each_entry_kind(models, kind, tmp_path, mlflow_uri):
 @pytest.mark.render
 @pytest.mark.slow
 def test_a_sweep_mixes_entry_kinds_in_one_detector(models, tmp_path, mlflow_uri):
+    """Its jobs are also the jobs run with a callable and an ONNX graph entry (each kind's job, as above)."""
     import pandas as pd
 
     require("vulkan", "vehicles")
@@ -298,7 +300,8 @@ def test_a_sweep_mixes_entry_kinds_in_one_detector(models, tmp_path, mlflow_uri)
     assert r.returncode == 0, r.stderr[-3000:]
     for k in (0, 1):
         table = pd.read_csv(tmp_path / "sweep" / str(k) / "frames.csv")
-        assert {"conf_centre_box", "conf_constant"} <= set(table.columns)
+        assert len(table) == 1 and {"conf_centre_box", "conf_constant"} <= set(table.columns)
+        assert 0.0 <= table.composite[0] <= 1.0
         # the composite is the mean of the two entries' matched confidences
         assert table.composite[0] == pytest.approx((table.conf_centre_box[0] + table.conf_constant[0]) / 2)
 
@@ -310,15 +313,15 @@ def test_a_search_runs_with_a_torchvision_entry(models, tmp_path, mlflow_uri):
 
     require("vulkan", "vehicles")
     store = tmp_path / "optuna.db"
-    r = run_app(["-m", "hydra/sweeper=search", *ONE_FRAME, "search.trials=2", "search.sampler=random",
+    r = run_app(["-m", "hydra/sweeper=search", *ONE_FRAME, "search.trials=1", "search.sampler=random",
                  "search.min_visible=0.0", "search.min_box=0", "search.max_truncation=1.0",
                  "light.intensity=interval(0.3,1.0)", f"detector.models=[{models['torchvision']}]",
                  f"search.storage=sqlite:///{store}", "search.study=tv", f"tracking.uri={mlflow_uri}"], tmp_path,
                 env=job_env())
     assert r.returncode == 0, r.stderr[-3000:]
     trials = optuna.load_study(study_name="tv", storage=f"sqlite:///{store}").get_trials()
-    assert len(trials) == 2 and all(t.state != optuna.trial.TrialState.FAIL for t in trials)
-    assert any(t.state == optuna.trial.TrialState.COMPLETE for t in trials)  # the torchvision model scored it
+    # one trial: every frame is fair under the loosened rule, so it completes (the torchvision model scored it)
+    assert [t.state for t in trials] == [optuna.trial.TrialState.COMPLETE]
 
 
 @pytest.mark.render

@@ -266,3 +266,23 @@ def test_a_job_after_a_restyled_one_renders_the_same_frames():
     assert len(runs[0]) == 2 and [s.replicate for s in setup.shots] == [0, 1]
     assert all(np.array_equal(a, b) for a, b in zip(*runs))
     assert not np.array_equal(runs[0][0], runs[0][1])  # the replicates differ (materials, target's model)
+
+
+def test_one_scenes_textures_are_drawn_once():
+    """The renderer's load and the job's glTF export both ask for every texture (`textures.image`, `image8`): the
+    process's cache keeps a whole scene's (the research plan's ~96, most of them bay-number signs), so a second pass
+    draws none again (a cache of 48 was emptied in turn and drew all 96 again at each pass)."""
+    from garage_exp.scene import textures
+    from garage_exp.scene.description import Decal
+
+    _, _, scene, _ = built("case=1", "palette.target_colours=[black]")
+    textured = {s.material for e in scene.entities for s in e.shapes
+                if isinstance(s, (Box, Decal)) and s.material.texture is not None}
+    assert len(textured) > 48
+    for material in textured:
+        textures.image8(material)
+    before = textures.image.cache_info().misses, textures.image8.cache_info().misses
+    for material in textured:
+        textures.image8(material)
+        textures.image(material)
+    assert (textures.image.cache_info().misses, textures.image8.cache_info().misses) == before

@@ -269,11 +269,11 @@ def _texture(rm, material: Material) -> None:
     """Give a SAPIEN material its procedural picture (8-bit sRGB with mipmaps: a far floor does not shimmer)."""
     import sapien.render as sr
 
-    from garage_exp.scene.textures import image, srgb8
+    from garage_exp.scene.textures import image, image8
 
     rgba, rough = image(material)
     levels = max(1, int(math.log2(min(rgba.shape[:2]))) - 1)
-    rm.base_color_texture = sr.RenderTexture2D(np.ascontiguousarray(srgb8(rgba)), "R8G8B8A8Unorm", mipmap_levels=levels, srgb=True)
+    rm.base_color_texture = sr.RenderTexture2D(np.ascontiguousarray(image8(material)), "R8G8B8A8Unorm", mipmap_levels=levels, srgb=True)
     if rough is not None:
         rm.roughness_texture = sr.RenderTexture2D(np.ascontiguousarray(rough, dtype=np.float32)[..., None], "R32Sfloat",
                                                   mipmap_levels=levels)

@@ -46,11 +46,11 @@ def pbr(material: Material) -> PBRMaterial:
                            emissiveFactor=emissive if any(emissive) else None)
     from PIL import Image
 
-    from garage_exp.scene.textures import image, srgb8
+    from garage_exp.scene.textures import image, image8
 
     rgba, _ = image(material)
     blend = bool(np.any(rgba[..., 3] < 1.0))  # decals and see-through signs
-    return PBRMaterial(name=material.name, baseColorTexture=Image.fromarray(srgb8(rgba)),
+    return PBRMaterial(name=material.name, baseColorTexture=Image.fromarray(image8(material)),
                        metallicFactor=float(material.metallic), roughnessFactor=float(material.roughness),
                        emissiveFactor=emissive if any(emissive) else None,
                        alphaMode="BLEND" if blend else "OPAQUE")
