@@ -99,7 +99,12 @@ def forked_cli(batch: list[tuple[list[str], Path, dict]], scratch: Path, entries
                           env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "GARAGE_EXP_DETECT_PROCESS": "0"},
                           timeout=600)
     assert proc.returncode == 0, proc.stderr
-    codes = {a["id"]: a["rc"] for a in map(json.loads, proc.stdout.splitlines())}
+    answers = [json.loads(line) for line in proc.stdout.splitlines()]
+    codes = {a["id"]: a["rc"] for a in answers}
+    if os.environ.get("FORKSERVER_TIMES"):  # each entry's seconds, for finding the slow ones (docs/testing.md)
+        with open(os.environ["FORKSERVER_TIMES"], "a") as f:
+            f.writelines(f"{a['cpu']:8.2f} {a['s']:8.2f} {Path(batch[a['id']][1]).name} {' '.join(batch[a['id']][0])}\n"
+                         for a in answers)
     for k, r in enumerate(requests):
         results.append(subprocess.CompletedProcess(r["argv"], codes[k], Path(r["stdout"]).read_text(),
                                                    Path(r["stderr"]).read_text()))
