@@ -4,7 +4,8 @@ that does exactly what `python -m garage_exp ARGS` does - `garage_exp.cli.app.cl
 working dir and environment, its stdout and stderr in files - and answers with the child's exit code.
 
 Protocol: one JSON object per line on stdin {"argv", "cwd", "env", "stdout", "stderr", optional "entry": another
-command's cli as "module:function", e.g. "garage_exp.verify.app:cli"}, all before stdin
+command's cli as "module:function", e.g. "garage_exp.verify.app:cli"; optional "no_model": true, the entry must
+be refused before any model loads: loading one raises in the child}, all before stdin
 closes; one per line on stdout {"id" (the request's index), "rc", "s" and "cpu" (the child's wall and CPU
 seconds)} as the children finish. Only for tests
 (tests/test_reliability_inputs.py, which also runs a few entries as real subprocesses to compare).
@@ -97,6 +98,13 @@ def child(request: dict) -> int:
     import garage_exp
 
     sys.argv = [os.path.join(os.path.dirname(garage_exp.__file__), "__main__.py"), *request["argv"]]
+    if request.get("no_model"):  # every model a job loads goes through the preflight's check_loads
+        import garage_exp.run.preflight
+
+        def no_model(*args):
+            raise AssertionError("a model was loaded before the refusal (a check that needs no model comes first)")
+
+        garage_exp.run.preflight.check_loads = no_model
     entry = None
     if request.get("entry"):
         import importlib
