@@ -55,6 +55,10 @@ def preload() -> None:
     import openvino  # noqa: F401
     import torchvision  # noqa: F401
     import ultralytics  # noqa: F401
+    import lxml.etree  # noqa: F401  the scenario import's entries (OpenSCENARIO and OpenDRIVE files)
+    import scenariogeneration  # noqa: F401
+    import scipy.optimize  # noqa: F401
+    import xmlschema  # noqa: F401
     import gc
 
     # Everything imported so far is kept out of the children's garbage collections: a child's collection would
