@@ -26,8 +26,9 @@ import time
 
 def preload() -> None:
     """What most children import anyway (a job's preflight checks every config group; a sweep its jobs; a
-    search its space and study), imported once here. Only modules the main command imports on its own path to
-    a refusal: no other command's registrations, which would change what a child knows."""
+    search its space and study), imported once here. Of garage_exp only modules the main command imports on its
+    own path to a refusal: no other command's registrations, which would change what a child knows; of other
+    commands only their third-party libraries."""
     import garage_exp.cli.app  # noqa: F401  hydra, omegaconf, the schema
     import garage_exp.assets.vehicles  # noqa: F401
     import garage_exp.cli.callbacks  # noqa: F401
