@@ -26,6 +26,10 @@ BY_ID = {c["id"]: c for c in CASES}
 COMMANDS = {"garage_exp": "", **{c: f"garage_exp.{c}.app:cli" for c in ("gym", "train", "loop", "verify")},
             "scenario.import": "garage_exp.scenario.xosc_import:cli"}
 NOT_HYDRA = {"scenario.import"}  # commands of plain arguments: no hydra.run.dir or tracking.uri appended
+# Entries refused by a check that needs no model, so before any model loads (the preflight's order: a user waits
+# a second for the one line, not the detectors' loading): their children crash if one loads.
+NO_MODEL = {"late-objective-static-ego", "placement-search-space-never-feasible", "ray-batch-zero",
+            "ray-address-not-answering"}
 
 
 def test_corpus_is_large_and_well_formed():
@@ -77,29 +81,37 @@ def files_under(path: Path) -> set[str]:
     return {str(p.relative_to(path)) for p in path.rglob("*")}
 
 
-def forked_cli(batch: list[tuple[list[str], Path, dict]], scratch: Path, entries: list[str] | None = None
-               ) -> list[subprocess.CompletedProcess]:
-    """`python -m garage_exp ARGS` (or the command of `entries`, one per request: COMMANDS' values) for each
-    (args, cwd, env) of the batch, through tests/cli_forkserver.py (two at a time, without paying the
-    interpreter's start-up each time)."""
-
-    requests, results = [], []
-    for k, (args, cwd, env) in enumerate(batch):
-        entry = (entries or [""] * len(batch))[k]
-        argv = [*args, f"hydra.run.dir={cwd}/run", f"hydra.sweep.dir={cwd}/sweep"]  # as conftest.run_app
-        if entry in {COMMANDS[c] for c in NOT_HYDRA}:
-            argv = list(args)
-        requests.append({"argv": argv, "cwd": str(cwd), "env": env, "stdout": str(scratch / f"{k}.out"),
-                         "stderr": str(scratch / f"{k}.err"), "entry": entry})
+def start_forkserver(scratch: Path) -> subprocess.Popen:
+    """tests/cli_forkserver.py, started: it imports the project and the detectors' libraries while the caller
+    prepares the requests (generated inputs, model servers)."""
     # GARAGE_EXP_DETECT_PROCESS=0: a job's detector checks load in the child, forked with the detectors' libraries
     # imported, not in a new detector process per entry (the same one line: test_fork_server_answers_as_the_real_
     # command_line compares model entries with the command line's default, a detector process)
-    proc = subprocess.run([PYTHON, str(Path(__file__).with_name("cli_forkserver.py"))], cwd=scratch,
-                          input="".join(json.dumps(r) + "\n" for r in requests), capture_output=True, text=True,
-                          env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "GARAGE_EXP_DETECT_PROCESS": "0"},
-                          timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    codes = {a["id"]: a["rc"] for a in map(json.loads, proc.stdout.splitlines())}
+    return subprocess.Popen([PYTHON, str(Path(__file__).with_name("cli_forkserver.py"))], cwd=scratch,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "GARAGE_EXP_DETECT_PROCESS": "0"})
+
+
+def forked_cli(server: subprocess.Popen, scratch: Path, batch: list[tuple[list[str], Path, dict]],
+               entries: list[str], no_model: list[bool]) -> list[subprocess.CompletedProcess]:
+    """`python -m garage_exp ARGS` (or the command of `entries`, one per request: COMMANDS' values) for each
+    (args, cwd, env) of the batch, through the fork server `server` started in `scratch` (two at a time, without
+    paying the interpreter's start-up each time); where `no_model` is true, loading a model crashes the child."""
+    requests, results = [], []
+    for k, (args, cwd, env) in enumerate(batch):
+        argv = [*args, f"hydra.run.dir={cwd}/run", f"hydra.sweep.dir={cwd}/sweep"]  # as conftest.run_app
+        if entries[k] in {COMMANDS[c] for c in NOT_HYDRA}:
+            argv = list(args)
+        requests.append({"argv": argv, "cwd": str(cwd), "env": env, "stdout": str(scratch / f"{k}.out"),
+                         "stderr": str(scratch / f"{k}.err"), "entry": entries[k], "no_model": no_model[k]})
+    out, err = server.communicate("".join(json.dumps(r) + "\n" for r in requests), timeout=600)
+    assert server.returncode == 0, err
+    answers = [json.loads(line) for line in out.splitlines()]
+    codes = {a["id"]: a["rc"] for a in answers}
+    if os.environ.get("FORKSERVER_TIMES"):  # each entry's seconds, for finding the slow ones (docs/testing.md)
+        with open(os.environ["FORKSERVER_TIMES"], "a") as f:
+            f.writelines(f"{a['cpu']:8.2f} {a['s']:8.2f} {Path(batch[a['id']][1]).name} {' '.join(batch[a['id']][0])}\n"
+                         for a in answers)
     for k, r in enumerate(requests):
         results.append(subprocess.CompletedProcess(r["argv"], codes[k], Path(r["stdout"]).read_text(),
                                                    Path(r["stderr"]).read_text()))
@@ -134,6 +146,9 @@ def corpus_results(request, tmp_path_factory):
     """Runs the selected corpus entries through the fork server."""
     selected = [item.callspec.params["case_id"] for item in request.session.items
                 if item.module is request.module and hasattr(item, "callspec") and "case_id" in item.callspec.params]
+    selected += [cid for cid in COMPARED if cid not in selected]  # one fork server for the comparison test too
+    scratch = tmp_path_factory.mktemp("forkserver")
+    forkserver = start_forkserver(scratch)
     results, batch, servers = {}, [], {}
     try:
         for cid in selected:
@@ -143,9 +158,13 @@ def corpus_results(request, tmp_path_factory):
             results[cid] = {"before": files_under(work), "work": work, "expect": expect}
             batch.append((args, work, env))
         entries = [COMMANDS[BY_ID[cid].get("command", "garage_exp")] for cid in selected]
-        for cid, proc in zip(selected, forked_cli(batch, tmp_path_factory.mktemp("forkserver"), entries)):
+        no_model = [cid in NO_MODEL for cid in selected]
+        for cid, proc in zip(selected, forked_cli(forkserver, scratch, batch, entries, no_model)):
             results[cid].update(proc=proc, after=files_under(results[cid]["work"]))
     finally:
+        if forkserver.poll() is None:  # the preparation failed: the server's stdin never closes
+            forkserver.kill()
+            forkserver.communicate()
         for server in servers.values():
             server.stop()
     return results
@@ -164,18 +183,16 @@ def serve(case: dict, servers: dict, tmp_path_factory) -> str:
     return servers[fault].url("bright")
 
 
-def test_fork_server_answers_as_the_real_command_line(tmp_path_factory):
+# The entries test_fork_server_answers_as_the_real_command_line runs both ways.
+COMPARED = ("plan-unreachable-lane", "sweep-bad-fov-in-2nd-job", "model-onnx-truncated")
+
+
+def test_fork_server_answers_as_the_real_command_line(corpus_results, tmp_path_factory):
     """The fork server is a shortcut, not a different program: a few entries give the same exit code and the
     same stderr either way, a model entry too (loaded in the forked child there, in the detector process as the
-    command line does by default here)."""
-    ids = ("plan-unreachable-lane", "sweep-bad-fov-in-2nd-job", "model-onnx-truncated")
-    batch = []
-    for cid in ids:
-        work = tmp_path_factory.mktemp(cid)
-        args, env, _ = prepare(BY_ID[cid], work)
-        batch.append((args, work, env))
-    forked = forked_cli(batch, tmp_path_factory.mktemp("forkserver"))
-    for cid, fork in zip(ids, forked):
+    command line does by default here). The forked answers are the module's run's (corpus_results)."""
+    for cid in COMPARED:
+        fork = corpus_results[cid]["proc"]
         real = real_run(BY_ID[cid], tmp_path_factory.mktemp(cid))["proc"]
         strip = lambda text: re.sub(r"/\S*/" + re.escape(cid) + r"\d*", "<work>", text)  # noqa: E731
         assert (fork.returncode, strip(fork.stderr)) == (real.returncode, strip(real.stderr)), cid
@@ -215,31 +232,32 @@ def test_source_has_no_eval_pickle_or_unsafe_yaml():
     weights_only=True (its restricted unpickler: tensors and plain containers, no code)."""
     problems = []
     for path in sorted((ROOT / "garage_exp").rglob("*.py")):
-        tree = ast.parse(path.read_text(), str(path))
-        safe = {id(node.func) for node in ast.walk(tree) if isinstance(node, ast.Call) and any(
-            k.arg == "weights_only" and isinstance(k.value, ast.Constant) and k.value.value is True
-            for k in node.keywords)}
-        for node in ast.walk(tree):
-            where = f"{path.relative_to(ROOT)}:{getattr(node, 'lineno', '?')}"
+        rel = path.relative_to(ROOT)
+        safe = set()  # the callee of each call with weights_only=True (ast.walk meets a call before its callee)
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Call) and any(k.arg == "weights_only" and isinstance(k.value, ast.Constant)
+                                                  and k.value.value is True for k in node.keywords):
+                safe.add(id(node.func))
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in (
                     "eval", "exec", "compile", "__import__"):
-                problems.append(f"{where}: {node.func.id}()")
+                problems.append(f"{rel}:{node.lineno}: {node.func.id}()")
             if isinstance(node, ast.Import):
-                problems += [f"{where}: import {a.name}" for a in node.names if a.name.split(".")[0] in UNSAFE_MODULES]
+                problems += [f"{rel}:{node.lineno}: import {a.name}" for a in node.names
+                             if a.name.split(".")[0] in UNSAFE_MODULES]
             if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in UNSAFE_MODULES:
-                problems.append(f"{where}: from {node.module} import")
+                problems.append(f"{rel}:{node.lineno}: from {node.module} import")
             if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and (
                     node.value.id, node.attr) in UNSAFE_ATTRS and not (
                     (node.value.id, node.attr) == ("torch", "load") and id(node) in safe):
-                problems.append(f"{where}: {node.value.id}.{node.attr}")
+                problems.append(f"{rel}:{node.lineno}: {node.value.id}.{node.attr}")
             if isinstance(node, ast.Call) and any(k.arg == "allow_pickle" and not (
                     isinstance(k.value, ast.Constant) and k.value.value is False) for k in node.keywords):
-                problems.append(f"{where}: allow_pickle")
+                problems.append(f"{rel}:{node.lineno}: allow_pickle")
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "load" \
                     and isinstance(node.func.value, ast.Name) and node.func.value.id == "yaml":
                 loader = next((k.value for k in node.keywords if k.arg == "Loader"), None)
                 if loader is None or "SafeLoader" not in ast.unparse(loader):
-                    problems.append(f"{where}: yaml.load without a SafeLoader")
+                    problems.append(f"{rel}:{node.lineno}: yaml.load without a SafeLoader")
     assert not problems, problems
 
 

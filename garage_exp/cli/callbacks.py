@@ -146,6 +146,13 @@ class MlflowSweepCallback(Callback):
         from garage_exp.search import sweep as search_sweep
 
         self.search = search_sweep.is_search(config)
+        cluster = None
+        if uses_ray(config):  # the launcher's settings, and that a named cluster answers, need no job: checked
+            # first, so that their refusal costs no model loading
+            from garage_exp.cluster.ray_jobs import check_cluster, settings
+
+            cluster = settings(config.hydra.launcher)
+            check_cluster(cluster)
         study = None
         if self.search:  # the search's settings and space, before anything is written
             from hydra.core.global_hydra import GlobalHydra
@@ -154,10 +161,10 @@ class MlflowSweepCallback(Callback):
             study = search_sweep.study_name_of(config)
         jobs = check_sweep(config)  # before anything is written
         self.jobs = len(jobs) if jobs is not None else None
-        if uses_ray(config):  # the cluster answers (or a local Ray starts) before anything is written
-            from garage_exp.cluster.ray_jobs import connect, settings
+        if cluster is not None:  # the cluster is joined (or a local Ray starts) before anything is written
+            from garage_exp.cluster.ray_jobs import connect
 
-            connect(settings(config.hydra.launcher))
+            connect(cluster)
         # Jobs in this very process (Hydra's basic launcher): a stopped sweep can count the finished ones.
         self.in_process = OmegaConf.select(config, "hydra.launcher._target_") == BASIC_LAUNCHER
         self.uri = config.tracking.uri

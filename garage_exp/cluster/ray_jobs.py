@@ -74,10 +74,8 @@ def connect(conf: RaySettings) -> None:
 
     if ray.is_initialized():
         return
-    named = conf.address or os.environ.get("RAY_ADDRESS") or None
-    if named:
-        check_answers(named, "hydra.launcher.address" if conf.address else "RAY_ADDRESS")
-    else:
+    named = check_cluster(conf)
+    if not named:
         joined = joined_cluster()
         if joined is None:
             print("garage_exp: no Ray cluster runs on this machine: starting a local Ray in this process (to use a "
@@ -92,6 +90,17 @@ def connect(conf: RaySettings) -> None:
             env[name] = os.environ[name]
     ray.init(address=conf.address, runtime_env={"env_vars": env} if env else None, log_to_driver=True,
              logging_level=logging.WARNING, include_dashboard=False if named is None else None)
+
+
+def check_cluster(conf: RaySettings) -> str | None:
+    """A named cluster (hydra.launcher.address, else $RAY_ADDRESS) answers, unless this process already joined
+    one: GarageError otherwise. Needs no job, so the sweep checks it before any model loads. Returns the name."""
+    import ray
+
+    named = conf.address or os.environ.get("RAY_ADDRESS") or None
+    if named and not ray.is_initialized():
+        check_answers(named, "hydra.launcher.address" if conf.address else "RAY_ADDRESS")
+    return named
 
 
 def disconnect() -> None:

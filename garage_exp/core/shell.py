@@ -46,8 +46,9 @@ def register(*schemas: Callable[[], None]) -> None:
     `config` needs it) and each command's own (`schemas`: their `register` functions). Idempotent."""
     from omegaconf import OmegaConf
 
-    from garage_exp.core import schema
+    from garage_exp.core import hydra_mode, schema
 
+    hydra_mode.install()  # the config composed once per command, not once more for hydra.mode
     if not OmegaConf.has_resolver("garage_root"):
         OmegaConf.register_new_resolver("garage_root", lambda: str(PROJECT_ROOT))
     schema.register()

@@ -47,7 +47,7 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     The space is refused for it only when no probed point is feasible, naming the overrides that place those
     actors."""
     from garage_exp.core.errors import Infeasible
-    from garage_exp.run.preflight import preflight
+    from garage_exp.run.preflight import load_models, preflight
 
     arguments = tuple(arguments_of(config))
     if arguments in _CHECKED:
@@ -59,9 +59,10 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     space = space_mod.build(kept, config, group_levels(loader))
     base = space_mod.default_point(space)
     infeasible: list[Infeasible] = []
+    prepared = []  # (where, checked job) of each feasible point: their models are loaded last
     try:  # the fixed part first: a case the plan cannot hold is the command's problem, not a searched value's
         fixed = loader.load_sweep_config(config, space.fixed)
-        preflight(fixed, check_space=False)
+        prepared.append(("search", preflight(fixed, check_space=False, load=False)))
     except Infeasible as exc:  # at the searched keys' own defaults: the searched values may move them apart
         infeasible.append(exc)
     except GarageError as exc:
@@ -73,7 +74,7 @@ def check(config: DictConfig, loader) -> space_mod.Space:
         where = (f"search space {name}={space_mod.format_value(values[name])}" if name
                  else f"search space {' '.join(space.written.values())}")
         try:
-            _probe(config, loader, space.overrides(values), where)
+            prepared.append((where, _probe(config, loader, space.overrides(values), where)))
             feasible += 1
         except Infeasible as exc:
             infeasible.append(exc)
@@ -83,20 +84,37 @@ def check(config: DictConfig, loader) -> space_mod.Space:
         blamed = space_mod.at_fault(searched, exc.actors) or space_mod.at_fault(space.fixed, exc.actors)
         raise GarageError(f"no probed point of the space is feasible ({len(probes) + 1} probed), e.g. {exc}",
                           f"search space {' '.join(blamed or searched)}")
+    # Last, the one check that needs the models (seconds; a detector is loaded once per process, however many
+    # points share it): a refusal above costs no model loading.
+    for where, job in prepared:
+        if where == "search":
+            try:
+                load_models(job)
+            except GarageError as exc:
+                raise GarageError(str(exc), where) from None
+        else:
+            _probe_error(lambda: load_models(job), where)
     _CHECKED[arguments] = space
     return space
 
 
-def _probe(config: DictConfig, loader, point: list[str], where: str) -> None:
-    """One point of the space composed and checked as its trial's job would be: GarageError naming `where`
-    when a value is wrong on its own; core.errors.Infeasible as it is (the point's values together are)."""
-    from garage_exp.core.errors import Infeasible
-    from garage_exp.core.exits import input_error
+def _probe(config: DictConfig, loader, point: list[str], where: str):
+    """One point of the space composed and checked as its trial's job would be, its models not loaded: the
+    preflight's PreparedJob; GarageError naming `where` when a value is wrong on its own; core.errors.Infeasible
+    as it is (the point's values together are)."""
     from garage_exp.run.preflight import preflight
 
+    return _probe_error(lambda: preflight(loader.load_sweep_config(config, point), check_space=False, load=False),
+                        where)
+
+
+def _probe_error(check, where: str):
+    """`check()`'s result; its input error as a GarageError naming `where` (Infeasible as it is)."""
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.core.exits import input_error
+
     try:
-        job = loader.load_sweep_config(config, point)
-        preflight(job, check_space=False)
+        return check()
     except Infeasible:
         raise
     except GarageError as exc:
