@@ -9,7 +9,6 @@ import re
 
 import pytest
 import yaml
-import conftest
 from conftest import ROOT, run_app
 from omegaconf import OmegaConf
 
@@ -21,10 +20,6 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 # Arrangements whose parked cars or vans fit no bay of the tiny plan (1.7 m wide): a job refuses them there, and so
 # does its dry run, which builds the scene too.
 WIDE_BAYS = ("occluder=pillar_cars", "occluder=vans")
-
-
-def compose_cfg(*overrides: str):
-    return conftest.compose_cfg(*overrides, hydra=True)
 
 
 def overridden(group: str, level: str) -> set[str]:
@@ -62,17 +57,48 @@ def dry_runs(tmp_path_factory) -> dict:
     """The plan-only jobs (dry_run=true) holding every level between them, and one per +experiment=, run through
     the command line in this process one after another, each a run in one MLflow store (a store of its own per
     job made MLflow open a new database engine, compile its statements and create the experiment each time, a
-    third of a dry run's time). For each job: (its overrides, the config they compose to with the hydra node, the
-    completed command, its run dir)."""
+    third of a dry run's time). For each job's overrides: (its arguments, the config the job was given - as Hydra
+    composed it, before the job touched it, see ran_with -, the completed command, its run dir)."""
     store = f"tracking.uri=sqlite:///{tmp_path_factory.mktemp('store')}/mlflow.db"
     jobs = [[f"{g}={lv}" for g, lv in job.items()] for job in dry_run_jobs()]
     jobs += [[f"+experiment={e}"] for e in EXPERIMENTS]
     done = {}
-    for k, overrides in enumerate(jobs):
-        work = tmp_path_factory.mktemp(f"job{k}")
-        args = ["dry_run=true", *overrides, store]
-        done[tuple(overrides)] = (args, compose_cfg(*args), run_app(args, work), work / "run")
+    with pytest.MonkeyPatch.context() as patch:
+        given = ran_with(patch)
+        for k, overrides in enumerate(jobs):
+            work = tmp_path_factory.mktemp(f"job{k}")
+            args = ["dry_run=true", *overrides, store]
+            given.clear()
+            proc = run_app(args, work)
+            done[tuple(overrides)] = (args, given[0] if given else None, proc, work / "run")
     return done
+
+
+def ran_with(patch) -> list:
+    """The config each job is given (the job's first step, its preflight, sees it as Hydra composed it from the
+    command line), kept as (the config, its hydra node, the config resolved in the job): what the composition tests
+    check, without composing each job's config a second time."""
+    import copy
+
+    from hydra.core.hydra_config import HydraConfig
+
+    from garage_exp.run import job
+
+    given, preflight = [], job.preflight
+
+    def seen(cfg, *args, **kwargs):
+        given.append(Given((copy.deepcopy(cfg), copy.deepcopy(HydraConfig.get()),
+                            OmegaConf.to_container(cfg, resolve=True))))
+        return preflight(cfg, *args, **kwargs)
+
+    patch.setattr(job, "preflight", seen)
+    return given
+
+
+class Given(tuple):
+    cfg = property(lambda self: self[0])
+    hydra = property(lambda self: self[1])
+    resolved = property(lambda self: self[2])
 
 
 def job_of(dry_runs: dict, override: str) -> tuple:
@@ -103,7 +129,9 @@ def test_level_composes_with_its_file_values(group, level, dry_runs):
     the schema check (no key past the schema: test_schema_check)."""
     from garage_exp.core.schema_check import check_schema
 
-    args, cfg, _, _ = job_of(dry_runs, f"{group}={level}")
+    args, given, proc, _ = job_of(dry_runs, f"{group}={level}")
+    assert given is not None, proc.stderr[-3000:]
+    cfg = given.cfg
     check_schema(cfg)
     text = (CONF / group / f"{level}.yaml").read_text()
     package = level_package(group, level)
@@ -130,10 +158,12 @@ def holds(composed, written) -> bool:
 def test_experiment_composes_its_sweep(experiment, dry_runs):
     from garage_exp.core.schema_check import check_schema
 
-    _, cfg, _, _ = job_of(dry_runs, f"+experiment={experiment}")
+    _, given, proc, _ = job_of(dry_runs, f"+experiment={experiment}")
+    assert given is not None, proc.stderr[-3000:]
+    cfg = given.cfg
     check_schema(cfg)
     spec = yaml.safe_load((CONF / "experiment" / f"{experiment}.yaml").read_text())
-    assert dict(cfg.hydra.sweeper.params) == spec["hydra"]["sweeper"]["params"]
+    assert dict(given.hydra.sweeper.params) == spec["hydra"]["sweeper"]["params"]
     assert cfg.tracking.experiment == spec["tracking"]["experiment"]
     override = next(d for d in spec["defaults"] if isinstance(d, dict))
     assert str(cfg.case.name) == str(next(iter(override.values())))
@@ -143,18 +173,21 @@ def test_dry_run_with_every_level_and_experiment(dry_runs):
     """A plan-only job (dry_run=true) with each level of each group (in the jobs of dry_run_jobs) and with each
     +experiment= finishes: the product's own checks accept it and it writes its config, which holds what each of
     its levels composes to, and its plan map."""
-    for overrides, (args, cfg, proc, run) in dry_runs.items():
+    for overrides, (args, given, proc, run) in dry_runs.items():
         assert proc.returncode == 0, (overrides, proc.stderr[-3000:])
         written = OmegaConf.load(run / "config.yaml")
         for override in overrides:
             group, level = override.lstrip("+").split("=")
             if group == "experiment":
-                assert written.tracking.experiment == cfg.tracking.experiment
+                spec = yaml.safe_load((CONF / "experiment" / f"{level}.yaml").read_text())
+                assert written.tracking.experiment == given.cfg.tracking.experiment == spec["tracking"]["experiment"]
                 continue
-            # the job ran with the level: its written config holds what the level composes to, at its package
+            # the job ran with the level (test_level_composes_with_its_file_values: the config it was given holds
+            # the file's values): its written config holds what the level composed to, at its package
             package = level_package(group, level)
             package = group if package == "_global_" else package  # a preset (look=): its own node suffices
-            expected = OmegaConf.to_container(OmegaConf.select(cfg, package), resolve=True)
+            expected = OmegaConf.select(OmegaConf.create(given.resolved), package)
+            expected = OmegaConf.to_container(expected) if expected is not None else None
             got = OmegaConf.to_container(OmegaConf.select(written, package), resolve=True)
             assert expected and holds(got, expected), (override, overrides, package, got, expected)
         assert (run / "plan_map.png").stat().st_size > 1000, overrides
