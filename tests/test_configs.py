@@ -23,18 +23,24 @@ WIDE_BAYS = ("occluder=pillar_cars", "occluder=vans")
 
 
 def overridden(group: str, level: str) -> set[str]:
-    """The groups a level's defaults list overrides (look=flat sets materials, clutter, sensor; case=cpra the
-    camera): a dry run holding such a level holds no level of those groups, which would undo its choice."""
+    """The groups a level's (or an experiment's) defaults list overrides (look=flat sets materials, clutter, sensor;
+    case=cpra the camera): a dry run holding such a level holds no level of those groups, which would undo its
+    choice - but the case an experiment names, given as that case's own level."""
     text = (CONF / group / f"{level}.yaml").read_text()
     return set(re.findall(r"override /(\w+)", text))
 
 
+def experiment_case(experiment: str) -> str:
+    return re.search(r"override /case: \"?(\w+)", (CONF / "experiment" / f"{experiment}.yaml").read_text())[1]
+
+
 def dry_run_jobs() -> list[dict[str, str]]:
-    """Every level of every group in as few plan-only jobs as the levels allow (a dry run is mostly Hydra composing
-    the config twice, whatever the number of overrides: 22 jobs instead of 61). A job holds at most one level of
-    a group and none whose choice another of its levels overrides. Each plan other than the default one is a job's
-    plan; each case and each level that needs a feature of the default plan (WIDE_BAYS) runs on the default plan,
-    as they would alone."""
+    """Every level of every group and every experiment in as few plan-only jobs as they allow (a dry run is mostly
+    Hydra composing the config twice, whatever the number of overrides: 18 jobs instead of 66). A job holds at most
+    one level of a group and none whose choice another of its levels overrides. Each plan other than the default
+    one is a job's plan; each case, each level that needs a feature of the default plan (WIDE_BAYS) and each
+    experiment runs on the default plan, as they would alone; an experiment (`+experiment`) joins the job of the
+    case it names."""
     default_plan = "research"
     jobs = [{"plan": lv} for g, lv in LEVELS if g == "plan" and lv != default_plan]
     jobs += [{"plan": default_plan, "case": lv} for g, lv in LEVELS if g == "case"]
@@ -42,26 +48,32 @@ def dry_run_jobs() -> list[dict[str, str]]:
         if group in ("plan", "case"):
             continue
         wide = f"{group}={level}" in WIDE_BAYS
-        job = next(j for j in [*jobs, {"plan": default_plan}]
-                   if group not in j and (not wide or j["plan"] == default_plan)
-                   and not overridden(group, level) & set(j)
-                   and not any(group in overridden(g, lv) for g, lv in j.items()))
-        if job not in jobs:
-            jobs.append(job)
+        job = next((j for j in jobs
+                    if group not in j and (not wide or j["plan"] == default_plan)
+                    and not overridden(group, level) & set(j)
+                    and not any(group in overridden(g, lv) for g, lv in j.items())), None)
+        if job is None:
+            jobs.append(job := {"plan": default_plan})
         job[group] = level
+    for experiment in EXPERIMENTS:
+        case = experiment_case(experiment)
+        job = next((j for j in jobs if j.get("case") == case and "+experiment" not in j
+                    and not (overridden("experiment", experiment) - {"case"}) & set(j)), None)
+        if job is None:
+            jobs.append(job := {"plan": default_plan, "case": case})
+        job["+experiment"] = experiment
     return jobs
 
 
 @pytest.fixture(scope="module")
 def dry_runs(tmp_path_factory) -> dict:
-    """The plan-only jobs (dry_run=true) holding every level between them, and one per +experiment=, run through
+    """The plan-only jobs (dry_run=true) holding every level and every +experiment= between them, run through
     the command line in this process one after another, each a run in one MLflow store (a store of its own per
     job made MLflow open a new database engine, compile its statements and create the experiment each time, a
     third of a dry run's time). For each job's overrides: (its arguments, the config the job was given - as Hydra
     composed it, before the job touched it, see ran_with -, the completed command, its run dir)."""
     store = f"tracking.uri=sqlite:///{tmp_path_factory.mktemp('store')}/mlflow.db"
     jobs = [[f"{g}={lv}" for g, lv in job.items()] for job in dry_run_jobs()]
-    jobs += [[f"+experiment={e}"] for e in EXPERIMENTS]
     done = {}
     with pytest.MonkeyPatch.context() as patch:
         given = ran_with(patch)
@@ -113,13 +125,19 @@ def test_every_group_has_levels_and_cases_and_experiments_exist():
 
 def test_every_level_is_in_a_dry_run_job_with_no_level_it_overrides():
     jobs = dry_run_jobs()
-    held = sorted((g, lv) for job in jobs for g, lv in job.items())
-    assert sorted(set(held)) == sorted(LEVELS) and len(jobs) < len(LEVELS) / 2
-    assert [x for x in held if held.count(x) > 1] == [("plan", "research")] * held.count(("plan", "research"))
+    held = sorted((g, lv) for job in jobs for g, lv in job.items() if g != "+experiment")
+    assert sorted(set(held)) == sorted(LEVELS) and len(jobs) < len(LEVELS) / 3
+    repeated = [x for x in held if held.count(x) > 1]  # the default plan, and a case of two experiments
+    assert {g for g, _ in repeated} <= {"plan", "case"} and ("plan", "research") in repeated
+    assert sorted(j["+experiment"] for j in jobs if "+experiment" in j) == EXPERIMENTS
     for job in jobs:
-        assert not any(overridden(g, lv) & set(job) for g, lv in job.items()), job
+        levels = [(g, lv) for g, lv in job.items() if g != "+experiment"]
+        assert not any(overridden(g, lv) & set(job) for g, lv in levels), job
         if job["plan"] != "research":  # a case, or a level that needs the default plan's wide bays, runs on it
             assert "case" not in job and not any(f"{g}={lv}" in WIDE_BAYS for g, lv in job.items()), job
+        if "+experiment" in job:  # with the case it names, and no level of a group it overrides
+            assert job["case"] == experiment_case(job["+experiment"]), job
+            assert not (overridden("experiment", job["+experiment"]) - {"case"}) & set(job), job
 
 
 @pytest.mark.parametrize("group,level", LEVELS, ids=[f"{g}={lv}" for g, lv in LEVELS])
