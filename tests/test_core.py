@@ -246,6 +246,10 @@ def test_every_shipped_experiment_composes_and_passes_preflight(name):
 def test_every_shipped_case_composes_and_passes_preflight(name):
     from garage_exp.run.preflight import preflight
 
-    (cfg,) = _sweep_jobs([f"case={name}", "plan=research"])  # (cpra brings the rear rig it is scored by)
+    from conftest import compose_cfg
+
+    # A single run's config, composed once (not a one-job sweep: that composed it twice); cpra brings the rear rig
+    # it is scored by.
+    cfg = compose_cfg(f"case={name}", "plan=research")
     assert str(cfg.case.name) == name
     preflight(cfg, check_space=False)

@@ -17,12 +17,13 @@ PLACEHOLDERS = ("...", "/abs/path", "my_conf", "my_plan", "night")  # stand for 
 
 def readme_commands() -> list[list[str]]:
     """The argument lists of the README's `python -m garage_exp` commands (continuation lines joined, comments
-    dropped), except those naming the reader's own files."""
+    dropped), except those naming the reader's own files; a command the README shows twice (the bare one) once."""
     commands = []
     for block in re.findall(r"```bash\n(.*?)```", (ROOT / "README.md").read_text(), re.S):
         for line in block.replace("\\\n", " ").splitlines():
             words = shlex.split(line, comments=True)
-            if words[:3] == ["python", "-m", "garage_exp"] and not any(p in line for p in PLACEHOLDERS):
+            if words[:3] == ["python", "-m", "garage_exp"] and not any(p in line for p in PLACEHOLDERS) \
+                    and words[3:] not in commands:
                 commands.append(words[3:])
     return commands
 
