@@ -31,6 +31,18 @@ def build(library, *overrides: str):
     return cfg, classified, scene, setup
 
 
+def case_setup(library, *overrides: str):
+    """The case as a job places it (scenario.make_case, as build_scene calls it, on the same seed's draws), without
+    building the garage around it: for the tests of placements, exports and imports, which never look at the
+    scene (cfg, classified plan, setup)."""
+    from garage_exp.run.preflight import classified_plan
+    from garage_exp.scenario import make_case
+
+    cfg = compose_cfg(*overrides)
+    classified = classified_plan(PLANS_DIR / f"{cfg.plan.name}.yaml")
+    return cfg, classified, make_case(cfg, classified, library, np.random.default_rng(cfg.seed))
+
+
 def on_lane(classified, pose) -> bool:
     cell = classified.plan.cell_at(pose.x, pose.y)
     return cell is not None and classified.cell(*cell).type in LANE_TYPES
@@ -99,13 +111,25 @@ CASES = sorted(p.stem for p in (ROOT / "conf" / "case").glob("*.yaml"))
 
 @pytest.mark.parametrize("case, plan", [(c, p) for c in CASES for p in PLANS])
 def test_every_case_is_built_on_every_experiment_plan(library, plan, case):
-    """The product's own feature finders find each case's feature on each shipped plan: the scene has the
-    case's vehicles and the shots place only those."""
-    _, classified, scene, setup = build(library, f"plan={plan}", f"case={case}")
-    names = {e.name for e in scene.entities}
+    """The product's own feature finders find each case's feature on each shipped plan: the case has its
+    vehicles and the shots place only those (the scene they go into: the next test)."""
+    _, classified, setup = case_setup(library, f"plan={plan}", f"case={case}")
+    names = {v.name for v in setup.vehicles}
     assert setup.shots and all(s.target in names for s in setup.shots)
     assert all(n in names for s in setup.shots for n in s.poses)
     assert all(on_lane(classified, s.ego) or case == "2" for s in setup.shots)
+
+
+@pytest.mark.parametrize("plan", PLANS)
+def test_the_scene_holds_the_case_s_vehicles_on_every_experiment_plan(library, plan):
+    """build_scene on each shipped plan places the case as make_case does (the previous test's setup: same
+    shots) and puts every one of its vehicles into the scene (case 3: the most vehicles)."""
+    _, _, scene, setup = build(library, f"plan={plan}", "case=3")
+    _, _, alone = case_setup(library, f"plan={plan}", "case=3")
+    assert setup.shots == alone.shots
+    names = {e.name for e in scene.entities}
+    assert {v.name for v in setup.vehicles} <= names
+    assert all(s.target in names and all(n in names for n in s.poses) for s in setup.shots)
 
 
 RIG = {"slots": ["camera=fisheye4"], "cpra": ["camera=rear"]}  # cases scored by a camera the front rig lacks
