@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 
 import pytest
-from conftest import ROOT
 from test_cases import case_setup, library  # noqa: F401  (the cases' placements as a job makes them; the library)
 from xosc_files import ROAD as FOREIGN_XODR  # a straight road of two 3.5 m lanes
 
@@ -217,13 +216,11 @@ def test_a_road_the_plan_cannot_place_is_refused(cpnco, tmp_path, capsys):
 
 
 def test_python_m_garage_exp_scenario_import_runs(cpnco, tmp_path):
-    import subprocess
-    import sys
+    """`python -m garage_exp.scenario.import` as -m runs it (runpy, in this process: conftest.run_module; the
+    command in its own process, signals and bad input: test_command_exits.py)."""
+    from conftest import run_module
 
-    from conftest import child_env
-
-    result = subprocess.run([sys.executable, "-m", "garage_exp.scenario.import", str(cpnco[3][1]), "--name", "rt"],
-                            cwd=tmp_path, capture_output=True, text=True, env=child_env({"PYTHONPATH": str(ROOT)}))
+    result = run_module("garage_exp.scenario.import", [str(cpnco[3][1]), "--name", "rt"], tmp_path)
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "case" / "rt.yaml").is_file() and "left out" in result.stdout
 
