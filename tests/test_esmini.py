@@ -3,7 +3,8 @@ exported on two plans and played headless in esmini (../shared/tools/esmini), pu
 had it at every frame (within 0.1 m and 5 degrees); esmini reports a collision only where the job's frames have
 one; every entity starts inside a lane of the road file (bays and the space beside a lane are lanes too); the ego
 stays in the lane the file declares, driving that lane's direction under the road's declared traffic rule (a
-reversing ego faces against it). Exports need no rendering: the scene is built, not rendered."""
+reversing ego faces against it). Exports need no rendering, nor the garage around the case: the case is placed
+as a job places it (scenario.make_case), not rendered."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import math
 
 import pytest
 from conftest import require
-from test_cases import build, library  # noqa: F401  (the cases' scene builder and its module-scoped library)
+from test_cases import case_setup, library  # noqa: F401  (the cases' placements as a job makes them; the library)
 
 from garage_exp.core.paths import PLANS_DIR
 
@@ -70,7 +71,7 @@ def judge(library, tmp_path, *overrides: str) -> list:
     from garage_exp.scenario.asam import validate
     from garage_exp.scenario.xodr_read import read_roads
 
-    cfg, classified, _, setup = build(library, *overrides)
+    cfg, classified, setup = case_setup(library, *overrides)
     plan = cfg.plan.name
     paths = export(cfg, tmp_path / "osc", PreparedJob(PLANS_DIR / f"{plan}.yaml", classified, setup=setup))
     roads, _ = read_roads(paths[0])
@@ -167,7 +168,7 @@ def test_asam_s_checker_bundles_find_nothing_in_the_exports(library, tmp_path):
 
     files = []
     for case, version in (("cpnco", "1.2"), ("crossing", "1.0")):
-        cfg, classified, _, setup = build(library, f"case={case}", f"export.openscenario_version={version}")
+        cfg, classified, setup = case_setup(library, f"case={case}", f"export.openscenario_version={version}")
         files += export(cfg, tmp_path / case, PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
     found = {f"{p.parent.name}/{p.name}": issues(p) for p in files}
     assert not any(found.values()), found

@@ -7,22 +7,49 @@ from __future__ import annotations
 import math
 
 import pytest
-from conftest import ROOT
-from test_cases import build, library  # noqa: F401  (the cases' scene builder and its module-scoped library)
+from test_cases import case_setup, library  # noqa: F401  (the cases' placements as a job makes them; the library)
 from xosc_files import ROAD as FOREIGN_XODR  # a straight road of two 3.5 m lanes
 
 from garage_exp.core.paths import PLANS_DIR
 
 
 @pytest.fixture(scope="module")
-def cpnco(library, tmp_path_factory):
+def placed(library):
+    """The module's placements, each built once: (cfg, classified plan, setup) by the overrides (the round trip
+    at three speeds, the other-speed imports and the reversing ego build the same cases at the same speeds)."""
+    made = {}
+
+    def get(*overrides: str):
+        if overrides not in made:
+            made[overrides] = case_setup(library, *overrides)
+        return made[overrides]
+
+    return get
+
+
+@pytest.fixture(scope="module")
+def exported(placed, tmp_path_factory):
+    """Each (case, ego speed)'s export on the research plan, written once: (cfg, classified, setup, paths)."""
     from garage_exp.run.openscenario import export
     from garage_exp.run.preflight import PreparedJob
 
-    cfg, classified, _, setup = build(library, "case=cpnco")
-    out = tmp_path_factory.mktemp("osc")
-    prepared = PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup)
-    return cfg, classified, setup, export(cfg, out / "openscenario", prepared)
+    made = {}
+
+    def get(case: str, speed: float):
+        if (case, speed) not in made:
+            cfg, classified, setup = placed(f"case={case}", f"ego.speed={speed}")
+            out = tmp_path_factory.mktemp(f"osc_{case}_{speed}") / "openscenario"
+            paths = export(cfg, out, PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
+            made[case, speed] = cfg, classified, setup, paths
+        return made[case, speed]
+
+    return get
+
+
+@pytest.fixture(scope="module")
+def cpnco(exported):
+    """case=cpnco at its default speed (10 km/h) exported."""
+    return exported("cpnco", 10)
 
 
 def test_cpnco_exports_validate_against_the_asam_schemas_and_read_back(cpnco):
@@ -76,12 +103,12 @@ def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tm
     cfg, classified, setup, paths = cpnco
     out = tmp_path / "conf" / "case" / "cpnco_rt.yaml"
     assert main([str(paths[1]), "-o", str(out), "--name", "cpnco_rt"]) == 0
-    _, _, _, again = build(library, "case=cpnco_rt", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    _, _, again = case_setup(library, "case=cpnco_rt", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
     assert_same_placements(setup.shots, again.shots)
 
 
 @pytest.mark.parametrize("speed", [5, 20])
-def test_the_cpnco_export_imports_back_at_other_ego_speeds(cpnco, library, tmp_path, speed):
+def test_the_cpnco_export_imports_back_at_other_ego_speeds(cpnco, placed, library, tmp_path, speed):
     """The child's timed arrival is a SynchronizeAction with the ego, not a trigger fixed for the exported speed:
     imported back and run at 5 or 20 km/h, the case builds the same frames as the original at that speed (with a
     trigger the child set off 10 frames early at 5 km/h, and was 2.5 m short of the ego's path at 20)."""
@@ -91,25 +118,23 @@ def test_the_cpnco_export_imports_back_at_other_ego_speeds(cpnco, library, tmp_p
     assert "SynchronizeAction" in paths[1].read_text()
     out = tmp_path / "conf" / "case" / "cpnco_v.yaml"
     assert main([str(paths[1]), "-o", str(out), "--name", "cpnco_v"]) == 0
-    _, _, _, original = build(library, "case=cpnco", f"ego.speed={speed}")
-    _, _, _, again = build(library, "case=cpnco_v", f"ego.speed={speed}", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    _, _, original = placed("case=cpnco", f"ego.speed={speed}")
+    _, _, again = case_setup(library, "case=cpnco_v", f"ego.speed={speed}",
+                             f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
     assert_same_placements(original.shots, again.shots)
 
 
-def test_a_reversing_ego_and_a_synchronised_walker_import_back(library, tmp_path):
+def test_a_reversing_ego_and_a_synchronised_walker_import_back(exported, library, tmp_path):
     """cpra's walking variant at 4 km/h (the ego reverses: a negative speed; the adult's walk is timed to meet
     it) exported and imported again: the same placements, frame for frame."""
-    from garage_exp.run.openscenario import export
-    from garage_exp.run.preflight import PreparedJob
     from garage_exp.scenario.xosc_import import main
 
-    cfg, classified, _, setup = build(library, "case=cpra", "ego.speed=4")
-    paths = export(cfg, tmp_path / "osc", PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
+    cfg, classified, setup, paths = exported("cpra", 4)
     walking = paths[7]  # the seventh variant: adult walking 50 %
     assert "adult walking 50 %" in walking.read_text() and 'name="EgoSpeed" parameterType="double" value="-1.111111"' in walking.read_text()
     out = tmp_path / "conf" / "case" / "cpra_rt.yaml"
     assert main([str(walking), "-o", str(out), "--name", "cpra_rt"]) == 0
-    _, _, _, again = build(library, "case=cpra_rt", "ego.speed=4", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    _, _, again = case_setup(library, "case=cpra_rt", "ego.speed=4", f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
     assert_same_placements([s for s in setup.shots if s.label == "adult walking 50 %"], again.shots)
 
 
@@ -191,13 +216,11 @@ def test_a_road_the_plan_cannot_place_is_refused(cpnco, tmp_path, capsys):
 
 
 def test_python_m_garage_exp_scenario_import_runs(cpnco, tmp_path):
-    import subprocess
-    import sys
+    """`python -m garage_exp.scenario.import` as -m runs it (runpy, in this process: conftest.run_module; the
+    command in its own process, signals and bad input: test_command_exits.py)."""
+    from conftest import run_module
 
-    from conftest import child_env
-
-    result = subprocess.run([sys.executable, "-m", "garage_exp.scenario.import", str(cpnco[3][1]), "--name", "rt"],
-                            cwd=tmp_path, capture_output=True, text=True, env=child_env({"PYTHONPATH": str(ROOT)}))
+    result = run_module("garage_exp.scenario.import", [str(cpnco[3][1]), "--name", "rt"], tmp_path)
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "case" / "rt.yaml").is_file() and "left out" in result.stdout
 
@@ -325,7 +348,7 @@ ROUND_TRIP_CASES = ["1", "2", "3", "cpnco", "cpra", "crossing", "crouch", "light
 
 
 @pytest.mark.parametrize("case", ROUND_TRIP_CASES)
-def test_every_export_imports_back_to_the_job_s_frames_at_three_ego_speeds(case, library, tmp_path):
+def test_every_export_imports_back_to_the_job_s_frames_at_three_ego_speeds(case, exported, library, tmp_path):
     """Issue 40: the importer reads every export back (each variant's .xosc) and the imported case builds the
     frames the job built, actor for actor within 5 cm, for a job run at each of three ego speeds (cpra: the
     protocol's reversing speeds, 4 and 8, and 10: from 12 km/h on, its walkers come back 0.19-0.38 m off, a known
@@ -333,14 +356,12 @@ def test_every_export_imports_back_to_the_job_s_frames_at_three_ego_speeds(case,
     import contextlib
     import io
 
-    from garage_exp.run.openscenario import export, variants_of
-    from garage_exp.run.preflight import PreparedJob
+    from garage_exp.run.openscenario import variants_of
     from garage_exp.scenario.xosc_import import main
 
     speeds = [4, 8, 10] if case == "cpra" else [5, 10, 20]
     for speed in speeds:
-        cfg, classified, _, setup = build(library, f"case={case}", f"ego.speed={speed}")
-        paths = export(cfg, tmp_path / f"osc{speed}", PreparedJob(PLANS_DIR / "research.yaml", classified, setup=setup))
+        cfg, classified, setup, paths = exported(case, speed)
         variants = variants_of(setup)
         assert len(paths) == len(variants) + 1  # the road file, then one scenario a variant
         for k, ((label, _), xosc) in enumerate(zip(variants, paths[1:])):
@@ -348,7 +369,7 @@ def test_every_export_imports_back_to_the_job_s_frames_at_three_ego_speeds(case,
             out = tmp_path / "conf" / "case" / f"{name}.yaml"
             with contextlib.redirect_stdout(io.StringIO()):
                 assert main([str(xosc), "-o", str(out), "--name", name]) == 0, (case, speed, label)
-            _, _, _, again = build(library, f"case={name}", f"ego.speed={speed}",
-                                   f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+            _, _, again = case_setup(library, f"case={name}", f"ego.speed={speed}",
+                                     f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
             job = [s for s in setup.shots if s.label == label and s.replicate == 0]
             assert_same_placements(job, [s for s in again.shots if s.replicate == 0])

@@ -253,13 +253,19 @@ def garage_things(classified, pillar_size: float = 0.6, height: float = 2.8, wal
 
 def _add_objects(odr, roads: list, runs: list[Run], things: list[Thing]) -> None:
     """Each thing on the road nearest its centre (s clamped to the road, t across it, heading relative)."""
+    import numpy as np
     from scenariogeneration import xodr
 
+    # Every road's distance to a thing at once (a large plan: thousands of things x a hundred roads), with
+    # Run.st's operations in its order (math's cos and sin), so the nearest road is the one it picks one by one
+    # (argmin: the first of equals, as min does).
+    sx, sy = np.array([r.start[0] for r in runs]), np.array([r.start[1] for r in runs])
+    c, n = np.array([math.cos(r.heading) for r in runs]), np.array([math.sin(r.heading) for r in runs])
+    length = np.array([r.length for r in runs])
     for th in things:
-        def distance(run):
-            s, t = run.st(th.x, th.y)
-            return max(-s, s - run.length, 0.0) + abs(t)
-        near = min(range(len(runs)), key=lambda r: distance(runs[r]))
+        dx, dy = th.x - sx, th.y - sy
+        s, t = dx * c + dy * n, -dx * n + dy * c
+        near = int(np.argmin(np.maximum(np.maximum(-s, s - length), 0.0) + np.abs(t)))
         s, t = runs[near].st(th.x, th.y)
         obj = xodr.Object(round(min(max(s, 0.0), runs[near].length), 6), round(t, 6),
                           Type=getattr(xodr.ObjectType, th.kind), subtype=th.name.split("_")[0],

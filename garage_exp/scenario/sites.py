@@ -96,6 +96,8 @@ def bay_beside_pillar(classified: Classified, garage) -> Site:
     sees it, distance 0 on the bay's axis."""
     plan = classified.plan
     dist = entrance_distance(plan)
+    size = garage.pillar_size  # read once: a config node's attribute costs ~50 us, asked bays x pillars x 4 times
+    centres = [(pillar, pillar_centre(plan, pillar, size)) for pillar in classified.pillars]
     found = []
     for bay in bays(classified, garage):
         if bay.type != "type3":
@@ -107,11 +109,10 @@ def bay_beside_pillar(classified: Classified, garage) -> Site:
             continue
         front = (bay.x + u[0] * bay.depth / 2, bay.y + u[1] * bay.depth / 2)
         perp = (-u[1], u[0])
-        for pillar in classified.pillars:
-            px, py = pillar_centre(plan, pillar, garage.pillar_size)
+        for pillar, (px, py) in centres:
             for s in (-1, 1):
                 cx, cy = front[0] + s * perp[0] * bay.width / 2, front[1] + s * perp[1] * bay.width / 2
-                if math.hypot(px - cx, py - cy) <= garage.pillar_size:
+                if math.hypot(px - cx, py - cy) <= size:
                     found.append((dist[lane_cell], bay.i, bay.j, bay.index, bay, pillar, side, lane_cell))
     if not found:
         raise GarageError("no Type3 bay facing a straight lane with a pillar beside it (the site "
