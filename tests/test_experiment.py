@@ -111,6 +111,11 @@ def test_pillar_at_the_corner_hides_the_target_in_case_1(pipeline):
     assert restored > hidden + 0.05, (hidden, restored)
 
 
+# The sweep's frames: QVGA, black targets only (the light case's 4 distances rather than 2 colours x 4).
+SMALL = ["camera.width=320", "camera.height=240", "palette.target_colours=[black]"]
+LIGHT_FRAMES = 4
+
+
 def read_table(path):
     with open(path) as fh:
         return list(csv.DictReader(fh))
@@ -118,12 +123,14 @@ def read_table(path):
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
-    """A 2 x 2 sweep (light x case) in one process, few frames, with the YOLO dataset export."""
+    """A 2 x 2 sweep (light x case) in one process, few frames, with the YOLO dataset export: QVGA and one
+    target colour (the light case's 4 distances, case 3's 13 placements at one ego position), as what its tests
+    check (bookkeeping, labels = ground truth, the report) does not depend on the image size or the colours."""
     _skip_without_backends()
     tmp = tmp_path_factory.mktemp("sweep")
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
     r = run_app(["-m", "case=light,3", "light=bright,dim", "case.motion.start=6.0", "case.motion.end=6.0",
-                 "dataset=true", f"tracking.uri={uri}"], tmp)
+                 *SMALL, "dataset=true", f"tracking.uri={uri}"], tmp)
     assert r.returncode == 0, r.stderr[-3000:]
     mlc = tracking.client(uri)
     exp = mlc.get_experiment_by_name("garage_exp")
@@ -229,7 +236,7 @@ def test_dataset_export_writes_yolo_labels_from_ground_truth(sweep):
 
     images = sorted(os.listdir(f"{root}/images"))
     labels = sorted(os.listdir(f"{root}/labels"))
-    assert len(images) == 8 and [x.replace(".png", ".txt") for x in images] == labels
+    assert len(images) == LIGHT_FRAMES and [x.replace(".png", ".txt") for x in images] == labels
     data = yaml.safe_load(open(f"{root}/data.yaml"))
     assert data["names"][2] == "car" and len(data["names"]) == 80  # COCO ids: fine-tune a COCO detector as is
     table = {int(r["shot"]): r for r in read_table(f"{run.data.tags['output_dir']}/frames.csv")}

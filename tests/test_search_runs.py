@@ -76,6 +76,7 @@ def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp
     args = [*SEARCH, "search.mode=suite", "search.trials=3", "search.suite.per_band=2", f"search.suite.dir={suite}",
             "+search.suite.bands.any=[0.0,1.01]", "search.min_visible=0.0", "search.min_box=0", "search.max_truncation=1.0", "dataset=true",
             "export.openscenario=true", "palette.target_colours=[black]", "case.motion.start=5", "case.motion.end=4", "case.motion.step=1",
+            "camera.width=320", "camera.height=240",
             "light.intensity=interval(0.3,1.0)", "case.actors.target.distance=interval(4.0,6.0)", *stores(tmp_path)]
     r = run_app(args, tmp_path)
     # the study went on past the crash; like a sweep with a failed job, the command exits 1 and says so
