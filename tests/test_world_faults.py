@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PYTHON, child_env, compose_cfg, run_app, store_template
+from conftest import PYTHON, child_env, compose_cfg, inject_fault, run_app, store_template
 from mlflow_server import Server, free_port
 
 from garage_exp.tracking import runs as tracking
@@ -243,20 +243,21 @@ FAULTS = os.pathsep.join([str(Path(__file__).resolve().parent / "faults"),
 LIGHTS = "light=bright,dim,clear,moderate"
 
 
-def test_a_full_disk_stops_the_sweep_in_one_line_keeping_the_finished_runs(small_fs, template):
+def test_a_full_disk_stops_the_sweep_in_one_line_keeping_the_finished_runs(small_fs, template, monkeypatch):
     """Four jobs writing to a small filesystem that job 2 fills: jobs 0 and 1 are kept whole, job 2's run ends
     FAILED saying the disk is full (the store shares the disk, so job 2's partial files are deleted to make
     room for that), job 3 does not start, nothing stays RUNNING, one line, exit 1; once there is space,
-    resume=true finishes the sweep."""
+    resume=true finishes the sweep. The sweep runs in this process, the fault injected as GARAGE_EXP_FAULT
+    injects it in a new one (the disk, not the process, is the subject)."""
     import shutil
 
     fs, mounted = small_fs
     shutil.copy(template, fs / "mlflow.db")
     uri = f"sqlite:///{fs / 'mlflow.db'}"
     args = ["-m", *DRY, LIGHTS, f"tracking.uri={uri}", f"hydra.sweep.dir={fs}/sweep"]
-    fault = "disk:fill:2" if mounted else "disk:raise:2"
-    proc = subprocess.run([PYTHON, "-m", "garage_exp", *args], cwd=fs, capture_output=True, text=True, timeout=300,
-                          env=child_env({"PYTHONPATH": FAULTS, "GARAGE_EXP_FAULT": fault}))
+    with monkeypatch.context() as faulty:
+        inject_fault(faulty, "disk:fill:2" if mounted else "disk:raise:2")
+        proc = run_app(args, fs)
     line = one_line_error(proc.stderr)
     assert proc.returncode == 1
     assert line.startswith(f"garage_exp: disk full at {fs}/sweep/2")
@@ -419,9 +420,7 @@ def test_a_tracking_server_gone_mid_sweep_keeps_the_outputs_and_resume_logs_them
     assert not (tmp_path / "sweep" / "2" / "plan_map.png").exists()  # the sweep stopped
 
     server.start()
-    again = subprocess.run([PYTHON, "-m", "garage_exp", *args, "resume=true", f"hydra.sweep.dir={tmp_path}/sweep"],
-                           cwd=tmp_path, env=child_env({"MLFLOW_TRACKING_URI": server.uri}), capture_output=True,
-                           text=True, timeout=300)
+    again = run_app([*args, "resume=true"], tmp_path, env={"MLFLOW_TRACKING_URI": server.uri})  # in this process
     assert again.returncode == 0, again.stderr[-3000:]
     assert f"from the outputs kept in {job1} (run " in again.stdout and "not rendered again" in again.stdout
     assert (job1 / "plan_map.png").stat().st_mtime_ns == drawn  # not drawn again
