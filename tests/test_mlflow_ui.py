@@ -1,7 +1,7 @@
 """The MLflow UI as a user sees it: a real browser (Debian's chromium, driven by Playwright) over `mlflow ui` on
-a store holding a small real sweep (light x sensor, 2 x 2 jobs of 2 frames at 320 x 240, one detector). The browser follows
-the link the sweep prints, expands the sweep, opens a child's `confidence` chart and `confidence.png`, and the
-sweep's report. Screenshots: outputs/browser/ (look at them)."""
+a store holding a small real sweep (light x sensor, 2 x 2 jobs of 2 frames at 320 x 240, one detector). The
+browser follows the link the sweep prints, expands the sweep, opens a child's `confidence` chart and
+`confidence.png`, and the sweep's report. Screenshots: outputs/browser/ (look at them)."""
 
 from __future__ import annotations
 
