@@ -174,8 +174,12 @@ def test_a_broken_store_is_one_line_naming_it_and_the_way_back(tmp_path, templat
     assert hashlib.sha256(db.read_bytes()).hexdigest() == before  # nothing written into it
     assert not (tmp_path / "sweep").exists()
     db.unlink()  # as the line says
-    # the user's rerun is a new process (this one's MLflow keeps the broken file's engine)
-    again = run_app(["-m", *DRY, f"tracking.uri={uri}"], tmp_path, process=True)
+    # The user's rerun is a new process, which starts without the engine this one's MLflow keeps for the URI (its
+    # pooled connection still reads the deleted file): the engine is dropped, and the rerun runs here.
+    from mlflow.store.tracking.sqlalchemy_store import SqlAlchemyStore
+
+    SqlAlchemyStore._engine_map.pop(uri).dispose()
+    again = run_app(["-m", *DRY, f"tracking.uri={uri}"], tmp_path)
     assert again.returncode == 0, again.stderr[-3000:]
 
 
