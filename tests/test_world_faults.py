@@ -123,12 +123,13 @@ def store_runs(uri: str, experiment: str = "garage_exp"):
 
 
 def test_sweeps_started_together_on_a_fresh_store_all_finish(tmp_path):
-    """Three sweeps started at once on a store that does not exist yet (the first use, or the first after
-    `make clean`): one creates MLflow's schema under the store's lock, the others wait for it. Without the
-    lock two of three such processes crashed ("table _alembic_tmp_experiments already exists", "duplicate
-    column name", "Online migration expected to match one row") and left the store broken."""
+    """Two sweeps started at once on a store that does not exist yet (the first use, or the first after
+    `make clean`): one creates MLflow's schema under the store's lock, the other waits for it. Without the
+    lock one of the two crashed in each of 2 tries ("table latest_metrics already exists", "table
+    _alembic_tmp_model_versions already exists"; with three, two crashed: "duplicate column name", "Online
+    migration expected to match one row") and left the store broken."""
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    lights = ["bright", "dim", "clear"]
+    lights = ["bright", "dim"]
     procs = [subprocess.Popen(sweep_cmd(tmp_path, f"s{k}", f"light={light}", f"tracking.uri={uri}"), cwd=tmp_path,
                               env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for k, light in enumerate(lights)]
@@ -138,7 +139,7 @@ def test_sweeps_started_together_on_a_fresh_store_all_finish(tmp_path):
     runs = store_runs(uri)  # a later client opens the store as `make ui` would
     parents = [r for r in runs if r.data.tags.get("sweep") == "parent"]
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId")]
-    assert len(parents) == 3 and len(children) == 3
+    assert len(parents) == 2 and len(children) == 2
     assert {r.info.status for r in runs} == {"FINISHED"}
     assert sorted(r.data.params["light.name"] for r in children) == sorted(lights)
 
