@@ -44,7 +44,10 @@ def _as_postgres(cmd: list[str]) -> list[str]:
     return ["runuser", "-u", "postgres", "--", *cmd] if os.geteuid() == 0 else cmd
 
 
-def wait_for(check, what: str, timeout: float = 120.0, proc: subprocess.Popen | None = None, log: Path | None = None):
+def wait_for(check, what: str, timeout: float = 120.0, proc: subprocess.Popen | None = None, log: Path | None = None,
+             every: float = 0.25):
+    """check()'s first true value, asked every `every` seconds until `timeout`; AssertionError (with the log's
+    tail) when it runs out or `proc` exits."""
     deadline = time.monotonic() + timeout
     while True:
         try:
@@ -57,7 +60,7 @@ def wait_for(check, what: str, timeout: float = 120.0, proc: subprocess.Popen | 
             raise AssertionError(f"{what} exited {proc.returncode}: " + (log.read_text()[-3000:] if log else ""))
         if time.monotonic() > deadline:
             raise AssertionError(f"{what} did not come up in {timeout:.0f} s: " + (log.read_text()[-3000:] if log else ""))
-        time.sleep(0.25)
+        time.sleep(every)
 
 
 class Postgres:

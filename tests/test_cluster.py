@@ -104,7 +104,7 @@ def test_a_search_on_two_nodes_waits_out_a_database_restart(cluster, tmp_path):
                 return con.execute("SELECT count(*) FROM trials WHERE state <> 'RUNNING'").fetchone()[0] > 0
 
         try:
-            wait_for(told, "a finished trial", 240)
+            wait_for(told, "a finished trial", 240, every=0.5)
             pg.stop()
             paused["at"] = time.monotonic()
             time.sleep(5)
@@ -153,7 +153,9 @@ def test_a_sweep_loses_a_node_and_every_job_finishes_once(cluster, tmp_path):
                     and int(r.data.tags.get("pid", 0)) in second.pids()]
 
         try:
-            killed["run"] = wait_for(running_there, "a job on the second node", 240)[0].info.run_id
+            # asked once a second: the first job on a node runs for seconds (its renderer and detector start),
+            # and every ask is a search on the MLflow server and a scan of /proc, on the cores the jobs run on
+            killed["run"] = wait_for(running_there, "a job on the second node", 240, every=1.0)[0].info.run_id
             second.kill()
         except AssertionError as exc:
             killed["error"] = str(exc)
