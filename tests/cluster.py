@@ -44,7 +44,10 @@ def _as_postgres(cmd: list[str]) -> list[str]:
     return ["runuser", "-u", "postgres", "--", *cmd] if os.geteuid() == 0 else cmd
 
 
-def wait_for(check, what: str, timeout: float = 120.0, proc: subprocess.Popen | None = None, log: Path | None = None):
+def wait_for(check, what: str, timeout: float = 120.0, proc: subprocess.Popen | None = None, log: Path | None = None,
+             every: float = 0.25):
+    """check()'s first true value, asked every `every` seconds until `timeout`; AssertionError (with the log's
+    tail) when it runs out or `proc` exits."""
     deadline = time.monotonic() + timeout
     while True:
         try:
@@ -57,7 +60,7 @@ def wait_for(check, what: str, timeout: float = 120.0, proc: subprocess.Popen | 
             raise AssertionError(f"{what} exited {proc.returncode}: " + (log.read_text()[-3000:] if log else ""))
         if time.monotonic() > deadline:
             raise AssertionError(f"{what} did not come up in {timeout:.0f} s: " + (log.read_text()[-3000:] if log else ""))
-        time.sleep(0.25)
+        time.sleep(every)
 
 
 class Postgres:
@@ -231,10 +234,14 @@ def ray_node(root: Path, name: str, head: str | None = None, core: int | None = 
 
 
 def ray_nodes_up(address: str, count: int, timeout: float = 120.0) -> None:
+    """Wait until the cluster's GCS holds `count` live nodes. Asked here, through Ray's own GCS client (what
+    `ray status` and Serve ask), not by polling `ray status`: each of its runs is an interpreter importing Ray
+    (seconds of CPU, on the cores the nodes are starting on), and it shows the autoscaler's view, seconds late."""
+    from ray._raylet import GcsClient
+    from ray.core.generated.gcs_pb2 import GcsNodeInfo
+
     def up():
-        r = subprocess.run([str(BIN / "ray"), "status", "--address", address], capture_output=True, text=True,
-                           timeout=30, env=ray_env())
-        active = r.stdout.split("Active:")[1].split("Pending:")[0] if "Active:" in r.stdout else ""
-        return active.count("node_") >= count
+        nodes = GcsClient(address=address).get_all_node_info(timeout=5)
+        return sum(node.state == GcsNodeInfo.ALIVE for node in nodes.values()) >= count
 
     wait_for(up, f"{count} Ray node(s)", timeout)

@@ -1,7 +1,7 @@
 """The MLflow UI as a user sees it: a real browser (Debian's chromium, driven by Playwright) over `mlflow ui` on
-a store holding a small real sweep (light x sensor, 2 x 2 jobs of 2 frames, one detector). The browser follows
-the link the sweep prints, expands the sweep, opens a child's `confidence` chart and `confidence.png`, and the
-sweep's report. Screenshots: outputs/browser/ (look at them)."""
+a store holding a small real sweep (light x sensor, 2 x 2 jobs of 2 frames at 320 x 240, one detector). The
+browser follows the link the sweep prints, expands the sweep, opens a child's `confidence` chart and
+`confidence.png`, and the sweep's report. Screenshots: outputs/browser/ (look at them)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 SWEEP = ["-m", "plan=tiny", "light=bright,dim", "sensor=ideal,noisy", "case.motion.start=5.5", "case.motion.end=5.0",
          "palette.target_colours=[black]", "detector.models=[yolov8n_int8_openvino_model]",
-         "renderer.save_frames=none"]
+         "renderer.save_frames=none", "camera.width=320", "camera.height=240", "detector.imgsz=320"]
 SHOTS = ROOT / "outputs" / "browser"
 TIMEOUT_MS = 60_000  # a page of the UI on the busy 2-core machine (first load compiles the UI's JavaScript)
 
