@@ -133,7 +133,7 @@ def pytest_runtest_makereport(item, call):
 # --- the slowest files first ---------------------------------------------------------------------------------------
 # `make test` runs `--dist loadfile --no-loadscope-reorder`: xdist hands each worker a whole file at a time in
 # collection order. Ordering the files by their measured seconds (tests/file_seconds.json, written from a JUnit
-# report by scripts/test_weights.py), longest first, is the greedy schedule for two workers: no 100 s file is left
+# report by scripts/file_seconds.py), longest first, is the greedy schedule for two workers: no 100 s file is left
 # to run alone at the end. A file not in the table (new) counts as its number of tests in seconds. Within a file
 # the order is unchanged.
 def file_order_key(weights: dict[str, float], counts: dict[str, int]):

@@ -2,7 +2,7 @@
 teardown summed), which tests/conftest.py uses to hand the slowest files to the xdist workers first.
 
     .venv/bin/python -m pytest -n auto --dist loadfile --junitxml=/tmp/suite.xml
-    .venv/bin/python scripts/test_weights.py /tmp/suite.xml
+    .venv/bin/python scripts/file_seconds.py /tmp/suite.xml
 
 Why: `--dist loadfile` gives a worker a whole file at a time, in collection order; xdist's own reordering puts
 the files with the most tests first, which left the two-test cluster file (100 s) for last, running alone while
@@ -29,6 +29,6 @@ def file_seconds(report: Path) -> dict[str, float]:
 
 if __name__ == "__main__":
     if len(sys.argv) != 2:
-        sys.exit("usage: scripts/test_weights.py REPORT.xml")
+        sys.exit("usage: scripts/file_seconds.py REPORT.xml")
     OUT.write_text(json.dumps(file_seconds(Path(sys.argv[1])), indent=1) + "\n")
     print(f"wrote {OUT}")
