@@ -77,12 +77,12 @@ def job_spec(cfg, detector=None, scene: SceneSpec | None = None, config: Setting
     from garage_exp.scenario.build import moves_ego
     from garage_exp.scene.camera import scored_camera
 
-    config = config or settings(cfg)
+    config = config or settings(cfg)  # converted once: every part below is read from it
     scene = scene or scene_spec(config)
     return JobSpec(
-        names=job_names(cfg), scoring=Scoring.of(settings(cfg.detector)), fair=FairRule.of(settings(cfg.search)),
-        ego=EgoConf(**plain(cfg.ego)), moving=bool(moves_ego(scene.case)), sensor=plain(cfg.sensor),
-        renderer=plain(cfg.renderer), detector=detector,
+        names=job_names(cfg), scoring=Scoring.of(config.detector), fair=FairRule.of(config.search),
+        ego=EgoConf(**plain(config.ego)), moving=bool(moves_ego(scene.case)), sensor=plain(config.sensor),
+        renderer=plain(config.renderer), detector=detector,
         outputs=Outputs(str(cfg.renderer.save_frames), bool(cfg.get("dataset")), bool(cfg.export.openscenario),
                         None if cfg.search.trial is None else int(cfg.search.trial)),
         seed=int(cfg.seed), replicates=int(cfg.replicates),
