@@ -22,10 +22,11 @@ from dataclasses import dataclass
 import optuna
 from optuna.trial import TrialState
 
-from garage_exp.core.errors import Infeasible
+from garage_exp.core.errors import GarageError, Infeasible
 from garage_exp.core.exits import SweepStopped
 from garage_exp.results.summary import JobSummary
 from garage_exp.search import objectives
+from garage_exp.search import require as require_mod
 from garage_exp.search.objectives import num
 from garage_exp.search import space as space_mod
 from garage_exp.search import storage as storage_mod
@@ -109,6 +110,9 @@ class SearchLoop:
         self.compose = compose  # overrides -> the trial's config, for the pre-screen
         self.url = study_mod.storage_url(search)
         self.ran: list[int] = []  # trial numbers this worker ran
+        # the space's requirements, checked on each draw before it is rendered (search/require.py)
+        self.require = require_mod.Require.of(search.require) if search.get("require") is not None else None
+        self.in_a_row = 0  # draws the requirements rejected in a row (search.require.max_draws stops a space)
 
     def next_trials(self) -> list[optuna.Trial]:
         """Up to `search.batch` new trials, asked under the workers' lock (so their numbers follow one another),
@@ -116,6 +120,8 @@ class SearchLoop:
         with study_mod.storage_lock(self.url):
             optuna.storages.fail_stale_trials(self.study)  # a dead worker's trials
             held = storage_mod.count_trials(self.study, COUNTED)
+            if self.require is not None:  # a rejected draw is redrawn: it takes no place in the budget
+                held -= storage_mod.count_trials(self.study, (TrialState.PRUNED,), attr="rejected")
             wanted = min(int(self.search.get("batch", 1)), self.budget - held)
             return [self.study.ask(fixed_distributions=self.space.params) for _ in range(max(wanted, 0))]
 
@@ -133,7 +139,7 @@ class SearchLoop:
                 trial.set_user_attr("worker", WORKER)  # which process (which node) ran it: a cluster's trials spread
                 for key, value in self.attrs.items():
                     trial.set_user_attr(key, value)
-                if not self.screened(trial, overrides):
+                if not self.rejects(trial, overrides) and not self.screened(trial, overrides):
                     batch.append((trial, overrides))
             if batch:
                 self.run_batch(batch)
@@ -195,6 +201,39 @@ class SearchLoop:
         self.study.tell(trial, out.values, state=out.state)
         self.ran.append(trial.number)
         print(line(trial.number, out, self.budget, self.search.objective))
+
+    def rejects(self, trial: optuna.Trial, overrides: list[str]) -> bool:
+        """The space's requirements on this draw, from its scene description (search/require.py): True when they
+        rejected it (told PRUNED with `rejected`; the loop asks for another in its place)."""
+        if self.require is None or self.compose is None:
+            return False
+        from garage_exp.run.preflight import preflight
+
+        try:
+            with heartbeat(self.study, trial):
+                prepared = preflight(self.compose(overrides), check_space=False, load=False)
+                verdict = require_mod.judge(self.require, prepared.scene, prepared.setup, prepared.spec.primary)
+        except (KeyboardInterrupt, SystemExit):
+            self.study.tell(trial, state=TrialState.FAIL)
+            raise
+        except Exception as exc:  # noqa: BLE001 - infeasible or broken: the job itself says so, in its own words
+            log.debug("trial %d: requirements not checked (%s)", trial.number, exc)
+            return False
+        if verdict.best is not None:
+            trial.set_user_attr("require_estimate", {"visible": round(verdict.best.visible, 3),
+                                                     "box": round(verdict.best.box_height, 1),
+                                                     "distance": round(verdict.best.distance, 2)})
+        if verdict.ok:
+            self.in_a_row = 0
+            return False
+        self.in_a_row += 1
+        trial.set_user_attr("rejected", verdict.why)
+        self.study.tell(trial, state=TrialState.PRUNED)
+        print(f"garage_exp: draw {trial.number + 1}: rejected by the space's requirements ({verdict.why}); redrawn")
+        if self.in_a_row >= self.require.max_draws:
+            raise GarageError(f"the space's requirements rejected {self.in_a_row} draws in a row (the last: "
+                              f"{verdict.why}): loosen them or the space", "search.require")
+        return True
 
     def screened(self, trial: optuna.Trial, overrides: list[str]) -> bool:
         """The pre-screen's cheap look (search.prescreen): True when it pruned the trial."""

@@ -32,6 +32,18 @@ class PrescreenConf:
 
 
 @dataclass
+class RequireConf:
+    """A space's requirements on every draw, checked from the scene description before anything is rendered
+    (garage_exp/search/require.py): a draw none of whose frames meets all of them is rejected and redrawn, as
+    Scenic's `require` does. None: no such requirement."""
+
+    min_visible: Optional[float] = None  # the target's estimated visible fraction (0-1)
+    min_box: Optional[float] = None  # its projected box's height in the scored camera's image (px)
+    max_distance: Optional[float] = None  # camera to the target's box centre (m)
+    max_draws: int = 1000  # draws rejected in a row before the search gives up on the space
+
+
+@dataclass
 class DescriptorConf:
     """One axis of the archive of failure kinds (garage_exp/search/archive.py): a quantity measured from each
     trial's own outputs (`source`, one of archive.SOURCES), binned by `values` (a categorical source: one cell
@@ -103,6 +115,7 @@ class SearchConf:
     grid_levels: int = 3  # sampler=grid: each interval at this many evenly spaced values (ends included)
     suite: SuiteConf = field(default_factory=SuiteConf)
     prescreen: PrescreenConf = field(default_factory=PrescreenConf)
+    require: RequireConf = field(default_factory=RequireConf)
     # the archive of failure kinds: each complete trial's descriptors (difficulty objective), its cells and
     # elites (archive.csv, archive.png), and `sampler=archive`'s quality-diversity search over them
     descriptors: list[DescriptorConf] = field(default_factory=default_descriptors)

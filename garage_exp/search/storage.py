@@ -111,23 +111,27 @@ for _name in [n for n in dir(RDBStorage) if not n.startswith("_") and callable(g
     setattr(PatientStorage, _name, _patient(_name))
 
 
-def count_trials(study, states) -> int:
-    """How many of the study's trials are in `states`, counted by the database (one SQL count, patient on a
-    database server): the trial loop counts before every batch, and listing the trials to count them read every
-    trial of a long study each time (and, through Optuna's cache, kept them all in memory). A storage that is
-    not a database (Optuna's in-memory one) lists them."""
+def count_trials(study, states, attr: str | None = None) -> int:
+    """How many of the study's trials are in `states` (and, with `attr`, carry that user attribute), counted by the
+    database (one SQL count, patient on a database server): the trial loop counts before every batch, and listing
+    the trials to count them read every trial of a long study each time (and, through Optuna's cache, kept them
+    all in memory). A storage that is not a database (Optuna's in-memory one) lists them."""
     from sqlalchemy import func
 
     store = getattr(study._storage, "_backend", study._storage)  # under Optuna's cache: its database
     if not isinstance(store, RDBStorage):
-        return len(study.get_trials(deepcopy=False, states=tuple(states)))
-    from optuna.storages._rdb.models import TrialModel
+        trials = study.get_trials(deepcopy=False, states=tuple(states))
+        return len([t for t in trials if attr is None or attr in t.user_attrs])
+    from optuna.storages._rdb.models import TrialModel, TrialUserAttributeModel
 
     def count() -> int:
         session = store.scoped_session()
         try:
             query = session.query(func.count(TrialModel.trial_id)).filter(
                 TrialModel.study_id == study._study_id, TrialModel.state.in_(list(states)))
+            if attr is not None:
+                query = query.join(TrialUserAttributeModel, TrialUserAttributeModel.trial_id == TrialModel.trial_id
+                                   ).filter(TrialUserAttributeModel.key == attr)
             return int(query.scalar())
         finally:
             session.rollback()  # read only; the connection goes back to the pool

@@ -73,6 +73,9 @@ def check_search(search) -> None:
     from garage_exp.search.prescreen import check_prescreen
 
     check_prescreen(search.prescreen)
+    from garage_exp.search.require import check_require
+
+    check_require(search.require)
     if goal.screen is None and search.prescreen.level != "none":
         screened = " or ".join(o.name for o in OBJECTIVES.values() if o.screen is not None)
         raise GarageError(f"the pre-screen serves one objective ({screened}), not {search.objective}",

@@ -299,6 +299,9 @@ def log_on_parent(config: DictConfig, parent_run_id: str, result: dict, paths: l
             tracking.retry(lambda r=run_id, k=rank: mlc.set_tag(r, "search_rank", str(k)))
     for key, value in (result.get("archive") or {}).items():  # coverage and QD score (search/archive.py)
         tracking.retry(lambda k=key, v=value: mlc.log_metric(parent_run_id, k, float(v)))
+    accepted = acceptance(study)
+    if accepted is not None:  # the space's requirements (search/require.py): the share of draws they kept
+        tracking.retry(lambda: mlc.log_metric(parent_run_id, "acceptance_rate", accepted[0] / max(accepted[1], 1)))
     if best:  # named by the objective: best_difficulty, best_lateness, best_slot_miss
         metric = f"best_{objective(config.search.objective).metric}"
         tracking.retry(lambda: mlc.log_metric(parent_run_id, metric, float(best[0].values[0])))
@@ -326,7 +329,8 @@ def summary(result: dict, out_dir: Path) -> str:
     from collections import Counter
 
     study = result["study"]
-    states = Counter("SCREENED_EASY" if t.user_attrs.get("screened") == "easy" else t.state.name
+    states = Counter("SCREENED_EASY" if t.user_attrs.get("screened") == "easy" else
+                     "REJECTED" if "rejected" in t.user_attrs else t.state.name
                      for t in study.get_trials(deepcopy=False))
     counts = ", ".join(f"{n} {s.lower().replace('pruned', 'infeasible').replace('_', ' ')}"
                        for s, n in sorted(states.items()))
@@ -343,8 +347,25 @@ def summary(result: dict, out_dir: Path) -> str:
         lines.append(f"  archive: {numbers['archive_failure_cells']} of {numbers['archive_cells']} cells hold a "
                      f"hard-and-fair failure ({numbers['archive_filled']} filled, QD score "
                      f"{numbers['archive_qd_score']:.2f}): {out_dir / 'archive.csv'}")
+    accepted = acceptance(study)
+    if accepted is not None:
+        lines.append(f"  requirements: {accepted[0]} of {accepted[1]} draws accepted "
+                     f"({100.0 * accepted[0] / max(accepted[1], 1):.0f} %), the rest redrawn before rendering")
     lines.append(f"  report: {out_dir / 'search_report.md'}")
     return "\n".join(lines)
+
+
+def acceptance(study) -> tuple[int, int] | None:
+    """(accepted, drawn) by the space's requirements over the study's finished draws (search/require.py); None
+    when no draw was checked."""
+    from optuna.trial import TrialState
+
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL))
+    checked = [t for t in done if "rejected" in t.user_attrs or "require_estimate" in t.user_attrs]
+    if not checked:
+        return None
+    rejected = sum("rejected" in t.user_attrs for t in checked)
+    return len(checked) - rejected, len(checked)
 
 
 def ranked(study) -> list:
