@@ -36,6 +36,7 @@ ARGPARSE = {
     "garage_exp.plan": ("garage_exp.plan.__main__", "garage_exp.plan"),
     "garage_exp.report": ("garage_exp.report", "garage_exp.report"),
     "garage_exp.report.search_analysis": ("garage_exp.report.search_analysis", "garage_exp.report.search_analysis"),
+    "garage_exp.search.grade": ("garage_exp.search.grade", "garage_exp.search.grade"),
     "garage_exp.exports": ("garage_exp.exports.__main__", "garage_exp.exports"),
     "garage_exp.assets": ("garage_exp.assets.__main__", "garage_exp.assets"),
     "garage_exp.scenario.import": ("garage_exp.scenario.xosc_import", "garage_exp.scenario.import"),
@@ -61,6 +62,8 @@ BAD_ARGS = {
                                     "none.db: no MLflow store here"),
     "garage_exp.report.search_analysis": lambda t: (["--storage", f"sqlite:///{t / 'none.db'}"], {},
                                                     "none.db: no such file"),
+    "garage_exp.search.grade": lambda t: (["--storage", f"sqlite:///{t / 'none.db'}", "--study", "s"], {},
+                                          "none.db: no such file"),
     "garage_exp.exports": lambda t: ([str(t)], {}, "no coco.json: not a dataset"),
     "garage_exp.assets": lambda t: (["convert"], {"GARAGE_EXP_ASSETS": str(t / "nowhere")},
                                     "GARAGE_EXP_ASSETS=" + str(t / "nowhere") + ": holds neither"),
@@ -207,6 +210,13 @@ def held(prog: str, tmp: Path, stack) -> tuple[list[str], dict, str]:
         for name in ("hardest.csv", "trials.csv", "search_report.md"):  # text files (a PNG is opened w+b)
             fifo(tmp / "out" / name)
         return ["--storage", storage, "-o", str(tmp / "out")], {}, "fifo"
+    if prog == "garage_exp.search.grade":  # it waits on the fresh draws' search, a child process
+        storage = study_storage(tmp)
+        import optuna
+
+        optuna.load_study(study_name="s", storage=storage).set_user_attr("argv", ["plan=tiny", "dry_run=true"])
+        return ["--storage", storage, "--study", "s", "--levels", "2", "--fresh", "1", "-o", str(tmp / "out")], {}, \
+            "child"
     if prog == "garage_exp.exports":
         fifo(tmp / "slots" / "coco_keypoints.json")
         return [str(tmp / "slots"), "-o", str(tmp / "x.png")], {}, "fifo"

@@ -184,3 +184,29 @@ def install_error_report(prog: str = "garage_exp") -> None:
 
     run_and_report.garage_exp = prog
     hydra_utils.run_and_report = run_and_report
+
+
+def wait_child(cmd: list[str], grace: float = 60.0, **popen) -> int:
+    """Run a command of the project's as a child process and wait for it; its exit code. Stopped while it runs
+    (Ctrl-C, SIGTERM), the child stops as its own command does on that signal (its run ends KILLED, its partial
+    outputs kept), not killed with its run left RUNNING: Ctrl-C in a terminal reached the child already (one
+    process group); SIGTERM is sent to the parent alone, so it is passed on. A child that does not stop within
+    `grace` seconds is terminated, then killed."""
+    import signal
+    import subprocess
+
+    with subprocess.Popen(cmd, **popen) as step:
+        try:
+            return step.wait()
+        except KeyboardInterrupt as exc:
+            if isinstance(exc, Terminated):
+                step.send_signal(signal.SIGTERM)
+            try:
+                step.wait(timeout=grace)
+            except subprocess.TimeoutExpired:  # a kill -INT to the parent alone, or a child that does not stop
+                step.terminate()
+                try:
+                    step.wait(timeout=grace)
+                except subprocess.TimeoutExpired:
+                    step.kill()
+            raise

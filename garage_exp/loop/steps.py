@@ -14,6 +14,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
+from garage_exp.core.exits import wait_child
+
 
 @dataclass
 class Trial:
@@ -106,34 +108,9 @@ def run(cmd: list[str], log: Path) -> None:
     with open(log, "a") as fh:
         fh.write("\n$ " + " ".join(cmd) + "\n")
         fh.flush()
-        with subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT) as step:
-            try:
-                code = step.wait()
-            except KeyboardInterrupt as exc:
-                stop(step, exc)
-                raise
+        code = wait_child(cmd, stdout=fh, stderr=subprocess.STDOUT)
     if code not in (0, 1):  # 1: a study with failed trials (a case a plan cannot hold) still has its others
         raise RuntimeError(f"step failed with exit code {code}: {' '.join(cmd[2:6])} ... (log: {log})")
-
-
-def stop(step: subprocess.Popen, exc: KeyboardInterrupt, grace: float = 60.0) -> None:
-    """The loop was stopped (Ctrl-C, SIGTERM) while a step ran: the step stops as its own command does on that
-    signal (its run ends KILLED, its partial outputs kept), not killed with its run left RUNNING. Ctrl-C in a
-    terminal reached the step already (one process group); SIGTERM is sent to the loop alone, so it is passed on."""
-    import signal
-
-    from garage_exp.core.exits import Terminated
-
-    if isinstance(exc, Terminated):
-        step.send_signal(signal.SIGTERM)
-    try:
-        step.wait(timeout=grace)
-    except subprocess.TimeoutExpired:  # a kill -INT to the loop alone, or a step that does not stop
-        step.terminate()
-        try:
-            step.wait(timeout=grace)
-        except subprocess.TimeoutExpired:
-            step.kill()
 
 
 def trials(cfg: DictConfig, study: str) -> list[Trial]:

@@ -17,6 +17,9 @@ class SuiteConf:
     # >= 0.7, moderate 0.4-0.7, hard < 0.4 (garage_exp/search/suite.py). Empty by default so that
     # `+search.suite.bands.low=[0,0.5] +search.suite.bands.high=[0.5,1.01]` give exactly those (Hydra merges dicts).
     bands: dict[str, list[float]] = field(default_factory=dict)
+    # N > 0 (and no bands): N levels of equal width on the composite confidence, level_1 the easiest to level_N
+    # the hardest (garage_exp/search/grade.py, which measures them on fresh draws); 0: the bands above
+    levels: int = 0
     dir: Optional[str] = None  # None: outputs/suites/<study>
 
 

@@ -97,6 +97,13 @@ def check_search(search) -> None:
     if int(search.min_box) < 0:
         raise GarageError(f"{search.min_box} is negative", "search.min_box")
     _check_archive(search, goal)
+    levels = int(search.suite.get("levels") or 0)
+    if levels and search.suite.bands:
+        raise GarageError("a suite has either bands or levels, not both", "search.suite.levels")
+    if levels:  # 0: the bands; else at least 2
+        from garage_exp.search.grade import level_bands
+
+        level_bands(levels)
     for band, edges in search.suite.bands.items():
         if len(edges) != 2 or not float(edges[0]) < float(edges[1]):
             raise GarageError(f"a band is [low, high) with low < high, not {list(edges)}", f"search.suite.bands.{band}")

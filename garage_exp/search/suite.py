@@ -34,7 +34,14 @@ DEFAULT_BANDS = {"easy": [0.7, 1.01], "moderate": [0.4, 0.7], "hard": [0.0, 0.4]
 
 
 def bands_of(search) -> dict:
-    return dict(search.suite.bands) or DEFAULT_BANDS
+    """The suite's bands: its own, else its `levels` (search/grade.py), else easy, moderate and hard."""
+    if search.suite.bands:
+        return dict(search.suite.bands)
+    if int(search.suite.get("levels") or 0):
+        from garage_exp.search.grade import level_bands
+
+        return level_bands(int(search.suite.levels))
+    return DEFAULT_BANDS
 
 
 def band_of(confidence: float, bands) -> str | None:

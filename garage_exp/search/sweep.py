@@ -181,6 +181,7 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     seed = seed_of(search, config)
     study = study_mod.open_study(search, name, seed, space.params)
     study.set_user_attr("command", " ".join(arguments_of(config)))
+    study.set_user_attr("argv", arguments_of(config))  # as typed: a value with a space stays one argument
     store = tracked_in(config)
     total = budget(search, space, study)
     held = len(study.get_trials(deepcopy=False))
