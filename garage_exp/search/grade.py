@@ -33,20 +33,11 @@ import optuna.distributions as od
 import pandas as pd
 
 from garage_exp.core.errors import GarageError
+from garage_exp.search.suite import LEVEL, band_of, level_bands
 
-LEVEL = "level_"
 # Keys a fresh draw's command sets itself (the rest of the suite's command is kept as it was).
 OWN = ("search.trials=", "search.study=", "search.sampler=", "search.mode=", "search.suite.", "search.seed=",
        "search.startup=", "resume=", "seed=", "hydra.sweep.dir=")
-
-
-def level_bands(n: int) -> dict[str, list[float]]:
-    """N levels of equal width on the composite confidence, level 1 the easiest ([1 - 1/N, 1.01): a confidence of
-    exactly 1 belongs to it) to level N the hardest ([0, 1/N))."""
-    if n < 2:
-        raise GarageError(f"{n} levels: a graded suite has at least 2", "search.suite.levels")
-    edges = [1.0 - k / n for k in range(n + 1)]
-    return {f"{LEVEL}{k + 1}": [round(edges[k + 1], 9), 1.01 if k == 0 else round(edges[k], 9)] for k in range(n)}
 
 
 def level_of(band: str) -> int:
@@ -77,8 +68,6 @@ def nudged(value, dist: od.BaseDistribution, sigma: float, rng: np.random.Genera
 def level_members(study, levels: int) -> dict[int, list]:
     """Each level's complete trials (every one, not only those the suite kept: the level is their region)."""
     from optuna.trial import TrialState
-
-    from garage_exp.search.suite import band_of
 
     bands = level_bands(levels)
     out: dict[int, list] = {k: [] for k in range(1, levels + 1)}

@@ -101,7 +101,7 @@ def check_search(search) -> None:
     if levels and search.suite.bands:
         raise GarageError("a suite has either bands or levels, not both", "search.suite.levels")
     if levels:  # 0: the bands; else at least 2
-        from garage_exp.search.grade import level_bands
+        from garage_exp.search.suite import level_bands
 
         level_bands(levels)
     for band, edges in search.suite.bands.items():

@@ -22,6 +22,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 
+from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
 from garage_exp.results.summary import JobSummary
 from garage_exp.search.objectives import objective
@@ -30,7 +31,17 @@ from garage_exp.search.objectives import objective
 NOT_SCENARIO = ("hydra", "tracking", "search", "resume", "dry_run", "dataset", "export")
 
 
+LEVEL = "level_"  # a graded suite's bands: level_1 (the easiest) .. level_N (search/grade.py measures them)
 DEFAULT_BANDS = {"easy": [0.7, 1.01], "moderate": [0.4, 0.7], "hard": [0.0, 0.4]}
+
+
+def level_bands(n: int) -> dict[str, list[float]]:
+    """N levels of equal width on the composite confidence, level 1 the easiest ([1 - 1/N, 1.01): a confidence of
+    exactly 1 belongs to it) to level N the hardest ([0, 1/N))."""
+    if n < 2:
+        raise GarageError(f"{n} levels: a graded suite has at least 2", "search.suite.levels")
+    edges = [1.0 - k / n for k in range(n + 1)]
+    return {f"{LEVEL}{k + 1}": [round(edges[k + 1], 9), 1.01 if k == 0 else round(edges[k], 9)] for k in range(n)}
 
 
 def bands_of(search) -> dict:
@@ -38,8 +49,6 @@ def bands_of(search) -> dict:
     if search.suite.bands:
         return dict(search.suite.bands)
     if int(search.suite.get("levels") or 0):
-        from garage_exp.search.grade import level_bands
-
         return level_bands(int(search.suite.levels))
     return DEFAULT_BANDS
 
