@@ -182,6 +182,8 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     study = study_mod.open_study(search, name, seed, space.params)
     study.set_user_attr("command", " ".join(arguments_of(config)))
     study.set_user_attr("argv", arguments_of(config))  # as typed: a value with a space stays one argument
+    # the cells its trials are described by (search.descriptors), for whoever counts them later
+    study.set_user_attr("descriptors", OmegaConf.to_container(search.descriptors, resolve=True))
     store = tracked_in(config)
     total = budget(search, space, study)
     held = len(study.get_trials(deepcopy=False))
