@@ -268,7 +268,7 @@ def _draw_cached(gen: GeneratorSettings, seed: int) -> Draw:
         return count
 
     def cost(i: int, j: int) -> float | None:
-        if S[i, j] != PARKING or not (i in (0, m - 1) or j in (0, n - 1)):
+        if S[i, j] != PARKING:
             return None
         # the ramp runs straight out: a lane on one side, the outside on the other
         for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
@@ -285,10 +285,11 @@ def _draw_cached(gen: GeneratorSettings, seed: int) -> Draw:
                 return 0.5 if any(across) else 500.0  # a blind end: the ramp turns it into a corner
         return None
 
+    perimeter = sorted({(i, j) for i in range(m) for j in (0, n - 1)} | {(i, j) for i in (0, m - 1) for j in range(n)})
     placed: list[tuple[int, int]] = []
     for value in (ENTRANCE, EXIT)[:ramps]:
-        found = [(c, i, j) for i in range(m) for j in range(n) if (c := cost(i, j)) is not None
-                 and all(abs(i - a) + abs(j - b) > 2 for a, b in placed)]
+        found = [(c, i, j) for i, j in perimeter if all(abs(i - a) + abs(j - b) > 2 for a, b in placed)
+                 and (c := cost(i, j)) is not None]
         if not found:
             continue  # a one-ramp garage: the entrance is two-way
         best = min(c for c, _, _ in found)
