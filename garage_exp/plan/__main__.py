@@ -32,6 +32,8 @@ def summary(classified: Classified) -> str:
         f"parking: {kinds['parking']} ({bays})",
         f"entrances: {kinds['entrance']}, exits: {kinds['exit']}, obstacles: {kinds['obstacle']}",
         f"pillars: {len(classified.pillars)}",
+        *([f"garage: {', '.join(f'{k} {v:g} m' for k, v in plan.garage)} (a generated plan's, set by its jobs)"]
+          if plan.garage else []),
     ])
 
 

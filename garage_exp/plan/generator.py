@@ -30,6 +30,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -370,7 +371,7 @@ def draw_file(node: Any, seed: Any, folder: Path | None = None) -> Path:
     path = folder / f"{d.plan.name}-{digest}.yaml"
     if not path.is_file():
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")  # jobs may run in threads side by side
         tmp.write_text(text)
         os.replace(tmp, path)
     return path
