@@ -9,8 +9,6 @@ import numpy as np
 import pytest
 from conftest import ROOT, compose_cfg, require
 
-from garage_exp.core.paths import PLANS_DIR
-from garage_exp.plan import classify, load_plan
 from garage_exp.plan.classify import LANE_TYPES
 
 
@@ -22,11 +20,20 @@ def library():
     return VehicleLibrary()
 
 
+def job_plan(cfg):
+    """The plan a job of `cfg` runs on (a shipped one, or a generator's draw with its garage handed on)."""
+    from garage_exp.run.preflight import classified_plan, hand_on, resolve_plan_path
+
+    classified = classified_plan(resolve_plan_path(cfg.plan))
+    hand_on(cfg, classified.plan)
+    return classified
+
+
 def build(library, *overrides: str):
     from garage_exp.scenario.assemble import build_scene
 
     cfg = compose_cfg(*overrides)
-    classified = classify(load_plan(PLANS_DIR / f"{cfg.plan.name}.yaml"))
+    classified = job_plan(cfg)
     scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
     return cfg, classified, scene, setup
 
@@ -35,11 +42,10 @@ def case_setup(library, *overrides: str):
     """The case as a job places it (scenario.make_case, as build_scene calls it, on the same seed's draws), without
     building the garage around it: for the tests of placements, exports and imports, which never look at the
     scene (cfg, classified plan, setup)."""
-    from garage_exp.run.preflight import classified_plan
     from garage_exp.scenario import make_case
 
     cfg = compose_cfg(*overrides)
-    classified = classified_plan(PLANS_DIR / f"{cfg.plan.name}.yaml")
+    classified = job_plan(cfg)
     return cfg, classified, make_case(cfg, classified, library, np.random.default_rng(cfg.seed))
 
 
@@ -128,7 +134,7 @@ def test_the_scene_holds_the_case_s_vehicles_on_every_experiment_plan(library, p
     from garage_exp.scenario.assemble import build_scene
 
     cfg = compose_cfg(f"plan={plan}", "case=3")
-    classified = classify(load_plan(PLANS_DIR / f"{plan}.yaml"))
+    classified = job_plan(cfg)
     scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
     alone = make_case(cfg, classified, library, np.random.default_rng(cfg.seed))
     assert setup.shots == alone.shots

@@ -22,12 +22,16 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 WIDE_BAYS = ("occluder=pillar_cars", "occluder=vans")
 
 
+# Levels whose job sets other groups' values: plan=generated hands its draw's garage on (garage.*, the pillar size).
+HANDS_ON = {("plan", "generated"): {"garage", "pillar"}}
+
+
 def overridden(group: str, level: str) -> set[str]:
     """The groups a level's (or an experiment's) defaults list overrides (look=flat sets materials, clutter, sensor;
-    case=cpra the camera): a dry run holding such a level holds no level of those groups, which would undo its
-    choice - but the case an experiment names, given as that case's own level."""
+    case=cpra the camera), or its job sets (HANDS_ON): a dry run holding such a level holds no level of those
+    groups, which would undo its choice - but the case an experiment names, given as that case's own level."""
     text = (CONF / group / f"{level}.yaml").read_text()
-    return set(re.findall(r"override /(\w+)", text))
+    return set(re.findall(r"override /(\w+)", text)) | HANDS_ON.get((group, level), set())
 
 
 def experiment_case(experiment: str) -> str:
@@ -207,6 +211,9 @@ def test_dry_run_with_every_level_and_experiment(dry_runs):
             expected = OmegaConf.select(OmegaConf.create(given.resolved), package)
             expected = OmegaConf.to_container(expected) if expected is not None else None
             got = OmegaConf.to_container(OmegaConf.select(written, package), resolve=True)
+            if override == "plan=generated":  # logged as the plan drawn (plan.name, as with plan.file)
+                assert got["name"] == f"generated_{expected['generator']['family']}_{expected['seed']}"
+                expected["name"] = got["name"]
             assert expected and holds(got, expected), (override, overrides, package, got, expected)
         assert (run / "plan_map.png").stat().st_size > 1000, overrides
 

@@ -157,10 +157,13 @@ def _index_axes(ax, classified: Classified) -> None:
 
 
 def draw_map(classified: Classified, path: str | Path, title: str | None = None,
-             pillar_size: float = PILLAR_SIZE) -> Path:
+             pillar_size: float | None = None) -> Path:
     """Write a top-down PNG of the plan to `path` (parent folders are created) and return the path.
-    `pillar_size` (m) should match the garage config so the map shows the pillars the scene will have."""
+    `pillar_size` (m) should match the garage config so the map shows the pillars the scene will have (default:
+    the plan's own, a generated plan's, else PILLAR_SIZE)."""
     plan = classified.plan
+    if pillar_size is None:
+        pillar_size = dict(plan.garage).get("pillar_size", PILLAR_SIZE)
     path = Path(path)
     m, n = plan.shape
     width, depth = plan.size

@@ -17,7 +17,10 @@ MAX_CELLS_PER_SIDE = 500
 MAX_FILE_BYTES = 4_000_000  # the largest plan (500 x 500 cells) is ~1 MB of YAML or CSV
 MAX_YAML_DEPTH = 32
 METRES_RANGE = (0.5, 100.0)  # a row depth or column width outside this is a unit mistake
-YAML_KEYS = {"S", "R", "C", "name"}
+YAML_KEYS = {"S", "R", "C", "name", "garage"}
+# A plan file's optional `garage:` mapping (a generated plan's, plan/generator.py): the garage values it was sized
+# for, within these sane ranges (scene/structure.py checks the garage group's own again).
+PLAN_GARAGE_KEYS = {"ceiling_height": (1.8, 10.0), "pillar_size": (0.05, 3.0), "bay_width": (1.5, 20.0)}
 
 
 def load_plan(path: str | Path, name: str | None = None) -> Plan:
@@ -38,17 +41,18 @@ def load_plan(path: str | Path, name: str | None = None) -> Plan:
     if path.suffix.lower() == ".csv":
         S, R, C, file_name = _parse_csv(text, where)
     else:
-        S, R, C, file_name = _parse_yaml(text, where)
+        S, R, C, file_name, garage = _parse_yaml(text, where)
+        return plan_from_lists(S, R, C, name or file_name or path.stem, where, garage)
     return plan_from_lists(S, R, C, name or file_name or path.stem, where)
 
 
-def plan_from_lists(S, R, C, name: str, where: str = "<memory>") -> Plan:
-    """Validate raw S, R, C (lists or arrays) and build a Plan."""
+def plan_from_lists(S, R, C, name: str, where: str = "<memory>", garage=None) -> Plan:
+    """Validate raw S, R, C (lists or arrays) and the optional garage values, and build a Plan."""
     s = _matrix(S, where)
     m, n = s.shape
     r = _vector(R, "R", m, column=True, where=where)
     c = _vector(C, "C", n, column=False, where=where)
-    plan = Plan(name=str(name), S=s, R=r, C=c, source=where)
+    plan = Plan(name=str(name), S=s, R=r, C=c, source=where, garage=_garage(garage, where))
     _check_connectivity(plan, where)
     return plan
 
@@ -86,14 +90,32 @@ def _parse_yaml(text: str, where: str):
         raise GarageError(f"expected a mapping with keys S, R, C; got {type(data).__name__}", where)
     unknown = set(map(str, data)) - YAML_KEYS
     if unknown:
-        raise GarageError(f"unknown key(s) {sorted(unknown)}; expected S, R, C and optional name", where)
+        raise GarageError(f"unknown key(s) {sorted(unknown)}; expected S, R, C and optional name, garage", where)
     for key in ("S", "R", "C"):
         if key not in data:
             raise GarageError(f"missing key {key}", where)
     name = data.get("name")
     if name is not None and not isinstance(name, (str, int)):
         raise GarageError("name must be a string", where)
-    return data["S"], data["R"], data["C"], None if name is None else str(name)
+    return data["S"], data["R"], data["C"], None if name is None else str(name), data.get("garage")
+
+
+def _garage(values, where: str) -> tuple[tuple[str, float], ...]:
+    """A plan's `garage:` mapping (PLAN_GARAGE_KEYS) as sorted (key, value) pairs; () when it has none."""
+    if values is None:
+        return ()
+    if not isinstance(values, dict):
+        raise GarageError(f"garage must be a mapping of {', '.join(PLAN_GARAGE_KEYS)}; got {_shown(values)}", where)
+    out = []
+    for key, value in values.items():
+        if key not in PLAN_GARAGE_KEYS:
+            raise GarageError(f"garage.{key}: unknown (a plan may set {', '.join(PLAN_GARAGE_KEYS)})", where)
+        lo, hi = PLAN_GARAGE_KEYS[key]
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(float(value)) or not lo <= float(value) <= hi:
+            raise GarageError(f"garage.{key}: {_shown(value)} is not a length in {lo:g}-{hi:g} m", where)
+        out.append((str(key), float(value)))
+    return tuple(sorted(out))
 
 
 def _parse_csv(text: str, where: str):

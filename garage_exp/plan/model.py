@@ -25,6 +25,9 @@ class Plan:
     R: np.ndarray  # float, m: depth of each row (along y)
     C: np.ndarray  # float, n: width of each column (along x)
     source: str = "<memory>"
+    # Garage values the plan was sized for, as (key, value) pairs (a generated plan's pillar size, bay width and
+    # ceiling height; load.PLAN_GARAGE_KEYS): a job hands them on to `garage.*` (run/preflight.py). Most plans: ().
+    garage: tuple[tuple[str, float], ...] = ()
 
     @property
     def shape(self) -> tuple[int, int]:

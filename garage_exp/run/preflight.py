@@ -43,11 +43,18 @@ class PreparedJob:
 
 
 def resolve_plan_path(plan_cfg) -> Path:
-    """`plan.file` (absolute, or relative to where the command was typed) wins over a shipped plan name."""
+    """`plan.file` (absolute, or relative to where the command was typed) wins over the generator's draw
+    (`plan=generated`: `plan.generator` and `plan.seed`, written once to a plan file in the cache), which wins
+    over a shipped plan name."""
     if plan_cfg.file:
         import hydra
 
         return Path(hydra.utils.to_absolute_path(str(plan_cfg.file)))
+    generator = plan_cfg.get("generator")
+    if generator is not None:
+        from garage_exp.plan.generator import draw_file
+
+        return draw_file(settings(generator), plan_cfg.get("seed"))  # a bad setting: one line naming its key
     for suffix in (".yaml", ".yml", ".csv"):
         candidate = PLANS_DIR / f"{plan_cfg.name}{suffix}"
         if candidate.is_file():
@@ -72,6 +79,25 @@ def classified_plan(path: Path):
     if key is not None:
         STATE.plans[path] = (key, classified)
     return classified
+
+
+def hand_on(cfg: DictConfig, plan) -> None:
+    """A plan that carries the garage it was sized for (a generated plan: its pillar size, bay width, ceiling
+    height; plan/generator.py) sets those keys of the job's config, and the `pillar` group's size when that group
+    resizes every pillar (conf/pillar/): the bays the plan's cells were sized for are the bays built. The shipped
+    plans carry none (nothing changes)."""
+    if not plan.garage:
+        return
+    from omegaconf import read_write
+
+    values = dict(plan.garage)
+    with read_write(cfg):
+        for key, value in values.items():
+            cfg.garage[key] = value
+        pillar = OmegaConf.select(cfg, "modifiers.pillar")
+        if "pillar_size" in values and isinstance(pillar, DictConfig) and "size" in pillar \
+                and pillar.get("_target_") == "garage_exp.scene.modifiers.pillar_size":
+            pillar.size = values["pillar_size"]
 
 
 def _library():
@@ -159,6 +185,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
     plan_path = resolve_plan_path(cfg.plan)
     prepared = PreparedJob(plan_path, classified_plan(plan_path))
+    hand_on(cfg, prepared.classified.plan)
     config = settings(cfg)  # the layers below are handed plain data, never the config node
     check_config(config)
     import numpy as np

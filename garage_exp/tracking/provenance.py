@@ -46,7 +46,16 @@ def flatten(node: Any, prefix: str = "") -> dict[str, str]:
 def config_params(cfg) -> dict[str, str]:
     container = plain(cfg)
     container.pop("hydra", None)
+    _drop_unset_plan_keys(container)
     return flatten(container)
+
+
+def _drop_unset_plan_keys(container: dict) -> None:
+    """plan.seed and plan.generator (plan=generated) unset: not logged, not hashed, as before they existed."""
+    if isinstance(container.get("plan"), dict):
+        for key in ("seed", "generator"):
+            if key in container["plan"] and container["plan"][key] is None:
+                container["plan"].pop(key)
 
 
 def file_digest(path: str | Path) -> str:
@@ -63,6 +72,7 @@ def config_hash(cfg, plan_digest: str = "") -> str:
         container["detector"].pop("registry", None)
         if not container["detector"].get("class_names"):  # added later: an empty one keeps older jobs' identity
             container["detector"].pop("class_names", None)
+    _drop_unset_plan_keys(container)  # added for plan=generated: unset, they keep older jobs' identity
     if plan_digest:
         container["plan_sha256"] = plan_digest
     return hashlib.sha256(json.dumps(container, sort_keys=True, default=str).encode()).hexdigest()[:16]
