@@ -35,9 +35,9 @@ class PrescreenConf:
 class DescriptorConf:
     """One axis of the archive of failure kinds (garage_exp/search/archive.py): a quantity measured from each
     trial's own outputs (`source`, one registered in search/descriptors.py), binned by `values` (a categorical
-    source: one cell per value) or `edges` (a numeric source: bins between increasing edges, values outside go to the end bins).
-    merge: a categorical source's values that are not listed -> the listed value whose cell they join; a value
-    neither listed nor merged leaves the trial without a cell (out of the archive)."""
+    source: one cell per value) or `edges` (a numeric source: bins between increasing edges, values outside go
+    to the end bins). merge: a categorical source's values that are not listed -> the listed value whose cell
+    they join; a value neither listed nor merged leaves the trial without a cell (out of the archive)."""
 
     source: str = ""
     values: list[str] = field(default_factory=list)
