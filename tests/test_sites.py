@@ -243,3 +243,24 @@ def test_cases_at_other_sites_render_with_their_target_in_view(tmp_path, mlflow_
         table = pd.read_csv(out / "run" / "frames.csv")
         assert (table.visible_pixels > 0).any(), job
         assert (table.visible_fraction > 0.5).any(), job
+
+
+def test_a_kind_of_site_of_your_own_is_one_registered_builder(garage):
+    """A kind registered beside its builder lists its sites and is picked like the shipped ones."""
+    c = plan("research")
+
+    @sites.register_site("stem_only", sites.t_junction_cells, "no T-junction (the site stem_only needs one)")
+    def stem_only(classified, garage, cell):
+        return sites.Site("stem_only", {"stem": sites.t_junction_at(classified, garage, cell).paths["stem"]},
+                          cell=(cell.i, cell.j))
+
+    try:
+        found = sites.every_site("stem_only", c, garage)
+        assert [s.cell for s in found] == [s.cell for s in sites.every_site("t_junction", c, garage)]
+        assert sites.find_site("stem_only", c, garage, draw=0.99).index == len(found) - 1
+        with pytest.raises(GarageError, match="no T-junction"):
+            sites.find_site("stem_only", plan("small"), garage)
+    finally:
+        sites.SITES.pop("stem_only")
+    with pytest.raises(GarageError, match="unknown site 'stem_only'"):
+        sites.find_site("stem_only", c, garage)
