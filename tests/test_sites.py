@@ -116,6 +116,7 @@ def test_a_draw_picks_floor_of_draw_times_count_and_an_index_past_the_count_is_r
     for count in (1, 2, 3, 7, 44, 504):
         for draw in np.linspace(0.0, 0.999999, 97):
             assert sites.pick(count, draw=float(draw)) == math.floor(draw * count)
+        assert sites.pick(count, draw=1.0) == count - 1  # the closed end of a search's interval: the last
         assert sites.pick(count) == 0 and sites.pick(count, index=count - 1) == count - 1
         with pytest.raises(GarageError, match=rf"case.site_index: {count} is past the {count} corner site\(s\) "
                                               rf"of plan p \(0..{count - 1}\)"):
@@ -124,8 +125,8 @@ def test_a_draw_picks_floor_of_draw_times_count_and_an_index_past_the_count_is_r
 
 @pytest.mark.parametrize(("overrides", "message"), [
     (["case.site_index=-1"], "case.site_index: a site's index is >= 0, got -1"),
-    (["case.site_draw=1.0"], r"case.site_draw: a draw is in \[0, 1\), got 1.0"),
-    (["case.site_draw=-0.1"], r"case.site_draw: a draw is in \[0, 1\), got -0.1"),
+    (["case.site_draw=1.5"], r"case.site_draw: a draw is in \[0, 1\], got 1.5"),
+    (["case.site_draw=-0.1"], r"case.site_draw: a draw is in \[0, 1\], got -0.1"),
     (["case.site_index=1", "case.site_draw=0.5"], "case.site_draw: give site_index or site_draw, not both"),
 ])
 def test_a_bad_pick_is_refused_before_the_plan_is_read(overrides, message):

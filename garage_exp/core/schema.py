@@ -231,7 +231,8 @@ class CaseConf:
     site: Any = MISSING
     # which of the plan's sites of that kind (scenario/sites.py: ordered with the one nearest the entrance, or the
     # longest straight lane, first): site_index picks by its place (null: the first, the research's), site_draw
-    # by a fraction of their count in [0, 1) (floor(draw x count): a search over garages with other counts); a
+    # by a fraction of their count in [0, 1] (floor(draw x count), 1.0 the last: a search over garages with other
+    # counts); a
     # site that does not host the case passes it to the next in order (docs/scenarios.md)
     site_index: Optional[int] = None
     site_draw: Optional[float] = None

@@ -55,14 +55,15 @@ def check_case(job: SceneSpec) -> None:
 
 
 def _check_site_pick(case) -> None:
-    """`case.site_index` (>= 0) or `case.site_draw` (in [0, 1)), not both; the count is the plan's (make_case)."""
+    """`case.site_index` (>= 0) or `case.site_draw` (in [0, 1]: 1.0, a search interval's closed end, is the last
+    site), not both; the count is the plan's (make_case)."""
     index, draw = case.get("site_index"), case.get("site_draw")
     if index is not None and draw is not None:
         raise GarageError(f"give site_index or site_draw, not both (have {index} and {draw})", "case.site_draw")
     if index is not None and int(index) < 0:
         raise GarageError(f"a site's index is >= 0, got {index}", "case.site_index")
-    if draw is not None and not 0.0 <= float(draw) < 1.0:
-        raise GarageError(f"a draw is in [0, 1), got {draw}", "case.site_draw")
+    if draw is not None and not 0.0 <= float(draw) <= 1.0:
+        raise GarageError(f"a draw is in [0, 1], got {draw}", "case.site_draw")
 
 
 def _check_motion(case) -> None:

@@ -347,7 +347,8 @@ def site_count(site, classified: Classified, garage) -> int:
 
 def pick(count: int, index=None, draw=None, kind: str = "", plan: str = "") -> int:
     """The index `case.site_index` or `case.site_draw` names among `count` sites (0 without either): an index
-    past the count is a GarageError; a draw in [0, 1) is floor(draw * count)."""
+    past the count is a GarageError; a draw in [0, 1) is floor(draw * count), and 1.0 (the closed end of a
+    search's interval) the last."""
     if draw is not None:
         return min(int(math.floor(float(draw) * count)), count - 1)
     index = 0 if index is None else int(index)
