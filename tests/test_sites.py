@@ -265,3 +265,19 @@ def test_a_kind_of_site_of_your_own_is_one_registered_builder(garage):
         sites.SITES.pop("stem_only")
     with pytest.raises(GarageError, match="unknown site 'stem_only'"):
         sites.find_site("stem_only", c, garage)
+
+
+def test_the_gyms_live_scenario_stands_where_the_job_built_the_case(library):
+    """The adversary's live scenario (scenario/live.py) finds the site the case set-up used, a skipped one too."""
+    from garage_exp.scenario import make_case
+    from garage_exp.scenario.live import LiveScenario
+
+    c = plan("research")
+    for overrides, site in ((["case=stepout", "case.site_index=2"], 2), (["case=pedestrian", "case.site_index=3"], 0)):
+        cfg = compose_cfg(*overrides, "case.motion.step=4.0")
+        setup = make_case(cfg, c, library, np.random.default_rng(cfg.seed))
+        live = LiveScenario(cfg, c, setup)
+        assert setup.site_index == live.site.index == site
+        first = setup.shots[0]
+        ego, _ = live.poses({"ego": {"distance": first.position}} if cfg.case.motion.actor == "ego" else {})
+        assert (round(ego.x, 6), round(ego.y, 6)) == (round(first.ego.x, 6), round(first.ego.y, 6))
