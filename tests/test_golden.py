@@ -63,8 +63,9 @@ def golden_name(job: Path) -> str:
             + ("_blank" if cfg["blank"] else ""))
 
 
-# Columns the frame table gained after the tables were pinned (issue 39: what hides the target), not compared.
-ADDED = ("occluder",)
+# Columns the frame table gained after the tables were pinned (issue 39: what hides the target; issue 49: the
+# target's height and light, the camera's height), not compared.
+ADDED = ("occluder", "target_height", "target_light", "camera_height")
 
 
 def compare(table: pd.DataFrame, golden: pd.DataFrame, name: str) -> None:

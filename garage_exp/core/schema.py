@@ -251,6 +251,13 @@ class CaseConf:
     # corner | bay_beside_pillar | straight_run | ... (garage_exp/scenario/sites.py), or your own site function:
     # {_target_: my_sites.ramp, ...its keyword arguments}
     site: Any = MISSING
+    # which of the plan's sites of that kind (scenario/sites.py: ordered with the one nearest the entrance, or the
+    # longest straight lane, first): site_index picks by its place (null: the first, the research's), site_draw
+    # by a fraction of their count in [0, 1] (floor(draw x count), 1.0 the last: a search over garages with other
+    # counts); a
+    # site that does not host the case passes it to the next in order (docs/scenarios.md)
+    site_index: Optional[int] = None
+    site_draw: Optional[float] = None
     position_label: str = "position (m)"  # the plot's x axis: what the motion moves
     bays: dict[str, str] = field(default_factory=dict)  # names for the site's bays (far: 3, mine: right:2)
     keep_free: list[str] = field(default_factory=list)  # bays kept free of the palette's parked cars (besides

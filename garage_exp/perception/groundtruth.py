@@ -78,6 +78,9 @@ class VehicleTruth:
     kind: str = "vehicle"  # "vehicle" | "person" (the record is the same for both)
     off_axis: float = float("nan")  # degrees between the optical axis and the ray to the 3D box's centre
     occluder: str = NO_OCCLUDER  # what hides most of it: OCCLUDERS or "none" (see the module doc)
+    height: float = float("nan")  # its 3D box's height (m): a child or a crouching adult, a car or a van
+    light: float = float("nan")  # the lamps' direct light at its centre (`direct_light`)
+    camera_height: float = float("nan")  # the camera centre's height above the floor (m) when it took the frame
 
     @property
     def box_height(self) -> int:
@@ -343,9 +346,11 @@ def truth_records(frame: Frame, stats: list[MaskStats], scene: Scene) -> list[Ve
         if corners is not None:
             centre = (corners.min(axis=0) + corners.max(axis=0)) / 2
             truncation = projected_truncation(frame, corners)
+            height = float(corners[:, 2].max() - corners[:, 2].min())
         else:
             centre = np.array([pose.x, pose.y, pose.z])
             truncation = 1.0 if st.touches_border else 0.0
+            height = 0.0  # no extent to measure (and NaN would make equal records unequal)
         occ = occlusion_state(fraction)
         out.append(VehicleTruth(
             name=name, role=entity.role, visible_pixels=st.visible_pixels, unoccluded_pixels=st.unoccluded_pixels,
@@ -353,8 +358,22 @@ def truth_records(frame: Frame, stats: list[MaskStats], scene: Scene) -> list[Ve
             distance=float(np.linalg.norm(centre - camera)), truncation=truncation, occlusion=occ,
             kitti=kitti_level(full_box[3] - full_box[1], fraction, truncation),
             kind="person" if entity.is_person else "vehicle", off_axis=_off_axis(frame, centre),
-            occluder=occluder_category(st.hidden_by, st.unoccluded_pixels)))
+            occluder=occluder_category(st.hidden_by, st.unoccluded_pixels), height=height,
+            light=direct_light(scene, centre), camera_height=float(camera[2])))
     return out
+
+
+def direct_light(scene: Scene, point) -> float:
+    """How much the garage's lamps light a point: the sum over the scene's point lights of intensity / d^2
+    (the renderer's units: a lamp of intensity 1 at 1 m gives 1; the `light` preset's coverage, intensity and
+    failed lamps all show in it), with no shadowing and no ambient term. A target's `light` (the frame table's
+    `target_light`) is the value at its 3D box's centre: what lights it, wherever it stands."""
+    if not scene.lights:
+        return 0.0
+    positions = np.array([light.position for light in scene.lights], dtype=float)
+    intensity = np.array([light.intensity for light in scene.lights], dtype=float)
+    d2 = np.maximum(((positions - np.asarray(point, dtype=float)) ** 2).sum(axis=1), 0.25)  # within 0.5 m: as at 0.5
+    return round(float((intensity / d2).sum()), 6)
 
 
 def _off_axis(frame: Frame, point: np.ndarray) -> float:

@@ -11,6 +11,12 @@ import pandas as pd
 from garage_exp.results import stats
 
 
+# (column, the ground-truth record's field, decimals): the target's 3D box height (m), the lamps' direct light at
+# its centre and the camera's height (m), from the scene's geometry (perception/groundtruth.py), for the search's
+# descriptors (search/descriptors.py)
+GEOMETRY = (("target_height", "height", 4), ("target_light", "light", 6), ("camera_height", "camera_height", 4))
+
+
 def frame_row(shot, camera: str, target, score, model_names: list[str], target_kind: str | None = None,
               replicated: bool = False, off_axis: bool = False) -> dict:
     """One frame's row. target_kind ("vehicle" | "person") is a column only when given: scenes with people give
@@ -29,6 +35,8 @@ def frame_row(shot, camera: str, target, score, model_names: list[str], target_k
         "kitti": target.kitti if target else "out_of_view",
         # what hides most of the target: pillar | vehicle | person | structure | none (perception/groundtruth.py)
         "occluder": target.occluder if target else "out_of_view",
+        **{column: round(float(getattr(target, key, math.nan)), digits) if target else math.nan
+           for column, key, digits in GEOMETRY},
     }
     if target_kind is not None:
         row["target_kind"] = target_kind

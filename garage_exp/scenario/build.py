@@ -8,8 +8,10 @@ a config key, so a sweep or a search can set it by an override.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -23,12 +25,13 @@ from garage_exp.core.schema import MotionConf
 from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs, typed
 from garage_exp.scenario.place import (check_overlaps, farthest, no_room, pose_between, pose_in_bay,
                                        pose_on_path, pose_relative, site_bay, site_path, sweep_clash)
-from garage_exp.scenario.sites import Site, find_site
+from garage_exp.scenario.sites import Site, find_site, pick, site_count
 from garage_exp.scenario.spec import SceneSpec
 from garage_exp.scenario.timing import start_time, travelled
 from garage_exp.scene.camera import scored_camera
 from garage_exp.scene.description import Pose
 
+log = logging.getLogger("garage_exp")
 EGO = "ego"
 PALETTE = "palette"  # an actor's colour: one copy per palette target colour, one variant each
 MOVABLE = ("distance", "offset", "yaw", "out", "gap")
@@ -44,10 +47,23 @@ def check_case(job: SceneSpec) -> None:
         if float(job.replicate[key]) < 0:
             raise GarageError(f"a range is >= 0, got {job.replicate[key]}", f"replicate.{key}")
     try:
+        _check_site_pick(job.case)
         _check_motion(job.case)
         scored_camera(job.camera, str(job.case.get("camera") or ""))
     except GarageError as exc:
         raise exc.again(str(exc), level_file(job, "case")) from None
+
+
+def _check_site_pick(case) -> None:
+    """`case.site_index` (>= 0) or `case.site_draw` (in [0, 1]: 1.0, a search interval's closed end, is the last
+    site), not both; the count is the plan's (make_case)."""
+    index, draw = case.get("site_index"), case.get("site_draw")
+    if index is not None and draw is not None:
+        raise GarageError(f"give site_index or site_draw, not both (have {index} and {draw})", "case.site_draw")
+    if index is not None and int(index) < 0:
+        raise GarageError(f"a site's index is >= 0, got {index}", "case.site_index")
+    if draw is not None and not 0.0 <= float(draw) <= 1.0:
+        raise GarageError(f"a draw is in [0, 1], got {draw}", "case.site_draw")
 
 
 def _check_motion(case) -> None:
@@ -253,9 +269,10 @@ def make_case(job: SceneSpec, classified: Classified, library, rng: np.random.Ge
     """The scenario's shot list, replicate after replicate (`replicates`); an error in the scenario or the
     arrangement names its file and key path."""
     try:
-        setup = build_case(job, classified, library, rng)
+        setup = build_hosted(job, classified, library, rng)
+        chosen = partial(build_case, site_index=setup.site_index)  # every replicate at replicate 0's site
         for k in range(1, int(job.get("replicates", 1))):
-            setup = merge(setup, build_replicate(build_case, job, classified, library, k), k)
+            setup = merge(setup, build_replicate(chosen, job, classified, library, k), k)
         return setup
     except GarageError as exc:
         group = (exc.where or "").split(".")[0]
@@ -264,10 +281,48 @@ def make_case(job: SceneSpec, classified: Classified, library, rng: np.random.Ge
         raise
 
 
-def build_case(job: SceneSpec, classified: Classified, library, rng: np.random.Generator, adjust=None) -> CaseSetup:
-    """One replicate of the case. `adjust(actors, targets)`: a replicate's variation of the actors' values."""
+def site_order(job: SceneSpec, classified: Classified) -> list[int | None]:
+    """The sites to try the case at, in turn: [None] (the kind's first, as the research's cases stand, with no
+    other tried) without `case.site_index` and `case.site_draw`; else the one they pick, then each later site of
+    the kind in order, wrapping round to the first, so that any index or draw gives a scenario when any site of
+    the plan hosts it."""
     case = job.case
-    site = find_site(case.site, classified, job.garage)
+    index, draw = case.get("site_index"), case.get("site_draw")
+    if index is None and draw is None:
+        return [None]
+    count = site_count(case.site, classified, job.garage)
+    first = pick(count, index, draw, str(case.site), classified.plan.name)
+    return [(first + k) % count for k in range(count)]
+
+
+def build_hosted(job: SceneSpec, classified: Classified, library, rng: np.random.Generator) -> CaseSetup:
+    """Replicate 0 of the case at the first site of `site_order` that hosts it (where its actors, path lengths
+    and bays fit); every try starts from the same state of `rng`, so a site reached by skipping is built as if
+    picked directly. When none hosts it, the picked site's own refusal is raised."""
+    order = site_order(job, classified)
+    state = rng.bit_generator.state
+    refused = None
+    for index in order:
+        rng.bit_generator.state = state
+        try:
+            setup = build_case(job, classified, library, rng, site_index=index)
+        except GarageError as exc:
+            if len(order) == 1:
+                raise
+            refused = refused or exc
+            log.info("case.site_index %s: the site does not host the case (%s); trying the next", index, exc)
+            continue
+        setup.site_index = index
+        return setup
+    raise refused
+
+
+def build_case(job: SceneSpec, classified: Classified, library, rng: np.random.Generator, adjust=None,
+               site_index: int | None = None) -> CaseSetup:
+    """One replicate of the case at the site `site_index` of its kind (None: the first).
+    `adjust(actors, targets)`: a replicate's variation of the actors' values."""
+    case = job.case
+    site = find_site(case.site, classified, job.garage, index=site_index)
     conf = actor_confs(case.actors, "case.actors")
     if EGO not in conf or conf[EGO].role != "ego":
         raise GarageError("a scenario needs an actor named 'ego' with role ego", "case.actors")

@@ -23,7 +23,7 @@ class LiveScenario:
 
     def __init__(self, job, classified, setup: CaseSetup, variant: int = 0):
         case = job.case
-        self.site = find_site(case.site, classified, job.garage)
+        self.site = find_site(case.site, classified, job.garage, index=setup.site_index)
         self.bays = {str(k): str(v) for k, v in (case.bays or {}).items()}
         runs, conf = variants(case, actor_confs(case.actors, "case.actors"), list(job.palette.target_colours))
         if not 0 <= variant < len(runs):

@@ -32,6 +32,7 @@ class CaseSetup:
     occluder: str | None = None  # the structure entity the case is about (a pillar)
     used_bays: list[tuple[int, int, int]] = field(default_factory=list)  # (i, j, k) kept free of parked cars
     position_label: str = "position (m)"
+    site_index: int | None = None  # the site of its kind the case stands at (None: the first, as by default)
 
 
 @dataclass

@@ -1,9 +1,9 @@
 """The archive of failure kinds (issue 39, item 1): quality-diversity search with pyribs over the declared space.
 
 Each complete trial of a difficulty search is placed in a cell of a grid (ribs' GridArchive) by DESCRIPTORS
-measured from its own outputs (`search.descriptors`, each a `source` below, binned by `values` or `edges`): its
-frame table at the first fairly visible frame (who the target is, what hides it, how far, how much of it is
-hidden, which camera) and its picture (how dark). A category's value that is not among its `values` joins the
+measured from its own outputs (`search.descriptors`, each a `source` registered in search/descriptors.py, binned by
+`values` or `edges`): its frame table at the first fairly visible frame (who the target is, what hides it, how
+far, how much of it is hidden, how lit it is, which camera at what height) and its picture (how dark). A category's value that is not among its `values` joins the
 cell `merge` names for it (occluder: structure -> pillar, person -> vehicle); one neither listed nor merged
 leaves the trial without a cell (it stays out of the archive, as a trial without a fair frame does). A cell keeps its hardest trial, the elite; a later trial replaces it only when
 harder. A cell whose elite's difficulty is at least `search.archive.failure` holds a hard-and-fair failure.
@@ -33,55 +33,14 @@ import pandas as pd
 from optuna.trial import FrozenTrial, TrialState
 
 from garage_exp.core.errors import GarageError
+from garage_exp.search.descriptors import CATEGORY, DESCRIPTORS, descriptor
 
 log = logging.getLogger("garage_exp")
 X_ATTR = "archive:x"  # the normalised point the archive sampler asked (system attr of the trial)
 EMITTERS = ("gaussian", "iso_line")
 
 
-# --- descriptors: measured from a trial's outputs ----------------------------------------------------------------
-
-def _kind(first: pd.Series, _out: Path, _frame) -> str:
-    """car for a vehicle target; a person is a child when the scene's target actor is one (the shipped cases
-    name their child targets child, child_walking), else an adult. Read from the frame table's target_kind and
-    target columns at the first fair frame (a vehicle-only table has no target_kind: a car)."""
-    if str(first.get("target_kind", "vehicle")) != "person":
-        return "car"
-    return "child" if str(first.get("target", "")).startswith("child") else "adult"
-
-
-def _occluder(first: pd.Series, _out: Path, _frame) -> str:
-    """What hid most of the target's hidden pixels at its first fair frame: the frame table's `occluder` column
-    (pillar | vehicle | person | structure | none: perception/groundtruth.py); "" in a table written before it."""
-    value = first.get("occluder")
-    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else str(value)
-
-
-def _luminance(_first: pd.Series, _out: Path, frame) -> float:
-    """The mean luma (Rec. 601, 0-1) of the trial's saved hardest fair frame: how dark the scene looks to the
-    camera (its light, lamps and materials together), its drawn boxes a few pixels of it."""
-    from PIL import Image
-
-    if not frame or not Path(frame).exists():
-        return math.nan
-    rgb = np.asarray(Image.open(frame).convert("RGB"), dtype=float) / 255.0
-    return float((rgb @ np.array([0.299, 0.587, 0.114])).mean())
-
-
-# source -> (kind of value, what it measures, the function of (first fair row, output dir, frame picture))
-SOURCES = {
-    "kind": ("category", "the target: car, adult or child", _kind),
-    "target": ("category", "the target actor's name", lambda first, _o, _f: str(first.get("target", ""))),
-    "camera": ("category", "the camera of the first fair frame", lambda first, _o, _f: str(first.get("camera"))),
-    "occluder": ("category", "what hid most of the target's hidden pixels at its first fair frame: pillar, "
-                 "vehicle, person, structure or none (under 2 % of it hidden)", _occluder),
-    "distance": ("number", "the target's distance (m) at its first fair frame",
-                 lambda first, _o, _f: float(first["distance"])),
-    "visible": ("number", "the target's visible fraction at its first fair frame (below 1: something hid part)",
-                lambda first, _o, _f: float(first["visible_fraction"])),
-    "luminance": ("number", "the mean luma (0-1) of the hardest fair frame", _luminance),
-}
-
+# --- descriptors: measured from a trial's outputs (each registered in search/descriptors.py) --------------------
 
 def check_descriptors(descriptors) -> None:
     """`search.descriptors`: a known source each, once, with `values` (a category, and a `merge` of other values
@@ -90,13 +49,12 @@ def check_descriptors(descriptors) -> None:
     for k, d in enumerate(descriptors):
         where = f"search.descriptors[{k}]"
         source = str(d.get("source") or "")
-        if source not in SOURCES:
-            raise GarageError(f"unknown descriptor source {source!r} ({' | '.join(SOURCES)})", f"{where}.source")
+        kind = descriptor(source, f"{where}.source").kind
         if source in seen:
             raise GarageError(f"the descriptor {source} is declared twice", f"{where}.source")
         seen.add(source)
         values, edges = list(d.get("values") or []), [float(e) for e in (d.get("edges") or [])]
-        if SOURCES[source][0] == "category":
+        if kind == CATEGORY:
             if edges or len(values) < 1 or len(set(map(str, values))) != len(values):
                 raise GarageError(f"{source} is a category: give its distinct values (values: [...]), no edges",
                                   where)
@@ -121,7 +79,7 @@ def measure(table: pd.DataFrame, out_dir: Path, frame, search) -> dict | None:
     if fair.empty:
         return None
     first = fair.iloc[0]
-    return {str(d["source"]): SOURCES[str(d["source"])][2](first, out_dir, frame) for d in search.descriptors}
+    return {str(d["source"]): DESCRIPTORS[str(d["source"])].measure(first, out_dir, frame) for d in search.descriptors}
 
 
 def measure_trial(output_dir, frame, search) -> dict | None:

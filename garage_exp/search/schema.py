@@ -49,10 +49,10 @@ class RequireConf:
 @dataclass
 class DescriptorConf:
     """One axis of the archive of failure kinds (garage_exp/search/archive.py): a quantity measured from each
-    trial's own outputs (`source`, one of archive.SOURCES), binned by `values` (a categorical source: one cell
-    per value) or `edges` (a numeric source: bins between increasing edges, values outside go to the end bins).
-    merge: a categorical source's values that are not listed -> the listed value whose cell they join; a value
-    neither listed nor merged leaves the trial without a cell (out of the archive)."""
+    trial's own outputs (`source`, one registered in search/descriptors.py), binned by `values` (a categorical
+    source: one cell per value) or `edges` (a numeric source: bins between increasing edges, values outside go
+    to the end bins). merge: a categorical source's values that are not listed -> the listed value whose cell
+    they join; a value neither listed nor merged leaves the trial without a cell (out of the archive)."""
 
     source: str = ""
     values: list[str] = field(default_factory=list)
@@ -74,6 +74,21 @@ def default_descriptors() -> list[DescriptorConf]:
                            merge={"structure": "pillar", "person": "vehicle"}),
             DescriptorConf("distance", edges=[0.0, 8.0, 16.0, 100.0]),
             DescriptorConf("visible", edges=[0.0, 0.6, 0.9, 1.0])]
+
+
+def wide_descriptors() -> list[DescriptorConf]:
+    """Cells for a wide space (issue 49: every site, many target kinds, continuous light and camera factors),
+    each measured from ground truth at the first fair frame: what the target is by its kind and 3D height (4),
+    what hides it (4: a pillar, with the building's other parts; a vehicle; a person; nothing), how far (3), how
+    much of it shows (3), how lit it is (3: the lamps' direct light, edges between the shipped presets' values)
+    and the camera's height (2: a bumper or grille camera under 1.2 m, a roof camera above): 4 x 4 x 3 x 3 x 3 x 2
+    = 864 cells (docs/search.md). Name it in a space or on the command line as search.descriptors."""
+    return [DescriptorConf("target_class", values=["small_person", "person", "car", "tall_vehicle"]),
+            DescriptorConf("occluder", values=["pillar", "vehicle", "person", "none"], merge={"structure": "pillar"}),
+            DescriptorConf("distance", edges=[0.0, 8.0, 16.0, 100.0]),
+            DescriptorConf("visible", edges=[0.0, 0.75, 0.95, 1.0]),
+            DescriptorConf("light", edges=[0.0, 0.2, 0.6, 100.0]),
+            DescriptorConf("camera_height", edges=[0.0, 1.2, 10.0])]
 
 
 @dataclass
