@@ -48,8 +48,8 @@ _ATOMS = frozenset({str, bytes, int, float, bool, type(None)})
 def _config_nodes(value, path="spec", depth: int = 8, seen: dict | None = None) -> list[str]:
     """Where a config node (DictConfig, ListConfig) sits inside `value`: itself, or inside its dicts, lists, tuples,
     sets and dataclasses, `depth` levels down (deep enough for a spec's records; a bound, as a job's shots and
-    poses nest without end). `seen` ((id, depth) -> (instance, answer)) answers a dataclass instance walked before at once
-    (the watch meets a job's site or camera thousands of times)."""
+    poses nest without end). `seen` ((id, depth) -> (instance, answer)) answers a dataclass instance walked
+    before at once (the watch meets a job's site or camera thousands of times)."""
     from omegaconf import Container
 
     if type(value) in _ATOMS:
@@ -142,7 +142,8 @@ def config_nodes_handed_below_run():
             # the argument, or inside it three levels down (a plan's cells, a scene's entities: deeper costs minutes)
             for where in _config_nodes(frame.f_locals.get(name), name, 3, seen):
                 caller = frame.f_back.f_code
-                handed.append((module, code.co_name, where, f"{caller.co_filename.removeprefix(root)}:{caller.co_name}"))
+                called_by = f"{caller.co_filename.removeprefix(root)}:{caller.co_name}"
+                handed.append((module, code.co_name, where, called_by))
 
     sys.setprofile(watch)
     threading.setprofile(watch)

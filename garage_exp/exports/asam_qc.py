@@ -50,7 +50,8 @@ def checkers(path: Path, timeout: float = 300.0) -> list[dict]:
         root = etree.parse(str(result)).getroot()
         return [{"checker": (name := checker.get("checkerId")), "status": checker.get("status"),
                  "summary": checker.get("summary") or "",
-                 "issues": [f"{name} {issue.get('level')} {issue.get('description')}" for issue in checker.iter("Issue")]}
+                 "issues": [f"{name} {issue.get('level')} {issue.get('description')}"
+                            for issue in checker.iter("Issue")]}
                 for checker in root.iter("Checker")]
 
 
