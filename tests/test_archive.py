@@ -17,6 +17,8 @@ from omegaconf import OmegaConf
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import TrialState, create_trial
 from PIL import Image
+from ribs.archives import GridArchive
+from scipy import stats
 
 from garage_exp.search import archive
 from garage_exp.search.schema import SearchConf
@@ -57,9 +59,13 @@ def test_descriptors_are_measured_at_the_first_fair_frame_of_the_table_and_from_
     assert archive.measure(adult, tmp_path, str(frame), search)["kind"] == "adult"
     cars = table.drop(columns="target_kind")  # a vehicle-only table has no target_kind column
     assert archive.measure(cars, tmp_path, str(frame), search)["kind"] == "car"
-    # only the first camera's frames are scored, as the search scores them
-    other = pd.concat([pd.DataFrame([row(camera="rear", distance=3.0)]), table.assign(camera="front")])
+    # only the first camera's frames are scored, as the search scores them: the table's first camera, whichever
+    rear = pd.DataFrame([row(camera="rear", distance=3.0)])
+    other = pd.concat([rear, table.assign(camera="front")])
     assert archive.measure(other, tmp_path, str(frame), search)["distance"] == 3.0
+    # and another camera's fair frame before the first camera's first fair one is not it
+    between = pd.concat([table.iloc[:1], rear, table.iloc[1:]])
+    assert archive.measure(between, tmp_path, str(frame), search)["distance"] == 8.5
     # no fair frame: no descriptors (the trial is pruned as infeasible, never placed in a cell)
     assert archive.measure(table.assign(visible_fraction=0.1), tmp_path, str(frame), search) is None
     assert math.isnan(archive.measure(table, tmp_path, None, search)["luminance"])
@@ -120,9 +126,12 @@ def cell(kind: str, distance: float = 5.0, luminance: float = 0.1, visible: floa
 
 def test_a_cells_elite_is_replaced_only_by_a_harder_trial_and_ribs_keeps_the_same_elites():
     search = search_conf()
-    trials = numbered([trial(0, 0.5, cell("car")), trial(1, 0.4, cell("car")), trial(2, 0.5, cell("car")),  # 0 stays
-                       trial(3, 0.6, cell("adult")), trial(4, 0.7, cell("adult")), trial(5, 0.65, cell("adult")),
-                       trial(6, 0.3, cell("child", distance=8.0)), trial(7, 0.9, None)])  # 7: no descriptors
+    # each trial at its own point (x = number / 10) but 6, another sampler's (its point from its parameters)
+    made = [(0.5, cell("car")), (0.4, cell("car")), (0.5, cell("car")),  # 0 stays: 2 is no harder
+            (0.6, cell("adult")), (0.7, cell("adult")), (0.65, cell("adult")),
+            (0.3, cell("child", distance=8.0)), (0.9, None)]  # 7: no descriptors
+    trials = numbered([trial(k, d, c, {"a": 0.25} if k == 6 else None, x=None if k == 6 else [k / 10])
+                       for k, (d, c) in enumerate(made)])
     grid = archive.Grid(search.descriptors)
     elites = archive.elite_trials(trials, grid)
     assert {c: t.number for c, t in elites.items()} == {(0, 0, 0, 1): 0, (1, 0, 0, 1): 4, (2, 0, 1, 1): 6}
@@ -130,10 +139,23 @@ def test_a_cells_elite_is_replaced_only_by_a_harder_trial_and_ribs_keeps_the_sam
     assert numbers == {"archive_cells": 72, "archive_filled": 3, "archive_failure_cells": 1,
                        "archive_coverage": pytest.approx(1 / 72), "archive_qd_score": pytest.approx(1.5)}
     ribs = archive.ribs_archive(trials, grid, {"a": FloatDistribution(0.0, 1.0)}, seed=0)
-    assert sorted(ribs.data()["objective"].tolist()) == pytest.approx([0.3, 0.5, 0.7])
+    assert held(ribs) == {(0, 0, 0, 1): ([0.0], 0.5), (1, 0, 0, 1): ([0.4], 0.7), (2, 0, 1, 1): ([0.25], 0.3)}
+    # ribs' own rule, fed every trial in turn, keeps the same elites (a tie keeps the earlier, as elite_trials)
+    every = GridArchive(solution_dim=1, dims=grid.dims, ranges=[(0, n) for n in grid.dims], seed=0)
+    for t in trials[:7]:
+        x = t.system_attrs.get(archive.X_ATTR, [t.params["a"]])
+        every.add([x], t.values, [np.asarray(grid.index(t.user_attrs["descriptors"])) + 0.5])
+    assert held(every) == held(ribs)
     table = archive.archive_table(trials, search)
     assert list(table.trial) == [0, 4, 6] and list(table.failure) == [False, True, False]
     assert table.rerun[0] == "python -m garage_exp a=0.5" and table.cell[0] == "car | 0-0.12 | 0-6 | 0.9-1"
+
+
+def held(ribs) -> dict:
+    """A ribs archive's cells: grid index -> (solution, objective)."""
+    data = ribs.data()
+    return {tuple(int(i) for i in ribs.int_to_grid_index(k[None])[0]): (np.round(x, 9).tolist(), round(float(v), 9))
+            for k, x, v in zip(data["index"], data["solution"], data["objective"])}
 
 
 def test_the_space_maps_to_the_unit_cube_and_back():
@@ -159,9 +181,12 @@ def test_the_sampler_mutates_elites_after_startup_seeded_by_the_trial_number():
     # the same trial number on the same archive asks the same point: a resume, another worker
     again = archive.ArchiveSampler(params, search.descriptors, seed=3, startup=2, sigma=0.05)
     assert np.array_equal(again.ask_point([elite], 5), asked[3])
-    # the startup trials are uniform, whatever the archive holds
-    first = sampler.ask_point([elite], 0)
-    assert first.shape == (2,) and np.all((0 <= first) & (first <= 1))
+    # the startup trials are uniform, whatever the archive holds: the same draws as on an empty archive, and
+    # uniform on [0, 1] by a Kolmogorov-Smirnov test of each coordinate over 200 (seeded) draws
+    startup = archive.ArchiveSampler(params, search.descriptors, seed=3, startup=200, sigma=0.05)
+    first = np.array([startup.ask_point([elite], n) for n in range(200)])
+    assert np.array_equal(first, [startup.ask_point([], n) for n in range(200)])
+    assert min(stats.kstest(first[:, k], "uniform").pvalue for k in range(2)) > 0.01
 
 
 def test_an_elite_at_an_end_of_the_space_sends_its_offspring_elsewhere_too():

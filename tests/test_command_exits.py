@@ -173,8 +173,9 @@ def study_storage(tmp: Path) -> str:
 
     storage = f"sqlite:///{tmp / 'study.db'}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(study_name="s", storage=storage)
-    study.optimize(lambda t: t.suggest_float("x", 0, 1), n_trials=1)
+    study = optuna.create_study(study_name="s", storage=storage, sampler=optuna.samplers.RandomSampler(seed=0))
+    # two values of x: one would make optuna's slice plot warn (identical xlims) on stderr before the signal
+    study.optimize(lambda t: t.suggest_float("x", 0, 1), n_trials=2)
     return storage
 
 
@@ -253,8 +254,7 @@ def test_sigterm_is_one_line_and_exit_143(prog, tmp_path):
     hint = {"garage_exp.loop": "; rerun the same command to go on where it stopped",
             "garage_exp": "; rerun the same command with resume=true to finish the sweep"}.get(prog, "")
     assert r.returncode == 143, r.stderr[-3000:]
-    assert lines[-1:] == [f"{prog}: terminated (SIGTERM){hint}"], r.stderr[-3000:]
-    assert "Traceback" not in r.stderr, r.stderr[-3000:]
+    assert lines == [f"{prog}: terminated (SIGTERM){hint}"], r.stderr[-3000:]  # that line and nothing else
 
 
 def test_ctrl_c_is_one_line_and_exit_130(tmp_path):

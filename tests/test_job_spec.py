@@ -9,6 +9,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 
+import numpy as np
 import pytest
 from conftest import compose_cfg, require, run_app
 
@@ -41,19 +42,34 @@ def test_the_summary_record_gives_back_the_logged_metrics_key_for_key_and_in_ord
     assert JobSummary().as_dict() == {"difficulty": pytest.approx(math.nan, nan_ok=True)}  # a dry run
 
 
-def _config_nodes(value, path="spec") -> list[str]:
-    """Where a config node (DictConfig, ListConfig) sits inside `value`."""
+_ATOMS = frozenset({str, bytes, int, float, bool, type(None)})
+
+
+def _config_nodes(value, path="spec", depth: int = 8, seen: dict | None = None) -> list[str]:
+    """Where a config node (DictConfig, ListConfig) sits inside `value`: itself, or inside its dicts, lists, tuples,
+    sets and dataclasses, `depth` levels down (deep enough for a spec's records; a bound, as a job's shots and
+    poses nest without end). `seen` ((id, depth) -> (instance, answer)) answers a dataclass instance walked
+    before at once (the watch meets a job's site or camera thousands of times)."""
     from omegaconf import Container
 
+    if type(value) in _ATOMS:
+        return []
     if isinstance(value, Container):
         return [path]
-    if dataclasses.is_dataclass(value) and not isinstance(value, type) and type(value).__module__.startswith(
-            ("garage_exp.run", "garage_exp.results", "garage_exp.perception.detect.matching")):
-        return [p for f in dataclasses.fields(value) for p in _config_nodes(getattr(value, f.name), f"{path}.{f.name}")]
+    if depth == 0 or isinstance(value, (str, bytes, int, float, np.ndarray, np.generic)):
+        return []
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        if seen is not None and (id(value), depth) in seen:
+            return [path + p for p in seen[id(value), depth][1]]
+        found = [p for f in dataclasses.fields(value)
+                 for p in _config_nodes(getattr(value, f.name, None), f"{path}.{f.name}", depth - 1, seen)]
+        if seen is not None:  # the instance kept: its id stays its own
+            seen[id(value), depth] = (value, [p[len(path):] for p in found])
+        return found
     if isinstance(value, Mapping):
-        return [p for k, v in value.items() for p in _config_nodes(v, f"{path}[{k!r}]")]
-    if isinstance(value, (list, tuple)):
-        return [p for k, v in enumerate(value) for p in _config_nodes(v, f"{path}[{k}]")]
+        return [p for k, v in value.items() for p in _config_nodes(v, f"{path}[{k!r}]", depth - 1, seen)]
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return [p for k, v in enumerate(value) for p in _config_nodes(v, f"{path}[{k}]", depth - 1, seen)]
     return []
 
 
@@ -109,12 +125,11 @@ def config_nodes_handed_below_run():
     import threading
     from pathlib import Path
 
-    from omegaconf import DictConfig, ListConfig
-
     import garage_exp
 
     root = str(Path(garage_exp.__file__).parent) + "/"
     handed: list[tuple[str, str, str, str]] = []
+    seen: dict = {}
 
     def watch(frame, event, arg):
         if event != "call" or not frame.f_code.co_filename.startswith(root):
@@ -124,9 +139,11 @@ def config_nodes_handed_below_run():
             return
         code = frame.f_code
         for name in code.co_varnames[:code.co_argcount + code.co_kwonlyargcount]:
-            if isinstance(frame.f_locals.get(name), (DictConfig, ListConfig)):
+            # the argument, or inside it three levels down (a plan's cells, a scene's entities: deeper costs minutes)
+            for where in _config_nodes(frame.f_locals.get(name), name, 3, seen):
                 caller = frame.f_back.f_code
-                handed.append((module, code.co_name, name, f"{caller.co_filename.removeprefix(root)}:{caller.co_name}"))
+                called_by = f"{caller.co_filename.removeprefix(root)}:{caller.co_name}"
+                handed.append((module, code.co_name, where, called_by))
 
     sys.setprofile(watch)
     threading.setprofile(watch)
@@ -137,14 +154,28 @@ def config_nodes_handed_below_run():
         threading.setprofile(None)
 
 
+@dataclasses.dataclass
+class _Holder:
+    part: object
+
+
 def test_the_watch_sees_a_config_node_handed_below_run():
-    """The watch below can fail: a node handed to a scene check is seen."""
+    """The watch below can fail: a node handed to a scene check is seen, as an argument or inside a dict, a list
+    or a dataclass handed as one (the check then fails on what it was handed: the watch saw the call first)."""
+    from omegaconf import OmegaConf
+
     from garage_exp.scene.structure import check_garage
 
     cfg = compose_cfg("plan=tiny")
+    plain = OmegaConf.to_container(cfg.garage, resolve=True)  # the same values as plain data: not a node
+    hidden = [{"a": cfg.garage}, [1, cfg.garage], _Holder({"b": (cfg.garage,)}), _Holder([plain])]
     with config_nodes_handed_below_run() as handed:
         check_garage(cfg.garage)
-    assert [(m, f, a) for m, f, a, _ in handed] == [("scene/structure.py", "check_garage", "garage")]
+        for value in hidden:
+            with contextlib.suppress(Exception):
+                check_garage(value)
+    assert [(m, f, a) for m, f, a, _ in handed] == [("scene/structure.py", "check_garage", a) for a in (
+        "garage", "garage['a']", "garage[1]", "garage.part['b'][0]")]
 
 
 @pytest.mark.render

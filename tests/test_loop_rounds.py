@@ -47,8 +47,10 @@ def test_the_held_out_sample_is_what_the_study_runs(tmp_path):
     storage = f"sqlite:///{tmp_path / 'optuna.db'}"
     points = heldout.sample(SPACE, 4, seed=2)
     heldout.enqueue(storage, "heldout", points)
-    heldout.enqueue(storage, "heldout", points)
+    heldout.enqueue(storage, "heldout", points)  # a resumed study: it holds the points already
     study = optuna.load_study(study_name="heldout", storage=storage)
+    waiting = study.get_trials(deepcopy=False)
+    assert [t.state for t in waiting] == [optuna.trial.TrialState.WAITING] * 4  # each point once, not twice
     params = heldout.space_params(SPACE)
     assert params == {k: space_mod.distribution(o) for k, o in
                       ((o.key_or_group, o) for o in space_mod.parse(SPACE))}
@@ -58,6 +60,10 @@ def test_the_held_out_sample_is_what_the_study_runs(tmp_path):
         asked.append({name: trial._suggest(name, dist) for name, dist in params.items()})
         study.tell(trial, 0.5)
     assert asked == points
+    assert not study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.WAITING,))  # none left to run again
+    # a study that ran its points (and more) gets none again when the loop resumes
+    heldout.enqueue(storage, "heldout", points)
+    assert len(study.get_trials(deepcopy=False)) == 4
 
 
 def test_the_failure_rate_counts_hard_fair_scenarios_of_the_whole_sample():

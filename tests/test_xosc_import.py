@@ -26,7 +26,8 @@ def imported(tmp_path, capsys, text: str, *args: str) -> tuple[dict, str]:
 @pytest.mark.parametrize("text, value", [
     ("atan(1) * 4", math.pi), ("asin(1) + acos(1)", math.pi / 2), ("sign(-3) * abs(-2)", -2.0),
     ("pow(2, 10) + sqrt(16)", 1028.0), ("max(1, $a, 3) - min($a, 0.5)", 2.5), ("7 % -3", 1.0), ("-7 % 3", -1.0),
-    ("-2 ** 2", -4.0), ("round(2.5) + round(-2.5)", 0.0), ("floor(-1.5) + ceil(1.2)", 0.0),
+    ("-2 ** 2", -4.0), ("floor(-1.5) + ceil(1.2)", 0.0),
+    ("round(2.5)", 3.0), ("round(-2.5)", -3.0),  # halves away from zero (half to even: 2, -2; half up: 3, -2)
     ("tan(0) + cos(0) + sin(0)", 1.0), ("($a + 1) * 2 / 4", 1.5),
     ("not ($a >= 2) or false", False), ("not ($a > 2)", True), ("$a >= 2 and $a != 3 and true", True), ("1 < $a < 3", True),
     ("$flag and 2 == 2", True)])

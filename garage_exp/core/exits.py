@@ -113,8 +113,24 @@ def unknown_key_line(exc: BaseException) -> str | None:
         where = config_file(level.group(1), exc)
     else:
         return None
-    owner = str(cause.full_key)[:-len(key)].rstrip(".") or "the config"
+    owner = str(cause.full_key)[:-len(key)].rstrip(".") or (override and list_entry(where, key)) or "the config"
     return f"{where}: {owner} has no key {key!r}{did_you_mean(key, names)}"
+
+
+def list_entry(override: str, key: str) -> str:
+    """The entry of a list of records that an override sets which holds `key` (`search.descriptors[1]`), or "":
+    OmegaConf checks each record on its own, so its error names neither the list nor the entry."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    try:
+        parsed = OverridesParser.create().parse_override(override)
+    except HydraException:
+        return ""
+    value = parsed.value()
+    entries = [k for k, item in enumerate(value) if isinstance(item, dict) and key in item] if isinstance(
+        value, list) else []
+    return f"{parsed.key_or_group}[{entries[0]}]" if entries else ""
 
 
 def config_file(name: str, exc: BaseException) -> str:

@@ -30,8 +30,11 @@ def qc_bin() -> Path:
                       f"{QC_ENV}={env}" if env else str(folder))
 
 
-def issues(path: Path, timeout: float = 300.0) -> list[str]:
-    """What the bundle for the file's kind reports on it: one line per issue (checker, level, description)."""
+def checkers(path: Path, timeout: float = 300.0) -> list[dict]:
+    """What each checker of the bundle for the file's kind did with it: {"checker", "status" (completed | skipped
+    | error), "summary" (why it skipped), "issues" (one line each: checker, level, description)}. A checker that
+    did not complete checked nothing: no issue from it proves nothing. It skips a rule of another version of the
+    standard than the file's, and any rule whose preconditions (a valid schema, a readable road file) failed."""
     tool, bundle = BUNDLES[Path(path).suffix]
     with tempfile.TemporaryDirectory() as tmp:
         config, result = Path(tmp) / "config.xml", Path(tmp) / "result.xqar"
@@ -45,5 +48,13 @@ def issues(path: Path, timeout: float = 300.0) -> list[str]:
         from lxml import etree
 
         root = etree.parse(str(result)).getroot()
-        return [f"{checker.get('checkerId')} {issue.get('level')} {issue.get('description')}"
-                for checker in root.iter("Checker") for issue in checker.iter("Issue")]
+        return [{"checker": (name := checker.get("checkerId")), "status": checker.get("status"),
+                 "summary": checker.get("summary") or "",
+                 "issues": [f"{name} {issue.get('level')} {issue.get('description')}"
+                            for issue in checker.iter("Issue")]}
+                for checker in root.iter("Checker")]
+
+
+def issues(path: Path, timeout: float = 300.0) -> list[str]:
+    """What the bundle for the file's kind reports on it: one line per issue (checker, level, description)."""
+    return [line for checker in checkers(path, timeout) for line in checker["issues"]]
