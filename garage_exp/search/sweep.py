@@ -347,6 +347,20 @@ def summary(result: dict, out_dir: Path) -> str:
     return "\n".join(lines)
 
 
+def count_others_apart(config: DictConfig, result: dict, sweep_dir: Path) -> None:
+    """The study's trials this command did not run (finished before a resume, or by another worker), recorded as
+    the sweep's skipped runs, so that the sweep summary counts as finished only what this command ran, as the
+    study's line does ("this worker ran 0", then "8 finished": issue 47, item 7). Only runs in this store: the
+    summary reads them there."""
+    from garage_exp.tracking import runs as tracking
+
+    ran, store = set(result["ran"]), tracked_in(config)
+    for t in result["study"].get_trials(deepcopy=False):
+        run_id = t.user_attrs.get("run_id")
+        if run_id and t.number not in ran and t.user_attrs.get("tracking_uri") == store:
+            tracking.add_resumed(sweep_dir, run_id)
+
+
 def ranked(study) -> list:
     """The complete trials, hardest first (by the first value, at the end its direction calls hard; ties by
     trial number)."""
