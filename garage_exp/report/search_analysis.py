@@ -30,7 +30,7 @@ from optuna.trial import FrozenTrial
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
-from garage_exp.report import sensitivity
+from garage_exp.report import archive_cells, sensitivity
 from garage_exp.report.study_figures import figures
 from garage_exp.report.trials import (ATTRS, attr_headings, distributions, first_value, hardest, objective_names,
                                       overrides, rerun_overrides, trial_table, untestable)
@@ -175,6 +175,9 @@ def analyse(study: optuna.Study, out_dir: Path, top: int = 5, seed: int = 0) -> 
 
     lines = summary(study, table, names)
     section, files = hardest_section(study, table, out_dir, top, importance)
+    lines += section
+    written += files
+    section, files, _ = archive_cells.section(study, out_dir)  # a difficulty search's cells (its archive)
     lines += section
     written += files
     if "history" in drawn:

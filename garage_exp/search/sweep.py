@@ -242,14 +242,18 @@ def _suite_full(search, stop):
 
 def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> list[Path]:
     """The study's analysis (and suite) into out_dir; returns the files to log on the parent run."""
-    from garage_exp.report.search_analysis import analyse
+    from optuna.trial import TrialState
 
+    from garage_exp.report.search_analysis import analyse
     from garage_exp.search import archive
 
     search = config.search
+    if search.get("descriptors") and objective(search.objective).confidence:  # the report writes the archive
+        archive.record(result["study"], search)
     paths = list(analyse(result["study"], out_dir, top=int(search.top)))
-    files, result["archive"] = archive.write(result["study"], search, out_dir)
-    paths.extend(files)
+    if (out_dir / "archive.csv") in paths:  # its numbers for the parent run and the summary
+        result["archive"] = archive.summary(result["study"].get_trials(deepcopy=False, states=(TrialState.COMPLETE,)),
+                                            search)
     if config.export.openscenario:
         paths.extend(export_hardest(config, result["study"], out_dir / "openscenario", loader))
     if search.mode == "suite":
