@@ -15,6 +15,7 @@ import subprocess
 
 import pytest
 from conftest import ROOT, require, run_app, run_module
+from test_readme_commands import built  # noqa: F401  (each job stops after its preflight: its prepared jobs)
 
 PAGES = ("search.md", "openscenario.md")
 
@@ -73,21 +74,6 @@ def test_every_command_of_the_pages_is_covered():
             assert how.startswith("not run: ") or how in globals() or "::" in how, how
 
 
-@pytest.fixture
-def frames_left_out(monkeypatch) -> list:
-    """Each job stops after its preflight built its scene (and wrote its export); its prepared jobs."""
-    seen = []
-
-    def run_frames(cfg, prepared, out, run):
-        seen.append(prepared)
-        from garage_exp.results.summary import JobSummary
-
-        return JobSummary(difficulty=0.5, frames=0, fair_frames=0)  # a search prunes such a trial
-
-    monkeypatch.setattr("garage_exp.run.frames.run_frames", run_frames)
-    return seen
-
-
 def argv(text: str, prefix: str = "python -m garage_exp") -> list[str]:
     import shlex
 
@@ -97,12 +83,12 @@ def argv(text: str, prefix: str = "python -m garage_exp") -> list[str]:
 
 
 @pytest.mark.parametrize("start", [k for k, v in COVERED.items() if v == "test_a_search_command_runs"])
-def test_a_search_command_runs(start, tmp_path, frames_left_out):
+def test_a_search_command_runs(start, tmp_path, built):
     args = [a for a in argv(command("search.md", start)) if not a.startswith("search.trials=")]
     r = run_app([*args, "search.trials=2", f"search.storage=sqlite:///{tmp_path}/optuna.db",
                  f"tracking.uri=sqlite:///{tmp_path}/mlflow.db"], tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert len(frames_left_out) == 2 and all(p.scene is not None and p.setup.shots for p in frames_left_out)
+    assert len(built) == 2 and all(p.scene is not None and p.setup.shots for p in built)
     assert "this worker ran 2" in r.stdout
 
 
@@ -114,7 +100,7 @@ def export_job(page_command: str, tmp_path) -> None:
 
 @pytest.mark.parametrize("start, version", [("python -m garage_exp case=cpnco", "OpenSCENARIO_1_2"),
                                             ("python -m garage_exp case=crossing", "OpenSCENARIO_1_0")])
-def test_an_export_command_writes_its_files(start, version, tmp_path, frames_left_out):
+def test_an_export_command_writes_its_files(start, version, tmp_path, built):
     from garage_exp.scenario.asam import validate
 
     export_job(command("openscenario.md", start), tmp_path)
@@ -122,7 +108,7 @@ def test_an_export_command_writes_its_files(start, version, tmp_path, frames_lef
     assert validate(tmp_path / "run" / "openscenario" / "garage.xodr").startswith("opendrive")
 
 
-def test_the_documented_esmini_command_plays_an_export(tmp_path, frames_left_out):
+def test_the_documented_esmini_command_plays_an_export(tmp_path, built):
     """The page's esmini block as written, in the folder of a `case=cpnco export.openscenario=true` job laid out as
     the project lays it out (conf/config.yaml's run dir), with `shared/` beside the project: esmini is found by the
     block's relative path, writes log.csv, and its own log goes where the block says, beside the scenario; no
@@ -149,7 +135,7 @@ def test_the_documented_esmini_command_plays_an_export(tmp_path, frames_left_out
     assert not list(work.rglob("log.txt")), list(work.rglob("log.txt"))
 
 
-def test_the_import_commands_run_as_written(tmp_path, frames_left_out):
+def test_the_import_commands_run_as_written(tmp_path, built):
     """`python -m garage_exp.scenario.import scenario.xosc --name mine` beside an export (its scenario.xosc and
     garage.xodr), then `python -m garage_exp --config-dir . case=mine ego.speed=10` in the same folder."""
     export_job(command("openscenario.md", "python -m garage_exp case=cpnco"), tmp_path)
@@ -160,9 +146,9 @@ def test_the_import_commands_run_as_written(tmp_path, frames_left_out):
                                "python -m garage_exp.scenario.import"), here)
     assert imported.returncode == 0, imported.stderr[-3000:]
     assert (here / "case" / "mine.yaml").is_file()
-    frames_left_out.clear()
+    built.clear()
     r = run_app([*argv(command("openscenario.md", "python -m garage_exp --config-dir . case=mine")),
                  f"tracking.uri=sqlite:///{tmp_path}/mlflow.db"], here)
     assert r.returncode == 0, r.stderr[-3000:]
-    (prepared,) = frames_left_out
+    (prepared,) = built
     assert prepared.scene is not None and prepared.setup.shots
