@@ -78,10 +78,13 @@ mutation: python
 	$(BIN)/mutmut run --max-children 2 $(MUTANTS)
 	$(BIN)/python scripts/mutation_score.py $(MUTANTS) | tee mutants/score.txt
 
+# The MLflow UI over a store (UI_STORE: a tracking URI as `tracking.uri=` takes it, sqlite:///PATH or a database;
+# default the project's own), local only. A sqlite store is created or checked first (a broken one is one line).
+UI_STORE ?= sqlite:///$(CURDIR)/outputs/mlflow.db
 ui: python
-	@$(BIN)/python -m garage_exp.tracking.store $(CURDIR)/outputs/mlflow.db
-	@$(BIN)/python -m garage_exp.tracking.ui --uri sqlite:///$(CURDIR)/outputs/mlflow.db
-	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/outputs/mlflow.db --host 127.0.0.1 --port 5000
+	@case '$(UI_STORE)' in sqlite:///*) $(BIN)/python -m garage_exp.tracking.store '$(UI_STORE:sqlite:///%=%)';; esac
+	@$(BIN)/python -m garage_exp.tracking.ui --uri '$(UI_STORE)'
+	$(BIN)/mlflow ui --backend-store-uri '$(UI_STORE)' --host 127.0.0.1 --port 5000
 
 # optuna-dashboard over a search's study (issue 10): the same storage the sweeper writes, local only.
 DASHBOARD_STORAGE ?= sqlite:///$(CURDIR)/outputs/search/optuna.db

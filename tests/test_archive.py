@@ -12,7 +12,7 @@ import numpy as np
 import optuna
 import pandas as pd
 import pytest
-from conftest import require, run_app
+from conftest import require, run_app, run_module
 from omegaconf import OmegaConf
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import TrialState, create_trial
@@ -282,6 +282,17 @@ def test_the_archive_search_writes_its_archive_and_each_elites_rerun_reproduces_
     assert parent.data.metrics["archive_failure_cells"] == int(table.failure.sum())
     assert parent.data.metrics["archive_qd_score"] == pytest.approx(table.difficulty.sum(), abs=1e-5)
     assert "archive:" in r.stdout
+    # the report shows and links them (issue 47, item 8: it neither mentioned nor linked them), and the analysis
+    # command writes them for the study again
+    report = (out / "search_report.md").read_text()
+    assert "## The archive of failure kinds" in report and "[archive.csv](archive.csv)" in report
+    assert f"{int(table.failure.sum())} of 9 cells hold a hard-and-fair failure" in report
+    assert "![the archive: difficulty of each cell's elite](archive.png)" in report
+    again = run_module("garage_exp.report.search_analysis", ["--storage", storage, "-o", str(tmp_path / "again")],
+                       tmp_path)
+    assert again.returncode == 0, again.stderr[-3000:]
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "again" / "archive.csv"), table)
+    assert (tmp_path / "again" / "archive.png").stat().st_size > 0
     for _, elite in table.iterrows():  # each elite's rerun command gives its trial's frame table
         STATE.renderer = None  # a fresh renderer, as a new process has
         rerun_dir = tmp_path / f"rerun_{elite.trial}"

@@ -75,7 +75,7 @@ def dashboard(tmp_path_factory):
                 if time.monotonic() > end:
                     pytest.fail(f"optuna-dashboard not up after 60 s: {log.read_text()[-2000:]}")
                 time.sleep(0.3)
-        yield {"base": base, "studies": studies}
+        yield {"base": base, "studies": studies, "storage": storage}
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=10)
@@ -115,3 +115,34 @@ def test_the_dashboard_shows_the_study_in_a_browser(dashboard):
         finally:
             browser.close()
     assert "garage_search_test" in body and "Objective 0" not in body  # the axes say "difficulty"
+
+
+def test_the_report_names_its_importances_and_shows_the_dashboard_s(dashboard, tmp_path):
+    """The report's importances are fANOVA's, optuna-dashboard's PED-ANOVA's (issue 47, item 11: the two ranked
+    different parameters first for one study, and the report did not say by what method): the report names both
+    methods and says how they differ, and importances.csv's `dashboard_ped_anova` is what the dashboard serves for
+    the same study (40 trials, two parameters)."""
+    import numpy as np
+    import pandas as pd
+
+    from garage_exp.report.search_analysis import analyse
+
+    rng = np.random.default_rng(0)
+    space = {"light.intensity": FloatDistribution(0.1, 1.0), "case.actors.target.distance": FloatDistribution(2, 10)}
+    study = optuna.create_study(storage=dashboard["storage"], study_name="importances", direction="maximize")
+    study.set_user_attr("direction_names", ["difficulty"])
+    for _ in range(40):
+        light, distance = rng.uniform(0.1, 1.0), rng.uniform(2, 10)
+        value = 0.8 - 0.5 * light + (0.2 if distance > 9.2 else 0.0)
+        study.add_trial(create_trial(params={"light.intensity": light, "case.actors.target.distance": distance},
+                                     distributions=space, values=[value],
+                                     user_attrs={"overrides": [], "visible_fraction": 0.8}))
+    analyse(study, tmp_path)
+    table = pd.read_csv(tmp_path / "importances.csv").set_index("parameter")
+    served = get_json(f"{dashboard['base']}/api/studies/{study._study_id}/param_importances")["param_importances"][0]
+    assert {p["name"]: p["importance"] for p in served} == pytest.approx(table.dashboard_ped_anova.to_dict())
+    assert table.importance.sum() == pytest.approx(1.0) and table.index.tolist() == ["light.intensity",
+                                                                                     "case.actors.target.distance"]
+    report = (tmp_path / "search_report.md").read_text()
+    assert "Optuna's fANOVA evaluator" in report and "optuna-dashboard shows" in report
+    assert "PED-ANOVA evaluator, which measures how much each parameter matters to reach the hardest 10 %" in report

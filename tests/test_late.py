@@ -146,7 +146,7 @@ def test_a_trial_line_is_worded_by_the_objective_not_by_its_values():
     hard = line(0, outcome(result, "difficulty"), 3, "difficulty")
     assert "difficulty 1.000 over 4 fair frame(s)" in hard and "lateness" not in hard
     late = line(1, outcome(result, "late"), 3, "late")
-    assert late == "garage_exp: trial 2/3: lateness 1.000 (late 1.00, never confirmed)"
+    assert late == "garage_exp: trial 1 (2 of 3): lateness 1.000 (late 1.00, never confirmed)"
     hidden = {**result, "fair_frames": 0, "fair_difficulty": math.nan, "late_testable": 0.0, "lateness": math.nan}
     assert line(2, outcome(hidden, "difficulty"), 3, "difficulty").endswith(
         "no fairly visible frame (visible fraction 0.50): infeasible")

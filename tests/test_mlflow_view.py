@@ -85,7 +85,7 @@ def test_links_open_the_runs_view_on_the_right_server(tmp_path, monkeypatch):
                                             "&viewStateShareKey=factors")
     assert tracking.ui_link("http://mlflow.internal:5000/", "7", "abc") == (
         "http://mlflow.internal:5000/#/experiments/7/runs/abc?workflowType=machine_learning")
-    assert tracking.ui_command(local) == f"mlflow ui --backend-store-uri {local} --host 127.0.0.1 --port 5000"
+    assert tracking.ui_command(local) == f"make ui UI_STORE={local}"
     assert tracking.ui_command("https://mlflow.internal") is None
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)  # tracking.client() exports it, in-process
     assert tracking.ui_command(None) == "make ui"  # the project's own store

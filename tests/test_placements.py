@@ -214,7 +214,7 @@ def test_an_infeasible_jobs_return_prunes_its_trial():
     out = outcome({"error": "/x/stepout.yaml: case.actors: actors child and car_right overlap (variant 'v', "
                             "position 14)", "infeasible": True}, "late")
     assert out.state == TrialState.PRUNED and out.values is None and out.attrs["infeasible"]
-    assert line(2, out, 6, "late") == ("garage_exp: trial 3/6: actors child and car_right overlap (variant 'v', position 14): "
+    assert line(2, out, 6, "late") == ("garage_exp: trial 2 (3 of 6): actors child and car_right overlap (variant 'v', position 14): "
                                "infeasible")
     assert outcome({"error": "RuntimeError: boom"}, "late").state == TrialState.FAIL  # other errors still fail
 

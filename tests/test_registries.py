@@ -47,10 +47,10 @@ def test_a_new_objective_is_one_entry_that_judges_words_and_checks_its_trials(re
 
     done = outcome(SUMMARY, "missed")
     assert done.state == TrialState.COMPLETE and done.values == [0.25]
-    assert line(0, done, 3, "missed") == "garage_exp: trial 1/3: missed 0.25"
+    assert line(0, done, 3, "missed") == "garage_exp: trial 0 (1 of 3): missed 0.25"
     pruned = outcome({**SUMMARY, "fair_recall": math.nan}, "missed")
     assert pruned.state == TrialState.PRUNED and pruned.attrs["infeasible"]
-    assert line(1, pruned, 3, "missed") == "garage_exp: trial 2/3: no recall to judge: infeasible"
+    assert line(1, pruned, 3, "missed") == "garage_exp: trial 1 (2 of 3): no recall to judge: infeasible"
     check_search(search_node(objective="missed"))
     # no cheap look of its own: the pre-screen is refused for it, naming those that have one
     with pytest.raises(GarageError, match="search.prescreen.level: the pre-screen serves one objective "

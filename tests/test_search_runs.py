@@ -62,6 +62,24 @@ def test_two_workers_share_one_study_and_its_parent_run(tmp_path):
     assert sorted(int(r.data.tags["search_trial"]) for r in children) == list(range(6))
     assert {r.data.tags["mlflow.parentRunId"] for r in children} == {parents[0].info.run_id}
     assert {t.user_attrs["run_id"] for t in study.trials} == {r.info.run_id for r in children}
+    for stdout in (outs[0][0], outs[1][0]):  # each worker's sweep summary counts as its own what it says it ran
+        ran = int(re.search(r"this worker ran (\d+)", stdout).group(1))  # (the other's last run may be still open)
+        assert re.search(rf"\d trials' runs: {ran} finished here, \d finished before or in another worker", stdout), \
+            stdout[-2000:]
+
+
+def test_a_resumed_search_says_once_what_it_ran(tmp_path):
+    """The same search run again once its study holds its trials runs none, and its sweep summary says so
+    (before: "this worker ran 0", then "3 jobs: 3 finished, 0 skipped (finished before)"; issue 47, item 7)."""
+    args = [*SEARCH, "dry_run=true", "search.trials=2", "light.intensity=interval(0.2,1.0)", *stores(tmp_path)]
+    first = run_app(args, tmp_path)
+    assert first.returncode == 0, first.stderr[-3000:]
+    assert "this worker ran 2" in first.stdout and "2 finished here, 0 finished before" in first.stdout, first.stdout
+    again = run_app(args, tmp_path)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "this worker ran 0" in again.stdout, again.stdout
+    assert "sweep summary: 2 trials' runs: 0 finished here, 2 finished before or in another worker, 0 failed" \
+        in again.stdout, again.stdout
 
 
 @pytest.mark.render
@@ -81,7 +99,7 @@ def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp
     r = run_app(args, tmp_path)
     # the study went on past the crash; like a sweep with a failed job, the command exits 1 and says so
     assert r.returncode == 1, r.stderr[-3000:]
-    assert "1 failed" in r.stdout and "trial 2/3 failed: RuntimeError" in r.stdout, r.stdout[-3000:]
+    assert "1 failed" in r.stdout and "trial 1 (2 of 3) failed: RuntimeError" in r.stdout, r.stdout[-3000:]
     storage = f"sqlite:///{tmp_path / 'optuna.db'}"
     study = optuna.load_study(study_name=optuna.get_all_study_names(storage)[0], storage=storage)
     states = [t.state for t in study.trials]
@@ -165,10 +183,20 @@ def test_a_late_search_names_lateness_in_its_lines_table_and_parent_run(late_sea
     """Names follow the objective (issue 31, item 5): the trial lines, trials.csv's column and the parent run's
     best_<metric> say lateness under search.objective=late."""
     tmp, r = late_search
-    lines = [ln for ln in r.stdout.splitlines() if re.match(r"garage_exp: trial \d/3: ", ln)]
+    lines = [ln for ln in r.stdout.splitlines() if re.match(r"garage_exp: trial \d \(\d of 3\): ", ln)]
     assert len(lines) == 3 and all("lateness" in ln or "infeasible" in ln for ln in lines), r.stdout[-3000:]
     assert not any("difficulty" in ln for ln in lines)
     trials = pd.read_csv(tmp / "sweep" / "search" / "trials.csv")
+    # one numbering (issue 47, item 6): a line's trial is trials.csv's and the summary's trial of that number
+    # (before, the line said `trial 2/3` of the trial they call 1)
+    by_number = trials.set_index("trial")
+    for ln in lines:
+        number, value = re.match(r"garage_exp: trial (\d+) \(\d of 3\): (?:lateness ([\d.]+))?", ln).groups()
+        if value is not None:
+            assert by_number.loc[int(number), "lateness"] == pytest.approx(float(value), abs=5e-4), ln
+    hardest = re.search(r"hardest fair scenario: trial (\d+), lateness ([\d.]+)", r.stdout)
+    assert hardest and f"garage_exp: trial {hardest[1]} (" in r.stdout
+    assert by_number.loc[int(hardest[1]), "lateness"] == pytest.approx(float(hardest[2]), abs=5e-4)
     assert "lateness" in trials and "difficulty" not in trials
     # the late objective's own attributes, as it declares them, stored by the study and read back by the report
     assert {"late", "detection_distance", "ttc_at_detection"} <= set(trials)

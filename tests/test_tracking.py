@@ -92,6 +92,31 @@ def test_the_ui_links_are_a_command(tmp_path):
     assert r.stdout.strip() == f"garage_exp: no experiment in {uri} yet (make run, or python -m garage_exp ...)"
 
 
+def test_make_ui_serves_the_store_it_is_given(tmp_path):
+    """`make ui UI_STORE=URI` (issue 47, item 9: it was hard-wired to outputs/mlflow.db): the recipe, as make
+    would run it, creates or checks that sqlite store, prints its links and serves it, on localhost only; without
+    UI_STORE, the project's own store. The server itself is not started (tests/test_mlflow_ui.py serves one)."""
+    import shlex
+
+    def recipe(*variables: str) -> list[str]:
+        out = subprocess.run(["make", "-n", "--no-print-directory", "ui", f"BIN={Path(sys.executable).parent}",
+                              *variables], cwd=PROJECT_ROOT, capture_output=True, text=True, check=True).stdout
+        return [ln for ln in out.splitlines() if "garage_exp.tracking" in ln or "mlflow ui" in ln]
+
+    own = f"sqlite:///{PROJECT_ROOT / 'outputs' / 'mlflow.db'}"
+    assert all(own in line for line in recipe())
+    uri = f"sqlite:///{tmp_path / 'search' / 'mlflow.db'}"
+    (tmp_path / "search").mkdir()
+    *prepare, serve = recipe(f"UI_STORE={uri}")
+    assert shlex.split(serve)[1:] == ["ui", "--backend-store-uri", uri, "--host", "127.0.0.1", "--port", "5000"]
+    r = subprocess.run(["bash", "-ec", "\n".join(prepare)], cwd=PROJECT_ROOT, capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "search" / "mlflow.db").is_file()  # created by the store command, under its lock
+    assert r.stdout.strip() == f"garage_exp: no experiment in {uri} yet (make run, or python -m garage_exp ...)"
+    assert runs.ui_command(uri) == f"make ui UI_STORE={uri}"  # what a sweep on that store tells the user to run
+
+
 # -- the client: retry() across a server that went away (moved from test_world_faults.py) -----------------------------
 
 def test_retry_waits_a_bounded_time_for_the_server_and_says_so_once(fresh_outage, monkeypatch, capsys):

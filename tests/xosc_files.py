@@ -113,6 +113,9 @@ CORPUS = {
     "unknown_function.xosc": scenario(vehicle("Ego") + pedestrian("Walker"), {**EGO, **PERSON},
                                       params={"Odd": "${log(2)}"}),
     "no_target.xosc": scenario(vehicle("Ego") + vehicle("Parked", length=4.6), {**EGO, "Parked": teleport(40, 2.0)}),
+    # a file that imports as it is: its entry gives a --param it does not declare (issue 47, item 4)
+    "one_parameter.xosc": scenario(vehicle("Ego") + pedestrian("Walker"), {**EGO, **PERSON},
+                                   params={"WalkerS": "40"}),
 }
 
 if __name__ == "__main__":

@@ -223,7 +223,7 @@ class MlflowSweepCallback(Callback):
             tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "report_error", str(exc)[:5000]))
             report_error = exc
         runs = child_runs(mlc, self.parent_run_id, resumed)
-        text, self.failures = summary(runs, self.jobs)
+        text, self.failures = summary(runs, self.jobs, search=self.search)
         report_line = [f"  report: {report_path}"] if report_path else []
         print("\n".join([text, *report_line, ui_hint(self.uri, self.experiment_id)]))
         status = "FAILED" if self.failures or report_error else "FINISHED"

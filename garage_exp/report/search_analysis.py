@@ -30,11 +30,12 @@ from optuna.trial import FrozenTrial
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
 from garage_exp.core.paths import OUTPUTS_DIR
-from garage_exp.report import sensitivity
+from garage_exp.report import archive_cells, sensitivity
 from garage_exp.report.study_figures import figures
 from garage_exp.report.trials import (ATTRS, attr_headings, distributions, first_value, hardest, objective_names,
                                       overrides, rerun_overrides, trial_table, untestable)
-from garage_exp.report.why_hard import FANOVA_SEED, importances, what_makes_it_hard, why_hard
+from garage_exp.report.why_hard import (FANOVA_SEED, dashboard_importances, importances, what_makes_it_hard,
+                                       why_hard)
 from garage_exp.tracking.page import html_page
 
 
@@ -126,15 +127,24 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
     return lines, written
 
 
-def importance_section(importance: dict[str, float], skipped: str, name: str, out_dir: Path
+def importance_section(study: optuna.Study, importance: dict[str, float], skipped: str, name: str, out_dir: Path
                        ) -> tuple[list[str], list[Path]]:
+    """The fANOVA importances the report ranks by, beside optuna-dashboard's PED-ANOVA ones, and why they may
+    rank the parameters differently (issue 47, item 11: the dashboard put one parameter first, the report another,
+    for the same study, and neither said by what method)."""
     lines = ["## Parameter importances (fANOVA)", ""]
     if not importance:
         return [*lines, skipped, ""], []
-    imp = pd.DataFrame({"parameter": list(importance), "importance": list(importance.values())})
+    dashboard = dashboard_importances(study)
+    imp = pd.DataFrame({"parameter": list(importance), "importance": list(importance.values()),
+                        "dashboard_ped_anova": [dashboard.get(p, float("nan")) for p in importance]})
     imp.to_csv(out_dir / "importances.csv", index=False)
-    return [*lines, f"How much of the variance of {name} over the complete trials each parameter explains "
-            f"(Optuna's fANOVA, seed {FANOVA_SEED}; they sum to 1).", "", *md_table(imp), "",
+    return [*lines, f"How much of the variance of {name} over the complete trials each parameter explains: "
+            f"`importance`, Optuna's fANOVA evaluator (`FanovaImportanceEvaluator`, seed {FANOVA_SEED}; they sum "
+            "to 1), which the report ranks the parameters by. `dashboard_ped_anova` is what optuna-dashboard shows "
+            f"for the same study: Optuna's PED-ANOVA evaluator, which measures how much each parameter matters to "
+            f"reach the hardest 10 % of the trials, not how much of the variance of {name} over all of them it "
+            "explains; the two may rank the parameters differently, and neither is wrong.", "", *md_table(imp), "",
             "![importances](importances.png)", ""], [out_dir / "importances.csv"]
 
 
@@ -167,9 +177,12 @@ def analyse(study: optuna.Study, out_dir: Path, top: int = 5, seed: int = 0) -> 
     section, files = hardest_section(study, table, out_dir, top, importance)
     lines += section
     written += files
+    section, files, _ = archive_cells.section(study, out_dir)  # a difficulty search's cells (its archive)
+    lines += section
+    written += files
     if "history" in drawn:
         lines += ["## Optimisation history", "", f"![history of {names[0]}](history.png)", ""]
-    section, files = importance_section(importance, skipped, names[0], out_dir)
+    section, files = importance_section(study, importance, skipped, names[0], out_dir)
     lines += section
     written += files
     if "slices" in drawn:

@@ -254,10 +254,11 @@ def markdown_table(df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summary(runs: pd.DataFrame, expected: int | None = None) -> tuple[str, int]:
+def summary(runs: pd.DataFrame, expected: int | None = None, search: bool = False) -> tuple[str, int]:
     """The sweep's summary for the terminal: counts, then one line per failed run. Returns (text, number of
     failed or missing jobs). `expected`: the number of jobs launched, when known (a job without any run,
-    e.g. refused for bad input in a worker, counts as failed)."""
+    e.g. refused for bad input in a worker, counts as failed). `search`: the runs are a study's trials, the
+    skipped ones those this command did not run (before a resume, or in another worker: search.sweep)."""
     n = len(runs)
     if n:
         done = runs.status == "FINISHED"
@@ -269,8 +270,10 @@ def summary(runs: pd.DataFrame, expected: int | None = None) -> tuple[str, int]:
         failed, ran, n_skipped = runs, 0, 0
     missing = max(0, (expected or 0) - n)
     total = expected if expected is not None else n
-    head = (f"garage_exp: sweep summary: {total} jobs: {ran} finished, {n_skipped} skipped (finished before), "
-            f"{len(failed)} failed" + (f", {missing} without a run" if missing else ""))
+    counts = (f"{total} trials' runs: {ran} finished here, {n_skipped} finished before or in another worker" if search
+              else f"{total} jobs: {ran} finished, {n_skipped} skipped (finished before)")
+    head = (f"garage_exp: sweep summary: {counts}, {len(failed)} failed"
+            + (f", {missing} without a run" if missing else ""))
     lines = [head]
     for _, r in failed.iterrows():
         lines.append(f"  {r.status}: {r.run_name} (run {r.run_id}): {r.error or 'no error recorded'}"[:600])

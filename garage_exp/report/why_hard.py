@@ -33,6 +33,28 @@ def importances(study: optuna.Study) -> tuple[dict[str, float], str]:
     return {k: float(v) for k, v in found.items()}, ""
 
 
+def dashboard_importances(study: optuna.Study) -> dict[str, float]:
+    """The importances optuna-dashboard shows for the first value (its `_importance.py`, 0.21): Optuna's
+    PED-ANOVA evaluator at its defaults (which parameters matter to reach the best 10 % of the complete trials),
+    on the value turned to a loss (negated for a maximised one); {} when it has none (too few trials)."""
+    import warnings
+
+    from optuna.study import StudyDirection
+
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if len(done) < 2:
+        return {}
+    sign = -1.0 if study.directions[0] == StudyDirection.MAXIMIZE else 1.0
+    with warnings.catch_warnings():  # Optuna warns that PED-ANOVA minimises its target: the sign sees to it
+        warnings.simplefilter("ignore")
+        try:
+            found = optuna.importance.get_param_importances(
+                study, target=lambda t: sign * t.values[0], evaluator=optuna.importance.PedAnovaImportanceEvaluator())
+        except (RuntimeError, ValueError):
+            return {}
+    return {k: float(v) for k, v in found.items()}
+
+
 def position(value, dist: BaseDistribution) -> float:
     """Where a numeric value lies in its range, 0 (low end) to 1 (high end); on a log scale for log ranges."""
     return float(np.clip(sensitivity.to_unit(value, dist), 0, 1))

@@ -63,10 +63,15 @@ class Reader:
     def __init__(self, path: Path, tree, params: dict[str, str]):
         self.path, self.tree, self.root = path, tree, tree.getroot()
         self.values = Values(path, tree)
-        self.values.scopes = [self.values.declare(self.root.find("ParameterDeclarations"), dict(params))]
-        unknown = sorted(set(params) - set(self.values.scopes[0]))
+        block = self.root.find("ParameterDeclarations")
+        # a --param the file does not declare is a typo, not a new parameter (Values.declare keeps assignments
+        # it has no declaration for, as a catalog reference may make): refused before it is put in scope
+        declared = {d.get("name") for d in (block.findall("ParameterDeclaration") if block is not None else [])}
+        unknown = sorted(set(params) - declared)
         if unknown:
-            raise GarageError(f"--param {unknown[0]}: the file declares no such parameter", str(path))
+            raise GarageError(f"--param {unknown[0]}: the file declares no such parameter "
+                              f"(it declares {', '.join(sorted(declared)) or 'none'})", str(path))
+        self.values.scopes = [self.values.declare(block, dict(params))]
         self.left_out: list[str] = []
         self.start: dict[str, tuple[float, float, float]] = {}
         self.things: dict[str, Thing] = {}

@@ -261,7 +261,7 @@ class SearchLoop:
             trial.set_user_attr("infeasible", True)
         self.study.tell(trial, state=TrialState.PRUNED)
         self.ran.append(trial.number)
-        print(f"garage_exp: trial {trial.number + 1}/{self.budget}: pre-screen ({seen.frames} cheap frames): "
+        print(f"{trial_head(trial.number, self.budget)}: pre-screen ({seen.frames} cheap frames): "
               f"{'never fairly visible: infeasible' if seen.why == 'infeasible' else 'clearly easy'}; not rendered "
               "in full")
         return True
@@ -289,9 +289,16 @@ def describe(attrs: dict, search) -> dict | None:
         return None
 
 
+def trial_head(number: int, budget: int) -> str:
+    """A trial's line starts with its number as Optuna numbers it (from 0), the number the summary, the report,
+    trials.csv, archive.csv, MLflow's `search_trial` tag and optuna-dashboard give it, then how far the study is
+    (before, the line said `trial 4/8` of the trial they all call 3: issue 47, item 6)."""
+    return f"garage_exp: trial {number} ({number + 1} of {budget})"
+
+
 def line(number: int, out: Outcome, budget: int, objective: str) -> str:
     """A trial's line on stdout, worded by the search's objective (objectives.py), whatever the values."""
-    head = f"garage_exp: trial {number + 1}/{budget}"
+    head = trial_head(number, budget)
     if out.state == TrialState.FAIL:
         return f"{head} failed: {out.attrs['error'].splitlines()[0]}"
     goal = objectives.objective(objective)

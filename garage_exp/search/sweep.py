@@ -245,14 +245,18 @@ def _suite_full(search, stop):
 
 def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> list[Path]:
     """The study's analysis (and suite) into out_dir; returns the files to log on the parent run."""
-    from garage_exp.report.search_analysis import analyse
+    from optuna.trial import TrialState
 
+    from garage_exp.report.search_analysis import analyse
     from garage_exp.search import archive
 
     search = config.search
+    if search.get("descriptors") and objective(search.objective).confidence:  # the report writes the archive
+        archive.record(result["study"], search)
     paths = list(analyse(result["study"], out_dir, top=int(search.top)))
-    files, result["archive"] = archive.write(result["study"], search, out_dir)
-    paths.extend(files)
+    if (out_dir / "archive.csv") in paths:  # its numbers for the parent run and the summary
+        result["archive"] = archive.summary(result["study"].get_trials(deepcopy=False, states=(TrialState.COMPLETE,)),
+                                            search)
     if config.export.openscenario:
         paths.extend(export_hardest(config, result["study"], out_dir / "openscenario", loader))
     if search.mode == "suite":
@@ -369,6 +373,18 @@ def acceptance(study) -> tuple[int, int] | None:
         return None
     rejected = sum("rejected" in t.user_attrs for t in checked)
     return len(checked) - rejected, len(checked)
+def count_others_apart(config: DictConfig, result: dict, sweep_dir: Path) -> None:
+    """The study's trials this command did not run (finished before a resume, or by another worker), recorded as
+    the sweep's skipped runs, so that the sweep summary counts as finished only what this command ran, as the
+    study's line does ("this worker ran 0", then "8 finished": issue 47, item 7). Only runs in this store: the
+    summary reads them there."""
+    from garage_exp.tracking import runs as tracking
+
+    ran, store = set(result["ran"]), tracked_in(config)
+    for t in result["study"].get_trials(deepcopy=False):
+        run_id = t.user_attrs.get("run_id")
+        if run_id and t.number not in ran and t.user_attrs.get("tracking_uri") == store:
+            tracking.add_resumed(sweep_dir, run_id)
 
 
 def ranked(study) -> list:

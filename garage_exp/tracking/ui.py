@@ -58,7 +58,7 @@ def ui_command(uri: str | None) -> str | None:
         return None
     if uri == f"sqlite:///{OUTPUTS_DIR / 'mlflow.db'}":
         return "make ui"
-    return f"mlflow ui --backend-store-uri {uri} --host 127.0.0.1 --port 5000"
+    return f"make ui UI_STORE={uri}"  # the Makefile's UI over that store (it was `mlflow ui`, without the links)
 
 
 def links(uri: str | None = None) -> str:

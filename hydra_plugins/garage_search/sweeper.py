@@ -61,5 +61,6 @@ class SearchSweeper(Sweeper):
         parent = tracking.read_parent(sweep_dir)
         if parent:
             sweep.log_on_parent(self.config, parent, result, paths, sweep_dir / "search")
+        sweep.count_others_apart(self.config, result, sweep_dir)
         print(sweep.summary(result, sweep_dir / "search"))
         return result["ran"]
