@@ -31,6 +31,10 @@ class Space:
     params: dict[str, od.BaseDistribution]
     fixed: list[str]  # overrides as written (key=value), passed to every trial
     written: dict[str, str] = field(default_factory=dict)  # each searched key's override as written
+    # The most frames a trial of the space renders, as far as the check saw: the largest shot count of the points
+    # it composed (every choice, each interval's ends and middle); 0 before the check. A frame budget that the
+    # trials cannot reach even at this many frames each is known before any rendering.
+    most_frames: int = 0
 
     def overrides(self, values: dict) -> list[str]:
         """A trial's override list: the fixed ones, then each sampled value."""
