@@ -111,17 +111,18 @@ def _checked(cfg: DictConfig, step: str, check):
 
 
 def blame(cfg: DictConfig, text: str, step: str) -> str:
-    """The loop's key whose value the refusal names: a `space` or `fixed` override (by its key), `eval_plan`,
-    `train_plans`, a protocol; else the step."""
-    def key(override: str) -> str:
-        return str(override).split("=", 1)[0].lstrip("+~")
-
-    for name in ("space", "fixed"):
-        if any(key(o) and key(o) in text for o in cfg[name]):
-            return name
-    if step.startswith("protocol"):
-        return f"protocol.{step.split()[1]}" if not any(key(o) in text for o in cfg.protocol_fixed) \
-            else "protocol_fixed"
+    """The loop's key whose value the refusal names: an override of `fixed`, `space` or a protocol as written (a
+    searched key also as the search names its probed values), `eval_plan`, `train_plans`; else the step."""
+    protocol = step.split(" ", 1)[1] if step.startswith("protocol ") else None
+    sources = ([("protocol_fixed", cfg.protocol_fixed), (f"protocol.{protocol}", cfg.protocol[protocol])]
+               if protocol else [("fixed", cfg.fixed), ("space", cfg.space)])
+    for key, overrides in sources:
+        if any(str(o) in text for o in overrides):
+            return key
+    if protocol:
+        return f"protocol.{protocol}"
+    if any(f"search space {str(o).split('=', 1)[0]}=" in text for o in cfg.space):
+        return "space"
     if step == "held-out sample" and str(cfg.eval_plan) in text:
         return "eval_plan"
     if any(str(p) in text for p in cfg.train_plans):
