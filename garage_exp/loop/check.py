@@ -12,6 +12,7 @@ exist yet (the trainings' data, the later rounds' detectors) are checked by the 
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 from omegaconf import DictConfig
@@ -119,12 +120,21 @@ def blame(cfg: DictConfig, text: str, step: str) -> str:
     for key, overrides in sources:
         if any(str(o) in text for o in overrides):
             return key
+    for key, overrides in sources:  # a dotted key the refusal names (`detector.models /abs/path: ...`)
+        if any("." in dotted(o) and re.search(rf"(^|[\s:]){re.escape(dotted(o))}[\s=:]", text) for o in overrides):
+            return key
     if protocol:
         return f"protocol.{protocol}"
-    if any(f"search space {str(o).split('=', 1)[0]}=" in text for o in cfg.space):
+    if any(f"search space {dotted(o)}=" in text for o in cfg.space):
         return "space"
     if step == "held-out sample" and str(cfg.eval_plan) in text:
         return "eval_plan"
     if any(str(p) in text for p in cfg.train_plans):
         return "train_plans"
     return step
+
+
+def dotted(override) -> str:
+    """An override's key as written (`case.motion.step` of `case.motion.step=4.0`, `+` and `~` dropped)."""
+    return str(override).split("=", 1)[0].lstrip("+~")
+
