@@ -147,23 +147,3 @@ def test_sigterm_stops_the_loop_and_its_running_step(tmp_path, monkeypatch):
     assert r.stderr.strip().splitlines()[-1] == ("garage_exp.loop: terminated (SIGTERM); rerun the same command to go "
                                                   "on where it stopped")
     assert got.read_text() == "15"  # the step got SIGTERM and finished its handler
-
-
-def test_an_estimate_writes_nothing(tmp_path):
-    """Issue 47, item 10: `estimate=true` checks every step (test_plugin_commands.py, the corpus) and prints the
-    estimate, writing nothing: not `dir`, not Hydra's log under it (its run dir is a temporary one, removed)."""
-    import tempfile
-
-    from garage_exp.loop.app import cli
-
-    scratch = set(Path(tempfile.gettempdir()).glob("garage_exp_loop_estimate_*"))
-    (tmp_path / "work").mkdir()
-    args = [f"dir={tmp_path / 'work' / 'loop'}", "estimate=true", "base=yolov8n.yaml", "train_plans=[tiny]",
-            "eval_plan=research", "space=['light.intensity=interval(0.5,1.0)']",
-            "fixed=['case.motion.step=4.0','detector.models=[yolov8n_int8_openvino_model]']",
-            "~protocol.cpnco", "~protocol.cpra", "~protocol.crossing", "~protocol.crouch", "frames=0"]
-    r = run_in_process(args, tmp_path / "work", entry=cli)
-    assert r.returncode == 0 and "garage_exp.loop: estimate: " in r.stdout, r.stderr[-3000:]
-    assert list((tmp_path / "work").rglob("*")) == []
-    assert set(Path(tempfile.gettempdir()).glob("garage_exp_loop_estimate_*")) == scratch
-

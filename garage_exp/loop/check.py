@@ -51,12 +51,12 @@ def check_steps(cfg: DictConfig) -> None:
             spaces[key] = _checked(cfg, step, lambda o=overrides: _search(o))
         else:  # the same space on the same plans and models: only the search's own settings differ
             _checked(cfg, step, lambda o=overrides: _search_settings(o))
-        most = spaces[key].most_frames
-        if frames and trials * most < frames:
+        fewest, most = spaces[key].fewest_frames, spaces[key].most_frames
+        if frames and trials * fewest < frames:  # a sampler may pick the shortest scenario every time
             raise GarageError(
-                f"{step} cannot reach its budget of {frames} frames: at most {most} frames a trial (the most of the "
-                f"space's points at {' '.join(cfg.fixed) or 'their step'}) in its cap of {trials} trials; raise "
-                f"trials to at least {math.ceil(frames / max(most, 1))} or lower frames (frames=0: the trials are "
+                f"{step}'s cap of {trials} trials may not reach its budget of {frames} frames: a trial renders "
+                f"{fewest} to {most} frames (the space's points at {' '.join(cfg.fixed) or 'their step'}); raise "
+                f"trials to at least {math.ceil(frames / max(fewest, 1))} or lower frames (frames=0: the trials are "
                 "the budget)", "trials")
     for step, overrides in protocols:
         _checked(cfg, step, lambda o=overrides: _sweep(o))

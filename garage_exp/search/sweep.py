@@ -103,7 +103,7 @@ def check(config: DictConfig, loader) -> space_mod.Space:
         else:
             _probe_error(lambda: load_models(job), where)
     shots = [len(job.setup.shots) for _, job in prepared if job.setup is not None]  # a dry run has none
-    space = dataclasses.replace(space, most_frames=max(shots, default=0))
+    space = dataclasses.replace(space, fewest_frames=min(shots, default=0), most_frames=max(shots, default=0))
     _CHECKED[arguments] = space
     return space
 
