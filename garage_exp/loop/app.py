@@ -16,15 +16,10 @@ from omegaconf import DictConfig, open_dict
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, JobFault, check_range
 from garage_exp.loop import budget, schema, steps
+from garage_exp.loop.budget import arm_budget
 
 COMMAND = shell.Command("garage_exp.loop", "loop", (schema.register,),
                         resume_hint="rerun the same command to go on where it stopped")
-
-
-def arm_budget(cfg: DictConfig, arm: str) -> dict:
-    """An arm's budget per round and seed: its own keys where set, else the loop's shared ones."""
-    own = cfg.arms[arm]
-    return {k: (own[k] if own.get(k) is not None else cfg[k]) for k in schema.BUDGET_KEYS}
 
 
 def check_budgets(cfg: DictConfig) -> None:

@@ -15,6 +15,14 @@ from garage_exp.core.errors import JobFault
 from garage_exp.loop.steps import Trial
 
 
+def arm_budget(cfg, arm: str) -> dict:
+    """An arm's budget per round and seed (the loop's config): its own keys where set, else the loop's shared ones."""
+    from garage_exp.loop.schema import BUDGET_KEYS as ARM_KEYS
+
+    own = cfg.arms[arm]
+    return {k: (own[k] if own.get(k) is not None else cfg[k]) for k in ARM_KEYS}
+
+
 def failures(trials: list[Trial], hard_below: float) -> tuple[int, int]:
     """(hard-and-fair failures, trials): a failure is a COMPLETE trial (some fair frame) whose mean confidence over
     its fair frames is below `hard_below`; every trial that ran counts in the denominator."""

@@ -23,7 +23,7 @@ from garage_exp.loop import steps
 
 def check_steps(cfg: DictConfig) -> None:
     """GarageError (one line naming the loop's key and its step) for the first step the loop would see refused."""
-    from garage_exp.loop.app import arm_budget
+    from garage_exp.loop.budget import arm_budget
 
     base_pt = str(Path(str(cfg.base)).expanduser().absolute()) if str(cfg.base).endswith(".pt") else None
     models = [base_pt] if base_pt else None  # D0 trained from a model YAML is not there yet: the shipped detectors
