@@ -1,8 +1,8 @@
 """Issue 47, item 3: every `python -m garage_exp.loop` command docs/loop.md shows runs as written, at the small
 setting the page documents for it: `estimate=true` (every step the loop would run is checked as its own command
 checks it, the frame budget against the space's frame counts, then the estimate, with nothing written) in a
-scratch `dir`. A command whose steps would be refused, or whose frame budget its cap of trials may not reach, fails here rather
-than minutes into a reader's run; an estimate that writes a file (item 10) fails here too.
+scratch `dir`. A command whose steps would be refused, or whose frame budget its cap of trials may not reach,
+fails here rather than minutes into a reader's run; an estimate that writes a file (item 10) fails here too.
 
 The steps' checks are the real ones; a check whose inputs another command already passed (the same space, plans,
 fixed overrides, models or protocol: the page's commands mostly share the shipped config's) is not repeated, to
@@ -25,7 +25,8 @@ def loop_commands() -> list[list[str]]:
     """The arguments of each `python -m garage_exp.loop` command of docs/loop.md (code blocks and inline code,
     comments dropped), each once."""
     text = (ROOT / "docs" / "loop.md").read_text()
-    lines = [ln for block in re.findall(r"```bash\n(.*?)```", text, re.S) for ln in block.replace("\\\n", " ").splitlines()]
+    blocks = re.findall(r"```bash\n(.*?)```", text, re.S)
+    lines = [ln for block in blocks for ln in block.replace("\\\n", " ").splitlines()]
     lines += re.findall(r"`(python -m garage_exp\.loop\b[^`]*)`", text)
     commands = []
     for line in lines:
