@@ -259,7 +259,7 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
 def test_each_generator_spends_its_frame_budget_or_the_loop_stops(tmp_path):
     """After a round, every arm's generator rendered at least its frames and less than one trial more; one that hit
     its cap of trials short of the budget stops the loop in one line (raise trials)."""
-    from garage_exp.core.errors import GarageError
+    from garage_exp.core.errors import JobFault
     from garage_exp.loop import budget
     from garage_exp.loop.steps import Trial
 
@@ -268,11 +268,33 @@ def test_each_generator_spends_its_frame_budget_or_the_loop_stops(tmp_path):
 
     budget.assert_equal_frames({"R": found(10, 26, 8), "Q": found(8, 8, 8, 8, 14)}, 44, "round 1, seed 0")
     budget.assert_equal_frames({"R": found(8)}, 0, "no frame budget: trials are the budget")
-    with pytest.raises(GarageError, match="arm Q's generator rendered 16 frames in its 2 trials, short of its "
-                                          "budget of 44: raise trials"):
+    with pytest.raises(JobFault, match="arm Q's generator rendered 16 frames in its 2 trials, short of its "
+                                       "budget of 44: raise trials"):
         budget.assert_equal_frames({"R": found(26, 26), "Q": found(8, 8)}, 44, "round 1, seed 0")
     with pytest.raises(AssertionError, match="did not stop at its budget"):
         budget.assert_equal_frames({"T": found(26, 26, 26)}, 44, "round 1, seed 0")
+
+
+def test_a_shortfall_found_after_rendering_is_exit_1_with_what_was_kept(tmp_path, monkeypatch):
+    """Issue 47, item 3: a generator that rendered fewer frames than its budget at its cap of trials (a budget its
+    trials could have reached, so not refused up front) stops the loop before its fine-tuning: one line, exit 1,
+    the steps done so far kept under dir."""
+    from garage_exp.loop import check
+    from garage_exp.loop.app import cli
+
+    ran = fake_steps(monkeypatch, tmp_path)  # 4 frames a trial: 2 trials render 8 of a budget of 14
+    monkeypatch.setattr(check, "check_steps", lambda cfg: None)  # its steps' checks: test_loop.py, the corpus
+    args = [f"dir={tmp_path / 'loop'}", f"tracking.uri=sqlite:///{tmp_path / 'x.db'}", "rounds=1", "seeds=[0]",
+            "trials=2", "frames=14", "base_trials=4", "heldout_trials=3", "photos=false", "arms.Q.sampler=tpe",
+            "~protocol.cpnco", "~protocol.cpra", "~protocol.crossing", "~protocol.crouch"]
+    r = run_in_process(args, tmp_path, entry=cli)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and lines == [
+        f"garage_exp.loop: round 1, seed 0: arm R's generator rendered 8 frames in its 2 trials, short of its budget "
+        "of 14: raise trials (the generators' cap; in another dir or with variant=NAME, since a step is not rerun "
+        f"with other inputs); the steps done so far are kept under {tmp_path / 'loop'}"], r.stderr
+    assert not [c for c in ran if "garage_exp.train" in c]  # stopped before the arm's fine-tuning
+    assert "base" in json.loads((tmp_path / "loop" / "commands.json").read_text())
 
 
 def test_the_cost_model_adds_up():

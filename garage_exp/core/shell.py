@@ -8,6 +8,9 @@ them (as lightning-hydra-template's `task_wrapper` does):
 - composition (Hydra): the `${garage_root:}` resolver and the schemas registered, the config composed by Hydra
   from `conf/<config>.yaml`, numeric group choices quoted (`case=1`);
 - the process state: `STATE.begin()` before the command, `STATE.end()` after it (`command_scope`);
+- the user's registrations: the modules named in $GARAGE_EXP_PLUGINS imported before the command checks anything
+  (a search's sweeper, a loop's steps, an importer's arguments), and again in each job (a job a launcher runs in
+  another process);
 - exit codes: 0 done; 2 bad input (a `GarageError`, Hydra's own input errors or argparse's usage errors: one line
   on stderr starting with the command's name, `garage_exp.train: ...`, nothing written); 1 a sweep finished with
   failed jobs, a sweep stopped by a fault every later job would meet too, or a crash (traceback); 130 Ctrl-C and
@@ -166,7 +169,7 @@ class Command:
         def job(cfg):
             sweeping = self.failed_job is not None and multirun()
             try:
-                import_plugins()  # the user's registrations ($GARAGE_EXP_PLUGINS) before the config is checked
+                import_plugins()  # a job a launcher runs in another process (Ray, submitit) imports them there too
                 return task(cfg)
             except GarageError as exc:
                 refuse_job()
@@ -203,6 +206,13 @@ class Command:
             self.task(task))
         with command_scope() as state:
             try:
+                # The user's registrations before anything is checked: a search's sweeper checks its objective and
+                # its detector's entries before any job starts.
+                import_plugins()
+            except GarageError as exc:
+                self.say(exc)
+                sys.exit(EXIT_INPUT)
+            try:
                 main()
             except BaseException as exc:
                 if self.on_abort is not None:
@@ -226,6 +236,7 @@ class Command:
             return args
         with command_scope() as state:
             try:
+                import_plugins()  # the user's registrations before the body checks its arguments
                 return int(body(args) or 0)
             except GarageError as exc:
                 self.say(exc)

@@ -14,17 +14,12 @@ from pathlib import Path
 from omegaconf import DictConfig, open_dict
 
 from garage_exp.core import shell
-from garage_exp.core.errors import GarageError, check_range
+from garage_exp.core.errors import GarageError, JobFault, check_range
 from garage_exp.loop import budget, schema, steps
+from garage_exp.loop.budget import arm_budget
 
 COMMAND = shell.Command("garage_exp.loop", "loop", (schema.register,),
                         resume_hint="rerun the same command to go on where it stopped")
-
-
-def arm_budget(cfg: DictConfig, arm: str) -> dict:
-    """An arm's budget per round and seed: its own keys where set, else the loop's shared ones."""
-    own = cfg.arms[arm]
-    return {k: (own[k] if own.get(k) is not None else cfg[k]) for k in schema.BUDGET_KEYS}
 
 
 def check_budgets(cfg: DictConfig) -> None:
@@ -226,12 +221,15 @@ def run_loop(cfg: DictConfig) -> dict:
                                              1000 * k + seed, [p["weights"]], startup=int(cfg.startup),
                                              frames=int(b["frames"])))
                 generated[arm] = found
+                # Short of its frame budget at its cap of trials: stop before its fine-tuning (exit 1, kept).
+                budget.check_spent(arm, found, int(b["frames"]), f"round {k}, seed {seed}{suffix}", str(loop.dir))
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
                 try:
                     frames, topped = budget.round_frames(suite, found, int(b["train_frames"]), seed * 100 + k)
                 except ValueError as exc:  # the budget asks for more frames than the generator rendered
-                    raise GarageError(str(exc), f"round {k}, arm {arm}, seed {seed}") from None
+                    raise JobFault(f"round {k}, arm {arm}, seed {seed}: {exc} (in another dir or with variant=NAME); "
+                                   f"the steps done so far are kept under {loop.dir}") from None
                 listing = budget.write_list(data / f"{name}.yaml", frames, names)
                 trained[arm] = loop.step(f"{label}: fine-tune", lambda name=name, b=b, p=prev,
                                          listing=listing, arm=arm: loop.train(
@@ -247,7 +245,7 @@ def run_loop(cfg: DictConfig) -> dict:
                              "replay_frames": trained[arm]["replay_frames"], "epochs": trained[arm]["epochs"],
                              "imgsz": trained[arm]["imgsz"]})
             budget.assert_equal_budget(trained)
-            budget.assert_equal_frames(generated, int(b["frames"]), f"round {k}, seed {seed}{suffix}")
+            budget.assert_equal_frames(generated, int(b["frames"]), f"round {k}, seed {seed}{suffix}", str(loop.dir))
     # 5. Evaluation: every detector on the failure-rate sample (and its easy third), D0 and the last round on the
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
@@ -305,7 +303,10 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
 def main(cfg: DictConfig) -> dict:
     from garage_exp.tracking.runs import tracking_uri
 
+    from garage_exp.loop.check import check_steps
+
     check_loop(cfg)  # bad input: the shell removes Hydra's log dir (and `dir` if it made it) and says it in one line
+    check_steps(cfg)  # what the steps would refuse, before the first (an estimate too: it is of a loop that can run)
     if cfg.estimate:
         from garage_exp.loop.cost import describe, estimate
 
@@ -321,5 +322,30 @@ def main(cfg: DictConfig) -> dict:
 def cli(argv: list[str] | None = None) -> None:
     """`python -m garage_exp.loop overrides...`. Exit codes: 0 done; 2 bad input (one line, nothing written);
     1 a failed step or a crash (traceback); 130 Ctrl-C, 143 SIGTERM (the running step is stopped the same way,
-    its run ends KILLED; rerunning the command goes on where it stopped)."""
-    COMMAND.run(main, argv)
+    its run ends KILLED; rerunning the command goes on where it stopped). `estimate=true` writes nothing: Hydra's
+    run dir (its log) is then a temporary folder, removed after."""
+    import shutil
+    import sys
+    import tempfile
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not estimating(argv):
+        COMMAND.run(main, argv)
+        return
+    scratch = tempfile.mkdtemp(prefix="garage_exp_loop_estimate_")
+    try:
+        COMMAND.run(main, [*argv, f"hydra.run.dir={scratch}"])
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def estimating(argv: list[str]) -> bool:
+    """Whether the command line asks for the estimate alone (`estimate=true`, as Hydra reads a bool)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        overrides = OverridesParser.create().parse_overrides([a for a in argv if "=" in a and not a.startswith("-")])
+    except Exception:  # noqa: BLE001 - a bad override: the command itself says it in one line
+        return False
+    values = [o.value() for o in overrides if o.key_or_group == "estimate" and not o.is_delete()]
+    return bool(values) and str(values[-1]).lower() in ("true", "1", "yes", "on")

@@ -11,8 +11,16 @@ from pathlib import Path
 
 import yaml
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import JobFault
 from garage_exp.loop.steps import Trial
+
+
+def arm_budget(cfg, arm: str) -> dict:
+    """An arm's budget per round and seed (the loop's config): its own keys where set, else the loop's shared ones."""
+    from garage_exp.loop.schema import BUDGET_KEYS as ARM_KEYS
+
+    own = cfg.arms[arm]
+    return {k: (own[k] if own.get(k) is not None else cfg[k]) for k in ARM_KEYS}
 
 
 def failures(trials: list[Trial], hard_below: float) -> tuple[int, int]:
@@ -98,18 +106,28 @@ def assert_equal_budget(trained: dict[str, dict]) -> None:
             raise AssertionError(f"unequal budgets between the arms ({arms[0]}, {arm}): {unequal}")
 
 
-def assert_equal_frames(generated: dict[str, list[Trial]], frames: int, where: str) -> None:
+def check_spent(arm: str, found: list[Trial], frames: int, where: str, kept: str) -> None:
+    """The arm's generator rendered its budget of `frames` (nothing to check without one: the arms then spend equal
+    trials). A JobFault (one line, exit 1) when it stopped short at its cap of trials: a shortfall the loop's check
+    could not see before rendering (`check.check_steps` refuses a cap that no trials of the space could fill), found
+    once the trials rendered fewer frames than the most a trial can; what the loop made so far is kept (`kept`)."""
+    spent = rendered(found)
+    if frames > 0 and spent < frames:
+        raise JobFault(f"{where}: arm {arm}'s generator rendered {spent} frames in its {len(found)} trials, short of "
+                       f"its budget of {frames}: raise trials (the generators' cap; in another dir or with "
+                       f"variant=NAME, since a step is not rerun with other inputs); the steps done so far are kept "
+                       f"under {kept}")
+
+
+def assert_equal_frames(generated: dict[str, list[Trial]], frames: int, where: str, kept: str = "its dir") -> None:
     """The arms' generators of one round and seed (their trials, by arm) each rendered their budget of frames:
-    at least `frames`, and less than one of its own trials' frames more (the trial that crossed the budget ends).
-    GarageError when one stopped short at its cap of trials (raise `trials`); nothing to check without a frame
-    budget (the arms then spend equal trials)."""
+    at least `frames` (`check_spent`), and less than one of its own trials' frames more (the trial that crossed the
+    budget ends); nothing to check without a frame budget (the arms then spend equal trials)."""
     if frames <= 0:
         return
     for arm, found in generated.items():
+        check_spent(arm, found, frames, where, kept)
         spent = rendered(found)
-        if spent < frames:
-            raise GarageError(f"arm {arm}'s generator rendered {spent} frames in its {len(found)} trials, short of "
-                              f"its budget of {frames}: raise trials (the generators' cap)", where)
         if spent - max(t.frames for t in found) >= frames:
             raise AssertionError(f"arm {arm}'s generator rendered {spent} frames, over its budget of {frames} by more "
                                  "than one of its trials: the search did not stop at its budget")

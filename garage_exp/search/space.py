@@ -31,6 +31,11 @@ class Space:
     params: dict[str, od.BaseDistribution]
     fixed: list[str]  # overrides as written (key=value), passed to every trial
     written: dict[str, str] = field(default_factory=dict)  # each searched key's override as written
+    # The fewest and the most frames a trial of the space renders, as far as the check saw: the shot counts of the
+    # points it composed (every choice, each interval's ends and middle); 0 before the check. Whether a cap of
+    # trials reaches a frame budget (the loop's generators) is then known before any rendering.
+    fewest_frames: int = 0
+    most_frames: int = 0
 
     def overrides(self, values: dict) -> list[str]:
         """A trial's override list: the fixed ones, then each sampled value."""

@@ -6,6 +6,7 @@ The Hydra sweeper (hydra_plugins/garage_search) is a thin shell around `run`; th
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -101,6 +102,8 @@ def check(config: DictConfig, loader) -> space_mod.Space:
                 raise GarageError(str(exc), where) from None
         else:
             _probe_error(lambda: load_models(job), where)
+    shots = [len(job.setup.shots) for _, job in prepared if job.setup is not None]  # a dry run has none
+    space = dataclasses.replace(space, fewest_frames=min(shots, default=0), most_frames=max(shots, default=0))
     _CHECKED[arguments] = space
     return space
 
