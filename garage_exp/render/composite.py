@@ -32,10 +32,11 @@ def blank_composite(rgb, frame: Frame, ids: Mapping[str, int], names: Iterable[s
 
 def shaded_grey(alpha: np.ndarray) -> np.ndarray:
     """BLANK_GREY under a black decal of `alpha` (HxW in [0, 1]), blended in linear light: HxW uint8 sRGB."""
-    grey = BLANK_GREY / 255.0
-    linear = ((grey + 0.055) / 1.055) ** 2.4 * (1.0 - np.clip(alpha, 0.0, 1.0))
-    srgb = np.where(linear <= 0.0031308, linear * 12.92, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
-    return np.rint(srgb * 255.0).astype(np.uint8)
+    from garage_exp.scene.textures import srgb8
+
+    linear = ((BLANK_GREY / 255.0 + 0.055) / 1.055) ** 2.4  # 128 lies above sRGB's linear toe
+    shade = (linear * (1.0 - np.clip(alpha, 0.0, 1.0))).astype(np.float32)
+    return np.ascontiguousarray(srgb8(np.repeat(shade[..., None], 4, axis=2))[..., 0])
 
 
 def floor_alpha(frame: Frame, pose: Pose, decal: Decal) -> np.ndarray | None:
