@@ -137,7 +137,7 @@ def main() -> None:
                     renderer.batch_static = True
 
         for k, (shot, rgb, ids, mask, ego, truth, target, *_) in enumerate(g):
-            colour = shot.target.rsplit("_", 1)[-1]
+            colour = shot.label  # the palette colour (a replicate's target is named target_black_r1)
             rng = lambda: np.random.default_rng([7, k])  # noqa: E731 - the same noise draw for every variant
             brgb, bmask = b[k][1], b[k][3]
             choice = sensor.expose(rgb[None])[1][0]
