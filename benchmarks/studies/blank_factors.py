@@ -93,7 +93,11 @@ def main() -> None:
     parser.add_argument("--presets", default=",".join(PRESETS))
     parser.add_argument("--frames", default="", help="a folder for each variant's frames of replicate 0 (PNG)")
     parser.add_argument("--only", default="", help="comma-separated variants (default: all)")
+    parser.add_argument("--figure", default="", help="only draw docs/img/blank_control.png from --frames' PNGs")
     args = parser.parse_args()
+    if args.figure:
+        figure(Path(args.frames), Path(args.figure))
+        return
     from PIL import Image
 
     from garage_exp.core.plugins import build
@@ -170,8 +174,7 @@ def main() -> None:
                 score = rule.score(detector.detect([image])[0], target, truth, **classes).composite
                 scores.setdefault((name, colour, preset), []).append(score)
                 if frames_dir and k < 8:
-                    slug = name.replace(" ", "_").replace("'", "").replace("+", "and").replace("(", "").replace(")", "")
-                    Image.fromarray(image).save(frames_dir / f"{preset}_{k:02d}_{slug}.png")
+                    Image.fromarray(image).save(frames_dir / f"{preset}_{k:02d}_{slug(name)}.png")
         print(f"# {preset} done", flush=True)
     names = list(dict.fromkeys(n for n, _, _ in scores))
     print(f"\n# mean composite, {args.replicates} replicates x 4 distances a cell; {jobkit.machine()}")
@@ -181,6 +184,40 @@ def main() -> None:
         for colour in COLOURS:
             cells = [np.mean(scores[(name, colour, p)]) for p in presets]
             print(f"| {name} | {colour} | " + " | ".join(f"{c:.3f}" for c in cells) + " |")
+
+
+FIGURE = ("garage", "blank (old)", "studio light", "blank (new)")
+
+
+def slug(name: str) -> str:
+    return name.replace(" ", "_").replace("'", "").replace("+", "and").replace("(", "").replace(")", "")
+
+
+def figure(frames: Path, out: Path) -> None:
+    """The black and white car 8 m ahead (replicate 0) in bright and dim light: the middle of each variant's
+    frame, side by side (FIGURE's variants), as the detectors got it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    shots = [("bright", 1, "black"), ("dim", 1, "black"), ("bright", 5, "white"), ("dim", 5, "white")]
+    fig, axes = plt.subplots(len(shots), len(FIGURE), figsize=(3.2 * len(FIGURE), 2.3 * len(shots)))
+    for row, (preset, k, colour) in enumerate(shots):
+        for col, name in enumerate(FIGURE):
+            image = np.asarray(Image.open(frames / f"{preset}_{k:02d}_{slug(name)}.png"))
+            ax = axes[row, col]
+            ax.imshow(image[190:370, 180:460])
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if row == 0:
+                ax.set_title(name, fontsize=10)
+            if col == 0:
+                ax.set_ylabel(f"{colour}, {preset}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out, dpi=60)
+    print(out)
 
 
 if __name__ == "__main__":
