@@ -156,7 +156,8 @@ class FramePipeline:
             # The blank control is a scene (the car alone on grey, with its own contact shadow, under the look's
             # blank_light) that the camera then sees: exposure, blur and noise act on the grey too. The flat look
             # keeps the order its published tables used.
-            shadow = contact_shadow(frame, scene.entity(shot.target), frame.poses[shot.target])
+            pose = frame.poses.get(shot.target) or shot.poses.get(shot.target)  # None: not placed, no shadow
+            shadow = None if pose is None else contact_shadow(frame, scene.entity(shot.target), pose)
             rgb = self.sensor.apply(blank_composite(frame.rgb, frame, ids, [shot.target], shadow), rng)
         else:
             rgb = self.sensor.apply(frame.rgb, rng)
