@@ -44,7 +44,8 @@ class Job:
                              np.random.default_rng(self.cfg.seed + 1), detector, scoring or {})
 
 
-def build_job(overrides: list[str]) -> Job:
+def build_job(overrides: list[str], edit=None) -> Job:
+    """The job of these overrides, its scene loaded (after `edit(scene)`, when given) and its shaders compiled."""
     from garage_exp.assets.vehicles import VehicleLibrary
     from garage_exp.scenario.assemble import build_scene
     from garage_exp.plan import classify, load_plan
@@ -55,6 +56,8 @@ def build_job(overrides: list[str]) -> Job:
     cfg = compose(overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
     scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    if edit is not None:
+        edit(scene)
     renderer = get_renderer(max_lights=cfg.renderer.max_lights, shadows=cfg.renderer.shadows)
     renderer.load(scene)
     job = Job(cfg, scene, setup, renderer, build(cfg.sensor, "a sensor model", "sensor._target_"))

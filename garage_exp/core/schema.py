@@ -281,6 +281,9 @@ class LookConf:
     # metres each lamp's point light hangs below its panel: a fixture's reflector sends its light down, so the
     # ceiling above it is not a blown-out disc (0: the light just under the panel, as the flat look has it)
     fixture_drop: float = 0.0
+    # The blank control's light (the vehicle alone on grey): a preset of its own that no `light` changes, as the
+    # research's clean, evenly lit render of the car; None: the job's light preset (the flat look's blank).
+    blank_light: Optional[LightConf] = None
 
 
 @dataclass

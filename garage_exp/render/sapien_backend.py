@@ -16,7 +16,9 @@ those already loaded) and puts the parts together for a frame.
 
 Blank control (`Scene.background=False`): everything but the vehicles is hidden and empty pixels become
 grey 128. This is what "the same vehicle with the background removed" means: the whole vehicle, lit by the
-same lights, with the garage (pillars included) gone. `render.composite.blank_composite` pastes only given
+scene's lights, with the garage (pillars included) gone; under the real look the scene's lights are the look's
+studio light (`look.blank_light`, scenario/assemble.py), not the preset's. `render.composite.blank_composite`
+pastes only given
 vehicles' pixels on grey: on a blank render it drops the other vehicles; on a full render it would keep the target cut by its
 occluders, which is occlusion without background rather than the control.
 """

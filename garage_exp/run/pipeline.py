@@ -148,14 +148,17 @@ class FramePipeline:
         """A rendered camera's ground truth (of its silhouettes' actors) and camera model (one draw from `rng`).
         The frame leaves as numpy (the detector's and the tables' input)."""
         from garage_exp.perception.groundtruth import ground_truth
-        from garage_exp.render.composite import blank_composite
+        from garage_exp.render.composite import blank_composite, contact_shadow
 
         shot, frame, scene, ids = take.shot, take.frame, self.scene, take.ids
         truth = ground_truth(frame, take.silhouettes, scene, ids)
         if not scene.background and str(self.cfg.look.name) != "flat":
-            # The blank control is a scene (the car alone on grey) that the camera then sees: exposure, blur
-            # and noise act on the grey too. The flat look keeps the order its published tables used.
-            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, ids, [shot.target]), rng)
+            # The blank control is a scene (the car alone on grey, with its own contact shadow, under the look's
+            # blank_light) that the camera then sees: exposure, blur and noise act on the grey too. The flat look
+            # keeps the order its published tables used.
+            pose = frame.poses.get(shot.target) or shot.poses.get(shot.target)  # None: not placed, no shadow
+            shadow = None if pose is None else contact_shadow(frame, scene.entity(shot.target), pose)
+            rgb = self.sensor.apply(blank_composite(frame.rgb, frame, ids, [shot.target], shadow), rng)
         else:
             rgb = self.sensor.apply(frame.rgb, rng)
             if not scene.background:

@@ -22,6 +22,8 @@ def build_scene(job: SceneSpec, classified: Classified, library, rng) -> tuple[S
     from garage_exp.scene.structure import build_garage
 
     scene = build_garage(classified, job.garage, job.light)
+    if job.blank:
+        studio_light(scene, classified, job)
     apply_modifiers(scene, classified, job.garage, job.get("modifiers") or {})
     setup = make_case(job, classified, library, rng)
     if setup.occluder:
@@ -39,6 +41,17 @@ def build_scene(job: SceneSpec, classified: Classified, library, rng) -> tuple[S
     scene.cameras = cameras(job, setup)
     scene.background = not job.blank
     return scene, setup
+
+
+def studio_light(scene: Scene, classified: Classified, job: SceneSpec) -> None:
+    """The blank control's light: the look's `blank_light` preset whatever the job's `light` (the research's
+    blank is a clean, evenly lit render of the car that hardly moves with the light); none: the job's preset."""
+    from garage_exp.scene.lamps import build_lamps
+
+    light = job.look.get("blank_light")
+    if light is not None:
+        _, scene.lights = build_lamps(classified, job.garage, light)
+        scene.ambient = (float(light.ambient),) * 3
 
 
 def marking_wear(job: SceneSpec) -> float:

@@ -138,14 +138,14 @@ def lit(n: int, coverage: float, seed: int) -> list[bool]:
     return on
 
 
-def check_light(light) -> None:
-    """The `light` group's values."""
+def check_light(light, where: str = "light") -> None:
+    """The `light` group's values (or another light preset's, at `where`: `look.blank_light`)."""
     for name, lo, hi in (("coverage", 0.0, 1.0), ("intensity", 0.0, 1000.0), ("ambient", 0.0, 1.0)):
         value = float(getattr(light, name))
-        check_range(value, lo, hi, f"light.{name}", f"{name} = {value:g}")
+        check_range(value, lo, hi, f"{where}.{name}", f"{name} = {value:g}")
     colour = tuple(float(c) for c in light.colour)
     if len(colour) != 3 or not all(0.0 <= c <= 1.0 for c in colour):
-        raise GarageError(f"colour {list(colour)} must be three values in 0-1", "light.colour")
+        raise GarageError(f"colour {list(colour)} must be three values in 0-1", f"{where}.colour")
 
 
 def build_lamps(classified: Classified, garage, light) -> tuple[list[Entity], list[Light]]:

@@ -16,6 +16,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.scene import materials as mat
+from garage_exp.scene.lamps import check_light
 from garage_exp.scene.description import Box, Decal, Entity, Material, Pose, Scene, Texture
 
 LEVELS = ("none", "clean", "worn", "wet", "random")
@@ -241,3 +242,5 @@ def dress(scene: Scene, classified, garage, look, materials, clutter, seed: int,
 
 def check_look(look) -> None:
     check_range(float(look.fixture_drop), 0.0, 1.5, "look.fixture_drop", f"fixture_drop = {look.fixture_drop}")
+    if look.get("blank_light") is not None:
+        check_light(look.blank_light, "look.blank_light")
