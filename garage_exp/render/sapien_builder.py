@@ -255,9 +255,13 @@ def _(shape: Mesh, builder: SceneBuilder, owner: str, world: Pose):
     if not os.path.isfile(path):
         raise GarageError(f"mesh file {shape.path} does not exist", owner)
     try:
-        return sr.RenderShapeTriangleMesh(path, np.full(3, shape.scale, dtype=np.float32))
+        mesh = sr.RenderShapeTriangleMesh(path, np.full(3, shape.scale, dtype=np.float32))
     except RuntimeError as exc:
         raise GarageError(f"SAPIEN could not load mesh {shape.path} ({exc})", owner) from exc
+    if shape.paint is not None:  # each loaded shape has its own materials (the file's geometry is shared)
+        for part in mesh.parts:
+            part.material.set_base_color([*shape.paint, 1.0])
+    return mesh
 
 
 def _plain(shape) -> bool:

@@ -389,7 +389,7 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
                                   where + ".relative")
             ref = place(a.relative, (*seen, name))
             axes[name] = axes[a.relative]
-            pose = pose_relative(ref, axes[a.relative], a)
+            pose = pose_relative(ref, axes[a.relative], a, (made[a.relative].extent, made[name].extent))
         elif a.path and a.before in actors:  # counted back from another actor (its projection on the path)
             if a.before in seen:
                 raise GarageError(f"before {a.before!r} makes a cycle", where + ".before")

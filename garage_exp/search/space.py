@@ -52,6 +52,54 @@ def format_value(value) -> str:
     return text
 
 
+def expand(config: DictConfig, arguments: list[str]) -> list[str]:
+    """The command's overrides after its space's (`space=NAME`: conf/space/NAME.yaml's `params`), as if those were
+    written first on the command line; a key the command sets itself keeps the command's value. A space entry
+    that is no override, or sets a key twice, is one line naming the file and the entry."""
+    entries = OmegaConf.select(config, "space.params", default=None)
+    if not entries:
+        return list(arguments)
+    given = {o.key_or_group for o in parse(arguments)}
+    kept, seen = [], set()
+    for entry, place in origins(config).items():
+        try:
+            (override,) = OverridesParser.create().parse_overrides([entry])
+        except Exception as exc:  # Hydra's OverrideParseException
+            raise GarageError(f"{entry!r} is not an override ({str(exc).splitlines()[0]})", place) from None
+        key = override.key_or_group
+        if key == "space" or key in seen:
+            raise GarageError(f"{entry!r}: " + ("a space cannot name a space" if key == "space" else
+                                                f"{key} is set twice in the space"), place)
+        seen.add(key)
+        if key not in given:
+            kept.append(entry)
+    return [*kept, *arguments]
+
+
+def origins(config: DictConfig) -> dict[str, str]:
+    """Each entry of the config's space (`space.params`) -> where it was written (the space's file and the
+    entry's index), for messages. An entry that is not text is refused there."""
+    from garage_exp.core.schema_check import level_file
+
+    entries = OmegaConf.select(config, "space.params", default=None) or []
+    source = level_file(config, "space")
+    out = {}
+    for index, entry in enumerate(entries):
+        place = f"{source}: space.params[{index}]"
+        if not isinstance(entry, str) or "=" not in entry:
+            raise GarageError(f"{entry!r} is not an override (key=value, key=interval(a,b), key=choice(a,b))", place)
+        out[str(entry)] = place
+    return out
+
+
+def in_space_file(exc: GarageError, config: DictConfig) -> GarageError:
+    """A refusal of a search override said at the space file's entry it came from (else as it was)."""
+    for entry, place in origins(config).items():
+        if exc.where == f"search space {entry}":
+            return exc.again(str(exc)[len(exc.where) + 2:], f"{place} {entry}")
+    return exc
+
+
 def parse(arguments: list[str]) -> list[Override]:
     try:
         return OverridesParser.create().parse_overrides(list(arguments))
