@@ -156,7 +156,8 @@ class ActorConf:
     offset: float = 0.0
     yaw: float = 0.0  # degrees, added to the heading the placement gives
     align: str = "centre"  # centre: distance is the actor's centre; start: its rear, from the path's start
-    clip: bool = False  # with path: a distance the path has no room for is trimmed to its room (else an error)
+    clip: bool = False  # with path: a distance the path has no room for is trimmed to its room (else an error);
+    # with relative: trimmed to the room of the path the other actor stands on
     before: str = ""  # with path: distance counted back from this bay, or from this actor
     bay: str = ""  # in this bay of the site (a name from `bays`, or an index), nose to the lane
     gap: Optional[float] = None  # in a bay: front bumper this far behind the bay line (None: centred); with
@@ -166,8 +167,9 @@ class ActorConf:
     relative: str = ""  # `distance` ahead of this actor (or of `focus`) along its heading, `offset` to its left
     nearest_bay: int = -1  # in the k-th free bay nearest the site's focus (0: the nearest), nose to the lane
     # One key for what the actor is (scenario/actors.py: resolve_type): a vehicle model's name (any of the
-    # library's), `child`, `adult` or `crouching` (an adult crouching); empty: `kind`, `model`, `age`, `pose` as
-    # written. A search's `choice(...)` over vehicles and people in one factor.
+    # library's), `child`, `adult`, `crouching` (an adult crouching) or `pillar` (a box painted as the pillars);
+    # empty: `kind`, `model`, `age`, `pose` as written. A search's `choice(...)` over vehicles and people in one
+    # factor.
     type: str = ""
     # A person's height as a fraction 0-1 of its age group's range (assets/people.py: STATURE, the 5th to 95th
     # percentile); None: `height` (or the group's usual). One factor for children and adults alike.

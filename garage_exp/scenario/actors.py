@@ -23,8 +23,9 @@ PEOPLE_TYPES = {"child": ("child", None), "adult": ("adult", None), "crouching":
 
 
 def resolve_type(actor, where: str = "case.actors"):
-    """The actor with its one-key `type` spelled out: a person's kind, age group (and pose), or a vehicle's
-    model (any name of the library; an unknown one is refused where the model is drawn). The one place `type`
+    """The actor with its one-key `type` spelled out: a person's kind, age group (and pose), a pillar (a box
+    painted as the garage's pillars), or a vehicle's model (any name of the library; an unknown one is refused
+    where the model is drawn). The one place `type`
     is read: every placement and entity sees the resolved actor."""
     kind = str(actor.type or "")
     if not kind:
@@ -32,9 +33,11 @@ def resolve_type(actor, where: str = "case.actors"):
     if kind in PEOPLE_TYPES:
         age, pose = PEOPLE_TYPES[kind]
         return replace(actor, kind="person", age=age, pose=pose or actor.pose, model="")
+    if kind == "pillar":  # a box painted as the garage's pillars (its size: length, width, height)
+        return replace(actor, kind="box", colour="pillar", model="")
     if kind in KINDS:
-        raise GarageError(f"type {kind!r} is a kind, not a type: give a vehicle model's name or "
-                          f"{', '.join(PEOPLE_TYPES)}", where + ".type")
+        raise GarageError(f"type {kind!r} is a kind, not a type: give a vehicle model's name, "
+                          f"{', '.join(PEOPLE_TYPES)} or pillar", where + ".type")
     return replace(actor, kind="vehicle", model=kind)
 
 
@@ -152,13 +155,22 @@ def height_of(actor, where: str) -> float | None:
 
 
 def box_entity(name: str, actor, where: str) -> Entity:
+    """A box of `length`, `width`, `height` in a colour; `colour: pillar` paints it as the garage's pillars
+    (a striped band below, the pillar's paint above: the real look dresses both as it dresses the pillars)."""
     size = (float(actor.length or 1.0), float(actor.width or 0.3), float(actor.height or 1.0))
     if min(size) <= 0:
         raise GarageError(f"a box needs a positive size, got {size}", where)
+    if actor.colour == "pillar":
+        from garage_exp.scene import materials as mat
+        from garage_exp.scene.structure import PILLAR_BAND_HEIGHT, banded_entity
+
+        shapes = banded_entity(name, (0.0, 0.0), size[:2], size[2], PILLAR_BAND_HEIGHT, mat.PILLAR_BAND,
+                               mat.PILLAR_PAINT).shapes
+        return Entity(name=name, role=actor.role, pose=Pose(), shapes=shapes, extent=size, static=False, kind="box")
     try:
         rgb = BOX_COLOURS[actor.colour or "grey"]
     except KeyError:
-        raise GarageError(f"unknown box colour {actor.colour!r} ({', '.join(BOX_COLOURS)})",
+        raise GarageError(f"unknown box colour {actor.colour!r} ({', '.join(BOX_COLOURS)}, pillar)",
                           f"{where}.colour") from None
     material = Material(f"box_{actor.colour or 'grey'}", (*rgb, 1.0), roughness=0.8)
     return Entity(name=name, role=actor.role, pose=Pose(), shapes=[Box(size, material, Pose(0.0, 0.0, size[2] / 2))],
