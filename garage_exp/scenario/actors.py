@@ -106,7 +106,12 @@ def vehicle_model(where: str, actor, job, library, rng, bay=None, narrow: bool =
         if value and value not in allowed:
             raise GarageError(f"unknown {key} {value!r} ({', '.join(allowed)})", f"{where}.{key}")
     if actor.model:
-        return library.get(actor.model)
+        try:
+            return library.get(actor.model)
+        except GarageError as exc:  # a model named by `type`: said at that key
+            if not actor.type:
+                raise
+            raise GarageError(str(exc)[len(exc.where or "") + 2:] if exc.where else str(exc), f"{where}.type") from None
     if actor.role == "target" and actor.colour in palette.target_colours:
         pinned = dict(palette.get("target_models") or {})
         if palette.target:
