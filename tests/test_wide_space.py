@@ -346,3 +346,15 @@ def test_the_occluder_faces_along_the_lane_whatever_the_target_does():
     _, _, s = shot("case.actors.target.yaw=60", "case.actors.occluder.type=van_silver",
                    "case.actors.occluder.offset=2.5")
     assert s.poses["occluder"].yaw == pytest.approx(s.ego.yaw % 360)
+
+
+def test_the_loop_reads_a_shipped_space_as_the_search_does():
+    """`python -m garage_exp.loop 'space=[space=wide]'`: its searches get `space=wide` on their command line, and
+    its held-out sample draws the same keys (loop/heldout.py: space_params)."""
+    from garage_exp.loop.heldout import space_params
+    from garage_exp.search import space as space_mod
+
+    cfg = compose_cfg("space=wide")
+    searched = space_mod.build(space_mod.expand(cfg, ["space=wide", "seed=int(interval(0,9))"]), cfg, {}).params
+    held = space_params(["space=wide", "seed=int(interval(0,9))"])
+    assert list(held) == list(searched) and "light.temperature" in held and "seed" in held

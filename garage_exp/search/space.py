@@ -76,6 +76,32 @@ def expand(config: DictConfig, arguments: list[str]) -> list[str]:
     return [*kept, *arguments]
 
 
+def with_shipped(arguments: list[str], folder=None) -> list[str]:
+    """A list of overrides with each `space=NAME` entry's file (conf/space/NAME.yaml, or `folder`/NAME.yaml)
+    spelled out before the rest, a key given in the list winning, as `expand` does for a composed config: for a
+    command that reads a space without composing it (the loop's held-out sample)."""
+    from pathlib import Path
+
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    folder = Path(folder) if folder else PROJECT_ROOT / "conf" / "space"
+    given = {o.key_or_group for o in parse([a for a in arguments if not a.startswith("space=")])}
+    out = []
+    for name in [a.split("=", 1)[1] for a in arguments if a.startswith("space=")]:
+        path = folder / f"{name}.yaml"
+        if not path.is_file():
+            raise GarageError(f"no space {name!r} ({path} does not exist)", f"space={name}")
+        entries = OmegaConf.load(path).get("params") or []
+        for index, entry in enumerate(entries):
+            try:
+                (override,) = parse([str(entry)])
+            except GarageError as exc:
+                raise GarageError(str(exc), f"{path}: space.params[{index}]") from None
+            if override.key_or_group not in given:
+                out.append(str(entry))
+    return [*out, *(a for a in arguments if not a.startswith("space="))]
+
+
 def origins(config: DictConfig) -> dict[str, str]:
     """Each entry of the config's space (`space.params`) -> where it was written (the space's file and the
     entry's index), for messages. An entry that is not text is refused there."""
