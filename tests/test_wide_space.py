@@ -128,8 +128,9 @@ def test_stature_spans_each_age_groups_heights():
     from garage_exp.core.schema import ActorConf
     from garage_exp.scenario.actors import height_of
 
-    assert height_of(ActorConf(age="adult", stature=0.0), "x") == STATURE["adult"][0]
-    assert height_of(ActorConf(age="adult", stature=1.0), "x") == STATURE["adult"][1]
+    assert height_of(ActorConf(age="adult", stature=0.0), "x") == pytest.approx(STATURE["adult"][0], abs=0.025)
+    assert height_of(ActorConf(age="adult", stature=1.0), "x") == pytest.approx(STATURE["adult"][1], abs=0.025)
+    assert len({height_of(ActorConf(age="adult", stature=k / 100), "x") for k in range(101)}) <= 9  # 5 cm steps
     assert height_of(ActorConf(age="child", stature=0.5), "x") < height_of(ActorConf(age="adult", stature=0.0), "x")
     assert height_of(ActorConf(age="adult", height=1.7), "x") == 1.7  # no stature: `height` as written
     with pytest.raises(GarageError, match="x.stature"):

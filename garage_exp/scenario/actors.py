@@ -18,6 +18,7 @@ BOX_COLOURS = {"grey": (0.35, 0.35, 0.34), "yellow": (0.85, 0.6, 0.05), "red": (
                "white": (0.75, 0.75, 0.73), "blue": (0.1, 0.2, 0.55), "orange": (0.9, 0.35, 0.05)}
 
 
+STATURE_STEP = 0.05  # m: a person's height drawn by `stature` is rounded to this (height_of)
 # The people an actor's `type` names: (age group, pose; None keeps the actor's own pose).
 PEOPLE_TYPES = {"child": ("child", None), "adult": ("adult", None), "crouching": ("adult", "crouching")}
 
@@ -146,8 +147,9 @@ def person_entity(name: str, actor, where: str) -> Entity:
 
 
 def height_of(actor, where: str) -> float | None:
-    """A person's height (m): `height`, else its `stature` (0-1) across its age group's range (STATURE), to the
-    centimetre (each height is a body of its own on disk)."""
+    """A person's height (m): `height`, else its `stature` (0-1) across its age group's range (STATURE), to
+    STATURE_STEP: each height (with each pose and outfit) is a body of its own, built once on disk in 5-40 s on a
+    2-core CPU, so a continuous draw keeps to a few dozen heights."""
     from garage_exp.assets.people import STATURE
 
     if actor.stature is None:
@@ -156,7 +158,7 @@ def height_of(actor, where: str) -> float | None:
     if not 0.0 <= share <= 1.0:
         raise GarageError(f"stature {share:g} is outside 0-1", where + ".stature")
     low, high = STATURE.get(actor.age, STATURE["adult"])
-    return round(low + share * (high - low), 2)
+    return round(round((low + share * (high - low)) / STATURE_STEP) * STATURE_STEP, 2)
 
 
 def box_entity(name: str, actor, where: str) -> Entity:
