@@ -56,12 +56,36 @@ def expand(config: DictConfig, arguments: list[str]) -> list[str]:
     """The command's overrides after its space's (`space=NAME`: conf/space/NAME.yaml's `params`), as if those were
     written first on the command line; a key the command sets itself keeps the command's value. A space entry
     that is no override, or sets a key twice, is one line naming the file and the entry."""
-    entries = OmegaConf.select(config, "space.params", default=None)
-    if not entries:
+    if not OmegaConf.select(config, "space.params", default=None):
         return list(arguments)
+    return merged(origins(config), arguments)
+
+
+def with_shipped(arguments: list[str], folder=None) -> list[str]:
+    """A list of overrides with each `space=NAME` entry replaced by its file's (conf/space/NAME.yaml, or
+    `folder`/NAME.yaml) `params` before the rest, a key given in the list winning, as `expand` does for a composed
+    config: for a command that reads a space without composing it (the loop's held-out sample)."""
+    from pathlib import Path
+
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    folder = Path(folder) if folder else PROJECT_ROOT / "conf" / "space"
+    entries = {}
+    for name in [a.split("=", 1)[1] for a in arguments if a.startswith("space=")]:
+        path = folder / f"{name}.yaml"
+        if not path.is_file():
+            raise GarageError(f"no space {name!r} ({path} does not exist)", f"space={name}")
+        for index, entry in enumerate(OmegaConf.load(path).get("params") or []):
+            entries[str(entry)] = f"{path}: space.params[{index}]"
+    return [a for a in merged(entries, arguments) if not a.startswith("space=")]
+
+
+def merged(entries: dict[str, str], arguments: list[str]) -> list[str]:
+    """A space's entries (each -> where it was written) before the arguments, less those whose key an argument
+    sets; an entry that is no override, names a space or sets a key twice is refused where it was written."""
     given = {o.key_or_group for o in parse(arguments)}
     kept, seen = [], set()
-    for entry, place in origins(config).items():
+    for entry, place in entries.items():
         try:
             (override,) = OverridesParser.create().parse_overrides([entry])
         except Exception as exc:  # Hydra's OverrideParseException
@@ -74,32 +98,6 @@ def expand(config: DictConfig, arguments: list[str]) -> list[str]:
         if key not in given:
             kept.append(entry)
     return [*kept, *arguments]
-
-
-def with_shipped(arguments: list[str], folder=None) -> list[str]:
-    """A list of overrides with each `space=NAME` entry's file (conf/space/NAME.yaml, or `folder`/NAME.yaml)
-    spelled out before the rest, a key given in the list winning, as `expand` does for a composed config: for a
-    command that reads a space without composing it (the loop's held-out sample)."""
-    from pathlib import Path
-
-    from garage_exp.core.paths import PROJECT_ROOT
-
-    folder = Path(folder) if folder else PROJECT_ROOT / "conf" / "space"
-    given = {o.key_or_group for o in parse([a for a in arguments if not a.startswith("space=")])}
-    out = []
-    for name in [a.split("=", 1)[1] for a in arguments if a.startswith("space=")]:
-        path = folder / f"{name}.yaml"
-        if not path.is_file():
-            raise GarageError(f"no space {name!r} ({path} does not exist)", f"space={name}")
-        entries = OmegaConf.load(path).get("params") or []
-        for index, entry in enumerate(entries):
-            try:
-                (override,) = parse([str(entry)])
-            except GarageError as exc:
-                raise GarageError(str(exc), f"{path}: space.params[{index}]") from None
-            if override.key_or_group not in given:
-                out.append(str(entry))
-    return [*out, *(a for a in arguments if not a.startswith("space="))]
 
 
 def origins(config: DictConfig) -> dict[str, str]:
