@@ -359,3 +359,35 @@ def test_the_loop_reads_a_shipped_space_as_the_search_does():
     searched = space_mod.build(space_mod.expand(cfg, ["space=wide", "seed=int(interval(0,9))"]), cfg, {}).params
     held = space_params(["space=wide", "seed=int(interval(0,9))"])
     assert list(held) == list(searched) and "light.temperature" in held and "seed" in held
+
+
+@pytest.mark.render
+def test_the_renderer_paints_the_target_and_the_paint_does_not_stay_on_its_model():
+    """One frame each at 160x120 through the ideal sensor: hue 0 paints the target red, hue 240 blue; the same model
+    unpainted afterwards in the same warm renderer is grey again (SAPIEN caches a model's file, not its paint)."""
+    from conftest import require
+
+    from garage_exp.core.plugins import build as build_plugin
+    from garage_exp.render import open_renderer
+    from garage_exp.run.pipeline import render_frames
+    from garage_exp.run.preflight import preflight
+
+    require("vulkan", "vehicles")
+
+    def colour(*paint):
+        cfg = compose_cfg(*BASE, "case.actors.target.type=tcamrysilver", "case.actors.target.distance=7",
+                          "case.actors.occluder.offset=3.5", "sensor=ideal", "camera.width=160", "camera.height=120",
+                          *paint)
+        job = preflight(cfg, check_space=False, load=False)
+        renderer = open_renderer(cfg.renderer)
+        renderer.load(job.scene)
+        (item,) = render_frames(cfg, job.scene, job.setup.shots, renderer,
+                                build_plugin(cfg.sensor, "a sensor model", "sensor._target_"), np.random.default_rng(0))
+        x1, y1, x2, y2 = item.target.visible_box
+        return item.rgb[y1:y2, x1:x2].reshape(-1, 3).astype(float).mean(axis=0)
+
+    red = colour("case.actors.target.hue=0", "case.actors.target.saturation=0.8")
+    blue = colour("case.actors.target.hue=240", "case.actors.target.saturation=0.8")
+    own = colour()
+    assert red[0] > red[2] + 20 and blue[2] > blue[0] + 20
+    assert abs(own[0] - own[2]) < 15  # the silver model's own paint: neither red nor blue
