@@ -47,6 +47,10 @@ BUILDER_VERSION = 2
 AGE_GROUPS = {"adult": 0.5, "child": 0.25}
 DEFAULT_HEIGHT = {"adult": 1.75, "child": 1.2}
 HEIGHT_RANGE = {"adult": (1.4, 2.1), "child": (0.9, 1.5)}
+# An actor's `stature` 0-1 spans these heights (m): adults from a short woman's 5th percentile to a tall man's
+# 95th (ISO 7250-1 style surveys: about 1.52 and 1.90 m); children about 4 to 10 years old (WHO growth
+# references: about 1.00 m at 4, 1.45 m at 10).
+STATURE = {"adult": (1.52, 1.90), "child": (1.0, 1.45)}
 # (weight, muscle) phenotypes.
 BUILDS = {"slim": (0.15, 0.4), "average": (0.5, 0.5), "heavy": (0.95, 0.55), "athletic": (0.4, 0.9)}
 GENDERS = {"male": 0.0, "female": 1.0, "neutral": 0.5}

@@ -73,6 +73,9 @@ class LightConf:
     ambient: float = 0.05  # uniform ambient light (0..1)
     colour: tuple[float, float, float] = (1.0, 0.96, 0.9)
     seed: int = 0  # which lamps are off when coverage < 1
+    # The lamps' correlated colour temperature (K, 1000-12000); None: `colour` as written. Set, it replaces
+    # `colour` (scene/lamps.py: lamp_colour): LED garage lamps 4000-5000 K, old sodium lamps about 2000 K.
+    temperature: Optional[float] = None
 
 
 @dataclass
@@ -175,14 +178,29 @@ class ActorConf:
     offset: float = 0.0
     yaw: float = 0.0  # degrees, added to the heading the placement gives
     align: str = "centre"  # centre: distance is the actor's centre; start: its rear, from the path's start
-    clip: bool = False  # with path: a distance the path has no room for is trimmed to its room (else an error)
+    clip: bool = False  # with path: a distance the path has no room for is trimmed to its room (else an error);
+    # with relative: trimmed to the room of the path the other actor stands on
     before: str = ""  # with path: distance counted back from this bay, or from this actor
     bay: str = ""  # in this bay of the site (a name from `bays`, or an index), nose to the lane
-    gap: Optional[float] = None  # in a bay: front bumper this far behind the bay line (None: centred)
+    gap: Optional[float] = None  # in a bay: front bumper this far behind the bay line (None: centred); with
+    # `relative`: it stands before the other actor (towards the ego), this much free floor between them
     between: list[str] = field(default_factory=list)  # in the gap between two bays ...
     out: float = 0.0  # ... this far past the bay line into the lane
     relative: str = ""  # `distance` ahead of this actor (or of `focus`) along its heading, `offset` to its left
     nearest_bay: int = -1  # in the k-th free bay nearest the site's focus (0: the nearest), nose to the lane
+    # One key for what the actor is (scenario/actors.py: resolve_type): a vehicle model's name (any of the
+    # library's), `child`, `adult`, `crouching` (an adult crouching) or `pillar` (a box painted as the pillars);
+    # empty: `kind`, `model`, `age`, `pose` as written. A search's `choice(...)` over vehicles and people in one
+    # factor.
+    type: str = ""
+    # A person's height as a fraction 0-1 of its age group's range (assets/people.py: STATURE, the 5th to 95th
+    # percentile); None: `height` (or the group's usual). One factor for children and adults alike.
+    stature: Optional[float] = None
+    # A vehicle's paint (scenario/actors.py: paint), HLS: hue in degrees (0-360), saturation and lightness 0-1;
+    # all None: the model's own paint. Any one set paints it (the others from 0 hue, 0.5 saturation, 0.5 lightness).
+    hue: Optional[float] = None
+    saturation: Optional[float] = None
+    lightness: Optional[float] = None
 
 
 @dataclass
@@ -366,6 +384,28 @@ class TrackingConf:
 
 
 @dataclass
+class RequireConf:
+    """What a space asks of a draw before it is rendered (None: no condition): the target at least
+    `min_visible` visible, its box at least `min_box` pixels tall, at most `max_distance` metres from the camera."""
+
+    min_visible: Optional[float] = None
+    min_box: Optional[float] = None
+    max_distance: Optional[float] = None
+
+
+@dataclass
+class SpaceConf:
+    """A search space shipped as a file (conf/space/NAME.yaml; `space=NAME`): `params` are overrides in the
+    search's grammar (`key=interval(a,b)`, `key=choice(a,b)`, fixed `key=value`), taken as if written on the
+    command line before the command's own (which win for the same key: garage_exp/search/space.py: expand);
+    `require` its conditions on a draw."""
+
+    name: str = "none"
+    params: list[str] = field(default_factory=list)
+    require: RequireConf = field(default_factory=RequireConf)
+
+
+@dataclass
 class ReplicateConf:
     """What changes between the replicates of a cell (replicate 0 is the scenario as written): uniform draws in
     +-these ranges, seeded by (seed, replicate) so replicate k is the same in every cell and every rerun."""
@@ -385,7 +425,7 @@ NODES: dict[str, type | str] = {
     "occluder": OccluderConf, "case": CaseConf, "ego": "garage_exp.results.late.EgoConf", "sensor": SensorConf,
     "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf, "detector": DetectorConf,
     "slot_detector": "garage_exp.perception.slots.schema.SlotDetectorConf", "renderer": RendererConf,
-    "tracking": TrackingConf,
+    "tracking": TrackingConf, "space": SpaceConf,
 }
 
 
@@ -415,7 +455,7 @@ GROUPS: dict[str, type | str] = {
     "occluder": OccluderConf, "case": CaseConf, "sensor": SensorConf, "detector": DetectorConf,
     "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf,
     "slot_detector": "garage_exp.perception.slots.schema.SlotDetectorConf", "renderer": RendererConf,
-    "tracking": TrackingConf,
+    "tracking": TrackingConf, "space": SpaceConf,
 }
 # Names that moved beside their checks, still importable from here for code written before the move.
 MOVED = {"EgoConf": "garage_exp.results.late.EgoConf", "SearchConf": "garage_exp.search.schema.SearchConf",

@@ -19,10 +19,11 @@ from garage_exp.loop.steps import Trial
 
 
 def space_params(space: list[str]) -> dict[str, od.BaseDistribution]:
-    """The searched keys of the loop's space (override grammar) and their distributions, in the order given."""
-    from garage_exp.search.space import distribution, parse
+    """The searched keys of the loop's space (override grammar; a `space=NAME` entry: that shipped space's
+    params, as the search reads them) and their distributions, in the order given."""
+    from garage_exp.search.space import distribution, parse, with_shipped
 
-    return {o.key_or_group: distribution(o) for o in parse(list(space)) if o.is_sweep_override()}
+    return {o.key_or_group: distribution(o) for o in parse(with_shipped(list(space))) if o.is_sweep_override()}
 
 
 def unit_points(d: int, n: int, seed: int, method: str = "sobol") -> np.ndarray:

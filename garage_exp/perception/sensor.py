@@ -131,6 +131,8 @@ class SensorModel:
     tone: the tone curve before sRGB encoding: "srgb" (none: the linear signal clipped at full scale) or
         "filmic" (ACES's fitted curve: highlights roll off instead of clipping, so lamps and white cars keep
         their shape, as a camera's ISP tone map does).
+    exposure_bias: the AE's exposure compensation in EV (stops): its target is target_brightness x 2^bias
+        (capped at full scale), as a camera's exposure-bias setting shifts its metering; 0: none. In -4..4.
     quantize: True returns uint8 sRGB (the camera's 8-bit stream, as the detector gets it); False returns
         float32 sRGB in [0, 1], to study the noise without rounding.
 
@@ -150,6 +152,7 @@ class SensorModel:
     quantize: bool = True
     vignetting: float = 0.0
     tone: str = "srgb"
+    exposure_bias: float = 0.0
 
     def __post_init__(self) -> None:
         where = f"sensor.params ({self.name})"
@@ -164,6 +167,7 @@ class SensorModel:
             (self.blur_sigma >= 0, "blur_sigma must be >= 0 pixels"),
             (0 <= self.vignetting < 1, "vignetting must be in [0, 1)"),
             (self.tone in TONES, f"tone must be one of {' | '.join(TONES)}"),
+            (-4.0 <= self.exposure_bias <= 4.0, "exposure_bias must be in -4..4 EV"),
         ]
         for ok, message in checks:
             if not ok:
@@ -174,7 +178,7 @@ class SensorModel:
         longest = mean_linear * self.exposure  # mean signal as a fraction of full scale at the longest exposure
         if longest <= 0:
             return self.exposure, self.max_gain
-        needed = self.target_brightness / longest
+        needed = min(1.0, self.target_brightness * 2.0 ** self.exposure_bias) / longest
         if needed < 1.0:
             return self.exposure * needed, 1.0
         return self.exposure, min(needed, self.max_gain)

@@ -255,9 +255,36 @@ def _(shape: Mesh, builder: SceneBuilder, owner: str, world: Pose):
     if not os.path.isfile(path):
         raise GarageError(f"mesh file {shape.path} does not exist", owner)
     try:
-        return sr.RenderShapeTriangleMesh(path, np.full(3, shape.scale, dtype=np.float32))
+        mesh = sr.RenderShapeTriangleMesh(path, np.full(3, shape.scale, dtype=np.float32))
     except RuntimeError as exc:
         raise GarageError(f"SAPIEN could not load mesh {shape.path} ({exc})", owner) from exc
+    if shape.paint is not None:  # each loaded shape has its own materials (the file's geometry is shared)
+        for part in mesh.parts:
+            _paint(part.material, shape.paint)
+    return mesh
+
+
+def _paint(rm, paint: tuple[float, float, float]) -> None:
+    """A vehicle's paint multiplied into its material. SAPIEN's shader takes a part's texture instead of its base
+    colour (a factor set beside a texture does nothing), so a textured part gets a painted copy of its texture,
+    multiplied in linear light; the model's own texture, which other cars of the model share, stays as it was."""
+    import sapien.render as sr
+
+    texture = rm.base_color_texture
+    if texture is None:
+        rm.set_base_color([*paint, 1.0])
+        return
+    pixels = texture.download()
+    linear = _SRGB_TO_LINEAR[pixels[..., :3]] * np.asarray(paint, np.float32)
+    encoded = np.where(linear <= 0.0031308, linear * 12.92, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+    out = pixels.copy()
+    out[..., :3] = np.rint(np.clip(encoded, 0.0, 1.0) * 255.0).astype(np.uint8)
+    rm.base_color_texture = sr.RenderTexture2D(np.ascontiguousarray(out), "R8G8B8A8Unorm",
+                                               mipmap_levels=texture.mipmap_levels, srgb=True)
+
+
+_LEVELS = np.arange(256, dtype=np.float32) / 255.0
+_SRGB_TO_LINEAR = np.where(_LEVELS <= 0.04045, _LEVELS / 12.92, ((_LEVELS + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
 def _plain(shape) -> bool:

@@ -24,7 +24,7 @@ from garage_exp.scenario.replicate import build_replicate, merge
 from garage_exp.core.schema import MotionConf
 from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs, typed
 from garage_exp.scenario.place import (check_overlaps, farthest, no_room, pose_between, pose_in_bay,
-                                       pose_on_path, pose_relative, site_bay, site_path, sweep_clash)
+                                       pose_on_path, pose_relative, room, site_bay, site_path, sweep_clash)
 from garage_exp.scenario.sites import Site, find_site, pick, site_count
 from garage_exp.scenario.spec import SceneSpec
 from garage_exp.scenario.timing import start_time, travelled
@@ -432,6 +432,7 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
     """Every actor's pose in one frame; an actor placed relative to another follows it."""
     poses: dict[str, Pose] = {}
     axes: dict[str, tuple[float, float]] = {}
+    tracks: dict[str, object] = {}  # the site path an actor stands on (an actor relative to another: the other's)
 
     def place(name: str, seen: tuple[str, ...] = ()) -> Pose:
         if name in poses:
@@ -444,18 +445,22 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
                                   where + ".relative")
             ref = place(a.relative, (*seen, name))
             axes[name] = axes[a.relative]
-            pose = pose_relative(ref, axes[a.relative], a)
+            pose = pose_relative(ref, axes[a.relative], a, (made[a.relative].extent, made[name].extent))
+            tracks[name] = tracks.get(a.relative)
+            if a.clip and tracks[name] is not None:  # trimmed to the room its path leaves, as on a path
+                pose = clip_to(tracks[name], pose, length)
         elif a.path and a.before in actors:  # counted back from another actor (its projection on the path)
             if a.before in seen:
                 raise GarageError(f"before {a.before!r} makes a cycle", where + ".before")
-            path = site_path(site, a.path, where + ".path")
+            path = tracks[name] = site_path(site, a.path, where + ".path")
             ref = place(a.before, (*seen, name))
             axes[name] = path.axis
             x, y = path.at_world(path.along(ref.x, ref.y) - float(a.distance))
             pose = Pose(x - a.offset * path.axis[1], y + a.offset * path.axis[0], 0.0,
                         (path.heading + float(a.yaw)) % 360.0)
         elif a.path:
-            axes[name] = site_path(site, a.path, where + ".path").axis
+            tracks[name] = site_path(site, a.path, where + ".path")
+            axes[name] = tracks[name].axis
             pose = pose_on_path(site, a, length, bays, where)
         elif a.bay != "":
             sb = site_bay(site, a.bay, bays, where + ".bay")
@@ -472,6 +477,14 @@ def resolve(actors: dict, made: dict, site: Site, bays: dict) -> dict[str, Pose]
     for name in actors:
         place(name)
     return poses
+
+
+def clip_to(path, pose: Pose, length: float) -> Pose:
+    """The pose moved along its path into the room the path leaves an actor `length` long (room: its ends' margin)."""
+    s = path.along(pose.x, pose.y) - path.along(*path.origin)  # in the path's own frame, as its room is
+    lo, hi = room(path, length)
+    shift = min(max(s, lo), hi) - s if lo <= hi else 0.0
+    return Pose(pose.x + shift * path.axis[0], pose.y + shift * path.axis[1], pose.z, pose.yaw)
 
 
 __all__ = ["EGO", "Shot", "CaseSetup", "check_case", "make_case", "steps"]

@@ -5,7 +5,8 @@ A refusal or a job without a fair frame on a shipped plan names the plans where 
 
 from __future__ import annotations
 
-CASES = ("1", "2", "3", "light", "pedestrian", "stepout", "pullout", "slots", "cpnco", "cpra", "crossing", "crouch")
+CASES = ("1", "2", "3", "light", "pedestrian", "stepout", "pullout", "slots", "cpnco", "cpra", "crossing", "crouch",
+         "oneshot")
 
 FITS: dict[str, tuple[str, ...]] = {
     "small": CASES,  # the plan for tests and first steps

@@ -145,11 +145,25 @@ def pose_between(site: Site, actor, bays: dict, where: str) -> Pose:
                 (yaw + float(actor.yaw)) % 360.0)
 
 
-def pose_relative(ref: Pose, ref_axis: tuple[float, float], actor) -> Pose:
-    """`distance` metres ahead of another actor along its path's axis, `offset` to its left."""
+def pose_relative(ref: Pose, ref_axis: tuple[float, float], actor, sizes=None) -> Pose:
+    """`distance` metres ahead of another actor along its path's axis, `offset` to its left. With `gap` (and
+    `sizes`: the other actor's extent and this one's), it stands before the other instead, `gap` metres of free
+    floor between them along the axis (an occluder that far in front of its target, seen from the ego), facing
+    along the axis turned its own `yaw` (not the other's)."""
     d, o = float(actor.distance), float(actor.offset)
+    yaw = ref.yaw + float(actor.yaw)
+    if actor.gap is not None and sizes is not None:  # it faces along the axis, turned `yaw`, not as the other
+        heading = math.degrees(math.atan2(ref_axis[1], ref_axis[0]))
+        yaw = heading + float(actor.yaw)
+        d = -(float(actor.gap) + _half_along(sizes[0], ref.yaw - heading) + _half_along(sizes[1], float(actor.yaw)))
     ax, ay = ref_axis
-    return Pose(ref.x + d * ax - o * ay, ref.y + d * ay + o * ax, 0.0, (ref.yaw + float(actor.yaw)) % 360.0)
+    return Pose(ref.x + d * ax - o * ay, ref.y + d * ay + o * ax, 0.0, yaw % 360.0)
+
+
+def _half_along(extent, yaw: float) -> float:
+    """Half an actor's reach along an axis it is turned `yaw` degrees from (its footprint's projection)."""
+    c, s = abs(math.cos(math.radians(yaw))), abs(math.sin(math.radians(yaw)))
+    return (c * extent[0] + s * extent[1]) / 2
 
 
 def footprint(pose: Pose, extent: tuple[float, float, float]) -> np.ndarray:

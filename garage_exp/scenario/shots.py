@@ -51,7 +51,9 @@ def actor_confs(nodes, prefix: str) -> dict:
         if extra:
             raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
                               f"{prefix}.{name}.{extra[0]}")
-    return {str(n): typed(a, ActorConf) for n, a in (nodes or {}).items()}
+    from garage_exp.scenario.actors import resolve_type
+
+    return {str(n): resolve_type(typed(a, ActorConf), f"{prefix}.{n}") for n, a in (nodes or {}).items()}
 
 
 def typed(node, schema: type):

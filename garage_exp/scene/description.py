@@ -89,6 +89,9 @@ class Mesh:
     path: str
     offset: Pose = Pose()
     scale: float = 1.0
+    # A vehicle's paint, linear RGB: the body's colour multiplied into its materials (renderers: the base colour
+    # factor over the model's textures); None: the model's own paint.
+    paint: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)

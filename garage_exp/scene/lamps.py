@@ -138,11 +138,45 @@ def lit(n: int, coverage: float, seed: int) -> list[bool]:
     return on
 
 
+# Colour temperatures (K) the Planckian-locus fit below covers (Kim et al. 2002: 1667-25000 K), kept to lamps.
+TEMPERATURE_RANGE = (1700.0, 12000.0)
+# CIE XYZ -> linear sRGB (IEC 61966-2-1, D65).
+_XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+
+
+def kelvin_rgb(kelvin: float) -> tuple[float, float, float]:
+    """A black body's colour at `kelvin` as linear sRGB, its largest channel 1: the CIE 1931 xy of the Planckian
+    locus by Kim et al.'s cubic fit (US patent 7024034; the one colour-science uses), then XYZ -> sRGB."""
+    t = float(kelvin)
+    if t <= 4000.0:
+        x = -0.2661239e9 / t**3 - 0.2343589e6 / t**2 + 0.8776956e3 / t + 0.179910
+    else:
+        x = -3.0258469e9 / t**3 + 2.1070379e6 / t**2 + 0.2226347e3 / t + 0.240390
+    if t <= 2222.0:
+        y = -1.1063814 * x**3 - 1.34811020 * x**2 + 2.18555832 * x - 0.20219683
+    elif t <= 4000.0:
+        y = -0.9549476 * x**3 - 1.37418593 * x**2 + 2.09137015 * x - 0.16748867
+    else:
+        y = 3.0817580 * x**3 - 5.87338670 * x**2 + 3.75112997 * x - 0.37001483
+    rgb = (_XYZ_TO_SRGB @ np.array([x / y, 1.0, (1.0 - x - y) / y])).clip(min=0.0)
+    return tuple(float(round(c, 4)) for c in rgb / rgb.max())
+
+
+def lamp_colour(light) -> tuple[float, float, float]:
+    """The lamps' colour: their colour temperature's when `light.temperature` is set, else `light.colour`."""
+    if getattr(light, "temperature", None) is not None:
+        return kelvin_rgb(float(light.temperature))
+    return tuple(float(c) for c in light.colour)
+
+
 def check_light(light, where: str = "light") -> None:
     """The `light` group's values (or another light preset's, at `where`: `look.blank_light`)."""
     for name, lo, hi in (("coverage", 0.0, 1.0), ("intensity", 0.0, 1000.0), ("ambient", 0.0, 1.0)):
         value = float(getattr(light, name))
         check_range(value, lo, hi, f"{where}.{name}", f"{name} = {value:g}")
+    if getattr(light, "temperature", None) is not None:
+        value = float(light.temperature)
+        check_range(value, *TEMPERATURE_RANGE, f"{where}.temperature", f"temperature = {value:g} K")
     colour = tuple(float(c) for c in light.colour)
     if len(colour) != 3 or not all(0.0 <= c <= 1.0 for c in colour):
         raise GarageError(f"colour {list(colour)} must be three values in 0-1", f"{where}.colour")
@@ -152,7 +186,7 @@ def build_lamps(classified: Classified, garage, light) -> tuple[list[Entity], li
     """A panel entity (role "lamp") and a point light per lamp site, both named lamp_<k>. Off lamps keep
     their light at intensity 0 and a dark panel. The values are checked once, by `check_light` (preflight)."""
     size = tuple(float(v) for v in garage.lamp_size)
-    colour = tuple(float(c) for c in light.colour)
+    colour = lamp_colour(light)
     intensity = float(light.intensity)
     sites = lamp_sites(classified, garage)
     on_material = mat.lamp_on(colour, intensity)

@@ -142,7 +142,7 @@ def dress_scene(scene: Scene, dress: Dress) -> None:
         return cache[m]
 
     for entity in scene.entities:
-        if entity.role in ("structure", "marking"):
+        if entity.role in ("structure", "marking") or entity.kind == "box":  # a box actor may look like a pillar
             entity.shapes = [replace(s, material=swap(s.material)) if isinstance(s, Box) else s
                              for s in entity.shapes]
 

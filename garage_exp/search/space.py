@@ -57,6 +57,78 @@ def format_value(value) -> str:
     return text
 
 
+def expand(config: DictConfig, arguments: list[str]) -> list[str]:
+    """The command's overrides after its space's (`space=NAME`: conf/space/NAME.yaml's `params`), as if those were
+    written first on the command line; a key the command sets itself keeps the command's value. A space entry
+    that is no override, or sets a key twice, is one line naming the file and the entry."""
+    if not OmegaConf.select(config, "space.params", default=None):
+        return list(arguments)
+    return merged(origins(config), arguments)
+
+
+def with_shipped(arguments: list[str], folder=None) -> list[str]:
+    """A list of overrides with each `space=NAME` entry replaced by its file's (conf/space/NAME.yaml, or
+    `folder`/NAME.yaml) `params` before the rest, a key given in the list winning, as `expand` does for a composed
+    config: for a command that reads a space without composing it (the loop's held-out sample)."""
+    from pathlib import Path
+
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    folder = Path(folder) if folder else PROJECT_ROOT / "conf" / "space"
+    entries = {}
+    for name in [a.split("=", 1)[1] for a in arguments if a.startswith("space=")]:
+        path = folder / f"{name}.yaml"
+        if not path.is_file():
+            raise GarageError(f"no space {name!r} ({path} does not exist)", f"space={name}")
+        for index, entry in enumerate(OmegaConf.load(path).get("params") or []):
+            entries[str(entry)] = f"{path}: space.params[{index}]"
+    return [a for a in merged(entries, arguments) if not a.startswith("space=")]
+
+
+def merged(entries: dict[str, str], arguments: list[str]) -> list[str]:
+    """A space's entries (each -> where it was written) before the arguments, less those whose key an argument
+    sets; an entry that is no override, names a space or sets a key twice is refused where it was written."""
+    given = {o.key_or_group for o in parse(arguments)}
+    kept, seen = [], set()
+    for entry, place in entries.items():
+        try:
+            (override,) = OverridesParser.create().parse_overrides([entry])
+        except Exception as exc:  # Hydra's OverrideParseException
+            raise GarageError(f"{entry!r} is not an override ({str(exc).splitlines()[0]})", place) from None
+        key = override.key_or_group
+        if key == "space" or key in seen:
+            raise GarageError(f"{entry!r}: " + ("a space cannot name a space" if key == "space" else
+                                                f"{key} is set twice in the space"), place)
+        seen.add(key)
+        if key not in given:
+            kept.append(entry)
+    return [*kept, *arguments]
+
+
+def origins(config: DictConfig) -> dict[str, str]:
+    """Each entry of the config's space (`space.params`) -> where it was written (the space's file and the
+    entry's index), for messages. An entry that is not text is refused there."""
+    from garage_exp.core.schema_check import level_file
+
+    entries = OmegaConf.select(config, "space.params", default=None) or []
+    source = level_file(config, "space")
+    out = {}
+    for index, entry in enumerate(entries):
+        place = f"{source}: space.params[{index}]"
+        if not isinstance(entry, str) or "=" not in entry:
+            raise GarageError(f"{entry!r} is not an override (key=value, key=interval(a,b), key=choice(a,b))", place)
+        out[str(entry)] = place
+    return out
+
+
+def in_space_file(exc: GarageError, config: DictConfig) -> GarageError:
+    """A refusal of a search override said at the space file's entry it came from (else as it was)."""
+    for entry, place in origins(config).items():
+        if exc.where == f"search space {entry}":
+            return exc.again(str(exc)[len(exc.where) + 2:], f"{place} {entry}")
+    return exc
+
+
 def parse(arguments: list[str]) -> list[Override]:
     try:
         return OverridesParser.create().parse_overrides(list(arguments))

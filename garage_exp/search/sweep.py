@@ -28,7 +28,8 @@ def is_search(config: DictConfig) -> bool:
 
 
 def arguments_of(config: DictConfig) -> list[str]:
-    return list(config.hydra.overrides.task)
+    """The search's overrides: its space's (`space=NAME`) first, then the command's (which win for a key)."""
+    return space_mod.expand(config, list(config.hydra.overrides.task))
 
 
 def group_levels(loader) -> dict[str, list[str]]:
@@ -64,7 +65,10 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     # resume continues the study (not a trial's job); a suite's dataset comes from its scenarios' reruns
     kept = [a for a in arguments if not a.startswith("resume=")
             and not (config.search.mode == "suite" and a.startswith("dataset="))]
-    space = space_mod.build(kept, config, group_levels(loader))
+    try:
+        space = space_mod.build(kept, config, group_levels(loader))
+    except GarageError as exc:  # an entry of the space's file: named by its file and index
+        raise space_mod.in_space_file(exc, config) from None
     base = space_mod.default_point(space)
     infeasible: list[Infeasible] = []
     prepared = []  # (where, checked job) of each feasible point: their models are loaded last
