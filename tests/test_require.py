@@ -79,6 +79,31 @@ def test_a_target_behind_the_camera_or_outside_the_image_is_not_seen():
     assert turned.visible == pytest.approx(1.0)
 
 
+def test_a_car_cut_by_the_image_border_is_truncated_as_ground_truth_says():
+    """A car 4 m ahead and 2.5 m to the left sticks out of a 60-degree camera's left border; ahead, nothing does."""
+    assert seen(car("t", 12.0)).truncation == 0.0
+    cut = seen(car("t", 4.5, 2.5))
+    assert 0.2 < cut.truncation < 0.9 and cut.visible == pytest.approx(1.0)
+
+
+def test_a_shipped_space_settles_its_requirements_and_cells_unless_the_command_sets_them():
+    from omegaconf import OmegaConf
+
+    from garage_exp.search.schema import wide_descriptors
+
+    cfg = compose_cfg("space=wide")
+    space_mod.settle(cfg, ["space=wide"])
+    assert cfg.search.require.min_visible == 0.3 and cfg.search.require.max_truncation == 0.5
+    assert [d.source for d in cfg.search.descriptors] == [d.source for d in wide_descriptors()]
+    mine = compose_cfg("space=wide", "search.require.min_visible=0.6")
+    space_mod.settle(mine, ["space=wide", "search.require.min_visible=0.6"])
+    assert mine.search.require.min_visible == 0.6 and mine.search.require.min_box == 25
+    plain = compose_cfg()
+    space_mod.settle(plain, [])
+    assert plain.search.require.min_visible is None
+    assert OmegaConf.to_container(plain.search.descriptors)[0]["source"] == "kind"
+
+
 def test_a_lens_camera_is_left_to_the_render():
     fisheye = CameraSpec("fish", Pose(0.0, 0.0, 1.0), model="fisheye", fov=190.0)
     assert seen(car("t", 8.0), camera=fisheye) is None
@@ -97,11 +122,13 @@ def test_the_rule_names_what_a_draw_misses():
 
     assert rule.unmet(Sight(10.0, 40.0, 0.9)) == []
     assert rule.unmet(Sight(40.0, 10.0, 0.2)) == ["visible 0.20 < 0.5", "box 10 px < 25", "distance 40.0 m > 30"]
+    assert require_mod.Require(max_truncation=0.5).unmet(Sight(4.0, 200.0, 1.0, 0.6)) == ["truncation 0.60 > 0.5"]
     assert require_mod.Require.of(compose_cfg().search.require) is None  # no bound set: no requirement
 
 
 @pytest.mark.parametrize("key, value, message", [
     ("min_visible", 1.5, "outside 0-1"), ("min_box", -1, "negative"), ("max_distance", 0, "positive"),
+    ("max_truncation", 1.2, "outside 0-1"),
     ("max_draws", 0, "at least 1")])
 def test_a_bad_requirement_is_one_line_naming_its_key(key, value, message):
     cfg = compose_cfg(f"search.require.{key}={value}")

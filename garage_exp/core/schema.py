@@ -386,11 +386,13 @@ class TrackingConf:
 @dataclass
 class RequireConf:
     """What a space asks of a draw before it is rendered (None: no condition): the target at least
-    `min_visible` visible, its box at least `min_box` pixels tall, at most `max_distance` metres from the camera."""
+    `min_visible` visible, its box at least `min_box` pixels tall, at most `max_distance` metres from the camera,
+    at most `max_truncation` of its box outside the image."""
 
     min_visible: Optional[float] = None
     min_box: Optional[float] = None
     max_distance: Optional[float] = None
+    max_truncation: Optional[float] = None
 
 
 @dataclass
@@ -398,11 +400,15 @@ class SpaceConf:
     """A search space shipped as a file (conf/space/NAME.yaml; `space=NAME`): `params` are overrides in the
     search's grammar (`key=interval(a,b)`, `key=choice(a,b)`, fixed `key=value`), taken as if written on the
     command line before the command's own (which win for the same key: garage_exp/search/space.py: expand);
-    `require` its conditions on a draw."""
+    `require` its conditions on a draw. Both are the search's (`search.require`, `search.descriptors`) unless the
+    command sets those itself (garage_exp/search/space.py: settle)."""
 
     name: str = "none"
     params: list[str] = field(default_factory=list)
     require: RequireConf = field(default_factory=RequireConf)
+    # the archive's cells for this space: a named set of descriptors (search/schema.py: DESCRIPTOR_SETS);
+    # None: the search's own (`search.descriptors`)
+    descriptors: Optional[str] = None
 
 
 @dataclass

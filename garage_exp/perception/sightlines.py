@@ -36,11 +36,13 @@ SKIP_ROLES = ("marking", "lamp")  # flat paint and lamp panels under the ceiling
 class Sight:
     """The estimate for one actor in one camera: `distance` camera centre to the box centre (m), `box_height` the
     projected 3D box's height inside the image (px, 0 when outside), `visible` the share of its in-image surface
-    that no box hides (0 when none of it is in the image)."""
+    that no box hides (0 when none of it is in the image), `truncation` the share of the projected box's rectangle
+    outside the image (ground truth's, perception/groundtruth.projected_truncation)."""
 
     distance: float
     box_height: float
     visible: float
+    truncation: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -121,7 +123,7 @@ def sight(static: Boxes, actors: Mapping[str, tuple[Entity, Pose]], target: str,
     intrinsics = intrinsics_of(camera)
     centre = corners.mean(axis=0)
     distance = float(np.linalg.norm(centre - origin))
-    height = _box_height(to_camera(cam, corners), intrinsics, camera)
+    height, truncation = _box_height(to_camera(cam, corners), intrinsics, camera)
     points, weight = _face_samples(entity, pose, origin)
     local = to_camera(cam, points)
     front = local[:, 0] > NEAR
@@ -130,13 +132,13 @@ def sight(static: Boxes, actors: Mapping[str, tuple[Entity, Pose]], target: str,
     inside[front] = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
     total = float(weight[inside].sum())
     if total <= 0:
-        return Sight(distance, height, 0.0)
+        return Sight(distance, height, 0.0, truncation)
     movers = Boxes.of([b for name, (e, p) in actors.items() if name != target and p is not None
                        for b in entity_boxes(e, p)])
     points = points[inside]
     lo, hi = np.minimum(points.min(axis=0), origin), np.maximum(points.max(axis=0), origin)
     hit = _blocked(origin, points, (static + movers).near(lo, hi))
-    return Sight(distance, height, float(weight[inside][~hit].sum() / total))
+    return Sight(distance, height, float(weight[inside][~hit].sum() / total), truncation)
 
 
 def _placed(local: np.ndarray, pose: Pose) -> np.ndarray:
@@ -144,19 +146,20 @@ def _placed(local: np.ndarray, pose: Pose) -> np.ndarray:
     return np.array([pose.x + c * local[0] - s * local[1], pose.y + s * local[0] + c * local[1], pose.z + local[2]])
 
 
-def _box_height(local: np.ndarray, intrinsics, camera: CameraSpec) -> float:
+def _box_height(local: np.ndarray, intrinsics, camera: CameraSpec) -> tuple[float, float]:
     """The projected box's height in pixels inside the image (ground truth's full box stops at the border; a box
-    wholly left or right of the image has none)."""
-    from garage_exp.perception.groundtruth import _clip_near
+    wholly left or right of the image has none), and the share of its rectangle outside the image."""
+    from garage_exp.perception.groundtruth import _clip_near, _outside
 
     points = _clip_near(local, NEAR)
     if len(points) == 0:
-        return 0.0
+        return 0.0, 1.0
     u, v = to_pixels(points, intrinsics)
+    truncation = _outside(u, v, camera.width, camera.height)
     if u.max() <= 0 or u.min() >= camera.width:
-        return 0.0
+        return 0.0, truncation
     top, bottom = max(float(v.min()), 0.0), min(float(v.max()), float(camera.height))
-    return max(bottom - top, 0.0)
+    return max(bottom - top, 0.0), truncation
 
 
 def _face_samples(entity: Entity, pose: Pose, eye: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

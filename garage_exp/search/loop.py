@@ -222,7 +222,8 @@ class SearchLoop:
         if verdict.best is not None:
             trial.set_user_attr("require_estimate", {"visible": round(verdict.best.visible, 3),
                                                      "box": round(verdict.best.box_height, 1),
-                                                     "distance": round(verdict.best.distance, 2)})
+                                                     "distance": round(verdict.best.distance, 2),
+                                                     "truncation": round(verdict.best.truncation, 3)})
         if verdict.ok:
             self.in_a_row = 0
             return False

@@ -4,8 +4,8 @@ Scenic cuts its prior with `require` (rejection sampling). A trial is then never
 target nothing could see.
 
 A draw is accepted when at least one of its shots, seen by the case's scored camera, meets every requirement
-(a one-shot scenario has one shot): the target's estimated visible fraction, its projected box height and its
-distance (perception/sightlines.py). A rejected draw is told to Optuna as PRUNED with `rejected` (why) among its
+(a one-shot scenario has one shot): the target's estimated visible fraction, its projected box height, its
+distance and the share of its box outside the image (perception/sightlines.py). A rejected draw is told to Optuna as PRUNED with `rejected` (why) among its
 attributes: it counts neither in the study's budget nor among its scenarios, and the samplers learn to avoid its
 region as they avoid infeasible ones. The search reports how many draws its requirements accepted.
 """
@@ -27,16 +27,18 @@ class Require:
     min_visible: float = 0.0
     min_box: float = 0.0
     max_distance: float = math.inf
+    max_truncation: float = 1.0
     max_draws: int = 1000
 
     @classmethod
     def of(cls, node) -> "Require | None":
         """The `search.require` node's rule; None when it sets no bound."""
-        values = {k: node.get(k) for k in ("min_visible", "min_box", "max_distance")}
+        values = {k: node.get(k) for k in ("min_visible", "min_box", "max_distance", "max_truncation")}
         if all(v is None for v in values.values()):
             return None
         return cls(float(values["min_visible"] or 0.0), float(values["min_box"] or 0.0),
                    math.inf if values["max_distance"] is None else float(values["max_distance"]),
+                   1.0 if values["max_truncation"] is None else float(values["max_truncation"]),
                    int(node.get("max_draws", 1000)))
 
     def unmet(self, seen: Sight) -> list[str]:
@@ -48,6 +50,8 @@ class Require:
             out.append(f"box {seen.box_height:.0f} px < {self.min_box:g}")
         if seen.distance > self.max_distance:
             out.append(f"distance {seen.distance:.1f} m > {self.max_distance:g}")
+        if seen.truncation > self.max_truncation:
+            out.append(f"truncation {seen.truncation:.2f} > {self.max_truncation:g}")
         return out
 
 
@@ -57,6 +61,8 @@ def check_require(node, where: str = "search.require") -> None:
         raise GarageError(f"{node.min_visible} is outside 0-1", f"{where}.min_visible")
     if node.get("min_box") is not None and float(node.min_box) < 0:
         raise GarageError(f"{node.min_box} px is negative", f"{where}.min_box")
+    if node.get("max_truncation") is not None and not 0.0 <= float(node.max_truncation) <= 1.0:
+        raise GarageError(f"{node.max_truncation} is outside 0-1", f"{where}.max_truncation")
     if node.get("max_distance") is not None and not float(node.max_distance) > 0:
         raise GarageError(f"{node.max_distance} m: a distance bound is positive", f"{where}.max_distance")
     if int(node.get("max_draws", 1000)) < 1:

@@ -43,6 +43,7 @@ class RequireConf:
     min_visible: Optional[float] = None  # the target's estimated visible fraction (0-1)
     min_box: Optional[float] = None  # its projected box's height in the scored camera's image (px)
     max_distance: Optional[float] = None  # camera to the target's box centre (m)
+    max_truncation: Optional[float] = None  # the share of its projected box outside the image (0-1)
     max_draws: int = 1000  # draws rejected in a row before the search gives up on the space
 
 
@@ -89,6 +90,10 @@ def wide_descriptors() -> list[DescriptorConf]:
             DescriptorConf("visible", edges=[0.0, 0.75, 0.95, 1.0]),
             DescriptorConf("light", edges=[0.0, 0.2, 0.6, 100.0]),
             DescriptorConf("camera_height", edges=[0.0, 1.2, 10.0])]
+
+
+# Named sets of descriptors, for a space to name (conf/space/NAME.yaml: `descriptors: wide`).
+DESCRIPTOR_SETS = {"default": default_descriptors, "wide": wide_descriptors}
 
 
 @dataclass

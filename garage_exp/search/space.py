@@ -66,6 +66,30 @@ def expand(config: DictConfig, arguments: list[str]) -> list[str]:
     return merged(origins(config), arguments)
 
 
+def settle(config: DictConfig, arguments: list[str]) -> None:
+    """A shipped space's own search settings onto `config.search`, each unless the command sets it itself: each
+    bound of its `require` (search.require.*) and its named `descriptors` (search.descriptors). In place; the same
+    config settles the same way again."""
+    from omegaconf import open_dict, read_write
+
+    from garage_exp.search.schema import DESCRIPTOR_SETS
+
+    space = OmegaConf.select(config, "space", default=None)
+    if space is None or not space.get("params"):
+        return
+    given = {a.split("=", 1)[0].lstrip("+~") for a in arguments}
+    with read_write(config), open_dict(config):
+        for key, value in (space.get("require") or {}).items():
+            if value is not None and f"search.require.{key}" not in given:
+                config.search.require[key] = value
+        name = space.get("descriptors")
+        if name and not any(k == "search.descriptors" or k.startswith("search.descriptors.") for k in given):
+            if name not in DESCRIPTOR_SETS:
+                raise GarageError(f"unknown descriptor set {name!r} ({' | '.join(DESCRIPTOR_SETS)})",
+                                  "space.descriptors")
+            config.search.descriptors = OmegaConf.structured(DESCRIPTOR_SETS[name]())
+
+
 def with_shipped(arguments: list[str], folder=None) -> list[str]:
     """A list of overrides with each `space=NAME` entry replaced by its file's (conf/space/NAME.yaml, or
     `folder`/NAME.yaml) `params` before the rest, a key given in the list winning, as `expand` does for a composed

@@ -59,6 +59,7 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     from garage_exp.run.preflight import load_models, preflight
 
     arguments = tuple(arguments_of(config))
+    space_mod.settle(config, list(arguments))  # a shipped space's requirements and cells, unless the command's
     if arguments in _CHECKED:
         return _CHECKED[arguments]
     study_mod.check_search(config.search)
