@@ -44,6 +44,38 @@ class Job:
                              np.random.default_rng(self.cfg.seed + 1), detector, scoring or {})
 
 
+@dataclass
+class Prepared:
+    """A job's scene and set-up as its preflight builds them (nothing loaded into a renderer yet)."""
+
+    cfg: object
+    scene: object
+    setup: object
+
+    def load(self) -> Job:
+        """The scene loaded into the process's renderer, its shaders compiled: a Job."""
+        from garage_exp.core.plugins import build
+        from garage_exp.render.sapien_backend import get_renderer
+
+        renderer = get_renderer(max_lights=self.cfg.renderer.max_lights, shadows=self.cfg.renderer.shadows)
+        renderer.load(self.scene)
+        job = Job(self.cfg, self.scene, self.setup, renderer, build(self.cfg.sensor, "a sensor model",
+                                                                      "sensor._target_"))
+        for _ in job.frames(1):
+            pass
+        return job
+
+
+def prepared_job(overrides: list[str]) -> Prepared:
+    """The job of these overrides checked and built by its preflight (a generated plan's own garage values handed
+    on, as a real job's are), not loaded."""
+    from garage_exp.run.preflight import preflight
+
+    cfg = compose(overrides)
+    prepared = preflight(cfg, check_space=False, load=False)
+    return Prepared(cfg, prepared.scene, prepared.setup)
+
+
 def build_job(overrides: list[str], edit=None) -> Job:
     """The job of these overrides, its scene loaded (after `edit(scene)`, when given) and its shaders compiled."""
     from garage_exp.assets.vehicles import VehicleLibrary

@@ -296,15 +296,17 @@ def test_the_wide_space_has_twenty_or_more_factors_most_of_them_continuous():
     continuous = [k for k, d in space.params.items() if not hasattr(d, "choices")]
     assert len(space.params) >= 20 and len(continuous) > len(space.params) / 2
     assert cfg.case.name == "oneshot" and cfg.case.motion.actor == ""  # drawn on the one-shot case
-    assert OmegaConf.to_container(cfg.space.require) == {"min_visible": 0.3, "min_box": 25.0, "max_distance": 30.0}
+    assert OmegaConf.to_container(cfg.space.require) == {"min_visible": 0.3, "min_box": 25.0, "max_distance": 30.0,
+                                                         "max_truncation": 0.5}
     assert compose_cfg().space.params == []  # no space unless asked
 
 
 def test_every_drawn_key_is_one_the_config_has():
-    """Each space entry's key exists in the composed config (else the search refuses it: space.build)."""
+    """Each space entry's key exists in the composed config (else the search refuses it: space.build), composed
+    with the levels the space itself picks (plan=generated)."""
     from garage_exp.search import space as space_mod
 
-    cfg = compose_cfg("space=wide")
+    cfg = compose_cfg("space=wide", "plan=generated")
     for entry in cfg.space.params:
         key = entry.split("=", 1)[0]
         assert key in ("camera.mount",) or OmegaConf.select(cfg, key, default="absent") != "absent", key

@@ -2,9 +2,10 @@
 `python -m benchmarks.figures.space_sheet [--space wide] [--draws 24] [--seed 0] [--out docs/img]`.
 
 Each draw is a point of the space's `params` drawn by Optuna's random sampler (as `search.sampler=random`
-draws it), composed with the space's other overrides, its scene built and one frame rendered at 320x240 through
-the sensor. A draw whose actors stand in one another (core.errors.Infeasible) is redrawn, as the search prunes
-it; the acceptance rate is printed. Tiles are labelled with the target's type, distance and the light; the green
+draws it), composed with the space's other overrides, checked and its scene built as a job's preflight does
+(a generated garage's own ceiling and pillars included), and one frame rendered at 320x240 through the sensor. A
+draw whose actors stand in one another (core.errors.Infeasible) is redrawn, as the search prunes it, and so is
+one the space's requirements reject (search/require.py), as the search redraws it; both rates are printed. Tiles are labelled with the target's type, distance and the light; the green
 box is the target's full box (ground truth).
 """
 
@@ -58,23 +59,42 @@ def main() -> None:
     parser.add_argument("--out", default="docs/img")
     args = parser.parse_args()
     _, space = space_of(args.space)
-    tiles, tried, t0 = [], 0, time.perf_counter()
+    from garage_exp.search import require as require_mod
+
+    cfg, _ = space_of(args.space)
+    space_mod_settle(cfg, args.space)
+    rule = require_mod.Require.of(cfg.search.require)
+    tiles, tried, feasible, t0 = [], 0, 0, time.perf_counter()
     for values in draws(space, args.draws, args.seed):
         if len(tiles) == args.draws:
             break
         tried += 1
         try:
-            job = jobkit.build_job([*space.overrides(values), *SIZE])
+            job = jobkit.prepared_job([*space.overrides(values), *SIZE])
         except Infeasible as exc:
             print(f"draw {tried}: infeasible ({exc})")
             continue
-        frame = next(iter(job.frames(1)))
+        feasible += 1
+        if rule is not None:
+            verdict = require_mod.judge(rule, job.scene, job.setup, job.scene.cameras[0].name)
+            if not verdict.ok:
+                print(f"draw {tried}: rejected by the requirements ({verdict.why})")
+                continue
+        frame = next(iter(job.load().frames(1)))
         tiles.append(tile(frame, label(values)))
         print(f"draw {tried}: {label(values)}  visible {getattr(frame.target, 'visible_fraction', float('nan')):.2f}")
     out = Path(args.out) / f"space_{args.space}.png"
     cv2.imwrite(str(out), grid(tiles, 6))
-    print(f"{out}: {len(tiles)} draws of {tried} feasible ({len(tiles) / tried:.0%}), "
+    print(f"{out}: {len(tiles)} draws of {tried}: {feasible} feasible ({feasible / tried:.0%}), "
+          f"{len(tiles)} of those accepted by the requirements ({len(tiles) / max(feasible, 1):.0%}); "
           f"{time.perf_counter() - t0:.0f} s, {jobkit.machine()}")
+
+
+def space_mod_settle(cfg, name: str) -> None:
+    """The space's requirements onto the config's search node, as the search settles them."""
+    from garage_exp.search import space as space_mod
+
+    space_mod.settle(cfg, [f"space={name}"])
 
 
 if __name__ == "__main__":
