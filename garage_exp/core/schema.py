@@ -240,6 +240,10 @@ class CaseConf:
     slots: bool = False  # score parking-slot finding on a bird's-eye view of the fisheye rig (camera.bev)
     camera: str = ""  # the rig's camera whose frames score the case (its summary, `late`): a reversing ego's
     # `rear`; empty: the rig's first camera
+    # One-shot scenarios: K frames evenly along the motion (the first and the last among them), the trajectory's own
+    # frames (its times and co-motions as the whole trajectory has them); None: every frame (a trajectory).
+    # frames=1 is the motion's first frame: a scenario is one picture, and a search's budget counts scenarios.
+    frames: Optional[int] = None
 
 
 @dataclass
