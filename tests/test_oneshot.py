@@ -57,3 +57,59 @@ def test_a_static_case_is_one_shot_already(library):
 def test_frames_below_one_is_refused_naming_the_key(library, bad):
     with pytest.raises(GarageError, match=r"case\.frames.*frames must be a whole number >= 1"):
         shots(library, "case=1", f"case.frames={bad}")
+
+
+def rendered(scene, setup, renderer, cfg) -> np.ndarray:
+    from garage_exp.core.plugins import build
+    from garage_exp.run.pipeline import FramePipeline, in_view
+
+    sensor = build(cfg.sensor, "a sensor model", "sensor._target_")
+    shot = setup.shots[0]
+    pipeline = FramePipeline(cfg, scene, renderer, sensor, np.random.default_rng(7))
+    return next(iter(pipeline.shots([shot], [scene.cameras[0].name], [in_view(scene, shot.poses)],
+                                    [pipeline.sensor_rng]))).rgb
+
+
+@pytest.mark.render
+def test_a_kept_garage_taken_back_renders_what_a_fresh_load_renders(library):
+    """renderer.kept_garages=3: plan A, then plan B, then A again with other actors and light: A's SAPIEN scene is
+    taken back (not rebuilt) and its frame is pixel-equal to the same scene loaded into a fresh renderer."""
+    from conftest import require
+
+    require("vulkan", "vehicles")
+    from garage_exp.core.state import STATE
+    from garage_exp.render.sapien_backend import get_renderer
+
+    base = ("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]", "camera.width=96",
+            "camera.height=72", "look=flat")
+
+    def built(*more):
+        cfg = compose_cfg(*base, *more)
+        classified = classify(load_plan(resolve_plan_path(cfg.plan)))
+        return cfg, *build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+
+    first, again, other = built("plan=small"), built("plan=small", "case.actors.target.distance=6.5",
+                                                    "light.intensity=0.4"), built("plan=obstacles")
+    STATE.renderer = None
+    renderer = get_renderer()
+    renderer.kept_garages = 3
+    renderer.load(first[1])
+    kept = renderer.sapien_scene
+    rendered(first[1], first[2], renderer, first[0])
+    renderer.load(other[1])
+    assert renderer.sapien_scene is not kept
+    renderer.load(again[1])
+    assert renderer.sapien_scene is kept  # taken back, not rebuilt
+    taken_back = rendered(again[1], again[2], renderer, again[0])
+    STATE.renderer = None  # a fresh renderer, as a new process has
+    fresh = get_renderer()
+    fresh.load(again[1])
+    assert np.array_equal(taken_back, rendered(again[1], again[2], fresh, again[0]))
+    assert taken_back.std() > 0  # a picture, not a blank
+    STATE.renderer = None
+    one = get_renderer()  # kept_garages=1 (today): the last garage only, another one is rebuilt
+    one.load(first[1])
+    was = one.sapien_scene
+    one.load(other[1])
+    one.load(first[1])
+    assert one.sapien_scene is not was

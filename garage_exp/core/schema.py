@@ -328,6 +328,9 @@ class RendererConf:
     save_frames: str = "key"  # all | key | none
     device: str = "auto"  # the Vulkan device: auto (a GPU when present, else lavapipe) | cpu | cuda (render.device)
     scenes: int = 1  # sub-scenes of the render scene: the shots rendered as one batch (render/batch.py)
+    # loaded garages the SAPIEN renderer keeps: a job on one of the last N garages replaces only its actors and
+    # cameras (a search across a few plans switches garages without rebuilding them); 1: the last one, as before
+    kept_garages: int = 1
 
 
 @dataclass

@@ -250,6 +250,8 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
     paths = list(analyse(result["study"], out_dir, top=int(search.top)))
     files, result["archive"] = archive.write(result["study"], search, out_dir)
     paths.extend(files)
+    if search.get("runs", "per_trial") == "per_search":  # the trials have no runs: their rows go on the parent
+        paths.extend(scenario_rows(result["study"], out_dir / "scenarios.csv"))
     if config.export.openscenario:
         paths.extend(export_hardest(config, result["study"], out_dir / "openscenario", loader))
     if search.mode == "suite":
@@ -257,6 +259,25 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
 
         paths.extend(write_suite(config, result["study"], loader, launch, result["name"]))
     return paths
+
+
+def scenario_rows(study, path: Path) -> list[Path]:
+    """Every trial's frame rows in one table (its `trial` column first), read from the trials' own frame tables:
+    what a search without a run per trial (`search.runs=per_search`) logs on its parent run; [] when no trial
+    scored a frame."""
+    import pandas as pd
+
+    tables = []
+    for trial in study.get_trials(deepcopy=False):
+        table = Path(str(trial.user_attrs.get("output_dir") or "")) / "frames.csv"
+        if trial.user_attrs.get("output_dir") and table.is_file():
+            rows = pd.read_csv(table)
+            tables.append(rows.assign(trial=trial.number)[["trial", *rows.columns]])
+    if not tables:
+        return []
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pd.concat(tables, ignore_index=True).to_csv(path, index=False)
+    return [path]
 
 
 def export_hardest(config: DictConfig, study, out: Path, loader) -> list[Path]:
