@@ -113,3 +113,67 @@ def test_a_kept_garage_taken_back_renders_what_a_fresh_load_renders(library):
     one.load(other[1])
     one.load(first[1])
     assert one.sapien_scene is not was
+
+
+# A one-shot search: one frame a scenario (the lighting case at one distance), the archive's sampler over two
+# garages kept loaded, one detector, one MLflow run for the search.
+ONESHOT = ["-m", "hydra/sweeper=search", "search.sampler=archive", "search.trials=6", "search.startup=3",
+           "search.batch=2", "search.runs=per_search", "renderer.kept_garages=2", "case=light",
+           "case.motion.values=[8.0]", "palette.target_colours=[black]", "camera.width=320", "camera.height=240",
+           "detector.models=[yolo11n_int8_openvino_model]", "plan=choice(small,obstacles)",
+           "light.intensity=interval(0.1,1.0)", "case.actors.target.distance=interval(5.0,10.0)",
+           "search.descriptors=[{source:kind,values:[car,adult,child]},{source:distance,edges:[0,7,100]}]"]
+
+
+@pytest.mark.render
+@pytest.mark.detect
+@pytest.mark.slow
+def test_a_one_shot_search_keeps_one_run_and_its_elites_rerun_to_their_frame_rows(tmp_path):
+    """search.runs=per_search: no MLflow run per trial, the parent holds every scenario's row (scenarios.csv, the
+    trials' own frame tables); each archive elite's rerun command (a plain job in a fresh renderer) gives its
+    scenario's frame row."""
+    import shlex
+
+    import optuna
+    import pandas as pd
+    from conftest import require, run_app
+    from optuna.trial import TrialState
+
+    from garage_exp.core.state import STATE
+    from garage_exp.tracking import runs as tracking
+
+    require("vulkan", "vehicles", "models")
+    stores = [f"search.storage=sqlite:///{tmp_path / 'optuna.db'}", f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}"]
+    r = run_app([*ONESHOT, *stores], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "6 trials in one MLflow run (search.runs=per_search): 6 finished, 0 failed" in r.stdout
+    storage = f"sqlite:///{tmp_path / 'optuna.db'}"
+    study = optuna.load_study(study_name=optuna.get_all_study_names(storage)[0], storage=storage)
+    done = study.get_trials(states=(TrialState.COMPLETE,))
+    assert len(study.trials) == 6 and len(done) >= 4
+    assert {t.params["plan"] for t in study.trials} == {"small", "obstacles"}  # both garages, switched between
+    assert all(t.user_attrs["run_id"] is None and t.user_attrs["frames"] == 1 for t in done)
+    mlc = tracking.client(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    exp = mlc.get_experiment_by_name("garage_exp")
+    runs = mlc.search_runs([exp.experiment_id])
+    assert [run.data.tags.get("sweep") for run in runs] == ["parent"]  # the search's one run
+    logged = {a.path for a in mlc.list_artifacts(runs[0].info.run_id, "search")}
+    assert "search/scenarios.csv" in logged
+    rows = pd.read_csv(tmp_path / "sweep" / "search" / "scenarios.csv")
+    assert sorted(rows.trial) == sorted(t.number for t in done)  # one row a one-shot scenario
+    for t in done:  # the parent's rows are the trials' own
+        own = pd.read_csv(f"{t.user_attrs['output_dir']}/frames.csv")
+        pd.testing.assert_frame_equal(rows[rows.trial == t.number].drop(columns="trial").reset_index(drop=True),
+                                      own, check_dtype=False)
+    elites = pd.read_csv(tmp_path / "sweep" / "search" / "archive.csv")
+    assert len(elites) >= 1
+    for _, elite in elites.iterrows():  # each elite's rerun command gives its scenario's frame row
+        STATE.renderer = None  # a fresh renderer, as a new process has
+        rerun_dir = tmp_path / f"rerun_{elite.trial}"
+        rerun_dir.mkdir()
+        command = shlex.split(elite.rerun)
+        assert command[:3] == ["python", "-m", "garage_exp"]
+        rerun = run_app([*command[3:], f"tracking.uri=sqlite:///{tmp_path / 'rerun.db'}"], rerun_dir)
+        assert rerun.returncode == 0, rerun.stderr[-3000:]
+        theirs = rows[rows.trial == int(elite.trial)].drop(columns="trial").reset_index(drop=True)
+        pd.testing.assert_frame_equal(pd.read_csv(rerun_dir / "run" / "frames.csv"), theirs, check_dtype=False)

@@ -368,6 +368,20 @@ def summary(result: dict, out_dir: Path) -> str:
     return "\n".join(lines)
 
 
+def trials_summary(result: dict) -> tuple[str, int]:
+    """The sweep's summary when its trials have no runs (`search.runs=per_search`): how this worker's trials ended,
+    from the study (one line per failed trial), and how many failed (the command's exit code counts them)."""
+    from optuna.trial import TrialState
+
+    ran = set(result["ran"])
+    trials = [t for t in result["study"].get_trials(deepcopy=False) if t.number in ran]
+    failed = [t for t in trials if t.state == TrialState.FAIL]
+    lines = [f"garage_exp: sweep summary: {len(trials)} trials in one MLflow run (search.runs=per_search): "
+             f"{len(trials) - len(failed)} finished, {len(failed)} failed"]
+    lines += [f"  FAILED: trial {t.number}: {t.user_attrs.get('error') or 'no error recorded'}"[:600] for t in failed]
+    return "\n".join(lines), len(failed)
+
+
 def ranked(study) -> list:
     """The complete trials, hardest first (by the first value, at the end its direction calls hard; ties by
     trial number)."""
