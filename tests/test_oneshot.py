@@ -177,3 +177,28 @@ def test_a_one_shot_search_keeps_one_run_and_its_elites_rerun_to_their_frame_row
         assert rerun.returncode == 0, rerun.stderr[-3000:]
         theirs = rows[rows.trial == int(elite.trial)].drop(columns="trial").reset_index(drop=True)
         pd.testing.assert_frame_equal(pd.read_csv(rerun_dir / "run" / "frames.csv"), theirs, check_dtype=False)
+
+
+def test_a_composition_from_the_pickled_cache_keeps_hydras_types_and_flags():
+    """The launcher keeps each composition pickled and unpickles a trial's copy (3x faster than a deep copy):
+    the copy is Hydra's composition with its schema's types and struct flag, and trials do not share nodes."""
+    from types import SimpleNamespace
+
+    from conftest import hydra_loader
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.schema import CaseConf
+    from garage_exp.search.launch import CachedLaunch
+
+    with hydra_loader() as loader:
+        master = loader.load_configuration("config", ["hydra/sweeper=search"], RunMode.MULTIRUN)
+        launch = CachedLaunch(SimpleNamespace(config_loader=loader), None, master, {"light", "case", "plan"})
+        trial = ["light=dim", "light.intensity=0.3", "case.frames=1", "search.runs=per_search", "search.trial=0"]
+        ours, hydras = launch.compose(trial), loader.load_sweep_config(master, trial)
+        assert OmegaConf.to_container(ours) == OmegaConf.to_container(hydras)
+        assert OmegaConf.is_struct(ours) and OmegaConf.get_type(ours.case) is CaseConf
+        with pytest.raises(Exception, match="frames"):
+            ours.case.frames = "many"  # the schema's type still checks a value
+        other = launch.compose(["light=dim", "light.intensity=0.9", "search.trial=1"])
+        assert (ours.light.intensity, other.light.intensity, other.case.frames) == (0.3, 0.9, None)
