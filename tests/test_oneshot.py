@@ -179,9 +179,9 @@ def test_a_one_shot_search_keeps_one_run_and_its_elites_rerun_to_their_frame_row
         pd.testing.assert_frame_equal(pd.read_csv(rerun_dir / "run" / "frames.csv"), theirs, check_dtype=False)
 
 
-def test_a_composition_from_the_pickled_cache_keeps_hydras_types_and_flags():
-    """The launcher keeps each composition pickled and unpickles a trial's copy (3x faster than a deep copy):
-    the copy is Hydra's composition with its schema's types and struct flag, and trials do not share nodes."""
+def test_a_one_shot_trials_composition_keeps_hydras_types_and_flags():
+    """A one-shot trial's config (composed once per group levels, parsed overrides cached, values set on a copy)
+    is Hydra's composition with its schema's types and struct flag, and trials do not share nodes."""
     from types import SimpleNamespace
 
     from conftest import hydra_loader

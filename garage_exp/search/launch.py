@@ -12,9 +12,9 @@ batch's trial numbers, with gaps where the pre-screen pruned a trial (the job's 
 
 from __future__ import annotations
 
+import copy
 import logging
 import os
-import pickle
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -30,7 +30,7 @@ class CachedLaunch:
     def __init__(self, hydra_context, task_function, config: DictConfig, groups: set[str]):
         self.hydra_context, self.task_function, self.config, self.groups = hydra_context, task_function, config, groups
         self.parser = OverridesParser.create()
-        self.cache: dict[tuple[str, ...], bytes] = {}  # structural overrides -> their composition, pickled
+        self.cache: dict[tuple[str, ...], DictConfig] = {}
         self.parses: dict = {}  # override line -> its parsed Override
 
     def structural(self, override) -> bool:
@@ -52,11 +52,8 @@ class CachedLaunch:
         parsed = [self.parsed(line) for line in overrides]
         fixed = tuple(o.input_line for o in parsed if self.structural(o))
         if fixed not in self.cache:
-            # kept pickled: unpickling a composition is about 3x faster than deep-copying it (a one-shot trial's
-            # composition cost as much as its render), and gives the same config, types and flags
-            self.cache[fixed] = pickle.dumps(
-                self.hydra_context.config_loader.load_sweep_config(self.config, list(fixed)))
-        cfg = pickle.loads(self.cache[fixed])
+            self.cache[fixed] = self.hydra_context.config_loader.load_sweep_config(self.config, list(fixed))
+        cfg = copy.deepcopy(self.cache[fixed])
         for o in parsed:
             if not self.structural(o):
                 OmegaConf.update(cfg, o.key_or_group, o.value(), merge=True)  # as Hydra applies an override
