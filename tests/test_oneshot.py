@@ -132,14 +132,11 @@ def test_a_one_shot_search_keeps_one_run_and_its_elites_rerun_to_their_frame_row
     """search.runs=per_search: no MLflow run per trial, the parent holds every scenario's row (scenarios.csv, the
     trials' own frame tables); each archive elite's rerun command (a plain job in a fresh renderer) gives its
     scenario's frame row."""
-    import shlex
-
     import optuna
     import pandas as pd
-    from conftest import require, run_app
+    from conftest import require, rerun_elite, run_app
     from optuna.trial import TrialState
 
-    from garage_exp.core.state import STATE
     from garage_exp.tracking import runs as tracking
 
     require("vulkan", "vehicles", "models")
@@ -168,15 +165,8 @@ def test_a_one_shot_search_keeps_one_run_and_its_elites_rerun_to_their_frame_row
     elites = pd.read_csv(tmp_path / "sweep" / "search" / "archive.csv")
     assert len(elites) >= 1
     for _, elite in elites.iterrows():  # each elite's rerun command gives its scenario's frame row
-        STATE.renderer = None  # a fresh renderer, as a new process has
-        rerun_dir = tmp_path / f"rerun_{elite.trial}"
-        rerun_dir.mkdir()
-        command = shlex.split(elite.rerun)
-        assert command[:3] == ["python", "-m", "garage_exp"]
-        rerun = run_app([*command[3:], f"tracking.uri=sqlite:///{tmp_path / 'rerun.db'}"], rerun_dir)
-        assert rerun.returncode == 0, rerun.stderr[-3000:]
         theirs = rows[rows.trial == int(elite.trial)].drop(columns="trial").reset_index(drop=True)
-        pd.testing.assert_frame_equal(pd.read_csv(rerun_dir / "run" / "frames.csv"), theirs, check_dtype=False)
+        pd.testing.assert_frame_equal(rerun_elite(elite, tmp_path), theirs, check_dtype=False)
 
 
 def test_a_one_shot_trials_composition_keeps_hydras_types_and_flags():
