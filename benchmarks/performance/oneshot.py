@@ -67,6 +67,8 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str]) -> int
     from garage_exp.cli import app
     from garage_exp.search import loop
 
+    print(f"garage_exp from {Path(app.__file__).parent.parent}", file=sys.stderr)
+
     ends: list[float] = []
     cpu: list[tuple[float, float]] = []
     real_tell = loop.SearchLoop.tell
@@ -123,12 +125,14 @@ def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[s
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
         out = fh.name
     name = "before" if code is not None else arm
-    cmd = [sys.executable, "-m", "benchmarks.performance.oneshot", "--child", name, "--trials", str(trials),
+    # the file, not `-m`, from the code's own checkout: `python -m` would put the working dir first on sys.path
+    # and import this checkout's garage_exp for --before's arm (as performance/before.py runs its children)
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name, "--trials", str(trials),
            "--warmup", str(warmup), "--out", out, *extra]
     load = os.getloadavg()[0]
     started = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=ROOT, env=child_env(code, GARAGE_EXP_PROVISIONED="1"), capture_output=True,
-                          text=True)
+    proc = subprocess.run(cmd, cwd=code or ROOT, env=child_env(code, GARAGE_EXP_PROVISIONED="1"),
+                          capture_output=True, text=True)
     wall = time.perf_counter() - started
     if proc.returncode != 0:
         sys.stderr.write(proc.stdout[-3000:] + proc.stderr[-3000:])
