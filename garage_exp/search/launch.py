@@ -4,7 +4,8 @@ Hydra's basic launcher composes every job's config from the files (about 0.6 s h
 trial). A trial differs from the next by a few values, so this launcher composes once per combination of
 group levels (and structural overrides), then sets the trial's values on a copy, as Hydra's composition sets
 overrides on the composed defaults; `test_search.py` pins that the result equals Hydra's own composition.
-Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging.
+Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging. A one-shot search's
+trials (`search.runs=per_search`) skip `run_job`'s two copies of the config and the per-job log file (`run_lean`).
 
 A batch's jobs are numbered by Hydra's `initial_job_idx` (consecutive), or by the list of their numbers: a search
 batch's trial numbers, with gaps where the pre-screen pruned a trial (the job's dir is its trial's number).
@@ -85,7 +86,6 @@ class CachedLaunch:
                                     job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir"))
             configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         return runs
-
 
     def run_lean(self, cfg: DictConfig) -> JobReturn:
         """Hydra's `run_job` for a one-shot trial (`search.runs=per_search`), without its two copies of the
