@@ -146,7 +146,7 @@ def test_tests_named_in_the_readme_and_docs_exist():
         assert named <= defined | files, (page.name, sorted(named - defined - files))
 
 
-PROVENANCE = re.compile(r"\*\*Measured:\*\* `[^`]+`.* · commit `[0-9a-f]{7}`.* · \d{4}-\d{2}-\d{2} · \[Zen [34]\]\(")
+PROVENANCE = re.compile(r"\*\*Measured:\*\* `[^`]+`.* · commit `[0-9a-f]{7}`.* · \d{4}-\d{2}-\d{2} · \[Zen [345]\]\(")
 
 
 def test_every_results_table_names_its_command_commit_date_and_machine():
