@@ -396,3 +396,22 @@ def fresh_outage(monkeypatch):
     monkeypatch.setattr(client.time, "monotonic", lambda: clock[0])
     return slept
 
+
+
+def rerun_elite(elite, tmp_path: Path):
+    """An archive elite's rerun command (archive.csv's `rerun`) run as a plain job in a fresh renderer, as a new
+    process has; its frame table."""
+    import shlex
+
+    import pandas as pd
+
+    from garage_exp.core.state import STATE
+
+    STATE.renderer = None
+    rerun_dir = tmp_path / f"rerun_{elite.trial}"
+    rerun_dir.mkdir()
+    command = shlex.split(elite.rerun)
+    assert command[:3] == ["python", "-m", "garage_exp"]
+    rerun = run_app([*command[3:], f"tracking.uri=sqlite:///{tmp_path / 'rerun.db'}"], rerun_dir)
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    return pd.read_csv(rerun_dir / "run" / "frames.csv")

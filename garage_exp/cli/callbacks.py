@@ -81,6 +81,7 @@ class MlflowSweepCallback(Callback):
         self.uri: str | None = None
         self.experiment_id: str | None = None
         self.jobs: int | None = None
+        self.trials_summary: tuple[str, int] | None = None  # set by the search's sweeper under search.runs=per_search
         self.in_process = False
         self.failures = 0
         self.ended = False
@@ -168,8 +169,11 @@ class MlflowSweepCallback(Callback):
             log.error("sweep report failed: %s", exc)
             tracking.retry(lambda: mlc.set_tag(self.parent_run_id, "report_error", str(exc)[:5000]))
             report_error = exc
-        runs = child_runs(mlc, self.parent_run_id, resumed)
-        text, self.failures = summary(runs, self.jobs, search=self.search)
+        if self.trials_summary is not None:  # a search without a run per trial: the study says how they ended
+            text, self.failures = self.trials_summary
+        else:
+            runs = child_runs(mlc, self.parent_run_id, resumed)
+            text, self.failures = summary(runs, self.jobs, search=self.search)
         report_line = [f"  report: {report_path}"] if report_path else []
         print("\n".join([text, *report_line, ui_hint(self.uri, self.experiment_id)]))
         status = "FAILED" if self.failures or report_error else "FINISHED"

@@ -287,6 +287,10 @@ class CaseConf:
     slots: bool = False  # score parking-slot finding on a bird's-eye view of the fisheye rig (camera.bev)
     camera: str = ""  # the rig's camera whose frames score the case (its summary, `late`): a reversing ego's
     # `rear`; empty: the rig's first camera
+    # One-shot scenarios: K frames evenly along the motion (the first and the last among them), the trajectory's own
+    # frames (its times and co-motions as the whole trajectory has them); None: every frame (a trajectory).
+    # frames=1 is the motion's first frame: a scenario is one picture, and a search's budget counts scenarios.
+    frames: Optional[int] = None
 
 
 @dataclass
@@ -374,6 +378,9 @@ class RendererConf:
     save_frames: str = "key"  # all | key | none
     device: str = "auto"  # the Vulkan device: auto (a GPU when present, else lavapipe) | cpu | cuda (render.device)
     scenes: int = 1  # sub-scenes of the render scene: the shots rendered as one batch (render/batch.py)
+    # loaded garages the SAPIEN renderer keeps: a job on one of the last N garages replaces only its actors and
+    # cameras (a search across a few plans switches garages without rebuilding them); 1: the last one, as before
+    kept_garages: int = 1
 
 
 @dataclass

@@ -54,6 +54,10 @@ class SapienRenderer:
         self.shadows = shadows
         self.batch_static = batch_static
         self.cull = cull
+        # Garages kept loaded (renderer.kept_garages): a load whose statics are those of one of the last N loaded
+        # garages takes that SAPIEN scene back and replaces its actors, as a search's trials on one garage do.
+        self.kept_garages = 1
+        self._kept: list[tuple[tuple, dict]] = []  # the other garages' (statics, loaded state), oldest first
         self._reset()
 
     def _reset(self) -> None:
@@ -86,6 +90,8 @@ class SapienRenderer:
         import sapien
 
         static = self._static_key(scene)
+        if self._built is not None and self.kept_garages > 1 and self._recolouring(static) is None:
+            self._switch(static)
         # A restyled scene (a replicate's pictures) no longer shows its description's materials: rebuild it.
         recolour = self._recolouring(static) if self._built is not None and not self._restyled else None
         if recolour is not None:
@@ -110,6 +116,27 @@ class SapienRenderer:
         self._built = built
         self.description = scene
         self._static = static
+
+    # What one loaded garage is: the SAPIEN scene and what this renderer holds of it (swapped by _switch).
+    LOADED = ("description", "_built", "_static", "_restyled", "_ego", "_cameras", "_lights", "bodies")
+
+    def _switch(self, static: tuple) -> None:
+        """Another garage: keep the loaded one (unless restyled) among the last `kept_garages - 1` others and take
+        back the kept one with these statics' geometry, if any (its materials recoloured and actors replaced by
+        the load, as with a garage never left); else start empty for a full load. The least recently used
+        garage beyond the limit is dropped (its SAPIEN scene freed)."""
+        def garage(key: tuple) -> tuple:
+            return (key[0], *key[2:])  # the geometry and settings: materials are recoloured in place
+
+        if not self._restyled:
+            self._kept.append((garage(self._static), {name: getattr(self, name) for name in self.LOADED}))
+        wanted = garage(static)
+        back = next((k for k, (key, _) in enumerate(self._kept) if key == wanted), None)
+        held = self._kept.pop(back)[1] if back is not None else None
+        del self._kept[:max(0, len(self._kept) - (self.kept_garages - 1))]  # the least recently used go
+        self._reset()
+        for name, value in (held or {}).items():
+            setattr(self, name, value)
 
     def _static_key(self, scene: Scene) -> tuple:
         """What the merged static bodies are made of (sapien_builder.static_key) and the settings. Lamps and

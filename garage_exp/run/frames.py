@@ -68,7 +68,8 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> JobSummary:
     cfg = spec.config or cfg  # the job's config as plain data: its stages below are handed no config node
     slots = SlotFrames.open(cfg, prepared, out) if slot_frames_wanted(cfg) else None
     pipeline = FramePipeline(cfg, scene, renderer, sensor, sensor_rng, detector, classes, spec.scoring)
-    frames = pipeline.frames(setup.shots, progress=f"case {spec.names.case}")
+    one_run = trial and run.run_id is None  # a one-shot search's trial (search.runs=per_search): no bar a trial
+    frames = pipeline.frames(setup.shots, progress=None if one_run else f"case {spec.names.case}")
     try:
         for item, dets in pipeline.detected(frames):
             shot, target = item.shot, item.target

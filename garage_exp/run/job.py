@@ -164,7 +164,10 @@ def _run_job(cfg: DictConfig) -> float | JobSummary:
             "output_dir": str(out), "config_hash": digest, "host": os.uname().nodename, "pid": str(os.getpid())}
     if trial is not None:
         tags["search_trial"] = str(trial)
-    run = tracking.start_job_run(config, run_name(cfg), tags, parent)
+    if trial is not None and cfg.search.get("runs", "per_trial") == "per_search":
+        run = tracking.UnloggedRun()  # one run per search: the parent holds the trials' rows (search.runs)
+    else:
+        run = tracking.start_job_run(config, run_name(cfg), tags, parent)
     run.pending = out / tracking.PENDING_FILE  # calls the tracking server cannot take wait there
     try:
         with tracking.tracked_run(run, traceback_file=True):
@@ -199,8 +202,9 @@ def _run_body(cfg: DictConfig, prepared, out: Path, run, digest: str) -> JobSumm
                                   run.run_id)
         if gone:
             print(f"garage_exp: rerunning {run_name(cfg)!r}: replaces unfinished run(s) {', '.join(gone)}")
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    run.log_artifact(out / "config.yaml")
+    if run.run_id is not None:  # a trial without a run of its own is rerun by its overrides (the study's)
+        (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+        run.log_artifact(out / "config.yaml")
     if trial is None:  # a search trial's map is its study's: the parent holds it
         run.log_artifact(plan_map(prepared.classified, out / "plan_map.png"))
     if cfg.export.openscenario and trial is None:  # a search exports its hardest trials itself

@@ -67,6 +67,10 @@ def _check_site_pick(case) -> None:
 
 
 def _check_motion(case) -> None:
+    frames = case.get("frames")
+    if frames is not None and not (isinstance(frames, int) and not isinstance(frames, bool) and frames >= 1):
+        raise GarageError(f"frames must be a whole number >= 1 (or null: every frame), got {frames!r}",
+                          "case.frames")
     if case.motion.actor and not float(case.motion.step) > 0:
         raise GarageError(f"step must be positive, got {case.motion.step}", "case.motion.step")
     if case.motion.key not in MOVABLE:
@@ -147,6 +151,16 @@ def _leg_heading(a: tuple[float, float], b: tuple[float, float]) -> float:
     """Degrees of a leg of [distance, offset] points, from the path's heading (distance counts back along it,
     offset to its left)."""
     return math.degrees(math.atan2(b[1] - a[1], -(b[0] - a[0])))
+
+
+def one_shot(n: int, frames: int | None) -> set[int]:
+    """The frames of an n-frame trajectory that a K-frame scenario keeps (`case.frames`): K evenly spaced from
+    the first to the last (the first alone for K=1); all of them for None or K >= n."""
+    if frames is None or int(frames) >= n:
+        return set(range(n))
+    if int(frames) == 1:
+        return {0}
+    return {int(k) for k in np.round(np.linspace(0, n - 1, int(frames)))}
 
 
 def steps(start: float, end: float, step: float) -> list[float]:
@@ -360,7 +374,10 @@ def build_case(job: SceneSpec, classified: Classified, library, rng: np.random.G
             return frame_times([values[0], x], float(job.ego.speed))[1]
 
         alongs = [(n, a, start_time(a, time_at)) for n, a in (case.motion.get("along") or {}).items() if n in actors]
+        kept = one_shot(len(values), case.get("frames"))
         for frame, (value, time) in enumerate(zip(values, times)):
+            if frame not in kept:  # a one-shot scenario: the trajectory's frames, K of them
+                continue
             placed = dict(actors)
             if mover:
                 placed[mover] = replace(actors[mover], **{case.motion.key: value})

@@ -4,7 +4,8 @@ Hydra's basic launcher composes every job's config from the files (about 0.6 s h
 trial). A trial differs from the next by a few values, so this launcher composes once per combination of
 group levels (and structural overrides), then sets the trial's values on a copy, as Hydra's composition sets
 overrides on the composed defaults; `test_search.py` pins that the result equals Hydra's own composition.
-Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging.
+Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging. A one-shot search's
+trials (`search.runs=per_search`) skip `run_job`'s two copies of the config and the per-job log file (`run_lean`).
 
 A batch's jobs are numbered by Hydra's `initial_job_idx` (consecutive), or by the list of their numbers: a search
 batch's trial numbers, with gaps where the pre-screen pruned a trial (the job's dir is its trial's number).
@@ -14,12 +15,14 @@ from __future__ import annotations
 
 import copy
 import logging
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.core.utils import configure_log, run_job, setup_globals
-from omegaconf import DictConfig, OmegaConf, open_dict
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.utils import JobReturn, JobRuntime, configure_log, run_job, setup_globals
+from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +32,7 @@ class CachedLaunch:
         self.hydra_context, self.task_function, self.config, self.groups = hydra_context, task_function, config, groups
         self.parser = OverridesParser.create()
         self.cache: dict[tuple[str, ...], DictConfig] = {}
+        self.parses: dict = {}  # override line -> its parsed Override
 
     def structural(self, override) -> bool:
         """Overrides that change the defaults list (a group's level, +/~) or Hydra's node: composed by Hydra."""
@@ -36,10 +40,17 @@ class CachedLaunch:
         return (key in self.groups or "/" in key or key.startswith("hydra") or override.is_add()
                 or override.is_delete() or override.is_force_add())
 
+    def parsed(self, line: str):
+        """An override parsed once per launcher: a search's fixed overrides recur in every trial, its values
+        often (a choice's levels)."""
+        if line not in self.parses:
+            self.parses[line] = self.parser.parse_overrides([line])[0]
+        return self.parses[line]
+
     def compose(self, overrides: list[str]) -> DictConfig:
         from hydra._internal.config_loader_impl import get_overrides_dirname
 
-        parsed = self.parser.parse_overrides(overrides)
+        parsed = [self.parsed(line) for line in overrides]
         fixed = tuple(o.input_line for o in parsed if self.structural(o))
         if fixed not in self.cache:
             self.cache[fixed] = self.hydra_context.config_loader.load_sweep_config(self.config, list(fixed))
@@ -68,10 +79,49 @@ class CachedLaunch:
                 cfg.hydra.job.id = idx
                 cfg.hydra.job.num = idx
                 cfg.hydra.output_subdir = None  # the job writes its own config.yaml; .hydra/ cost 0.07 s a trial
-            runs.append(run_job(hydra_context=self.hydra_context, task_function=self.task_function, config=cfg,
-                                job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir"))
+            if OmegaConf.select(cfg, "search.runs") == "per_search":
+                runs.append(self.run_lean(cfg))
+            else:
+                runs.append(run_job(hydra_context=self.hydra_context, task_function=self.task_function, config=cfg,
+                                    job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir"))
             configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         return runs
+
+    def run_lean(self, cfg: DictConfig) -> JobReturn:
+        """Hydra's `run_job` for a one-shot trial (`search.runs=per_search`), without its two copies of the
+        config: the composition is this trial's own copy already (`compose`), so the job is handed it with its
+        `hydra` node taken out (as Hydra hands a job its config) after HydraConfig took its copy of that node.
+        No per-job log file is set up (the trial has no run to log it on). The job's dir, HydraConfig, the
+        callbacks and the JobReturn are Hydra's."""
+        from hydra.core.utils import JobStatus, _flush_loggers, env_override
+
+        previous = HydraConfig.instance().cfg
+        out = os.path.abspath(os.path.join(str(cfg.hydra.sweep.dir), str(cfg.hydra.sweep.subdir)))
+        with read_write(cfg.hydra.runtime), open_dict(cfg.hydra.runtime):
+            cfg.hydra.runtime.output_dir = out
+        HydraConfig.instance().set_config(cfg)
+        try:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            ret = JobReturn(overrides=list(cfg.hydra.overrides.task), hydra_cfg=HydraConfig.instance().cfg,
+                            working_dir=os.getcwd())
+            env = dict(cfg.hydra.job.env_set)
+            self.hydra_context.callbacks.on_job_start(config=cfg, task_function=self.task_function)
+            with read_write(cfg), open_dict(cfg):
+                del cfg["hydra"]  # HydraConfig holds its own copy of the node
+            ret.cfg = cfg
+            with env_override(env):
+                try:
+                    ret.return_value = self.task_function(cfg)
+                    ret.status = JobStatus.COMPLETED
+                except Exception as exc:  # as Hydra's run_job: the JobReturn raises it when read
+                    ret.return_value = exc
+                    ret.status = JobStatus.FAILED
+            ret.task_name = JobRuntime.instance().get("name")
+            _flush_loggers()
+            self.hydra_context.callbacks.on_job_end(config=ret.hydra_cfg, job_return=ret)
+            return ret
+        finally:
+            HydraConfig.instance().cfg = previous
 
 
 def job_numbers(first: int | Sequence[int], n: int) -> list[int]:

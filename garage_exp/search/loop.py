@@ -13,6 +13,7 @@ store, an advisory lock on PostgreSQL: garage_exp.search.storage).
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import os
 import socket
@@ -96,6 +97,9 @@ def heartbeat(study: optuna.Study, trial: optuna.Trial):
     finally:
         stop.set()
         thread.join(timeout=5)
+
+
+FREEZE_AT = (1, 2, 4, 8, 16, 32, 64)  # a one-shot search's trial counts after which the collector is settled
 
 
 class SearchLoop:
@@ -188,6 +192,16 @@ class SearchLoop:
                     self.study.tell(left, state=TrialState.FAIL)
                 raise
             self.tell(trial, outcome(result, self.search.objective))
+        self.settle()
+
+    def settle(self) -> None:
+        """A one-shot search (`search.runs=per_search`) freezes what the process holds (the renderer, the loaded
+        garages, the models, the cached compositions) out of the garbage collector's full passes after trials 1,
+        2, 4, ... 64: each full pass walked all of it, about 1 s every 15 one-shot trials on this machine. What
+        is alive at a freeze is never collected, so it happens only those few times (a trial's leftovers at most
+        seven times over)."""
+        if self.search.get("runs", "per_trial") == "per_search" and len(self.ran) in FREEZE_AT:
+            gc.freeze()
 
     def tell(self, trial: optuna.Trial, out: Outcome) -> None:
         if out.state == TrialState.COMPLETE and self.search.get("descriptors"):

@@ -143,4 +143,8 @@ class SearchConf:
     # elites (archive.csv, archive.png), and `sampler=archive`'s quality-diversity search over them
     descriptors: list[DescriptorConf] = field(default_factory=default_descriptors)
     archive: ArchiveConf = field(default_factory=ArchiveConf)
+    # per_trial: each trial's job has its MLflow run (a child of the search's); per_search: one run per search, the
+    # parent, which holds every trial's frame rows (search/scenarios.csv) and the study's analysis: a one-shot
+    # trial's own run cost about as much as rendering it (docs/performance.md, "One-shot scenarios")
+    runs: str = "per_trial"
     trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary

@@ -58,6 +58,9 @@ def study_name(search, fixed_and_space: list[str]) -> str:
     return "search-" + hashlib.sha1(text.encode()).hexdigest()[:10]
 
 
+RUNS = ("per_trial", "per_search")  # search.runs: an MLflow run per trial, or one per search
+
+
 def check_search(search) -> None:
     """The `search` node's own values (the space is checked by space.build)."""
     if search.mode not in MODES:
@@ -86,6 +89,8 @@ def check_search(search) -> None:
         raise GarageError(f"{search.startup} startup trials: at least 0", "search.startup")
     if int(search.get("batch", 1)) < 1:
         raise GarageError(f"a batch of {search.batch} trials: at least 1", "search.batch")
+    if search.get("runs", "per_trial") not in RUNS:
+        raise GarageError(f"unknown runs {search.runs!r} ({' | '.join(RUNS)})", "search.runs")
     if int(search.trials) < 1:
         raise GarageError(f"{search.trials} trials: at least 1", "search.trials")
     if int(search.get("frames") or 0) < 0:

@@ -265,6 +265,8 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
     if (out_dir / "archive.csv") in paths:  # its numbers for the parent run and the summary
         result["archive"] = archive.summary(result["study"].get_trials(deepcopy=False, states=(TrialState.COMPLETE,)),
                                             search)
+    if search.get("runs", "per_trial") == "per_search":  # the trials have no runs: their rows go on the parent
+        paths.extend(scenario_rows(result["study"], out_dir / "scenarios.csv"))
     if config.export.openscenario:
         paths.extend(export_hardest(config, result["study"], out_dir / "openscenario", loader))
     if search.mode == "suite":
@@ -272,6 +274,25 @@ def finish(config: DictConfig, result: dict, out_dir: Path, loader, launch) -> l
 
         paths.extend(write_suite(config, result["study"], loader, launch, result["name"]))
     return paths
+
+
+def scenario_rows(study, path: Path) -> list[Path]:
+    """Every trial's frame rows in one table (its `trial` column first), read from the trials' own frame tables:
+    what a search without a run per trial (`search.runs=per_search`) logs on its parent run; [] when no trial
+    scored a frame."""
+    import pandas as pd
+
+    tables = []
+    for trial in study.get_trials(deepcopy=False):
+        table = Path(str(trial.user_attrs.get("output_dir") or "")) / "frames.csv"
+        if trial.user_attrs.get("output_dir") and table.is_file():
+            rows = pd.read_csv(table)
+            tables.append(rows.assign(trial=trial.number)[["trial", *rows.columns]])
+    if not tables:
+        return []
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pd.concat(tables, ignore_index=True).to_csv(path, index=False)
+    return [path]
 
 
 def export_hardest(config: DictConfig, study, out: Path, loader) -> list[Path]:
@@ -381,6 +402,8 @@ def acceptance(study) -> tuple[int, int] | None:
         return None
     rejected = sum("rejected" in t.user_attrs for t in checked)
     return len(checked) - rejected, len(checked)
+
+
 def count_others_apart(config: DictConfig, result: dict, sweep_dir: Path) -> None:
     """The study's trials this command did not run (finished before a resume, or by another worker), recorded as
     the sweep's skipped runs, so that the sweep summary counts as finished only what this command ran, as the
@@ -393,6 +416,20 @@ def count_others_apart(config: DictConfig, result: dict, sweep_dir: Path) -> Non
         run_id = t.user_attrs.get("run_id")
         if run_id and t.number not in ran and t.user_attrs.get("tracking_uri") == store:
             tracking.add_resumed(sweep_dir, run_id)
+
+
+def trials_summary(result: dict) -> tuple[str, int]:
+    """The sweep's summary when its trials have no runs (`search.runs=per_search`): how this worker's trials ended,
+    from the study (one line per failed trial), and how many failed (the command's exit code counts them)."""
+    from optuna.trial import TrialState
+
+    ran = set(result["ran"])
+    trials = [t for t in result["study"].get_trials(deepcopy=False) if t.number in ran]
+    failed = [t for t in trials if t.state == TrialState.FAIL]
+    lines = [f"garage_exp: sweep summary: {len(trials)} trials in one MLflow run (search.runs=per_search): "
+             f"{len(trials) - len(failed)} finished, {len(failed)} failed"]
+    lines += [f"  FAILED: trial {t.number}: {t.user_attrs.get('error') or 'no error recorded'}"[:600] for t in failed]
+    return "\n".join(lines), len(failed)
 
 
 def ranked(study) -> list:

@@ -99,6 +99,19 @@ class JobRun:
         forget_artifact_repo(self.run_id)
 
 
+class UnloggedRun(JobRun):
+    """A search trial's stand-in run under `search.runs=per_search`: it takes a job's calls and logs nothing (no
+    MLflow run is made: the search's parent run holds the trials' rows and the study's analysis, the study the
+    trial's values and outcome). `run_id` is None."""
+
+    def __init__(self):
+        super().__init__(None, None)
+
+    def _call(self, op: str, *args) -> None:
+        if op == "end":
+            self.ended = True
+
+
 def forget_artifact_repo(run_id: str) -> None:
     """Drop MLflow's cached artifact repository of an ended run: MLflow keeps one (with its logging queue) for
     each of the last 1,024 runs that logged an artifact, about 20 kB each, which a long search's RSS carried

@@ -19,8 +19,8 @@ from pathlib import Path
 from garage_exp.tracking.client import (TRANSIENT, UNREACHABLE, TrackingAway, client, existing_client, retry, tracking_uri,
                                        tracking_wait)
 from garage_exp.tracking.experiments import artifact_location, experiment_id
-from garage_exp.tracking.jobrun import (PENDING_FILE, JobRun, log_report, replay_pending, start_job_run,
-                                       tracked_run)
+from garage_exp.tracking.jobrun import (PENDING_FILE, JobRun, UnloggedRun, log_report, replay_pending,
+                                       start_job_run, tracked_run)
 from garage_exp.tracking.provenance import (NAME_MAX, config_hash, config_params, describes_run, file_digest,
                                             fit_name, flatten, git_commit, run_name, sweep_key)
 from garage_exp.tracking.sweepfiles import (PARENT_FILE, RESUMED_FILE, add_resumed, clear_resumed, read_parent,
@@ -87,7 +87,7 @@ def find_parent(mlc, experiment_id: str, key: str):
 
 
 __all__ = [
-    "EXPERIMENT_KIND", "JobRun", "NAME_MAX", "PARENT_FILE", "PENDING_FILE", "RESUMED_FILE", "TRANSIENT",
+    "EXPERIMENT_KIND", "JobRun", "UnloggedRun", "NAME_MAX", "PARENT_FILE", "PENDING_FILE", "RESUMED_FILE", "TRANSIENT",
     "TrackingAway", "UI_ADDRESS", "UI_VIEW", "UNREACHABLE", "VIEW_KEY", "VIEW_METRICS", "VIEW_PARAMS",
     "add_resumed", "artifact_location", "clear_resumed", "client", "config_hash", "config_params",
     "describes_run", "existing_client", "experiment_id", "experiment_tags", "file_digest", "find_parent", "finished_run", "fit_name",

@@ -63,4 +63,9 @@ class SearchSweeper(Sweeper):
             sweep.log_on_parent(self.config, parent, result, paths, sweep_dir / "search")
         sweep.count_others_apart(self.config, result, sweep_dir)
         print(sweep.summary(result, sweep_dir / "search"))
+        if OmegaConf.select(self.config, "search.runs") == "per_search":
+            from garage_exp.core.state import STATE
+
+            if STATE.sweep is not None:  # the sweep's callback: its trials have no runs to count
+                STATE.sweep.trials_summary = sweep.trials_summary(result)
         return result["ran"]
