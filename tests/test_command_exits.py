@@ -119,10 +119,10 @@ def test_a_usage_error_is_one_line_and_exit_2(capsys):
     """argparse's own errors (its usage block and `error:` line) become the shell's one line."""
     from garage_exp.plan.__main__ import main
 
-    assert main(["draw"]) == 2
+    assert main(["drew"]) == 2
     err = capsys.readouterr().err
-    assert err.splitlines() == ["garage_exp.plan: argument command: invalid choice: 'draw' (choose from 'map', "
-                                "'check', 'generate') (see python -m garage_exp.plan --help)"]
+    assert err.splitlines() == ["garage_exp.plan: argument command: invalid choice: 'drew' (choose from 'map', "
+                                "'check', 'generate', 'draw') (see python -m garage_exp.plan --help)"]
     assert main(["--help"]) == 0
 
 

@@ -28,6 +28,13 @@ COVERED = {
     "python -m benchmarks.studies.archive_cells --trials 30 --seeds 0,1,2 --workers 2":
         "not run: a benchmark of about an hour that rewrites benchmarks/results/archive_cells.md; its arguments parse "
         "in tests/test_benchmarks.py, its searches are the archive search above",
+    "python -m garage_exp -m hydra/sweeper=search search.sampler=archive search.trials=2000 search.runs=per_search":
+        "not run: 2,000 one-shot scenarios (minutes); the same search at two trials, one MLflow run and kept garages "
+        "is tests/test_oneshot.py's end-to-end search, and its arguments are benchmarks/performance/oneshot.py's",
+    "python -m garage_exp.search.grade --storage sqlite:///outputs/search/optuna.db --study <suite study>":
+        "not run: <suite study> is the reader's own suite as written; the command runs on a suite study of its own in "
+        "tests/test_grade.py (test_the_fresh_draws_run_through_the_real_search_as_enqueued)",
+    "python -m garage_exp -m hydra/sweeper=search space=wide search.trials=2": "test_the_wide_space_search_runs",
     "python -m garage_exp case=cpnco export.openscenario=true": "test_an_export_command_writes_its_files",
     "python -m garage_exp case=crossing export.openscenario=true export.openscenario_version=1.0":
         "test_an_export_command_writes_its_files",
@@ -90,6 +97,21 @@ def test_a_search_command_runs(start, tmp_path, built):
     assert r.returncode == 0, r.stderr[-3000:]
     assert len(built) == 2 and all(p.scene is not None and p.setup.shots for p in built)
     assert "this worker ran 2" in r.stdout
+
+
+def test_the_wide_space_search_runs(tmp_path, built):
+    """The wide space's search as written (two trials, frames left out): its 31 factors checked, each draw checked
+    against its requirements before its job, generated garages and any straight run; the summary says how many draws
+    the requirements kept."""
+    args = argv(command("search.md", "python -m garage_exp -m hydra/sweeper=search space=wide search.trials=2"))
+    r = run_app([*args, "search.sampler=random", f"search.storage=sqlite:///{tmp_path}/optuna.db",
+                 f"tracking.uri=sqlite:///{tmp_path}/mlflow.db"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    # one-shot; a draw whose occluder stands in the ego at every site is pruned before its job (infeasible)
+    assert 1 <= len(built) <= 2 and all(p.scene is not None and len(p.setup.shots) == 1 for p in built)
+    assert all(p.plan_path.name.startswith("generated") or "generated" in str(p.plan_path) for p in built), \
+        [str(p.plan_path) for p in built]
+    assert "this worker ran 2" in r.stdout and "requirements:" in r.stdout and "draws accepted" in r.stdout
 
 
 def export_job(page_command: str, tmp_path) -> None:

@@ -57,7 +57,7 @@ SEARCH = ["-m", "hydra/sweeper=search", "plan=tiny", "search.trials=1", "search.
 # The loop's estimate (every step checked, nothing run): a search space of one interval on the tiny plan, the
 # plugin's entry as the detector (base is a model YAML: no .pt replaces it), no protocol, one arm.
 LOOP = ["estimate=true", "base=yolov8n.yaml", "train_plans=[tiny]", "eval_plan=research", "rounds=1", "seeds=[0]",
-        "space=['light.intensity=interval(0.5,1.0)']",
+        "space.params=['light.intensity=interval(0.5,1.0)']",
         "fixed=['case.motion.step=4.0','detector.models=[half:0.7]']",
         "~protocol.cpnco", "~protocol.cpra", "~protocol.crossing", "~protocol.crouch", "~arms.T", "~arms.Q", "frames=0"]
 

@@ -352,10 +352,19 @@ def test_the_occluder_faces_along_the_lane_whatever_the_target_does():
 
 
 def test_the_loop_reads_a_shipped_space_as_the_search_does():
-    """`python -m garage_exp.loop 'space=[space=wide]'`: its searches get `space=wide` on their command line, and
-    its held-out sample draws the same keys (loop/heldout.py: space_params)."""
+    """`python -m garage_exp.loop space=wide`: its searches get `space=wide` on their command line (the space's
+    requirements, cells and case come with it), and its held-out sample draws the same keys (loop/heldout.py:
+    space_params); `space.params=[...]` replaces the file's list."""
+    from conftest import compose_cfg as compose
     from garage_exp.loop.heldout import space_params
+    from garage_exp.loop.schema import searched as loop_searched
     from garage_exp.search import space as space_mod
+
+    from garage_exp.loop.schema import space_by_name
+
+    assert loop_searched(compose(*space_by_name(["space=wide"]), config="loop")) == ["space=wide"]
+    assert loop_searched(compose(config="loop")) == ["space=loop"]
+    assert loop_searched(compose("space.params=['light=dim']", config="loop")) == ["light=dim"]
 
     cfg = compose_cfg("space=wide")
     searched = space_mod.build(space_mod.expand(cfg, ["space=wide", "seed=int(interval(0,9))"]), cfg, {}).params

@@ -17,6 +17,7 @@ from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, JobFault, check_range
 from garage_exp.loop import budget, schema, steps
 from garage_exp.loop.budget import arm_budget
+from garage_exp.loop.schema import searched
 
 COMMAND = shell.Command("garage_exp.loop", "loop", (schema.register,),
                         resume_hint="rerun the same command to go on where it stopped")
@@ -195,7 +196,7 @@ def run_loop(cfg: DictConfig) -> dict:
                                                 study="base", calibrate=False))
     # 3. The held-out suites, rendered once: the failure-rate sample (a fixed QMC sample of the space on eval_plan),
     # the protocol cases, and (scored later) the real photos.
-    points = heldout.sample(list(cfg.space), int(cfg.heldout_trials), int(cfg.heldout_seed), str(cfg.heldout_method))
+    points = heldout.sample(searched(cfg), int(cfg.heldout_trials), int(cfg.heldout_seed), str(cfg.heldout_method))
     held = loop.step("held-out sample", lambda: loop.study(
         "heldout", [cfg.eval_plan], cfg.heldout_trials, "random", 0, [d0["model"]],
         before=lambda: heldout.enqueue(steps.storage(cfg), "heldout", points)))
@@ -328,7 +329,7 @@ def cli(argv: list[str] | None = None) -> None:
     import sys
     import tempfile
 
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = schema.space_by_name(list(sys.argv[1:] if argv is None else argv))
     if not estimating(argv):
         COMMAND.run(main, argv)
         return

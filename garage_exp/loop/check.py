@@ -116,7 +116,7 @@ def blame(cfg: DictConfig, text: str, step: str) -> str:
     searched key also as the search names its probed values), `eval_plan`, `train_plans`; else the step."""
     protocol = step.split(" ", 1)[1] if step.startswith("protocol ") else None
     sources = ([("protocol_fixed", cfg.protocol_fixed), (f"protocol.{protocol}", cfg.protocol[protocol])]
-               if protocol else [("fixed", cfg.fixed), ("space", cfg.space)])
+               if protocol else [("fixed", cfg.fixed), ("space.params", cfg.space.params)])
     for key, overrides in sources:
         if any(str(o) in text for o in overrides):
             return key
@@ -125,8 +125,8 @@ def blame(cfg: DictConfig, text: str, step: str) -> str:
             return key
     if protocol:
         return f"protocol.{protocol}"
-    if any(f"search space {dotted(o)}=" in text for o in cfg.space):
-        return "space"
+    if any(f"search space {dotted(o)}=" in text for o in cfg.space.params):
+        return "space.params"
     if step == "held-out sample" and str(cfg.eval_plan) in text:
         return "eval_plan"
     if any(str(p) in text for p in cfg.train_plans):

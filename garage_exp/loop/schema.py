@@ -7,7 +7,7 @@ from typing import Optional
 
 from hydra.core.config_store import ConfigStore
 
-from garage_exp.core.schema import TrackingConf
+from garage_exp.core.schema import SpaceConf, TrackingConf
 
 # What an arm spends per round and training seed; every arm must spend the same (app.check_budgets).
 BUDGET_KEYS = ("frames", "trials", "train_frames", "epochs", "imgsz", "replay_fraction")
@@ -51,10 +51,11 @@ class LoopConf:
     # A name for another run of the arms (other replay, epochs ...) in the same dir, sharing its base data, D0 and
     # held-out suites; its studies, trainings and results get this suffix. Empty: the first run's names.
     variant: str = ""
-    # The declared scenario space, in the search's override grammar (docs/search.md), shared by every study.
-    space: list[str] = field(default_factory=lambda: ["case=choice('1','2','3',pedestrian)",
-                                                      "light=choice(bright,clear,moderate,dim)",
-                                                      "seed=int(interval(0,9999))"])
+    # The declared scenario space, shared by every study: a shipped space (conf/space/NAME.yaml, `space=wide`;
+    # the loop's own: `space: loop`), its `params` in the search's override grammar (docs/search.md). searched()
+    # says how the loop's searches are given it.
+    space: SpaceConf = field(default_factory=lambda: SpaceConf(name="loop", params=[
+        "case=choice('1','2','3',pedestrian)", "light=choice(bright,clear,moderate,dim)", "seed=int(interval(0,9999))"]))
     fixed: list[str] = field(default_factory=lambda: ["case.motion.step=2.0"])  # set on every job
     train_plans: list[str] = field(default_factory=lambda: ["research", "realistic"])
     eval_plan: str = "obstacles"  # no training frame comes from it
@@ -105,3 +106,39 @@ class LoopConf:
 
 def register() -> None:
     ConfigStore.instance().store(name="loop_schema", node=LoopConf)
+
+
+def searched(cfg) -> list[str]:
+    """The loop's space as a search command's overrides: `space=NAME` while its params are its file's (the search
+    then takes the file's requirements, cells and one-shot case too), else the params alone (`space.params=[...]`
+    on the loop's command line replaces the file's list, as the loop's space list always did)."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    name, params = str(cfg.space.name), [str(p) for p in cfg.space.params]
+    path = PROJECT_ROOT / "conf" / "space" / f"{name}.yaml"
+    if path.is_file() and [str(p) for p in OmegaConf.load(path).get("params") or []] == params:
+        return [f"space={name}"]
+    return params
+
+
+def space_by_name(argv: list[str]) -> list[str]:
+    """`space=NAME` on the loop's command line as the space's name and params (`space.name=NAME`,
+    `space.params=[...]`): the loop reads a shipped space's list of overrides, not the whole level, whose defaults
+    list may pick groups the loop's own config has not (the wide space picks its one-shot `case`). A name with no
+    file is left as written, for Hydra to refuse in its own words."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    out = []
+    for arg in argv:
+        name = arg.split("=", 1)[1] if arg.startswith("space=") else None
+        path = PROJECT_ROOT / "conf" / "space" / f"{name}.yaml"
+        if name is None or not path.is_file():
+            out.append(arg)
+            continue
+        params = [str(p) for p in OmegaConf.load(path).get("params") or []]
+        out += [f"space.name={name}", "space.params=[" + ",".join(f'"{p}"' for p in params) + "]"]
+    return out

@@ -15,6 +15,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from garage_exp.core.exits import wait_child
+from garage_exp.loop.schema import searched
 
 
 @dataclass
@@ -45,7 +46,7 @@ def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, s
     plan = f"plan=choice({','.join(plans)})" if len(plans) > 1 else f"plan={plans[0]}"
     cmd = [sys.executable, "-m", "garage_exp", "-m", "hydra/sweeper=search", f"search.trials={trials}",
            f"search.sampler={sampler}", f"search.seed={seed}", f"search.study={study}",
-           f"search.storage={storage(cfg)}", plan, *cfg.space, *cfg.fixed, "dataset=true",
+           f"search.storage={storage(cfg)}", plan, *searched(cfg), *cfg.fixed, "dataset=true",
            f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
            f"tracking.experiment={cfg.tracking.experiment}", f"hydra.sweep.dir={Path(cfg.dir) / 'studies' / study}"]
     if models:
