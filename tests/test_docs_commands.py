@@ -35,6 +35,9 @@ COVERED = {
         "not run: <suite study> is the reader's own suite as written; the command runs on a suite study of its own in "
         "tests/test_grade.py (test_the_fresh_draws_run_through_the_real_search_as_enqueued)",
     "python -m garage_exp -m hydra/sweeper=search space=wide search.trials=2": "test_the_wide_space_search_runs",
+    "python -m benchmarks.studies.archive_cells --space wide --trials 60":
+        "not run: a benchmark of minutes that rewrites benchmarks/results/archive_cells_wide_pilot.md; its arguments "
+        "parse in tests/test_benchmarks.py, its searches are the wide space's search above",
     "python -m garage_exp case=cpnco export.openscenario=true": "test_an_export_command_writes_its_files",
     "python -m garage_exp case=crossing export.openscenario=true export.openscenario_version=1.0":
         "test_an_export_command_writes_its_files",

@@ -61,7 +61,9 @@ def count(out: Path, study_name: str) -> dict:
     search = OmegaConf.structured(SearchConf)
     study = optuna.load_study(study_name=study_name, storage=f"sqlite:///{out / 'optuna.db'}")
     if study.user_attrs.get("descriptors"):  # the cells the search itself measured (its search.descriptors)
-        search.descriptors = study.user_attrs["descriptors"]
+        from garage_exp.search.schema import DescriptorConf
+
+        search.descriptors = [DescriptorConf(**d) for d in study.user_attrs["descriptors"]]
     done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     numbers = archive.summary(done, search)
     failing = sum(1 for t in done if t.values[0] >= float(search.archive.failure))
