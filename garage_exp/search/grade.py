@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import shlex
+import subprocess
 import sys
 from pathlib import Path
 
@@ -204,9 +205,11 @@ def grade(storage: str, suite: str, out: Path, levels: int = 5, fresh: int = 20,
     enqueue(open_study(search, name, seed), draws)
     out.mkdir(parents=True, exist_ok=True)
     cmd = grade_command(argv, storage, name, len(draws), out / "sweep")
-    code = (run or wait_child)(cmd)
+    print(f"garage_exp: {len(draws)} fresh draws of study {suite!r}: their search's output in {out / 'search.log'}")
+    with open(out / "search.log", "w") as log:  # the child's own lines, apart from this command's
+        code = (run or (lambda c: wait_child(c, stdout=log, stderr=subprocess.STDOUT)))(cmd)
     if code not in (0, 1):  # 1: some fresh draws failed to run (their trials say why); the others count
-        raise RuntimeError(f"the fresh draws' search failed (exit {code}): {shlex.join(cmd)}")
+        raise RuntimeError(f"the fresh draws' search failed (exit {code}; {out / 'search.log'}): {shlex.join(cmd)}")
     grade_study = optuna.load_study(study_name=name, storage=store)
     table, rho = measure(grade_study, failure)
     table.to_csv(out / "grade.csv", index=False)
