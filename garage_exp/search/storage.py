@@ -104,10 +104,17 @@ def _patient(name: str):
     return wrapper
 
 
-for _name in [n for n in dir(RDBStorage) if not n.startswith("_") and callable(getattr(RDBStorage, n))
-              and n not in ("remove_session", "upgrade", "get_current_version", "get_head_version",
-                            "get_all_versions", "get_heartbeat_interval", "get_failed_trial_callback",
-                            "get_heartbeat_stale_trial_callback")]:
+# The private methods Optuna's cache (_CachedStorage, which wraps every study's RDBStorage) calls on its
+# backend directly: new trials, parameters, every trial list. Left unwrapped, a restart that met one of them
+# stopped the search with StorageInternalError instead of a wait.
+CACHE_CALLS = ("_create_new_trial", "_set_trial_param", "_get_trials", "_get_best_trial_id", "_get_stale_trial_ids")
+
+# Methods that do not reach the database (or manage it): called as they are.
+NO_DATABASE = ("remove_session", "upgrade", "get_current_version", "get_head_version", "get_all_versions",
+               "get_heartbeat_interval", "get_failed_trial_callback", "get_heartbeat_stale_trial_callback")
+
+for _name in [n for n in dir(RDBStorage) if (not n.startswith("_") or n in CACHE_CALLS)
+              and callable(getattr(RDBStorage, n)) and n not in NO_DATABASE]:
     setattr(PatientStorage, _name, _patient(_name))
 
 
