@@ -172,3 +172,18 @@ def test_ground_truth_gives_the_targets_height_and_light_and_the_cameras_height(
     got = frame_row(shot, "front", truth, score, [], "person")
     assert (got["target_height"], got["target_light"], got["camera_height"]) == (1.15, 0.25, cam_height)
     assert math.isnan(frame_row(shot, "front", None, score, [])["target_light"])  # out of view
+
+
+def test_a_wide_archive_draws_only_the_panels_that_hold_a_value(tmp_path):
+    """The wide space's 864 cells are 54 panels; drawn all in a strip (6105 px wide) nothing could be read. Past
+    MAX_PANELS only the panels holding a value are drawn, wrapped, and the title says how many were left out."""
+    from PIL import Image
+
+    from garage_exp.report.archive_cells import draw_cells
+
+    grid = archive.Grid(OmegaConf.create(wide_descriptors()))
+    assert len(grid.dims) > 2
+    values = {(0, 0) + (0,) * (len(grid.dims) - 2): 0.9, (1, 1) + (1,) * (len(grid.dims) - 2): 0.3}
+    assert np.prod(grid.dims[2:]) > 12  # more panels than MAX_PANELS
+    width, _ = Image.open(draw_cells(grid, values, tmp_path / "a.png", "difficulty", "difficulty")).size
+    assert width <= 110 * (1.5 + 0.75 * max(grid.dims[1], 2) * 2) + 2  # two panels hold a value: two columns

@@ -135,6 +135,10 @@ def heatmap(trials: list[FrozenTrial], cells: dict, path: Path) -> Path:
     return draw_cells(grid, values, path, title, "difficulty", bold_at=failure)
 
 
+# More panels than this and only those holding a value are drawn, WRAP to a row.
+MAX_PANELS, WRAP = 12, 6
+
+
 def draw_cells(grid: Grid, values: dict, path: Path, title: str, label: str, bold_at: float = 1.0,
                notes: dict | None = None) -> Path:
     """A value in [0, 1] per cell: the first two descriptors as a panel's rows and columns, one panel per
@@ -150,9 +154,19 @@ def draw_cells(grid: Grid, values: dict, path: Path, title: str, label: str, bol
     panels = [()] if not rest else [tuple(p) for p in np.ndindex(*[len(r) for r in rest])]
     rows = dims[2] if len(dims) > 2 else 1  # the third descriptor's bins down, the others' across
     cols = len(panels) // rows
+    left_out = 0
+    if len(panels) > MAX_PANELS:  # a wide space (6 descriptors: 54 panels) drew a strip too wide to read
+        held = {(tuple(c) + (0,) * (len(dims) - len(c)))[2:] for c in values} or {panels[0]}
+        left_out = len(panels) - len(held)
+        panels = [p for p in panels if p in held]
+        cols = min(len(panels), WRAP)
+        rows = -(-len(panels) // cols)
+        title += f" ({left_out} panels without a value left out)"
     fig, axes = plt.subplots(rows, cols, figsize=(1.5 + 0.75 * max(dims[1], 2) * cols,
-                                                  1.0 + (0.45 * dims[0] + 0.9) * rows),
+                                                  1.0 + (0.45 * dims[0] + 1.1) * rows),
                              squeeze=False, layout="constrained")
+    for ax in axes.flat[len(panels):]:
+        ax.set_axis_off()
     cmap = plt.get_cmap("magma_r").copy()
     cmap.set_bad("0.85")
     image = None
@@ -172,8 +186,8 @@ def draw_cells(grid: Grid, values: dict, path: Path, title: str, label: str, bol
                         color="white" if v > 0.55 else "black", fontweight="bold" if v >= bold_at else "normal")
         ax.set_yticks(range(dims[0]), grid.labels(0) if len(grid.dims) > 0 else [""], fontsize=7)
         ax.set_xticks(range(dims[1]), grid.labels(1) if len(grid.dims) > 1 else [""], fontsize=7)
-        ax.set_title(", ".join(f"{grid.descriptors[k + 2].source} {grid.labels(k + 2)[i]}"
-                               for k, i in enumerate(panel)) or "all", fontsize=8)
+        name = ", ".join(f"{grid.descriptors[k + 2].source} {grid.labels(k + 2)[i]}" for k, i in enumerate(panel))
+        ax.set_title(textwrap.fill(name, max(24, int(0.75 * max(dims[1], 2) * 14))) or "all", fontsize=7)
         ax.set_ylabel(str(grid.descriptors[0].source), fontsize=7)
         ax.set_xlabel(str(grid.descriptors[1].source) if len(grid.dims) > 1 else "", fontsize=7)
     fig.suptitle(textwrap.fill(title, int(fig.get_figwidth() * 12)), fontsize=8)  # ~12 characters an inch
