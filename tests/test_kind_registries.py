@@ -2,7 +2,7 @@
 (scene/views.py `@register_view`), sensor kinds and tone curves (perception/sensor.py `@register_sensor_kind`,
 `@register_tone_curve`), slot detector kinds (perception/slots/detector.py `@register_slot_kind`), detector entry
 kinds (perception/detect/kinds.py `@register_entry_kind`), objectives (search/objectives.py `register_objective`)
-and camera models (scene/lenses.py `register_camera_model`): adding one is one module. Each test adds some from a
+and lenses, one per camera model (scene/lenses `@register_lens`): adding one is one module. Each test adds some from a
 temporary module and uses them where the shipped ones are used; one adds one of each through $GARAGE_EXP_PLUGINS,
 as a user would (docs/architecture.md, "Extension points")."""
 
@@ -23,17 +23,18 @@ from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect.kinds import KINDS as ENTRY_KINDS
 from garage_exp.perception.sensor import KINDS, TONES, make_sensor
 from garage_exp.perception.slots.detector import KINDS as SLOT_KINDS
-from garage_exp.scene.lenses import MODELS
+from garage_exp.scene.lenses import LENSES
 from garage_exp.scene.views import VIEWS
 from garage_exp.search.objectives import OBJECTIVES
 
-REGISTRIES = (VIEWS, KINDS, TONES, SLOT_KINDS, ENTRY_KINDS, MODELS, OBJECTIVES)
+REGISTRIES = (VIEWS, KINDS, TONES, SLOT_KINDS, ENTRY_KINDS, LENSES, OBJECTIVES)
 MODULES = ("user_view", "user_sensor", "user_slots", "user_plugin")
 
 VIEW_MODULE = '''
 from dataclasses import dataclass
 
-from garage_exp.scene.views import Pinhole, register_view
+from garage_exp.scene.lenses import Pinhole
+from garage_exp.scene.views import register_view
 
 
 @register_view("narrow")
@@ -95,9 +96,10 @@ def plugin(tmp_path, monkeypatch):
 
 
 def test_a_view_from_a_module_of_its_own(plugin):
-    from garage_exp.perception.detect import Intrinsics
-    from garage_exp.render.fisheye import lens_of, view_lens, view_remap
+    from garage_exp.render.fisheye import view_remap
     from garage_exp.scene.camera import check_camera, rig_specs
+    from garage_exp.scene.lenses import lens_of
+    from garage_exp.scene.views import picture_lens, view_lens
 
     rig = compose_cfg("camera=fisheye", "camera.view=narrow", "camera.width=64", "camera.height=48").camera
     with pytest.raises(GarageError, match="camera.view: unknown view 'narrow'"):
@@ -107,8 +109,8 @@ def test_a_view_from_a_module_of_its_own(plugin):
     (spec,) = rig_specs(rig, (4.77, 1.96, 1.5))[:1]
     view = view_lens(spec)
     assert type(view).__name__ == "Narrow" and abs(view.fx - 32.0 / np.tan(np.radians(30.0))) < 1e-9
-    intrinsics = Intrinsics.of(spec)
-    assert intrinsics.model == "pinhole" and intrinsics.fx == view.fx  # the detector sees a pinhole view
+    seen = picture_lens(spec)
+    assert seen.model == "pinhole" and seen.fx == view.fx  # the detector sees a pinhole view
     map_x, _, flat = view_remap(lens_of(spec), view)
     assert (flat >= 0).all() and map_x.shape == (48, 64)  # 60 degrees lie within the 190-degree lens
 
@@ -147,8 +149,7 @@ from garage_exp.perception.detect.kinds import register_entry_kind
 from garage_exp.perception.sensor import register_sensor_kind
 from garage_exp.perception.slots.detector import SlotKind, register_slot_kind
 from garage_exp.perception.slots.marks import MarkingPoint, SlotFrame
-from garage_exp.render.fisheye import Fisheye
-from garage_exp.scene.lenses import NO_K, CameraModel, register_camera_model
+from garage_exp.scene.lenses import NO_K, Fisheye, register_lens
 from garage_exp.search.objectives import NOT_VISIBLE, Objective, register_objective
 
 
@@ -179,14 +180,19 @@ register_objective(Objective("missed", ("missed",), ("maximize",), judge_missed,
                              NOT_VISIBLE, attrs={"frames_missed": "frames missed"}))
 
 
-def equidistant(spec):
+@register_lens("equidistant")
+class Equidistant(Fisheye):
     """A fisheye whose image radius grows evenly with the angle off its axis (Kannala-Brandt with k = 0)."""
-    return Fisheye(spec.width, spec.height, spec.fov, NO_K)
 
+    bev = False
 
-register_camera_model(CameraModel("equidistant", check=lambda cam, rig, where: None,
-                                  spec=lambda cam, view: {"fov": float(cam.fov), "k": NO_K, "view": view},
-                                  lens="user_plugin.equidistant", pinhole_frames=False))
+    @classmethod
+    def check(cls, cam, rig, where):
+        pass
+
+    @classmethod
+    def spec_fields(cls, cam, view):
+        return {"fov": float(cam.fov), "k": NO_K, "view": view}
 
 
 @register_sensor_kind("green")
@@ -217,8 +223,8 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
     from garage_exp.perception.detect.worker import DetectorProcess
     from garage_exp.perception.slots.detector import load
     from garage_exp.perception.slots.schema import SlotDetectorConf
-    from garage_exp.render.fisheye import lens_of
     from garage_exp.scene.camera import check_camera, rig_specs
+    from garage_exp.scene.lenses import lens_of
     from garage_exp.search import objectives
     from garage_exp.search.loop import outcome
 
@@ -254,7 +260,7 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
     assert done.state == TrialState.COMPLETE and done.values == [0.25] and done.attrs["frames_missed"] == 1.0
     assert objectives.objective("missed").scored(done.values, done.attrs) == "missed 0.25 (1 frames)"
     assert objectives.shown()["frames_missed"] == "frames missed"
-    # the lens: checked, specced, and its lens (named by a dotted name under the plugin) projects a ray
+    # the lens: checked, specced, and the spec's lens projects a ray
     check_camera(rig)
     (spec,) = rig_specs(rig, (4.77, 1.96, 1.5))
     assert spec.model == "equidistant" and spec.fisheye

@@ -9,12 +9,14 @@ import dataclasses
 
 import numpy as np
 
-from garage_exp.perception.detect import Intrinsics
+from garage_exp.perception.detect.base import DEFAULT_CAMERA
 from garage_exp.perception.groundtruth import projected_truncation
 from garage_exp.render.base import Frame
-from garage_exp.render.fisheye import Cylindrical, Fisheye, Pinhole, face_rotation, lens_of, view_remap
-from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_pixels
+from garage_exp.render.fisheye import face_rotation, view_remap
+from garage_exp.scene.camera import camera_to_world
 from garage_exp.scene.description import CameraSpec, Pose
+from garage_exp.scene.lenses import Cylindrical, Fisheye, Pinhole, lens_of
+from garage_exp.scene.views import picture_lens
 
 NAN = float("nan")
 D = np.array([[1.0, 0.0, 0.0], [0.8, 0.3, -0.2], [0.2, -0.9, 0.4], [-0.3, 0.5, 0.6], [0.6, 0.0, -1.0]])
@@ -75,7 +77,7 @@ def uv(pair) -> np.ndarray:
 
 def test_the_fisheye_lens_keeps_its_numbers():
     lens = Fisheye(160, 120, 190.0, KB)
-    same(lens.camera_matrix, FISHEYE_K)
+    same(lens.K - np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5], [0.0, 0.0, 0.0]]), FISHEYE_K)  # OpenCV's pixel centres
     same(lens.f, FISHEYE_F)
     same(uv(lens.project(D)), FISHEYE_PROJECT)
     rays, inside = lens.rays()
@@ -93,8 +95,9 @@ def test_the_pinhole_and_cylindrical_lenses_keep_their_numbers():
     same([cylindrical.fx, cylindrical.fy, cylindrical.cx, cylindrical.cy], CYL_VIEW)
     same(uv(cylindrical.project(D)), CYL_PROJECT)
     same([cylindrical.rays()[0][r, c] for c, r in PIX], CYL_RAYS)
-    same(intrinsics_of(SPEC), PINHOLE_SPEC)
-    same(uv(to_pixels(L, intrinsics_of(SPEC))), PINHOLE_TO_PIXELS)
+    own = lens_of(SPEC)
+    same([own.fx, own.fy, own.cx, own.cy], PINHOLE_SPEC)
+    same(uv(own.pixels(L)), PINHOLE_TO_PIXELS)
     mx, my, flat = view_remap(Fisheye(160, 120, 190.0, KB), Cylindrical.from_fovx(160, 120, 180.0))
     same([mx.astype(float).sum(), my.astype(float).sum(), flat.sum()], REMAP_SUMS)
 
@@ -110,16 +113,16 @@ def test_the_detector_sees_the_same_camera():
     for view, want, matrix in (("raw", INTRINSICS_RAW, MATRIX_RAW),
                                ("perspective", INTRINSICS_PERSPECTIVE, MATRIX_PERSPECTIVE),
                                ("cylindrical", INTRINSICS_CYLINDRICAL, MATRIX_CYLINDRICAL)):
-        cam = Intrinsics.of(dataclasses.replace(FISHEYE_SPEC, view=view))
+        cam = picture_lens(dataclasses.replace(FISHEYE_SPEC, view=view))
         assert (cam.width, cam.height, cam.model) == (want[0], want[1], want[6])
         same([cam.fx, cam.fy, cam.cx, cam.cy], want[2:6])
-        same(cam.matrix, matrix)
+        same(cam.K, matrix)
         if view == "raw":
             assert tuple(cam.k) == want[7] and cam.fov == want[8]
-    cam = Intrinsics.of(SPEC)
+    cam = picture_lens(SPEC)
     assert (cam.width, cam.height, cam.model) == (320, 240, "pinhole")
     same([cam.fx, cam.fy, cam.cx, cam.cy], INTRINSICS_PINHOLE[2:6])
-    cam = Intrinsics.default()
+    cam = DEFAULT_CAMERA
     assert (cam.width, cam.height, cam.model) == (640, 480, "pinhole")
     same([cam.fx, cam.fy, cam.cx, cam.cy], INTRINSICS_DEFAULT[2:6])
 
@@ -127,12 +130,12 @@ def test_the_detector_sees_the_same_camera():
 def test_frames_project_and_truncate_as_before():
     ids = np.zeros((240, 320), np.int32)
     pose = camera_to_world(EGO, SPEC)
-    frame = Frame("front", np.zeros((240, 320, 3), np.uint8), ids, pose, *intrinsics_of(SPEC))
+    frame = Frame("front", np.zeros((240, 320, 3), np.uint8), ids, pose, lens_of(SPEC))
     pixels, depth = frame.project(WORLD)
     same(np.c_[pixels, depth], FRAME_PINHOLE)  # a point behind the camera mirrors through, as before
     same(projected_truncation(frame, BOX), TRUNC_PINHOLE)
     lens = lens_of(dataclasses.replace(FISHEYE_SPEC, width=320, height=240))
-    frame = Frame("front", np.zeros((240, 320, 3), np.uint8), ids, pose, lens.f, lens.f, lens.cx, lens.cy, lens=lens)
+    frame = Frame("front", np.zeros((240, 320, 3), np.uint8), ids, pose, lens)
     pixels, depth = frame.project(WORLD)
     same(np.c_[pixels, depth], FRAME_FISHEYE)
     same(projected_truncation(frame, BOX), TRUNC_FISHEYE)

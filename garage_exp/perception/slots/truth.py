@@ -32,9 +32,9 @@ import numpy as np
 from garage_exp.core.state import STATE
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 from garage_exp.render.bev import BevMaps, BevSpec
-from garage_exp.render.fisheye import lens_of
 from garage_exp.scene.bays import BAY_TYPES, Bay, bays, layout
-from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
+from garage_exp.scene.camera import camera_to_world, to_camera
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import Box, CameraSpec, Pose, Scene
 from garage_exp.scene.markings import _drawn_by_neighbour, unit_hash
 
@@ -239,7 +239,7 @@ def camera_pixel(cam: CameraSpec, ego: Pose, point) -> tuple[float, float] | Non
     else:
         if local[0, 0] <= cam.near:
             return None
-        u, v = to_pixels(local, intrinsics_of(cam))
+        u, v = lens_of(cam).pixels(local)
     u, v = float(u[0]), float(v[0])
     return (u, v) if 0 <= u < cam.width and 0 <= v < cam.height else None
 
