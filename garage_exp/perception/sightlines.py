@@ -25,7 +25,7 @@ import numpy as np
 
 from garage_exp.perception.groundtruth import local_box, world_corners
 from garage_exp.scene.camera import camera_to_world, to_camera
-from garage_exp.scene.lenses import Pinhole
+from garage_exp.scene.lenses import Pinhole, lens_of
 from garage_exp.scene.description import Box, CameraSpec, Entity, Pose, Scene
 
 NEAR = 0.05  # m: the cameras' near plane (CameraSpec.near)
@@ -113,7 +113,7 @@ def sight(static: Boxes, actors: Mapping[str, tuple[Entity, Pose]], target: str,
     """The estimate for actor `target` (a key of `actors`: each case actor's entity and pose in this shot) seen by
     `camera` on the ego at `ego`. Every actor but the target hides what is behind it (the ego too: a reversing
     camera's view passes its own bumper). None for a lens camera (module doc)."""
-    if not camera.model == "pinhole":
+    if camera.fisheye:
         return None
     entity, pose = actors[target]
     corners = world_corners(entity, pose)
@@ -121,7 +121,7 @@ def sight(static: Boxes, actors: Mapping[str, tuple[Entity, Pose]], target: str,
         return None
     cam = camera_to_world(ego, camera)
     origin = cam[:3, 3]
-    lens = Pinhole.of(camera)
+    lens = lens_of(camera)
     centre = corners.mean(axis=0)
     distance = float(np.linalg.norm(centre - origin))
     height, truncation = _box_height(to_camera(cam, corners), lens, camera)

@@ -132,7 +132,7 @@ class BevMaps:
 
 def bev_maps(cameras, spec: BevSpec, ego_extent=None) -> BevMaps:
     """The maps of a rig's fisheye cameras (CameraSpec, mounted on the ego; those whose model stitches into a
-    BEV, scene/lenses.py) for a BEV; cached per (rig, spec, ego extent): they do not depend on where the ego
+    BEV, scene/lenses) for a BEV; cached per (rig, spec, ego extent): they do not depend on where the ego
     stands."""
     fisheyes = tuple(c for c in cameras if camera_model(c.model).bev)
     if not fisheyes:

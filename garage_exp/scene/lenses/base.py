@@ -46,12 +46,13 @@ class Lens:
     width: int
     height: int
     # Each lens has fx, fy (pixels per unit of its image coordinate) and cx, cy (its centre in pixels), as fields or
-    # properties; `K` is made of them.
+    # properties; `K` is made of them. A perspective lens also has `pixels(local, depth=None)`: camera-frame points
+    # divided by their depth, with no near plane (ground truth clips boxes at the near plane first).
 
     model: ClassVar[str] = ""  # its registered name (set by register_lens)
     # A camera may be of this model (`camera.cameras[k].model`); False: the layout of a view only (scene/views.py).
     camera_model: ClassVar[bool] = True
-    # A central projection onto a plane: drawn as one picture, and nothing behind its plane is seen (a pinhole).
+    # A central projection onto a plane (a pinhole): drawn as one picture, nothing behind its plane is seen.
     # Otherwise the camera is drawn from a cube map through its rays (render/fisheye.py) and seen far off its axis.
     perspective: ClassVar[bool] = False
     bev: ClassVar[bool] = False  # its raw pictures stitch into a bird's-eye view (render/bev.py; slot cases)
