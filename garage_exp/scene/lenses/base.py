@@ -93,6 +93,18 @@ class Lens:
         return np.ones(np.shape(rays)[:-1], dtype=bool)
 
 
+class SquarePixels:
+    """A lens with one focal length `f` (pixels per unit of its image coordinate) along both axes."""
+
+    @property
+    def fx(self) -> float:
+        return self.f
+
+    @property
+    def fy(self) -> float:
+        return self.f
+
+
 def grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Every pixel's centre (u, v) in continuous pixel coordinates."""
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)

@@ -8,12 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garage_exp.scene.lenses.base import Lens, grid, register_lens, unit
+from garage_exp.scene.lenses.base import Lens, SquarePixels, grid, register_lens, unit
 
 
 @register_lens("cylindrical")
 @dataclass(frozen=True)
-class Cylindrical(Lens):
+class Cylindrical(SquarePixels, Lens):
     f: float  # pixels per radian of azimuth, and per unit of tan(elevation)
     cx: float
     cy: float
@@ -22,14 +22,6 @@ class Cylindrical(Lens):
     @classmethod
     def from_fovx(cls, width: int, height: int, fovx: float) -> Cylindrical:
         return cls(width, height, width / math.radians(fovx), width / 2.0, height / 2.0)
-
-    @property
-    def fx(self) -> float:
-        return self.f
-
-    @property
-    def fy(self) -> float:
-        return self.f
 
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         u, v = grid(self.width, self.height)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from garage_exp.core.errors import GarageError, check_range
-from garage_exp.scene.lenses.base import Lens, grid, register_lens, unit
+from garage_exp.scene.lenses.base import Lens, SquarePixels, grid, register_lens, unit
 
 FISHEYE_FOV_RANGE = (60.0, 200.0)  # degrees across the image width; the lenses are about 190
 
@@ -30,7 +30,7 @@ def kannala_brandt(theta, k):
 
 @register_lens("fisheye")
 @dataclass(frozen=True)
-class Fisheye(Lens):
+class Fisheye(SquarePixels, Lens):
     fov: float  # degrees across the image width
     k: tuple[float, float, float, float]
     bev = True
@@ -61,14 +61,6 @@ class Fisheye(Lens):
     @property
     def f(self) -> float:
         return self.width / 2.0 / float(self.distort(np.array(self.theta_max)))
-
-    @property
-    def fx(self) -> float:
-        return self.f
-
-    @property
-    def fy(self) -> float:
-        return self.f
 
     @property
     def cx(self) -> float:
