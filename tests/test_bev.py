@@ -10,9 +10,9 @@ import pytest
 from conftest import compose_cfg
 
 from garage_exp.render.bev import BevSpec, bev_maps, check_bev
-from garage_exp.render.fisheye import lens_of
 from garage_exp.scene.camera import camera_to_world, rig_specs, to_camera
 from garage_exp.scene.description import Pose
+from garage_exp.scene.lenses import lens_of
 
 EGO_EXTENT = (4.77, 1.96, 1.50)  # the default ego (tcamrysilver)
 EGO = Pose(12.3, -4.1, 0.0, 57.0)  # anywhere, at any heading: the maps live in the ego's frame

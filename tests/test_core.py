@@ -120,7 +120,8 @@ import os
 import numpy as np
 
 from garage_exp.render.base import Frame
-from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.camera import camera_to_world
+from garage_exp.scene.lenses import lens_of
 
 
 GREY = 90
@@ -150,7 +151,7 @@ class Flat:
         ids = np.zeros((spec.height, spec.width), np.int32)
         self.log.write(json.dumps({"call": "render", "camera": camera_name, "x": ego.x, "y": ego.y}) + "\\n")
         self.log.flush()
-        return Frame(camera_name, rgb, ids, camera_to_world(ego, spec), *intrinsics_of(spec))
+        return Frame(camera_name, rgb, ids, camera_to_world(ego, spec), lens_of(spec))
 
     def unoccluded_ids(self, camera_name, names):
         return {}

@@ -11,7 +11,8 @@ import pytest
 from conftest import ROOT, compose_cfg, require
 
 from garage_exp.render.cull import box_corners, frustum_planes, outside_frustum
-from garage_exp.scene.camera import camera_to_world, to_camera, to_pixels, intrinsics_of
+from garage_exp.scene.camera import camera_to_world, to_camera
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import CameraSpec, Pose
 
 SPEC = CameraSpec("front", Pose(0.0, 0.0, 1.5), width=640, height=480, fovy=60.0, near=0.05, far=100.0)
@@ -29,7 +30,7 @@ def covers_no_pixel(lo, hi, spec: CameraSpec = SPEC, cam: np.ndarray = CAM, samp
     points = np.stack(np.meshgrid(*axes), axis=-1).reshape(-1, 3)
     local = to_camera(cam, points)
     ahead = (local[:, 0] >= spec.near) & (local[:, 0] <= spec.far)
-    u, v = to_pixels(local[ahead], intrinsics_of(spec))
+    u, v = lens_of(spec).pixels(local[ahead])
     return not np.any((u >= 0) & (u <= spec.width) & (v >= 0) & (v <= spec.height))
 
 

@@ -15,7 +15,8 @@ from omegaconf import OmegaConf
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.groundtruth import direct_light, ground_truth, mask_box
 from garage_exp.render import Frame
-from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.camera import camera_to_world
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import CameraSpec, Entity, Light, Pose, Scene
 from garage_exp.search import archive
 from garage_exp.search.descriptors import DESCRIPTORS, register_descriptor
@@ -153,9 +154,8 @@ def test_ground_truth_gives_the_targets_height_and_light_and_the_cameras_height(
 
     person = Entity("child", "target", Pose(8.0, 0.0, 0.0), extent=(0.3, 0.4, 1.15), static=False, kind="person")
     spec = CameraSpec("front", Pose(0.0, 0.0, cam_height), width=320, height=240)
-    fx, fy, cx, cy = intrinsics_of(spec)
     frame = Frame("front", np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.int32),
-                  camera_to_world(Pose(), spec), fx, fy, cx, cy, {"child": person.pose})
+                  camera_to_world(Pose(), spec), lens_of(spec), {"child": person.pose})
     uv, _ = frame.project(np.array([[8.0, -0.2, 0.0], [8.0, 0.2, 1.15]]))
     silhouette = np.zeros((240, 320), bool)
     (u1, v1), (u2, v2) = np.floor(uv.min(axis=0)).astype(int), np.ceil(uv.max(axis=0)).astype(int)

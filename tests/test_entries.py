@@ -15,7 +15,8 @@ import pytest
 from conftest import ROOT, require, run_app
 
 from garage_exp.core.errors import GarageError
-from garage_exp.perception.detect import Detections, Detector, GTBox, Intrinsics, score_target
+from garage_exp.perception.detect import Detections, Detector, GTBox, score_target
+from garage_exp.scene.lenses import Pinhole
 
 TESTS = str(ROOT / "tests")
 USER = "callable:user_detectors:centre_box"
@@ -117,10 +118,10 @@ def frame(h=240, w=320, value=128) -> np.ndarray:
 def test_each_kind_loads_checks_and_detects_a_batch(models, kind, name, loader):
     detector = Detector([models[kind]], conf=0.0, imgsz=320, device="cpu")
     assert [e.kind for e in detector.entries] == [loader] and detector.names == [name]
-    detector.check(Intrinsics.default(320, 240))
+    detector.check(Pinhole.from_fovy(320, 240, 60.0))
     assert {"car", "person"} <= set(detector.entries[0].classes)
     frames = [frame(value=40), frame(value=200)]
-    out = detector.detect(frames, Intrinsics.default(320, 240))
+    out = detector.detect(frames, Pinhole.from_fovy(320, 240, 60.0))
     assert len(out) == 2 and all(len(per_model) == 1 for per_model in out)
     for dets in (per_model[0] for per_model in out):
         assert dets.model == name and dets.boxes.dtype == np.float32 and dets.boxes.shape == (len(dets), 4)
@@ -138,12 +139,12 @@ def test_a_tensor_batch_gives_what_numpy_frames_give(models, kind):
     import torch
 
     detector = Detector([models[kind]], conf=0.0, imgsz=320, device="cpu")
-    detector.check(Intrinsics.default(320, 240))
+    detector.check(Pinhole.from_fovy(320, 240, 60.0))
     rng = np.random.default_rng(3)
     base = rng.integers(0, 256, (1, 60, 80, 3), dtype=np.uint8).repeat(4, axis=1).repeat(4, axis=2)  # 240 x 320
     frames = np.concatenate([base, base[:, :, ::-1], np.roll(base, 40, axis=1)])  # three different frames
-    as_numpy = detector.detect(list(frames), Intrinsics.default(320, 240))
-    as_tensor = detector.detect(torch.from_numpy(frames), Intrinsics.default(320, 240))
+    as_numpy = detector.detect(list(frames), Pinhole.from_fovy(320, 240, 60.0))
+    as_tensor = detector.detect(torch.from_numpy(frames), Pinhole.from_fovy(320, 240, 60.0))
     assert detector.entries[0].takes_tensors() == (kind != "openvino")
     for a, b in zip(as_numpy, as_tensor):
         assert len(a[0]) == len(b[0]) > 0 and a[0].classes == b[0].classes
@@ -226,7 +227,7 @@ def test_the_callable_gets_each_frames_camera():
     import user_detectors
 
     user_detectors.SEEN.clear()
-    cams = [Intrinsics.default(320, 240), Intrinsics(160, 120, 100.0, 100.0, 80.0, 60.0, camera="rear")]
+    cams = [Pinhole.from_fovy(320, 240, 60.0), Pinhole(160, 120, 100.0, 100.0, 80.0, 60.0)]
     Detector([USER]).detect([frame(240, 320), frame(120, 160)], cams)
     assert [cam for _, cam in user_detectors.SEEN[-2:]] == cams
 

@@ -15,7 +15,8 @@ from pycocotools.cocoeval import COCOeval
 from garage_exp.exports import DatasetExports, FrameGeometry, coco, kitti
 from garage_exp.perception.groundtruth import ground_truth, world_corners
 from garage_exp.render import Frame
-from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.camera import camera_to_world
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import CameraSpec, Entity, Pose, Scene
 
 W, H = 640, 480
@@ -31,9 +32,8 @@ def frame_of(scene: Scene, ego: Pose, spec: CameraSpec) -> tuple[Frame, dict, di
     nearer actors over farther ones; (frame, silhouettes, ids)."""
     import cv2
 
-    fx, fy, cx, cy = intrinsics_of(spec)
     frame = Frame(spec.name, np.zeros((H, W, 3), np.uint8), np.zeros((H, W), np.int32),
-                  camera_to_world(ego, spec), fx, fy, cx, cy, {e.name: e.pose for e in scene.entities})
+                  camera_to_world(ego, spec), lens_of(spec), {e.name: e.pose for e in scene.entities})
     silhouettes, ids, depths = {}, {}, {}
     for k, e in enumerate(scene.entities):
         uv, depth = frame.project(world_corners(e, e.pose))
@@ -249,8 +249,9 @@ def test_kitti_frame_conventions():
     assert below.location == pytest.approx((0.0, 3.0, 0.0), abs=1e-9)
     assert below.rotation_y == pytest.approx(-math.pi / 2)
     # A level camera's P2 is [K | 0], as KITTI's.
-    fx, fy, cx, cy = intrinsics_of(FRONT)
-    assert kitti.projection(cam, (fx, fy, cx, cy)) == pytest.approx(
+    lens = lens_of(FRONT)
+    fx, fy, cx, cy = lens.fx, lens.fy, lens.cx, lens.cy
+    assert kitti.projection(cam, lens.K) == pytest.approx(
         np.array([[fx, 0, cx, 0], [0, fy, cy, 0], [0, 0, 1, 0]]))
 
 

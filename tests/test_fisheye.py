@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from test_render import garage, renderer, save, target_truth  # noqa: F401 - renderer is a fixture
 
-from garage_exp.render.fisheye import Cylindrical, Fisheye, Pinhole, cube_map, view_remap
+from garage_exp.render.fisheye import cube_map, view_remap
 from garage_exp.scene.camera import camera_to_world
 from garage_exp.scene.description import Box, CameraSpec, Entity, Material, Pose
+from garage_exp.scene.lenses import Cylindrical, Fisheye, Pinhole
 
 EQUISOLID = (-0.0417, 0.0005, 0.0, 0.0)  # conf/camera/fisheye4.yaml's lens
 W, H = 160, 120
@@ -33,7 +34,8 @@ def test_the_lens_is_opencvs_fisheye_within_90_degrees():
     d = directions(200, 85.0)
     u, v = lens.project(d)
     opencv = np.stack([-d[:, 1], -d[:, 2], d[:, 0]], axis=1)[None]  # OpenCV's axes: x right, y down, z forward
-    points, _ = cv2.fisheye.projectPoints(opencv, np.zeros(3), np.zeros(3), lens.camera_matrix, np.array(lens.k))
+    opencv_k = lens.K - np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5], [0.0, 0.0, 0.0]])  # OpenCV: pixel centres at integers
+    points, _ = cv2.fisheye.projectPoints(opencv, np.zeros(3), np.zeros(3), opencv_k, np.array(lens.k))
     assert np.abs(points[0] - np.stack([u - 0.5, v - 0.5], axis=1)).max() < 1e-6
     # the lens's field spans the image width, and rays round-trip through the pixels
     assert lens.project(np.array([[0.0, 1.0, 0.0]]))[0][0] == pytest.approx(

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from garage_exp.perception.groundtruth import (VehicleTruth, ground_truth, kitti_level, mask_box, occlusion_state,
                                                projected_truncation, world_corners)
 from garage_exp.render import Frame
-from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.camera import camera_to_world
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import Box, CameraSpec, Entity, Material, Pose, Scene
 
 W, H = 640, 480
@@ -23,8 +24,7 @@ GREY = Material("grey")
 def make_frame(ids: np.ndarray, poses: dict[str, Pose], cam_height: float = 0.75) -> Frame:
     """A camera at (0, 0, cam_height) looking along +x, 60 degrees vertical FOV."""
     spec = CameraSpec("front", Pose(0.0, 0.0, cam_height), width=ids.shape[1], height=ids.shape[0])
-    fx, fy, cx, cy = intrinsics_of(spec)
-    return Frame("front", np.zeros((*ids.shape, 3), np.uint8), ids, camera_to_world(Pose(), spec), fx, fy, cx, cy,
+    return Frame("front", np.zeros((*ids.shape, 3), np.uint8), ids, camera_to_world(Pose(), spec), lens_of(spec),
                  poses)
 
 
@@ -94,7 +94,7 @@ def test_fully_hidden_vehicle_is_ignored_with_no_visible_box():
 
 
 def test_far_car_is_moderate_then_ignored_by_height():
-    fy = intrinsics_of(CameraSpec("c", Pose(), width=W, height=H))[1]
+    fy = lens_of(CameraSpec("c", Pose(), width=W, height=H)).fy
     # The side-on car's near face (0.9 m nearer than its centre) sets the projected height.
     moderate = truth_for(Pose(fy * CAR[2] / 32 + 0.9, 0.0, 0.0, 90.0))
     ignored = truth_for(Pose(fy * CAR[2] / 20 + 0.9, 0.0, 0.0, 90.0))
@@ -104,7 +104,7 @@ def test_far_car_is_moderate_then_ignored_by_height():
 
 def test_truncation_of_a_car_half_out_of_the_image():
     # Put the side-on car's centre on the right image border: half its projected box is outside.
-    fx = intrinsics_of(CameraSpec("c", Pose(), width=W, height=H))[0]
+    fx = lens_of(CameraSpec("c", Pose(), width=W, height=H)).fx
     d = 12.0
     y = -(W / 2) / fx * d
     t = truth_for(Pose(d, y, 0.0, 90.0))
@@ -212,7 +212,7 @@ def test_truncation_at_the_top_border_depends_on_the_camera_height():
     The camera's own height (0.75 m) counts: the same car seen from 2.75 m is almost all in view."""
     frame = make_frame(np.zeros((H, W), np.int32), {})
     d = 8.0
-    centre_z = 0.75 + (H / 2) / frame.fy * d  # the car's box centre on the top image row
+    centre_z = 0.75 + (H / 2) / frame.lens.fy * d  # the car's box centre on the top image row
     corners = world_corners(car(), Pose(d, 0.0, centre_z - CAR[2] / 2, 90.0))
     at_border = projected_truncation(frame, corners)
     assert at_border == pytest.approx(0.5, abs=0.08)
@@ -262,7 +262,7 @@ def test_nothing_hides_a_target_under_two_percent_hidden_or_cut_by_the_border_or
     assert occluder_of({PILLAR: 0.05}).occluder == "pillar"
     assert occluder_of({SHADOW: 0.5, 0: 0.3}).occluder == "none"  # a decal and nothing drawn hide nothing
     # half of it outside the image, nothing in the way: truncated, not hidden
-    fx = intrinsics_of(CameraSpec("c", Pose(), width=W, height=H))[0]
+    fx = lens_of(CameraSpec("c", Pose(), width=W, height=H)).fx
     cut = occluder_of({}, Pose(12.0, -(W / 2) / fx * 12.0, 0.0, 90.0))
     assert cut.truncation > 0.4 and cut.visible_fraction == 1.0 and cut.occluder == "none"
 

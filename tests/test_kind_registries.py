@@ -2,7 +2,7 @@
 (scene/views.py `@register_view`), sensor kinds and tone curves (perception/sensor.py `@register_sensor_kind`,
 `@register_tone_curve`), slot detector kinds (perception/slots/detector.py `@register_slot_kind`), detector entry
 kinds (perception/detect/kinds.py `@register_entry_kind`), objectives (search/objectives.py `register_objective`)
-and camera models (scene/lenses.py `register_camera_model`): adding one is one module. Each test adds some from a
+and lenses, one per camera model (scene/lenses `@register_lens`): adding one is one module. Each test adds some from a
 temporary module and uses them where the shipped ones are used; one adds one of each through $GARAGE_EXP_PLUGINS,
 as a user would (docs/architecture.md, "Extension points")."""
 
@@ -15,7 +15,7 @@ import sys
 import numpy as np
 import pytest
 import torch
-from conftest import compose_cfg, schema_node
+from conftest import compose_cfg, require, schema_node
 from omegaconf import OmegaConf
 from optuna.trial import TrialState
 
@@ -23,17 +23,18 @@ from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect.kinds import KINDS as ENTRY_KINDS
 from garage_exp.perception.sensor import KINDS, TONES, make_sensor
 from garage_exp.perception.slots.detector import KINDS as SLOT_KINDS
-from garage_exp.scene.lenses import MODELS
+from garage_exp.scene.lenses import LENSES
 from garage_exp.scene.views import VIEWS
 from garage_exp.search.objectives import OBJECTIVES
 
-REGISTRIES = (VIEWS, KINDS, TONES, SLOT_KINDS, ENTRY_KINDS, MODELS, OBJECTIVES)
-MODULES = ("user_view", "user_sensor", "user_slots", "user_plugin")
+REGISTRIES = (VIEWS, KINDS, TONES, SLOT_KINDS, ENTRY_KINDS, LENSES, OBJECTIVES)
+MODULES = ("user_view", "user_sensor", "user_slots", "user_plugin", "user_lens")
 
 VIEW_MODULE = '''
 from dataclasses import dataclass
 
-from garage_exp.scene.views import Pinhole, register_view
+from garage_exp.scene.lenses import Pinhole
+from garage_exp.scene.views import register_view
 
 
 @register_view("narrow")
@@ -44,6 +45,68 @@ class Narrow(Pinhole):
     @classmethod
     def for_spec(cls, spec):
         return cls.from_fovx(spec.width, spec.height, 60.0)
+'''
+
+LENS_MODULE = '''
+"""A stereographic lens (r = 2 f tan(theta / 2)), `fov` degrees across the image width: a lens of its own, not
+Kannala-Brandt's, written from scratch."""
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from garage_exp.core.errors import check_range
+from garage_exp.scene.lenses import NO_K, Lens, register_lens
+
+
+@register_lens("stereographic")
+@dataclass(frozen=True)
+class Stereographic(Lens):
+    fov: float
+
+    @classmethod
+    def check(cls, cam, rig, where):
+        check_range(cam.fov, 20.0, 220.0, f"{where}.fov", f"stereographic fov {cam.fov} degrees")
+
+    @classmethod
+    def spec_fields(cls, cam, view):
+        return {"fov": float(cam.fov), "k": NO_K, "view": view}
+
+    @classmethod
+    def of(cls, spec):
+        return cls(spec.width, spec.height, spec.fov)
+
+    @property
+    def fx(self):
+        return self.width / 4.0 / math.tan(math.radians(self.fov) / 4.0)
+
+    @property
+    def fy(self):
+        return self.fx
+
+    @property
+    def cx(self):
+        return self.width / 2.0
+
+    @property
+    def cy(self):
+        return self.height / 2.0
+
+    def rays(self):
+        u, v = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        a, b = (u - self.cx) / self.fx, (v - self.cy) / self.fx  # right, down
+        r = np.hypot(a, b)
+        theta = 2.0 * np.arctan(r / 2.0)
+        scale = np.where(r > 1e-12, np.sin(theta) / np.where(r > 1e-12, r, 1.0), 1.0)
+        return np.stack([np.cos(theta), -a * scale, -b * scale], axis=-1), theta <= math.radians(self.fov) / 2
+
+    def project(self, d):
+        d = np.asarray(d, dtype=float)
+        right, down = -d[..., 1], -d[..., 2]
+        r = np.hypot(right, down)
+        theta = np.arctan2(r, d[..., 0])
+        scale = np.where(r > 1e-12, 2.0 * np.tan(theta / 2.0) / np.where(r > 1e-12, r, 1.0), 0.0)
+        return self.cx + self.fx * right * scale, self.cy + self.fx * down * scale
 '''
 
 SENSOR_MODULE = '''
@@ -95,9 +158,10 @@ def plugin(tmp_path, monkeypatch):
 
 
 def test_a_view_from_a_module_of_its_own(plugin):
-    from garage_exp.perception.detect import Intrinsics
-    from garage_exp.render.fisheye import lens_of, view_lens, view_remap
+    from garage_exp.render.fisheye import view_remap
     from garage_exp.scene.camera import check_camera, rig_specs
+    from garage_exp.scene.lenses import lens_of
+    from garage_exp.scene.views import picture_lens, view_lens
 
     rig = compose_cfg("camera=fisheye", "camera.view=narrow", "camera.width=64", "camera.height=48").camera
     with pytest.raises(GarageError, match="camera.view: unknown view 'narrow'"):
@@ -107,10 +171,62 @@ def test_a_view_from_a_module_of_its_own(plugin):
     (spec,) = rig_specs(rig, (4.77, 1.96, 1.5))[:1]
     view = view_lens(spec)
     assert type(view).__name__ == "Narrow" and abs(view.fx - 32.0 / np.tan(np.radians(30.0))) < 1e-9
-    intrinsics = Intrinsics.of(spec)
-    assert intrinsics.model == "pinhole" and intrinsics.fx == view.fx  # the detector sees a pinhole view
+    seen = picture_lens(spec)
+    assert seen.model == "pinhole" and seen.fx == view.fx  # the detector sees a pinhole view
     map_x, _, flat = view_remap(lens_of(spec), view)
     assert (flat >= 0).all() and map_x.shape == (48, 64)  # 60 degrees lie within the 190-degree lens
+
+
+def test_a_lens_from_a_module_of_its_own(plugin):
+    """A new camera model is one module: its lens class and `@register_lens`. The job's scene description gets a
+    camera of it, the renderer's cube map and the detector read its lens, and a ground-truth box projects through
+    it (the frame's lens), as the fisheye's does."""
+    require("vehicles")
+    from garage_exp.assets.vehicles import VehicleLibrary
+    from garage_exp.perception.groundtruth import projected_truncation, world_corners
+    from garage_exp.render.base import Frame
+    from garage_exp.render.fisheye import cube_map
+    from garage_exp.run.preflight import classified_plan, resolve_plan_path
+    from garage_exp.scenario.assemble import build_scene
+    from garage_exp.scene.camera import camera_to_world, check_camera, to_camera
+    from garage_exp.scene.lenses import lens_of
+    from garage_exp.scene.views import picture_lens
+
+    cfg = compose_cfg("camera=fisheye", "camera.cameras.0.model=stereographic", "camera.cameras.0.fov=160",
+                      "camera.width=128", "camera.height=96")
+    with pytest.raises(GarageError, match=r"camera.cameras.0.model: unknown camera model 'stereographic' "
+                                          r"\(pinhole \| fisheye\)"):
+        check_camera(cfg.camera)
+    plugin("user_lens", LENS_MODULE)
+    check_camera(cfg.camera)
+    bad = compose_cfg("camera=fisheye", "camera.cameras.0.model=stereographic", "camera.cameras.0.fov=260")
+    with pytest.raises(GarageError, match="camera.cameras.0.fov: stereographic fov 260"):
+        check_camera(bad.camera)
+
+    # the job's scene description: its camera is of the new model, drawn from a cube map through the lens
+    scene, setup = build_scene(cfg, classified_plan(resolve_plan_path(cfg.plan)), VehicleLibrary(),
+                               np.random.default_rng(cfg.seed))
+    (spec,) = scene.cameras
+    lens = lens_of(spec)
+    assert spec.model == "stereographic" and spec.fisheye and type(lens).__name__ == "Stereographic"
+    assert picture_lens(spec) == lens and lens.model == "stereographic"  # the raw image: the detector's camera
+    assert lens.K[0, 0] == pytest.approx(32.0 / np.tan(np.radians(40.0)))
+    assert "front" in cube_map(lens).faces
+    rays, inside = lens.rays()
+    u, v = lens.project(rays[inside])
+    grid_u, grid_v = np.meshgrid(np.arange(128) + 0.5, np.arange(96) + 0.5)
+    assert np.abs(u - grid_u[inside]).max() < 1e-9 and np.abs(v - grid_v[inside]).max() < 1e-9
+
+    # a ground-truth box through it: the target's corners land where the lens puts them, and its truncation
+    shot = setup.shots[0]
+    pose = camera_to_world(shot.ego, spec)
+    frame = Frame(spec.name, np.zeros((96, 128, 3), np.uint8), np.zeros((96, 128), np.int32), pose, lens)
+    corners = world_corners(scene.entity(shot.target), shot.poses[shot.target])
+    pixels, depth = frame.project(corners)
+    want = np.stack(lens.project(to_camera(pose, corners)), axis=1)
+    assert np.allclose(pixels, want) and (depth > 0).all()
+    assert ((pixels >= 0) & (pixels < [128, 96])).all(axis=1).any()  # the target is in view
+    assert 0.0 <= projected_truncation(frame, corners) < 1.0
 
 
 def test_a_sensor_kind_and_a_tone_curve_from_a_module_of_their_own(plugin):
@@ -147,8 +263,7 @@ from garage_exp.perception.detect.kinds import register_entry_kind
 from garage_exp.perception.sensor import register_sensor_kind
 from garage_exp.perception.slots.detector import SlotKind, register_slot_kind
 from garage_exp.perception.slots.marks import MarkingPoint, SlotFrame
-from garage_exp.render.fisheye import Fisheye
-from garage_exp.scene.lenses import NO_K, CameraModel, register_camera_model
+from garage_exp.scene.lenses import NO_K, Fisheye, register_lens
 from garage_exp.search.objectives import NOT_VISIBLE, Objective, register_objective
 
 
@@ -179,14 +294,19 @@ register_objective(Objective("missed", ("missed",), ("maximize",), judge_missed,
                              NOT_VISIBLE, attrs={"frames_missed": "frames missed"}))
 
 
-def equidistant(spec):
+@register_lens("equidistant")
+class Equidistant(Fisheye):
     """A fisheye whose image radius grows evenly with the angle off its axis (Kannala-Brandt with k = 0)."""
-    return Fisheye(spec.width, spec.height, spec.fov, NO_K)
 
+    bev = False
 
-register_camera_model(CameraModel("equidistant", check=lambda cam, rig, where: None,
-                                  spec=lambda cam, view: {"fov": float(cam.fov), "k": NO_K, "view": view},
-                                  lens="user_plugin.equidistant", pinhole_frames=False))
+    @classmethod
+    def check(cls, cam, rig, where):
+        pass
+
+    @classmethod
+    def spec_fields(cls, cam, view):
+        return {"fov": float(cam.fov), "k": NO_K, "view": view}
 
 
 @register_sensor_kind("green")
@@ -217,8 +337,8 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
     from garage_exp.perception.detect.worker import DetectorProcess
     from garage_exp.perception.slots.detector import load
     from garage_exp.perception.slots.schema import SlotDetectorConf
-    from garage_exp.render.fisheye import lens_of
     from garage_exp.scene.camera import check_camera, rig_specs
+    from garage_exp.scene.lenses import lens_of
     from garage_exp.search import objectives
     from garage_exp.search.loop import outcome
 
@@ -254,7 +374,7 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
     assert done.state == TrialState.COMPLETE and done.values == [0.25] and done.attrs["frames_missed"] == 1.0
     assert objectives.objective("missed").scored(done.values, done.attrs) == "missed 0.25 (1 frames)"
     assert objectives.shown()["frames_missed"] == "frames missed"
-    # the lens: checked, specced, and its lens (named by a dotted name under the plugin) projects a ray
+    # the lens: checked, specced, and the spec's lens projects a ray
     check_camera(rig)
     (spec,) = rig_specs(rig, (4.77, 1.96, 1.5))
     assert spec.model == "equidistant" and spec.fisheye

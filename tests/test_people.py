@@ -16,7 +16,8 @@ from garage_exp.perception.detect import Detections, GTBox, score_target
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.groundtruth import ground_truth, local_box, mask_box, world_corners
 from garage_exp.render import Frame
-from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.camera import camera_to_world
+from garage_exp.scene.lenses import lens_of
 from garage_exp.results.labels import COCO_IDS, DatasetWriter
 from garage_exp.results.table import frame_row, summarise
 from garage_exp.scene.description import CameraSpec, Entity, Mesh, Pose, Scene
@@ -141,9 +142,8 @@ def test_ground_truth_of_a_person(adult):
     corners = world_corners(entity, pose)
     assert corners[:, 2].min() == 0.0 and corners[:, 2].max() == pytest.approx(adult.height)
     spec = CameraSpec("front", Pose(0.0, 0.0, 1.5), width=W, height=H)
-    fx, fy, cx, cy = intrinsics_of(spec)
     frame = Frame("front", np.zeros((H, W, 3), np.uint8), np.zeros((H, W), np.int32), camera_to_world(Pose(), spec),
-                  fx, fy, cx, cy, {"walker": pose})
+                  lens_of(spec), {"walker": pose})
     uv, depth = frame.project(corners)
     x1, y1 = np.floor(uv.min(axis=0)).astype(int)
     x2, y2 = np.ceil(uv.max(axis=0)).astype(int)

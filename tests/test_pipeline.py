@@ -14,7 +14,8 @@ from garage_exp.perception.sensor import make_sensor
 from garage_exp.render import Frame
 from garage_exp.run.pipeline import FramePipeline, in_view
 from garage_exp.scenario import Shot
-from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.camera import camera_to_world
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import CameraSpec, Entity, Pose, Scene
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,7 +57,7 @@ class Drawn:
         ids[10:20, x:x + 8] = 3
         rgb = np.full((30, 40, 3), 90, np.uint8)
         rgb[ids == 3] = 200
-        return Frame(camera, rgb, ids, camera_to_world(self.poses["ego"], spec), *intrinsics_of(spec),
+        return Frame(camera, rgb, ids, camera_to_world(self.poses["ego"], spec), lens_of(spec),
                      {"target": self.poses["target"]})
 
     def unoccluded_ids(self, camera, names):
@@ -105,7 +106,7 @@ def test_a_frame_of_torch_tensors_finishes_as_its_numpy_twin():
     frame = renderer.render("front")
     masks = renderer.unoccluded_ids("front", ["target"])
     tensor_frame = Frame("front", torch.from_numpy(frame.rgb), torch.from_numpy(frame.ids), frame.cam_to_world,
-                         *frame.intrinsics, frame.poses)
+                         frame.lens, frame.poses)
     sensor = make_sensor(name="camera", kind="camera", params={"blur_sigma": 0.8, "vignetting": 0.3})
     pipeline = FramePipeline(cfg, scene, renderer, sensor, np.random.default_rng(0))
     want = pipeline.finish(Take(shot, "front", frame, masks, renderer.ids), np.random.default_rng(5))

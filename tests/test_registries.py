@@ -89,10 +89,10 @@ def fisheye_rig(model: str):
 
 
 def test_a_new_camera_model_is_one_entry_the_check_specs_and_renderer_read(monkeypatch):
-    from garage_exp.render.fisheye import Fisheye, lens_of
+    from garage_exp.scene.lenses import Fisheye, lens_of
 
-    wide = dataclasses.replace(lenses.MODELS["fisheye"], name="wide", bev=False)
-    monkeypatch.setitem(lenses.MODELS, "wide", wide)
+    wide = type("Wide", (Fisheye,), {"bev": False, "model": "wide"})  # the fisheye lens, not stitched into a BEV
+    monkeypatch.setitem(lenses.LENSES, "wide", wide)
     rig = fisheye_rig("wide")
     check_camera(rig)
     spec = rig_specs(rig, (4.77, 1.96, 1.5))[0]

@@ -104,7 +104,9 @@ def test_frame_is_an_image_with_ids(renderer):
     assert set(np.unique(frame.ids)) - {0} - set(renderer.ids.values()), "structure pixels missing"
     # ... but the pillars' merged bodies are named (Frame.pillars: what ground truth calls a pillar occluder)
     assert frame.pillars & set(np.unique(frame.ids).tolist()) and not frame.pillars & set(renderer.ids.values())
-    assert frame.intrinsics == pytest.approx((H / 2 / math.tan(math.radians(30)),) * 2 + (W / 2, H / 2))
+    lens = frame.lens
+    want = (H / 2 / math.tan(math.radians(30)),) * 2 + (W / 2, H / 2)
+    assert (lens.fx, lens.fy, lens.cx, lens.cy) == pytest.approx(want)
 
 
 @render

@@ -10,7 +10,7 @@ from optuna.trial import TrialState
 
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.sightlines import Boxes, entity_boxes, sight, static_boxes
-from garage_exp.scene.camera import intrinsics_of
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import Box, CameraSpec, Entity, Material, Pose, Scene
 from garage_exp.search import require as require_mod
 from garage_exp.search import space as space_mod
@@ -43,7 +43,7 @@ def test_a_car_in_the_open_is_all_visible_at_its_distance_and_projected_height()
     assert s.visible == pytest.approx(1.0)
     # centre of the box: (12, 0, 0.75) from the camera at (0, 0, 1.5)
     assert s.distance == pytest.approx(math.hypot(12.0, 0.75), abs=1e-6)
-    fy = intrinsics_of(CAMERA)[1]
+    fy = lens_of(CAMERA).fy
     near_face = 12.0 - CAR[0] / 2  # the box's top and bottom edges nearest the camera span its projection
     assert s.box_height == pytest.approx(fy * 1.5 / near_face, rel=1e-3)
 

@@ -3,19 +3,20 @@ The module is allowed by GARAGE_EXP_MODIFIER_MODULES=user_detectors and found th
 
 import numpy as np
 
-from garage_exp.perception.detect import Detections, Intrinsics
+from garage_exp.perception.detect import Detections
+from garage_exp.scene.lenses import Lens
 
 SEEN: list = []  # (frame shape, intrinsics) of each call, for tests that call it in their own process
 
 
 def centre_box(frames, intrinsics):
     """One "car" in the middle of each frame, scored by its brightness there; checks the documented contract:
-    a list of RGB uint8 frames and one Intrinsics (or None) per frame."""
+    a list of RGB uint8 frames and one camera lens (scene.lenses.Lens, or None) per frame."""
     assert isinstance(frames, list) and len(intrinsics) == len(frames)
     out = []
     for rgb, cam in zip(frames, intrinsics):
         assert rgb.dtype == np.uint8 and rgb.ndim == 3 and rgb.shape[2] == 3
-        assert cam is None or (isinstance(cam, Intrinsics) and (cam.height, cam.width) == rgb.shape[:2])
+        assert cam is None or (isinstance(cam, Lens) and (cam.height, cam.width) == rgb.shape[:2])
         SEEN.append((rgb.shape, cam))
         h, w = rgb.shape[:2]
         box = [w * 0.3, h * 0.3, w * 0.7, h * 0.7]

@@ -192,16 +192,16 @@ def main() -> int:
         return out
 
     def fisheye4():
-        from garage_exp.render.fisheye import cube_map, lens_of
-        from garage_exp.render.fisheye_torch import remap_bilinear, sampling_grid
+        from garage_exp.render.fisheye import cube_map
+        from garage_exp.scene.lenses import lens_of
 
         rig = build_job([*SCENE, "camera=fisheye4", f"sensor={opts.sensor}"])
         specs = [c for c in rig.scene.cameras if c.fisheye]
         cube = cube_map(lens_of(specs[0]))
         h, w = cube.atlas_shape
-        grid = sampling_grid(cube.map_x, cube.map_y, w, h, "cuda")
         atlas = torch.zeros((4 * len(cube.faces), h, w, 3), dtype=torch.uint8, device="cuda")
-        remap = timed_rate(lambda: remap_bilinear(atlas, grid), 4 * len(cube.faces), opts.seconds)
+        cube.remap_colour(atlas)  # its grid_sample grid, made once per device
+        remap = timed_rate(lambda: cube.remap_colour(atlas), 4 * len(cube.faces), opts.seconds)
         # The faces themselves are pinhole crops: their render rate is the ceiling section's at their size.
         px = specs[0].width * specs[0].height
         return {"cameras": len(specs), "size": f"{specs[0].width}x{specs[0].height}",

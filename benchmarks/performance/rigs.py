@@ -31,7 +31,8 @@ RIGS = {
 
 def rendered_pixels(job) -> tuple[int, int]:
     """Pixels rendered per shot (the cube faces of fisheye cameras) and pixels of the delivered images."""
-    from garage_exp.render.fisheye import cube_map, lens_of
+    from garage_exp.render.fisheye import cube_map
+    from garage_exp.scene.lenses import lens_of
 
     rendered = delivered = 0
     for spec in job.scene.cameras:

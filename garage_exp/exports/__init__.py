@@ -23,14 +23,14 @@ class FrameGeometry:
     """Where the camera was and what it was (render.Frame without its pictures), and where each actor stood."""
 
     cam_to_world: np.ndarray  # 4x4, the camera's axes x forward, y left, z up (garage_exp.scene.camera)
-    intrinsics: tuple[float, float, float, float]  # fx, fy, cx, cy in pixels
+    K: np.ndarray  # the 3x3 camera matrix (a pinhole frame's: scene/lenses)
     width: int
     height: int
     poses: Mapping[str, Pose] = field(default_factory=dict)
 
     @classmethod
     def of(cls, frame) -> FrameGeometry:
-        return cls(frame.cam_to_world.copy(), frame.intrinsics, frame.width, frame.height, dict(frame.poses))
+        return cls(frame.cam_to_world.copy(), frame.lens.K, frame.width, frame.height, dict(frame.poses))
 
 
 class DatasetExports:
@@ -54,7 +54,7 @@ class DatasetExports:
             lines.append(kitti.label_line(kind, t, box))
         h, w = rgb.shape[:2]
         self.coco.add(image.name, w, h, camera, objects)
-        self.kitti.add(image, kitti.projection(geometry.cam_to_world, geometry.intrinsics), lines)
+        self.kitti.add(image, kitti.projection(geometry.cam_to_world, geometry.K), lines)
 
     def finish(self) -> Path:
         self.coco.finish()

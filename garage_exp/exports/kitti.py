@@ -59,10 +59,9 @@ def level_rotation(cam_to_world: np.ndarray) -> np.ndarray:
     return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def projection(cam_to_world: np.ndarray, intrinsics: tuple[float, float, float, float]) -> np.ndarray:
-    """P2 (3 x 4): KITTI level-frame points -> pixels, with the camera's pitch in its rotation."""
-    fx, fy, cx, cy = intrinsics
-    k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+def projection(cam_to_world: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """P2 (3 x 4): KITTI level-frame points -> pixels, with the camera's pitch in its rotation; k: the camera
+    matrix (scene/lenses' convention, as KITTI's)."""
     # level KITTI -> level SAPIEN -> world -> camera SAPIEN -> camera KITTI
     rot = TO_KITTI @ cam_to_world[:3, :3].T @ level_rotation(cam_to_world).T @ TO_KITTI.T
     return k @ np.hstack([rot, np.zeros((3, 1))])

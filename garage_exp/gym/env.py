@@ -122,13 +122,13 @@ class StepOutEnv(gymnasium.Env):
 
     def _open(self) -> None:
         from garage_exp.core.plugins import build
-        from garage_exp.perception.detect import Intrinsics
         from garage_exp.perception.detect.worker import open_detector
         from garage_exp.render import open_renderer
+        from garage_exp.scene.views import picture_lens
 
         job = self.job
         if self.detector is None or (hasattr(self.detector, "alive") and not self.detector.alive()):
-            self.detector = open_detector(self.checked_detector, Intrinsics.of(self.scene.cameras[0]))
+            self.detector = open_detector(self.checked_detector, picture_lens(self.scene.cameras[0]))
         if self.sensor is None:
             self.sensor = build(job.sensor, "a sensor model", "sensor._target_")
         self.renderer = open_renderer(self.job_spec.config.renderer)

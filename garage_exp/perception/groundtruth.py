@@ -41,7 +41,7 @@ import numpy as np
 
 from garage_exp.core import arrays
 from garage_exp.render import Frame
-from garage_exp.scene.camera import to_camera, to_pixels
+from garage_exp.scene.camera import to_camera
 from garage_exp.scene.description import VEHICLE_ROLES, Box, Entity, Pose, Scene
 
 BoxXYXY = tuple[int, int, int, int]
@@ -169,8 +169,9 @@ def world_corners(entity: Entity, pose: Pose) -> np.ndarray | None:
 def projected_truncation(frame: Frame, corners: np.ndarray, near: float = 0.05) -> float:
     """Share of the projected 3D box's rectangle outside the image (1.0 when it is behind the camera). A fisheye
     (or cylindrical) frame bends the box's edges: points along them are projected through its lens, with no
-    near plane (a 190-degree lens sees behind its own plane)."""
-    if frame.lens is not None:
+    near plane (a 190-degree lens sees behind its own plane); a perspective frame's box is clipped at the near
+    plane."""
+    if not frame.lens.perspective:
         points = _edge_points(to_camera(frame.cam_to_world, corners))
         u, v = frame.lens.project(points)
         ok = np.isfinite(u) & np.isfinite(v)
@@ -180,7 +181,7 @@ def projected_truncation(frame: Frame, corners: np.ndarray, near: float = 0.05) 
     points = _clip_near(to_camera(frame.cam_to_world, corners), near)
     if len(points) == 0:
         return 1.0
-    u, v = to_pixels(points, frame.intrinsics)
+    u, v = frame.lens.pixels(points)
     return _outside(u, v, frame.width, frame.height)
 
 

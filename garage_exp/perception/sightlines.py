@@ -24,7 +24,8 @@ from typing import Mapping
 import numpy as np
 
 from garage_exp.perception.groundtruth import local_box, world_corners
-from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
+from garage_exp.scene.camera import camera_to_world, to_camera
+from garage_exp.scene.lenses import Pinhole, lens_of
 from garage_exp.scene.description import Box, CameraSpec, Entity, Pose, Scene
 
 NEAR = 0.05  # m: the cameras' near plane (CameraSpec.near)
@@ -112,7 +113,7 @@ def sight(static: Boxes, actors: Mapping[str, tuple[Entity, Pose]], target: str,
     """The estimate for actor `target` (a key of `actors`: each case actor's entity and pose in this shot) seen by
     `camera` on the ego at `ego`. Every actor but the target hides what is behind it (the ego too: a reversing
     camera's view passes its own bumper). None for a lens camera (module doc)."""
-    if not camera.model == "pinhole":
+    if camera.fisheye:
         return None
     entity, pose = actors[target]
     corners = world_corners(entity, pose)
@@ -120,14 +121,14 @@ def sight(static: Boxes, actors: Mapping[str, tuple[Entity, Pose]], target: str,
         return None
     cam = camera_to_world(ego, camera)
     origin = cam[:3, 3]
-    intrinsics = intrinsics_of(camera)
+    lens = lens_of(camera)
     centre = corners.mean(axis=0)
     distance = float(np.linalg.norm(centre - origin))
-    height, truncation = _box_height(to_camera(cam, corners), intrinsics, camera)
+    height, truncation = _box_height(to_camera(cam, corners), lens, camera)
     points, weight = _face_samples(entity, pose, origin)
     local = to_camera(cam, points)
     front = local[:, 0] > NEAR
-    u, v = to_pixels(local[front], intrinsics)
+    u, v = lens.pixels(local[front])
     inside = np.zeros(len(points), bool)
     inside[front] = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
     total = float(weight[inside].sum())
@@ -146,7 +147,7 @@ def _placed(local: np.ndarray, pose: Pose) -> np.ndarray:
     return np.array([pose.x + c * local[0] - s * local[1], pose.y + s * local[0] + c * local[1], pose.z + local[2]])
 
 
-def _box_height(local: np.ndarray, intrinsics, camera: CameraSpec) -> tuple[float, float]:
+def _box_height(local: np.ndarray, lens: Pinhole, camera: CameraSpec) -> tuple[float, float]:
     """The projected box's height in pixels inside the image (ground truth's full box stops at the border; a box
     wholly left or right of the image has none), and the share of its rectangle outside the image."""
     from garage_exp.perception.groundtruth import _clip_near, _outside
@@ -154,7 +155,7 @@ def _box_height(local: np.ndarray, intrinsics, camera: CameraSpec) -> tuple[floa
     points = _clip_near(local, NEAR)
     if len(points) == 0:
         return 0.0, 1.0
-    u, v = to_pixels(points, intrinsics)
+    u, v = lens.pixels(points)
     truncation = _outside(u, v, camera.width, camera.height)
     if u.max() <= 0 or u.min() >= camera.width:
         return 0.0, truncation

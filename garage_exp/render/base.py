@@ -12,8 +12,9 @@ from typing import Protocol
 
 import numpy as np
 
-from garage_exp.scene.camera import to_camera, to_pixels
+from garage_exp.scene.camera import to_camera
 from garage_exp.scene.description import Pose, Scene
+from garage_exp.scene.lenses import Lens
 
 BLANK_GREY = 128  # the blank control's background value (8-bit sRGB, all channels)
 
@@ -24,22 +25,16 @@ class Frame:
 
     rgb: HxWx3 uint8 (sRGB). ids: HxW int32, the id of the entity seen in each pixel (0: nothing; `Renderer.ids`
     maps names to ids). cam_to_world: 4x4 pose of the camera with SAPIEN's camera axes (x forward, y left,
-    z up). fx, fy, cx, cy: pinhole intrinsics in pixels (garage_exp.scene.camera), unless `lens` is set.
-    poses: where each vehicle (and the ego) stood when this was rendered.
+    z up). lens: the picture's lens (scene/lenses: its intrinsics, its projection; `scene.views.picture_lens` of
+    the camera's spec). poses: where each vehicle (and the ego) stood when this was rendered.
     """
 
     camera: str
     rgb: np.ndarray
     ids: np.ndarray
     cam_to_world: np.ndarray
-    fx: float
-    fy: float
-    cx: float
-    cy: float
+    lens: Lens
     poses: dict[str, Pose] = field(default_factory=dict)
-    # A fisheye or cylindrical frame's lens (render/fisheye.py); None: the pinhole fx, fy, cx, cy above. For a
-    # fisheye, fx = fy is the lens's f and (cx, cy) its centre.
-    lens: object | None = None
     # Ids of flat pictures on the floor (contact shadows, painted arrows): they may cover an actor's lowest
     # millimetres, and ground truth counts such pixels as the actor's, not as occluded.
     see_through: frozenset[int] = frozenset()
@@ -56,22 +51,18 @@ class Frame:
         return int(self.ids.shape[0])
 
     @property
-    def intrinsics(self) -> tuple[float, float, float, float]:
-        return self.fx, self.fy, self.cx, self.cy
-
-    @property
     def position(self) -> np.ndarray:
         return self.cam_to_world[:3, 3].copy()
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World points (N x 3) -> pixel coordinates (N x 2, continuous) and depth along the view axis (N)."""
+        """World points (N x 3) -> pixel coordinates (N x 2, continuous) and depth along the view axis (N). A
+        perspective lens divides by the depth, kept away from 0 (a point behind it mirrors through its centre)."""
         local = to_camera(self.cam_to_world, points)
         depth = local[:, 0]
-        if self.lens is not None:
+        if not self.lens.perspective:
             u, v = self.lens.project(local)
             return np.stack([u, v], axis=1), depth
-        safe = np.where(np.abs(depth) < 1e-9, 1e-9, depth)
-        u, v = to_pixels(local, self.intrinsics, safe)
+        u, v = self.lens.pixels(local, np.where(np.abs(depth) < 1e-9, 1e-9, depth))
         return np.stack([u, v], axis=1), depth
 
 

@@ -287,7 +287,7 @@ class CudaGroup:
     def render(self, shots: Sequence, cameras: Sequence[str], actors: Sequence[Sequence[str]]) -> list[Take]:
         import torch
 
-        from garage_exp.scene.camera import intrinsics_of
+        from garage_exp.scene.lenses import lens_of
 
         self.poses.copy_(torch.from_numpy(pack(self.layout, shots, self.specs, self.hidden, self.rest)))
         n, frames = len(shots), {}
@@ -310,7 +310,7 @@ class CudaGroup:
             for camera in cameras:
                 rgb, ids, masks = frames[camera]
                 spec = self.specs[camera]
-                frame = Frame(camera, rgb[k], ids[k], camera_to_world(shot.ego, spec), *intrinsics_of(spec),
+                frame = Frame(camera, rgb[k], ids[k], camera_to_world(shot.ego, spec), lens_of(spec),
                               self._vehicle_poses(shot), see_through=self.see_through,
                               pillars=self.pillars)
                 takes.append(Take(shot, camera, frame, {a: masks[a][k] for a in actors[k]}, self.subs[k].ids))

@@ -2,7 +2,7 @@
 
 Plain numpy and OpenCV, no SAPIEN. Each BEV pixel is a point of the floor (z = 0) around the ego; every fisheye
 camera that sees it gives the pixel where its lens images that point, through the same lens model
-(`render/fisheye.Fisheye.project`) and the same camera pose (`scene/camera.camera_to_world`) that the renderer
+(`scene/lenses/fisheye.Fisheye.project`) and the same camera pose (`scene/camera.camera_to_world`) that the renderer
 and ground truth use, so the calibration is exact. `cv2.remap` then samples each camera's picture.
 
 Orientation: the ego's forward (+x of its frame) is up in the image, its left (+y) is left; the ego's centre
@@ -24,10 +24,9 @@ import numpy as np
 
 from garage_exp.core.state import STATE
 from garage_exp.core.errors import GarageError, check_range
-from garage_exp.render.fisheye import lens_of
 from garage_exp.scene.camera import camera_to_world, to_camera
 from garage_exp.scene.description import CameraSpec, Pose
-from garage_exp.scene.lenses import camera_model
+from garage_exp.scene.lenses import camera_model, lens_of
 
 SIZE_RANGE = (2.0, 60.0)  # metres per side
 MPP_RANGE = (0.005, 0.5)  # metres per pixel
@@ -133,7 +132,7 @@ class BevMaps:
 
 def bev_maps(cameras, spec: BevSpec, ego_extent=None) -> BevMaps:
     """The maps of a rig's fisheye cameras (CameraSpec, mounted on the ego; those whose model stitches into a
-    BEV, scene/lenses.py) for a BEV; cached per (rig, spec, ego extent): they do not depend on where the ego
+    BEV, scene/lenses) for a BEV; cached per (rig, spec, ego extent): they do not depend on where the ego
     stands."""
     fisheyes = tuple(c for c in cameras if camera_model(c.model).bev)
     if not fisheyes:

@@ -47,7 +47,7 @@ def floor_alpha(frame: Frame, pose: Pose, decal: Decal) -> np.ndarray | None:
 
     from garage_exp.scene.textures import image
 
-    if frame.lens is not None:
+    if not frame.lens.perspective:
         return None
     at = pose.compose(decal.offset)
     c, s = math.cos(math.radians(at.yaw)), math.sin(math.radians(at.yaw))

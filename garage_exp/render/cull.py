@@ -14,16 +14,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from garage_exp.scene.camera import intrinsics_of
 from garage_exp.scene.description import CameraSpec
+from garage_exp.scene.lenses import Pinhole
 
 MARGIN_PX = 2.0  # widening of the side planes: rasterisation may light a pixel whose centre is outside
 
 
 def frustum_planes(cam_to_world: np.ndarray, spec: CameraSpec, margin_px: float = MARGIN_PX) -> np.ndarray:
     """6 x 4 world planes (nx, ny, nz, d) with inside = n.p + d >= 0 (camera axes: x forward, y left, z up)."""
-    fx, fy, cx, cy = intrinsics_of(spec)
-    tx, ty = (cx + margin_px) / fx, (cy + margin_px) / fy
+    lens = Pinhole.of(spec)
+    tx, ty = (lens.cx + margin_px) / lens.fx, (lens.cy + margin_px) / lens.fy
     local = np.array([[1.0, 0.0, 0.0, -spec.near], [-1.0, 0.0, 0.0, spec.far],
                       [tx, -1.0, 0.0, 0.0], [tx, 1.0, 0.0, 0.0],
                       [ty, 0.0, -1.0, 0.0], [ty, 0.0, 1.0, 0.0]])

@@ -1,18 +1,8 @@
-"""Fisheye cameras from a cube map: OpenCV's fisheye lens model, the cube faces it needs and the remaps.
+"""Lens cameras (a fisheye) from a cube map: the cube faces a lens needs and the remaps from them.
 
-Plain numpy and OpenCV, no SAPIEN: the backend renders the faces this module asks for, and ground truth and the
-tests project with the same lenses.
-
-Lenses map unit ray directions in the camera frame (SAPIEN's axes: x forward, y left, z up) to continuous pixel
-coordinates (u, v) with the project's convention (pixel (col, row) spans [col, col+1) x [row, row+1)) and back.
-- `Fisheye`: OpenCV's fisheye model (Kannala-Brandt with four coefficients, `cv2.fisheye`): theta is the ray's
-  angle from the optical axis, theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8), and the
-  pixel lies theta_d * f from the centre in the ray's direction. OpenCV's own `cv2.fisheye.projectPoints` divides
-  by the depth first and so folds rays beyond 90 degrees back into the image; a 190-degree lens needs them, so
-  the projection is written out here (tests check it against OpenCV's within 90 degrees). f is chosen so that
-  the lens's `fov` spans the image width (the image circle is cropped at the top and bottom, as in WoodScape).
-- `Pinhole`: a perspective view (a cube face, or a view undistorted from a fisheye image).
-- `Cylindrical`: columns linear in azimuth, rows linear in tan(elevation), a common undistortion for wide lenses.
+Plain numpy and OpenCV, no SAPIEN: the backend renders the faces this module asks for. The lenses themselves
+(their rays, projection and intrinsics) are scene/lenses'; a lens is drawn here through its `rays()`, and a view
+undistorted from its image through the view's `rays()` and the lens's `project(d)`.
 
 A cube map: the faces are 90-degree pinhole views at the camera's centre (front, left, right, up, down, back);
 only the faces some fisheye pixel looks into are rendered, each at the size that gives every fisheye pixel's
@@ -22,18 +12,21 @@ the lens samples is rendered (`crops`: an off-centre pinhole; a 4:3 image cuts t
 bottom, so the up and down faces need a band of rows): two thirds of the full faces' pixels for a 190-degree
 640x480 lens. The crops are stacked in one atlas image, so colour is one `cv2.remap` (bilinear) and ids and
 silhouettes one nearest-neighbour lookup.
+
+The remaps take a numpy picture (HxW...) or a torch batch (N, H, W, ...) where it lies (the GPU path's pictures):
+ids by the same lookup (exact), colour through `grid_sample` instead of `cv2.remap` (within one 8-bit level:
+OpenCV quantises each sample's position to 1/32 pixel, grid_sample does not; tests/test_fisheye_torch.py).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-# The views a detector may get instead of the raw image live with the scene's camera models (scene/views.py,
-# registered there); they are lenses like the ones here.
-from garage_exp.scene.views import VIEWS, Cylindrical, Pinhole, grid as _grid, unit as _unit  # noqa: F401
+from garage_exp.scene.camera import rotation
+from garage_exp.scene.lenses import Lens
 
 PAD = 1  # face pixels of margin on every side (bilinear sampling at a face's edge)
 MIN_FACE = 16  # pixels per face side at least
@@ -44,102 +37,8 @@ FACES = {"front": (0.0, 0.0), "left": (90.0, 0.0), "right": (-90.0, 0.0), "up": 
 
 
 def face_rotation(name: str) -> np.ndarray:
-    """3x3 rotation from a face camera's frame to the camera's frame (same convention as camera_to_world)."""
-    yaw, pitch = (math.radians(a) for a in FACES[name])
-    cz, sz, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
-    rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    return rz @ ry
-
-
-@dataclass(frozen=True)
-class Fisheye:
-    width: int
-    height: int
-    fov: float  # degrees across the image width
-    k: tuple[float, float, float, float]
-
-    @property
-    def theta_max(self) -> float:
-        return math.radians(self.fov) / 2.0
-
-    @property
-    def f(self) -> float:
-        return self.width / 2.0 / float(self.distort(np.array(self.theta_max)))
-
-    @property
-    def cx(self) -> float:
-        return self.width / 2.0
-
-    @property
-    def cy(self) -> float:
-        return self.height / 2.0
-
-    @property
-    def camera_matrix(self) -> np.ndarray:
-        """K for cv2.fisheye in its pixel convention (pixel centres at integers)."""
-        return np.array([[self.f, 0.0, self.cx - 0.5], [0.0, self.f, self.cy - 0.5], [0.0, 0.0, 1.0]])
-
-    def distort(self, theta: np.ndarray) -> np.ndarray:
-        k1, k2, k3, k4 = self.k
-        t2 = theta * theta
-        return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
-
-    def undistort(self, theta_d: np.ndarray) -> np.ndarray:
-        """theta from theta_d by Newton's method (as cv2.fisheye.undistortPoints does)."""
-        k1, k2, k3, k4 = self.k
-        theta = np.array(theta_d, dtype=float)
-        for _ in range(12):
-            t2 = theta * theta
-            g = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
-            dg = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
-            theta = theta - g / dg
-        return theta
-
-    def rays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Unit rays of every pixel and whether it lies within the lens's field (theta <= fov / 2)."""
-        u, v = _grid(self.width, self.height)
-        a, b = (u - self.cx) / self.f, (v - self.cy) / self.f  # right, down
-        theta_d = np.hypot(a, b)
-        theta = self.undistort(np.minimum(theta_d, float(self.distort(np.array(self.theta_max)))))
-        inside = theta_d <= float(self.distort(np.array(self.theta_max)))
-        scale = np.where(theta_d > 1e-12, np.sin(theta) / np.where(theta_d > 1e-12, theta_d, 1.0), 1.0)
-        d = np.stack([np.cos(theta), -a * scale, -b * scale], axis=-1)
-        return _unit(d), inside
-
-    def project(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous pixel coordinates of rays in any direction (beyond fov / 2 they land outside the image
-        circle; theta_d is continued linearly there so that folded coefficients never bring them back)."""
-        d = np.asarray(d, dtype=float)
-        right, down = -d[..., 1], -d[..., 2]
-        r = np.hypot(right, down)
-        theta = np.arctan2(r, d[..., 0])
-        edge = self.theta_max
-        slope = float((self.distort(np.array(edge + 1e-4)) - self.distort(np.array(edge - 1e-4))) / 2e-4)
-        theta_d = np.where(theta <= edge, self.distort(np.minimum(theta, edge)),
-                           float(self.distort(np.array(edge))) + max(slope, 1e-3) * (theta - edge))
-        scale = np.where(r > 1e-12, theta_d / np.where(r > 1e-12, r, 1.0), 0.0)
-        return self.cx + self.f * right * scale, self.cy + self.f * down * scale
-
-
-def kannala_brandt(spec) -> Fisheye:
-    """The lens of a camera spec of the fisheye model (scene/lenses.py)."""
-    return Fisheye(spec.width, spec.height, spec.fov, tuple(spec.k))
-
-
-def lens_of(spec) -> Fisheye:
-    """The lens a cube-mapped camera's model names (scene/lenses.py: `lens`)."""
-    from garage_exp.core.plugins import resolve
-    from garage_exp.scene.lenses import camera_model
-
-    model = camera_model(spec.model)
-    return resolve(model.lens, "a camera lens", f"camera model {model.name}")(spec)
-
-
-def view_lens(spec):
-    """The undistorted view a fisheye camera's detector gets (`spec.view`, a registered view: scene/views.py),
-    None for the raw image."""
-    return VIEWS[spec.view](spec)
+    """3x3 rotation from a face camera's frame to the camera's frame (a camera's rotation: scene/camera.py)."""
+    return rotation(*FACES[name])
 
 
 @dataclass
@@ -153,6 +52,7 @@ class CubeMap:
     map_x: np.ndarray  # HxW float32, atlas column of each fisheye pixel (cv2.remap's convention), -1 outside
     map_y: np.ndarray
     flat: np.ndarray  # HxW int64, the nearest atlas pixel's flat index, -1 outside the lens's field
+    grids: dict = field(default_factory=dict, repr=False, compare=False)  # device -> grid_sample's grid (torch)
 
     @property
     def atlas_shape(self) -> tuple[int, int]:
@@ -176,28 +76,75 @@ class CubeMap:
             out[top:top + pic.shape[0], :pic.shape[1]] = pic
         return out
 
-    def remap_colour(self, atlas: np.ndarray) -> np.ndarray:
-        return remap_bilinear(atlas, self.map_x, self.map_y)
+    def remap_colour(self, atlas):
+        """The fisheye picture(s) from an atlas (numpy) or a batch of atlases (torch)."""
+        if not is_torch(atlas):
+            return remap_bilinear(atlas, self.map_x, self.map_y)
+        if atlas.device not in self.grids:  # made once per device: the maps do not change
+            h, w = self.atlas_shape
+            self.grids[atlas.device] = sampling_grid(self.map_x, self.map_y, w, h, atlas.device)
+        return grid_sample(atlas, self.grids[atlas.device])
 
     def remap_nearest(self, atlas: np.ndarray, fill=0) -> np.ndarray:
         return lookup(atlas, self.flat, fill)
 
 
-def remap_bilinear(picture: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """cv2.remap with bilinear sampling; pixels mapped outside the picture (-1) come out black."""
+def is_torch(pictures) -> bool:
+    """A torch tensor (without importing torch where nobody made one)."""
+    return type(pictures).__module__.startswith("torch")
+
+
+def remap_bilinear(picture, map_x: np.ndarray, map_y: np.ndarray):
+    """Bilinear sampling at cv2.remap's maps (pixel centres at integers); pixels mapped outside the picture (-1)
+    come out black. A numpy picture through cv2.remap, a torch batch through grid_sample."""
+    if is_torch(picture):
+        h, w = picture.shape[1:3]
+        return grid_sample(picture, sampling_grid(map_x, map_y, w, h, picture.device))
     import cv2
 
     return cv2.remap(picture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
-def lookup(picture: np.ndarray, flat: np.ndarray, fill=0) -> np.ndarray:
-    """Nearest-neighbour remap: picture read at flat pixel indices; -1 gives `fill`."""
-    out = picture.reshape(-1, *picture.shape[2:])[np.maximum(flat, 0)]
-    out[flat < 0] = fill
+def sampling_grid(map_x: np.ndarray, map_y: np.ndarray, width: int, height: int, device="cpu"):
+    """cv2.remap's maps as grid_sample's (1, h, w, 2) grid over a width x height picture (align_corners=True: -1
+    and 1 are the centres of the first and last pixels)."""
+    import torch
+
+    gx = torch.from_numpy(np.asarray(map_x, np.float32)) * (2.0 / max(width - 1, 1)) - 1.0
+    gy = torch.from_numpy(np.asarray(map_y, np.float32)) * (2.0 / max(height - 1, 1)) - 1.0
+    return torch.stack([gx, gy], dim=-1)[None].to(device)
+
+
+def grid_sample(pictures, grid):
+    """(N, H, W, C) torch pictures (uint8 or float) sampled at `grid` (`sampling_grid`): (N, h, w, C) of the same
+    dtype (uint8 rounded to nearest), black outside."""
+    import torch
+    import torch.nn.functional as F
+
+    x = pictures.permute(0, 3, 1, 2).float()
+    out = F.grid_sample(x, grid.expand(len(x), -1, -1, -1), mode="bilinear", padding_mode="zeros",
+                        align_corners=True).permute(0, 2, 3, 1)
+    if pictures.dtype == torch.uint8:
+        return out.round().clamp(0, 255).to(torch.uint8)
+    return out.to(pictures.dtype)
+
+
+def lookup(picture, flat, fill=0):
+    """Nearest-neighbour remap: a picture read at flat pixel indices (an h x w array; -1 gives `fill`). numpy
+    (one HxW... picture) and torch (a batch, N x H x W x ..., on any device) alike."""
+    lead = 0
+    if is_torch(picture):
+        import torch
+
+        flat, lead = torch.as_tensor(flat, device=picture.device), 1
+    src = picture.reshape(*picture.shape[:lead], -1, *picture.shape[lead + 2:])
+    batch = (slice(None),) * lead
+    out = src[batch + (flat.clip(min=0),)]
+    out[batch + (flat < 0,)] = fill
     return out
 
 
-def cube_map(lens: Fisheye) -> CubeMap:
+def cube_map(lens: Lens) -> CubeMap:
     """Which faces the lens sees, the size each needs, and the lookups from fisheye pixels into the atlas."""
     rays, inside = lens.rays()
     rays = rays.astype(float)
@@ -271,8 +218,7 @@ def view_remap(source, target) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rays, _ = target.rays()
     u, v = source.project(rays)
     ok = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u < source.width) & (v >= 0) & (v < source.height)
-    if isinstance(source, Fisheye):
-        ok &= np.arccos(np.clip(rays[..., 0], -1.0, 1.0)) <= source.theta_max
+    ok &= source.in_field(rays)
     map_x = np.where(ok, u - 0.5, -1.0).astype(np.float32)
     map_y = np.where(ok, v - 0.5, -1.0).astype(np.float32)
     col = np.clip(np.floor(np.nan_to_num(u)), 0, source.width - 1).astype(np.int64)

@@ -40,7 +40,8 @@ from garage_exp.render.light_pool import LightPool
 from garage_exp.render.sapien_builder import DECALS, SceneBuilder, merges, static_key
 from garage_exp.render.sapien_cameras import SapienCamera, add_camera, take, take_ids
 from garage_exp.render.silhouettes import disjoint_groups, image_rect
-from garage_exp.scene.camera import camera_to_world, intrinsics_of
+from garage_exp.scene.camera import camera_to_world
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import Material, Pose, Scene
 
 
@@ -251,8 +252,7 @@ class SapienRenderer:
         rgb, ids = take(self._built.scene, cam)
         if not self.description.background:
             rgb[ids == 0] = BLANK_GREY
-        fx, fy, cx, cy = intrinsics_of(cam.spec)
-        return Frame(camera_name, rgb, ids, pose, fx, fy, cx, cy, self._vehicle_poses(),
+        return Frame(camera_name, rgb, ids, pose, lens_of(cam.spec), self._vehicle_poses(),
                      see_through=frozenset(self._built.decal_ids), pillars=self.pillar_ids)
 
     def _render_fisheye(self, cam: SapienCamera, pose: np.ndarray) -> Frame:
@@ -275,14 +275,8 @@ class SapienRenderer:
             ids = lookup(ids, flat)
         if not self.description.background:
             rgb[ids == 0] = BLANK_GREY
-        poses = self._vehicle_poses()
-        see_through = frozenset(self._built.decal_ids)
-        if getattr(lens, "model", "") == "pinhole":  # a perspective view is a plain pinhole frame
-            return Frame(cam.spec.name, rgb, ids, pose, lens.fx, lens.fy, lens.cx, lens.cy, poses,
-                         see_through=see_through, pillars=self.pillar_ids)
-        f = lens.f
-        return Frame(cam.spec.name, rgb, ids, pose, f, f, lens.cx, lens.cy, poses, lens=lens, see_through=see_through,
-                     pillars=self.pillar_ids)
+        return Frame(cam.spec.name, rgb, ids, pose, lens, self._vehicle_poses(),
+                     see_through=frozenset(self._built.decal_ids), pillars=self.pillar_ids)
 
     def unoccluded_ids(self, camera_name: str, names: Iterable[str]) -> dict[str, np.ndarray]:
         """Each named vehicle's unoccluded silhouette (HxW bool) as this camera would see it alone.

@@ -14,9 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garage_exp.render.fisheye import CubeMap, Fisheye, cube_map, face_rotation, lens_of, view_lens, view_remap
-from garage_exp.scene.camera import intrinsics_of
+from garage_exp.render.fisheye import CubeMap, cube_map, face_rotation, view_remap
 from garage_exp.scene.description import CameraSpec
+from garage_exp.scene.lenses import Lens, Pinhole, lens_of
+from garage_exp.scene.views import view_lens
 
 
 @dataclass
@@ -29,7 +30,7 @@ class SapienCamera:
     faces: list[tuple[np.ndarray, "SapienCamera"]] | None = None
     crop: tuple[int, int, int, int] | None = None  # a cube face's rendered rectangle (x0, y0, w, h); spec: whole face
     cube: CubeMap | None = None
-    lens: Fisheye | None = None
+    lens: Lens | None = None  # the lens drawn from the cube map
     view: tuple | None = None  # (view lens, cv2 map_x, map_y, nearest flat index) or None for the raw image
 
     def pinholes(self) -> list["SapienCamera"]:
@@ -61,9 +62,10 @@ def pinhole_camera(sapien_scene, spec: CameraSpec, crop: tuple[int, int, int, in
     silhouette.set_fovy(math.radians(spec.fovy), compute_x=True)
     silhouette.near, silhouette.far = spec.near, spec.far
     if crop:
-        fx, fy, cx, cy = intrinsics_of(spec)
+        face = Pinhole.of(spec)
         for cam in (component, silhouette):
-            cam.set_perspective_parameters(spec.near, spec.far, fx, fy, cx - crop[0], cy - crop[1], 0.0)
+            cam.set_perspective_parameters(spec.near, spec.far, face.fx, face.fy, face.cx - crop[0], face.cy - crop[1],
+                                           0.0)
     mount = sapien.Entity()
     mount.name = f"{spec.name}:silhouette"
     mount.add_component(silhouette)

@@ -13,8 +13,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from garage_exp.render.cull import box_corners
-from garage_exp.scene.camera import intrinsics_of, to_camera, to_pixels
+from garage_exp.scene.camera import to_camera
 from garage_exp.scene.description import CameraSpec
+from garage_exp.scene.lenses import Pinhole
 
 
 def image_rect(aabb: np.ndarray, cam_to_world: np.ndarray, spec: CameraSpec) -> tuple[float, ...] | None:
@@ -25,7 +26,7 @@ def image_rect(aabb: np.ndarray, cam_to_world: np.ndarray, spec: CameraSpec) -> 
         return None
     if np.any(local[:, 0] <= spec.near):
         return 0.0, 0.0, float(spec.width), float(spec.height)  # straddles the camera: assume anywhere
-    u, v = to_pixels(local, intrinsics_of(spec))
+    u, v = Pinhole.of(spec).pixels(local)
     x1, x2 = max(u.min(), 0.0), min(u.max(), spec.width)
     y1, y2 = max(v.min(), 0.0), min(v.max(), spec.height)
     if x1 >= x2 or y1 >= y2:

@@ -122,10 +122,10 @@ class FramePipeline:
 
     @cached_property
     def intrinsics(self) -> dict:
-        """Each camera's intrinsics by name, as its detector sees the picture."""
-        from garage_exp.perception.detect import Intrinsics
+        """Each camera's lens by name, as its detector sees the picture (scene/views.picture_lens)."""
+        from garage_exp.scene.views import picture_lens
 
-        return {cam.name: Intrinsics.of(cam) for cam in self.scene.cameras}
+        return {cam.name: picture_lens(cam) for cam in self.scene.cameras}
 
     # -- render, ground truth, camera model ---------------------------------------------------------------------
 

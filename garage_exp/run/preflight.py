@@ -242,10 +242,10 @@ def check_loads(detector, scene):
     """Every entry of the detector loads and answers a probe frame of the job's first camera, in the process
     that will detect (the detector's child, kept for the job): a file that is not a model is refused before
     anything is written. The opened detector is the one the job's frames go to (not opened again)."""
-    from garage_exp.perception.detect import Intrinsics
     from garage_exp.perception.detect.worker import open_detector
+    from garage_exp.scene.views import picture_lens
 
-    opened = open_detector(detector, Intrinsics.of(scene.cameras[0]))
+    opened = open_detector(detector, picture_lens(scene.cameras[0]))
     opened.names  # noqa: B018 - waits; raises the load's error
     return opened
 

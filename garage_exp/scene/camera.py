@@ -1,7 +1,8 @@
-"""The camera: its config check, its pose on the ego, its intrinsics and the world -> pixel projection.
+"""The camera: its config check, its pose on the ego and the world -> camera transform (its lens, intrinsics and
+projection are its model's lens class: scene/lenses).
 
-Plain numpy: the renderer, ground truth and tests all project with these functions, so a second renderer only
-has to agree with them. Camera axes are SAPIEN's (x forward, y left, z up); a pixel (col, row) spans
+Plain numpy: the renderer, ground truth and tests all place cameras with these functions, so a second renderer
+only has to agree with them. Camera axes are SAPIEN's (x forward, y left, z up); a pixel (col, row) spans
 [col, col+1) x [row, row+1), so the image centre is (width/2, height/2).
 """
 
@@ -14,7 +15,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.scene.description import CameraSpec, Pose
-from garage_exp.scene.lenses import DEFAULT, MODELS, check_model, model_of
+from garage_exp.scene.lenses import DEFAULT, LENSES, check_model, model_of
 from garage_exp.scene.views import VIEWS  # the registered views: raw, perspective, cylindrical, ...
 
 RESOLUTION_RANGE = (16, 4096)  # pixels per side
@@ -55,7 +56,7 @@ def check_camera(rig, dataset: bool = False) -> None:
     if not rig.cameras:
         raise GarageError("the rig has no camera", "camera.cameras")
     if dataset and rig.get("view", "raw") != "perspective" and any(
-            not model_of(cam).pinhole_frames for cam in rig.cameras if cam.get("model", DEFAULT) in MODELS):
+            not model_of(cam).pinhole_frames for cam in rig.cameras if cam.get("model", DEFAULT) in LENSES):
         raise GarageError(f"dataset=true writes KITTI's pinhole calibration, which {rig.view} fisheye frames do"
                           " not have: use camera.view=perspective", "camera.view")
     for key in ("mount", "fovy", "pitch", "z"):
@@ -132,39 +133,30 @@ def rig_specs(rig, ego_extent) -> list[CameraSpec]:
             pose = Pose(pose.x, pose.y, pose.z + float(cam.z_offset), pose.yaw)
         model = model_of(cam)
         out.append(CameraSpec(cam.name, pose, pitch=cam.pitch, fovy=cam.fovy, width=cam.width, height=cam.height,
-                              model=model.name, **model.spec(cam, view)))
+                              model=model.model, **model.spec_fields(cam, view)))
     return out
-
-
-def intrinsics_of(spec: CameraSpec) -> tuple[float, float, float, float]:
-    """fx, fy, cx, cy of a camera from its vertical FOV, with square pixels."""
-    fy = spec.height / 2.0 / math.tan(math.radians(spec.fovy) / 2.0)
-    return fy, fy, spec.width / 2.0, spec.height / 2.0
 
 
 def camera_to_world(ego: Pose, spec: CameraSpec) -> np.ndarray:
     """The camera's 4x4 pose: the ego's pose, then the mount (offset and yaw), then the pitch (positive down)."""
     mount = ego.compose(spec.mount)
-    yaw, pitch = math.radians(mount.yaw), math.radians(spec.pitch)
+    out = np.eye(4)
+    out[:3, :3] = rotation(mount.yaw, spec.pitch)
+    out[:3, 3] = (mount.x, mount.y, mount.z)
+    return out
+
+
+def rotation(yaw: float, pitch: float) -> np.ndarray:
+    """3x3 rotation of a camera turned by `yaw` (degrees, left-positive, about z) and then `pitch` (degrees,
+    positive looks down); the cube map's faces are turned the same way (render/fisheye.face_rotation)."""
+    yaw, pitch = math.radians(yaw), math.radians(pitch)
     cz, sz, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
     rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
     # A positive rotation about the camera's y (left) axis turns its x (forward) axis downwards.
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    out = np.eye(4)
-    out[:3, :3] = rz @ ry
-    out[:3, 3] = (mount.x, mount.y, mount.z)
-    return out
+    return rz @ ry
 
 
 def to_camera(cam_to_world: np.ndarray, points: np.ndarray) -> np.ndarray:
     """World points (N x 3) in the camera's frame (x: depth along the view axis)."""
     return (np.asarray(points, dtype=float).reshape(-1, 3) - cam_to_world[:3, 3]) @ cam_to_world[:3, :3]
-
-
-def to_pixels(local: np.ndarray, intrinsics: tuple[float, float, float, float],
-              depth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame points (N x 3) -> continuous pixel coordinates u (column), v (row). `depth` replaces the
-    points' own x (callers keep it away from 0)."""
-    fx, fy, cx, cy = intrinsics
-    depth = local[:, 0] if depth is None else depth
-    return cx - fx * local[:, 1] / depth, cy - fy * local[:, 2] / depth

@@ -157,10 +157,10 @@ class CameraSpec:
     height: int = 480
     near: float = 0.05
     far: float = 100.0
-    # The camera model (scene/lenses.py). A fisheye camera (model "fisheye"): OpenCV's Kannala-Brandt lens with
-    # coefficients k and `fov` degrees across the image width, rendered from a cube map (render/fisheye.py); fovy
-    # is unused. `view` is what the
-    # detector gets: the raw fisheye image, or a perspective / cylindrical view undistorted from it.
+    # The camera model: its lens class (scene/lenses; `scene.lenses.lens_of(spec)` is the lens). A fisheye camera
+    # (model "fisheye"): OpenCV's Kannala-Brandt lens with coefficients k and `fov` degrees across the image width,
+    # rendered from a cube map (render/fisheye.py); fovy is unused. `view` is what the detector gets: the raw
+    # fisheye image, or a perspective / cylindrical view undistorted from it (scene/views.py).
     model: str = "pinhole"
     fov: float = 0.0
     k: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
@@ -168,8 +168,8 @@ class CameraSpec:
 
     @property
     def fisheye(self) -> bool:
-        """Drawn from a cube map through its model's lens (scene/lenses.py; the fisheye model's today)."""
-        return camera_model(self.model).cube_map
+        """Drawn from a cube map through its model's lens (scene/lenses; every lens but a perspective one)."""
+        return not camera_model(self.model).perspective
 
 
 @dataclass

@@ -6,13 +6,13 @@ Importing this package is cheap: ultralytics, torch and onnxruntime load only wh
 """
 
 from garage_exp.core.offline import prepare_offline
-from garage_exp.perception.detect.base import Detections, Entry, EntrySettings, Intrinsics
+from garage_exp.perception.detect.base import Detections, Entry, EntrySettings
 from garage_exp.perception.detect.detector import Detector, build_detector, make_detector
 from garage_exp.perception.detect.entries import resolve
 from garage_exp.perception.detect.kinds import EntryKind, register_entry_kind
 from garage_exp.perception.detect.matching import (MATCH_MODES, PERSON_CLASSES, VEHICLE_CLASSES, GTBox, Scoring,
                                                    TargetScore, iou, iou_many, score_target)
 
-__all__ = ["Detections", "Entry", "EntrySettings", "Intrinsics", "Detector", "build_detector",
+__all__ = ["Detections", "Entry", "EntrySettings", "Detector", "build_detector",
            "make_detector", "EntryKind", "register_entry_kind", "resolve", "MATCH_MODES", "VEHICLE_CLASSES", "PERSON_CLASSES",
            "GTBox", "Scoring", "TargetScore", "iou", "iou_many", "score_target", "prepare_offline"]

@@ -5,7 +5,9 @@ Contract
 - `Detections`: one model's detections on one frame: `boxes` (N, 4) float32 x1, y1, x2, y2 in the frame's pixels,
   `scores` (N,) float32 in [0, 1], `classes` N class names (the model's own names; `detector.class_map` says which
   are vehicles and people). `model` and `ms` are filled in by the composite.
-- `Intrinsics`: the camera a frame came from (pixel size, focal lengths, principal point, lens model).
+- The camera a frame came from is its picture's lens (`scene.lenses.Lens`: `width`, `height`, `fx`, `fy`, `cx`,
+  `cy`, the camera matrix `K`, `model` "pinhole" | "fisheye" | "cylindrical" | a registered lens, and the model's
+  own parameters, a fisheye's `k` and `fov`); `scene.views.picture_lens(spec)` gives it for a scene camera.
 - `Entry`: one model. `name` (its column in the frame table), `device` (where it runs: "cpu", "cuda:0", or the
   server's address), `classes` (its class names, known after `check()`; empty when it cannot say).
   `check(intrinsics)` loads the model and runs it once on a probe frame of that camera's size, raising a
@@ -22,7 +24,6 @@ Contract
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.state import STATE
+from garage_exp.scene.lenses import Lens, Pinhole
 
 WHERE = "detector.models"
 
@@ -54,51 +56,8 @@ class Detections:
         return cls(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), [], model)
 
 
-@dataclass(frozen=True)
-class Intrinsics:
-    """The camera a frame came from. model: "pinhole" (fx, fy, cx, cy), "fisheye" (OpenCV's Kannala-Brandt: f = fx
-    = fy, k the four coefficients, fov degrees across the width) or "cylindrical" (fx pixels per radian of azimuth).
-    """
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    model: str = "pinhole"
-    k: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
-    fov: float = 0.0
-    camera: str = ""
-
-    @property
-    def matrix(self) -> np.ndarray:
-        """The 3x3 camera matrix K."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @classmethod
-    def of(cls, spec: Any) -> Intrinsics:
-        """A scene camera's (`scene.description.CameraSpec`) intrinsics, as its detector sees the picture: a fisheye
-        camera's raw image, or the perspective / cylindrical view undistorted from it."""
-        from garage_exp.render.fisheye import lens_of, view_lens
-        from garage_exp.scene.camera import intrinsics_of
-
-        w, h = int(spec.width), int(spec.height)
-        if not spec.fisheye:
-            return cls(w, h, *intrinsics_of(spec), camera=spec.name)
-        view = view_lens(spec)
-        if view is None:
-            lens = lens_of(spec)
-            # the raw image of a lens model (scene/lenses.py; its lens has f, cx, cy and k, as the fisheye's)
-            return cls(w, h, lens.f, lens.f, lens.cx, lens.cy, spec.model, tuple(lens.k), float(spec.fov), spec.name)
-        # a registered view (scene/views.py) says how its pixels are laid out
-        return cls(w, h, view.fx, view.fy, view.cx, view.cy, view.model, camera=spec.name)
-
-    @classmethod
-    def default(cls, width: int = 640, height: int = 480, fovy: float = 60.0) -> Intrinsics:
-        """A pinhole camera of the project's default size and vertical FOV (the probe's, when no camera is given)."""
-        f = height / 2.0 / math.tan(math.radians(fovy) / 2.0)
-        return cls(width, height, f, f, width / 2.0, height / 2.0)
+# The camera an entry's check probes when it is given none: the project's default size and vertical FOV.
+DEFAULT_CAMERA = Pinhole.from_fovy(640, 480, 60.0)
 
 
 @dataclass(frozen=True)
@@ -136,11 +95,11 @@ class Entry(ABC):
         return GarageError(what.strip().splitlines()[0] if what.strip() else what, self.where)
 
     @abstractmethod
-    def check(self, intrinsics: Intrinsics | None = None) -> None:
+    def check(self, intrinsics: Lens | None = None) -> None:
         """Load the model (once per process) and run it on a probe frame; GarageError naming the entry."""
 
     @abstractmethod
-    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Lens | None]) -> list[Detections]:
         """One Detections per frame (frames: checked RGB uint8 arrays; intrinsics: one per frame)."""
 
     def device_note(self) -> str:
@@ -188,9 +147,9 @@ def as_batch(frames: Any) -> Any:
     return out
 
 
-def per_frame(intrinsics: Any, count: int) -> list[Intrinsics | None]:
-    """intrinsics as one entry per frame: None, one Intrinsics for the whole batch, or a sequence of them."""
-    if intrinsics is None or isinstance(intrinsics, Intrinsics):
+def per_frame(intrinsics: Any, count: int) -> list[Lens | None]:
+    """intrinsics as one entry per frame: None, one lens for the whole batch, or a sequence of them."""
+    if intrinsics is None or isinstance(intrinsics, Lens):
         return [intrinsics] * count
     out = list(intrinsics)
     if len(out) != count:
@@ -198,9 +157,9 @@ def per_frame(intrinsics: Any, count: int) -> list[Intrinsics | None]:
     return out
 
 
-def probe_frame(intrinsics: Intrinsics | None) -> np.ndarray:
+def probe_frame(intrinsics: Lens | None) -> np.ndarray:
     """The frame an entry's check runs on: mid grey at the camera's size (the default camera without one)."""
-    cam = intrinsics or Intrinsics.default()
+    cam = intrinsics or DEFAULT_CAMERA
     return np.full((int(cam.height), int(cam.width), 3), 114, np.uint8)
 
 

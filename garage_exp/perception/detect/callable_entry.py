@@ -1,7 +1,7 @@
 """`callable:package.module:function`: the user's own detection code as an entry.
 
 The function is called with a batch: `function(frames, intrinsics)`, frames a list of HxWx3 uint8 RGB arrays,
-intrinsics a list of the same length (one `base.Intrinsics` per frame, or None where the caller has no camera),
+intrinsics a list of the same length (one `scene.lenses.Lens` per frame, or None where the caller has no camera),
 and returns a list of one `Detections` per frame (boxes x1, y1, x2, y2 in the frame's pixels, scores in [0, 1],
 class names). Its class names are declared as an attribute, `function.classes = ["car", "person"]`, or given in
 the config (`detector.class_names.FUNCTION`): preflight checks them against the scored classes and
@@ -18,9 +18,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from garage_exp.core.errors import GarageError
-from garage_exp.perception.detect.base import (Detections, Entry, EntrySettings, Intrinsics, checked, message_of,
-                                               probe_frame)
+from garage_exp.perception.detect.base import (DEFAULT_CAMERA, Detections, Entry, EntrySettings, checked,
+                                               message_of, probe_frame)
 from garage_exp.perception.detect.kinds import register_entry_kind
+from garage_exp.scene.lenses import Lens
 
 PREFIX = "callable:"
 
@@ -43,7 +44,7 @@ class CallableEntry(Entry):
         self.device = "user code"
         self._function = None
 
-    def check(self, intrinsics: Intrinsics | None = None) -> None:
+    def check(self, intrinsics: Lens | None = None) -> None:
         from garage_exp.core.plugins import resolve
 
         if self._function is not None:
@@ -61,12 +62,12 @@ class CallableEntry(Entry):
                             f"+detector.class_names.{self.name}=[car,person]")
         self._function = function
         try:
-            self.detect([probe_frame(intrinsics)], [intrinsics or Intrinsics.default()])
+            self.detect([probe_frame(intrinsics)], [intrinsics or DEFAULT_CAMERA])
         except GarageError as exc:
             self._function = None
             raise GarageError(f"on a probe frame: {message_of(exc)}", self.where) from None
 
-    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Lens | None]) -> list[Detections]:
         try:
             out = self._function(list(frames), list(intrinsics))
         except GarageError:

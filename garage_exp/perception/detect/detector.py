@@ -30,10 +30,11 @@ from typing import Any
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.core.state import STATE
 from garage_exp.perception.detect import entries as entry_kinds
-from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, as_batch,
+from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, as_batch,
                                                is_tensor, on_host, per_frame)
 from garage_exp.perception.detect.devices import check_device, device_line
 from garage_exp.perception.detect.matching import PERSON_CLASSES, VEHICLE_CLASSES
+from garage_exp.scene.lenses import Lens
 
 log = logging.getLogger("garage_exp")
 GROUPS = ("vehicle", "person")
@@ -99,7 +100,7 @@ class Detector:
                 "person_classes": self.person_classes + tuple(c for c in mapped["person"]
                                                               if c not in self.person_classes)}
 
-    def check(self, intrinsics: Intrinsics | None = None) -> None:
+    def check(self, intrinsics: Lens | None = None) -> None:
         """Load every entry and run it on a probe frame of the camera `intrinsics` describes (the default camera
         without), then check the class names: GarageError naming the entry on the first problem."""
         for entry in self.entries:
@@ -137,7 +138,7 @@ class Detector:
                 raise GarageError(f"classes {unknown} are not among any model's classes ({', '.join(self.names)})",
                                   f"detector.{key}")
 
-    def detect(self, frames: Any, intrinsics: Intrinsics | Sequence[Intrinsics | None] | None = None
+    def detect(self, frames: Any, intrinsics: Lens | Sequence[Lens | None] | None = None
                ) -> list[list[Detections]]:
         """Every model's detections on each frame of the batch (frames: a list of HxWx3 uint8 RGB arrays, a
         (B, H, W, 3) array, or a (B, H, W, 3) uint8 torch tensor on any device; intrinsics: None, one camera for all, or one per frame): one list per frame, one

@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from garage_exp.core.state import STATE
-from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, Intrinsics, checked,
+from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, checked,
                                                probe_frame)
 from garage_exp.perception.detect.devices import pick_device
 from garage_exp.perception.detect.kinds import register_entry_kind
+from garage_exp.scene.lenses import Lens
 
 ROLES = ("boxes", "scores", "labels")
 NAME_HINTS = {"boxes": ("box", "bbox"), "scores": ("score", "conf"), "labels": ("label", "class", "cls")}
@@ -96,7 +97,7 @@ class OnnxEntry(Entry):
         self._roles: dict[str, int] = {}
         self._labels: list[str] = []
 
-    def check(self, intrinsics: Intrinsics | None = None) -> None:
+    def check(self, intrinsics: Lens | None = None) -> None:
         if self._session is not None:
             return
         unreadable = onnx_unreadable(self.path)
@@ -172,7 +173,7 @@ class OnnxEntry(Entry):
             raise self.fail(f"its boxes output {outputs[roles['boxes']].name}{list(box)} is not (N, 4): {want}")
         return roles
 
-    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Lens | None]) -> list[Detections]:
         import cv2
 
         session = self._session

@@ -33,9 +33,10 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.perception.detect import tensors
-from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, Intrinsics, checked,
+from garage_exp.perception.detect.base import (WHERE, Detections, Entry, EntrySettings, checked,
                                                probe_frame)
 from garage_exp.perception.detect.kinds import register_entry_kind
+from garage_exp.scene.lenses import Lens
 
 DATATYPES = {"UINT8": np.uint8, "FP32": np.float32}
 RETRIES = 3  # a dropped connection is tried again this many times (0.5 s, 1 s, 2 s apart)
@@ -127,7 +128,7 @@ class ServerEntry(Entry):
         return "the server picks its own device"
 
     # ----------------------------------------------------------------------------------------- the check
-    def check(self, intrinsics: Intrinsics | None = None) -> None:
+    def check(self, intrinsics: Lens | None = None) -> None:
         """Server live, model ready, metadata and config readable and of the contract's shape, one probe frame
         answered with tensors of the right shapes; GarageError naming the entry otherwise."""
         try:
@@ -138,7 +139,7 @@ class ServerEntry(Entry):
         except Exception as exc:  # noqa: BLE001 - the client raises many types; one line naming the entry
             raise GarageError(self._reason(exc), self.where) from None
 
-    def _check(self, intrinsics: Intrinsics | None) -> None:
+    def _check(self, intrinsics: Lens | None) -> None:
         client = self._connect()
         e = self.endpoint
         if not client.is_server_live():
@@ -212,7 +213,7 @@ class ServerEntry(Entry):
         return text.splitlines()[0]
 
     # ------------------------------------------------------------------------------------------ detection
-    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None] = ()
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Lens | None] = ()
                ) -> list[Detections]:
         """One Detections per frame (boxes in the frame's pixels); ServerError when the server fails."""
         self.check()

@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from garage_exp.core.errors import did_you_mean
-from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, Intrinsics, checked,
+from garage_exp.perception.detect.base import (LOADED, Detections, Entry, EntrySettings, checked,
                                                is_tensor, probe_frame)
 from garage_exp.perception.detect.devices import pick_device
 from garage_exp.perception.detect.kinds import register_entry_kind, resolve_path
+from garage_exp.scene.lenses import Lens
 
 PREFIX = "torchvision:"
 ARCHS = ("fasterrcnn_resnet50_fpn", "fasterrcnn_resnet50_fpn_v2", "fasterrcnn_mobilenet_v3_large_fpn",
@@ -90,7 +91,7 @@ class TorchvisionEntry(Entry):
         self._model = None
         self._labels: list[str] = []
 
-    def check(self, intrinsics: Intrinsics | None = None) -> None:
+    def check(self, intrinsics: Lens | None = None) -> None:
         if self._model is not None:
             return
         self._model, self._labels = LOADED.get(("torchvision", self.arch, self.path.resolve(), self.device),
@@ -126,7 +127,7 @@ class TorchvisionEntry(Entry):
     def takes_tensors(self) -> bool:
         return True  # a torch model: a tensor batch goes in on its device
 
-    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Lens | None]) -> list[Detections]:
         import torch
 
         if is_tensor(frames):

@@ -19,11 +19,12 @@ import numpy as np
 from garage_exp.core.errors import GarageError
 from garage_exp.core.environment import prepare_environment
 from garage_exp.core.logfile import FILE_LOG
-from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, Intrinsics, is_tensor
+from garage_exp.perception.detect.base import LOADED, Detections, Entry, EntrySettings, is_tensor
 from garage_exp.perception.detect.devices import cuda_available, pick_device
 from garage_exp.perception.detect.kinds import OPENVINO_SUFFIX, register_entry_kind
 from garage_exp.perception.detect.onnx_entry import is_ultralytics_onnx
 from garage_exp.perception.detect.tensors import PAD_VALUE, Letterbox
+from garage_exp.scene.lenses import Lens
 
 log = logging.getLogger("garage_exp")
 FORMATS = {".pt": "pt", ".onnx": "onnx", ".engine": "engine", ".torchscript": "torchscript"}
@@ -74,7 +75,7 @@ class UltralyticsEntry(Entry):
     def device_note(self) -> str:
         return "OpenVINO export: CPU only" if self.format == "openvino" and self.settings.device != "cpu" else ""
 
-    def check(self, intrinsics: Intrinsics | None = None) -> None:
+    def check(self, intrinsics: Lens | None = None) -> None:
         if self._model is not None:
             return
         if self.format == "openvino" and not any(self.path.glob("*.xml")):
@@ -90,7 +91,7 @@ class UltralyticsEntry(Entry):
     def takes_tensors(self) -> bool:
         return self.format in TORCH_FORMATS
 
-    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Intrinsics | None]) -> list[Detections]:
+    def detect(self, frames: Sequence[np.ndarray], intrinsics: Sequence[Lens | None]) -> list[Detections]:
         if is_tensor(frames):
             return self._detect_tensor(frames)
         # ultralytics reads numpy images as OpenCV BGR. One frame goes in as an array (as before batches), so a

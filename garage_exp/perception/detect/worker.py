@@ -32,8 +32,9 @@ from garage_exp.core.errors import GarageError, JobFault
 from garage_exp.core.logfile import FILE_LOG
 from garage_exp.core.plugins import import_plugins
 from garage_exp.core.state import STATE
-from garage_exp.perception.detect.base import Detections, Intrinsics, as_batch, message_of, per_frame
+from garage_exp.perception.detect.base import Detections, as_batch, message_of, per_frame
 from garage_exp.perception.detect.detector import Detector
+from garage_exp.scene.lenses import Lens
 
 log = logging.getLogger("garage_exp")
 
@@ -54,13 +55,13 @@ DEFAULT_THREADS = max(1, cores() // 2)
 class InlineDetector:
     """The serial fallback: detection on the calling thread when its result is asked for."""
 
-    def __init__(self, detector: Detector, probe: Intrinsics | None = None, threads: int = 0):
+    def __init__(self, detector: Detector, probe: Lens | None = None, threads: int = 0):
         self._threads = threads
         self._detector: Detector | None = None
-        self._queue: deque[tuple[np.ndarray, Intrinsics | None]] = deque()
+        self._queue: deque[tuple[np.ndarray, Lens | None]] = deque()
         self.load(detector, probe)
 
-    def load(self, detector: Detector, probe: Intrinsics | None = None) -> None:
+    def load(self, detector: Detector, probe: Lens | None = None) -> None:
         """Use `detector` from now on (checked on the probe), as `DetectorProcess.load`; the same one is kept."""
         self.drain()
         if detector != self._detector:
@@ -72,7 +73,7 @@ class InlineDetector:
     def loaded(self) -> Detector | None:
         return self._detector
 
-    def submit(self, rgb: np.ndarray, intrinsics: Intrinsics | None = None) -> None:
+    def submit(self, rgb: np.ndarray, intrinsics: Lens | None = None) -> None:
         self._queue.append((rgb, intrinsics))
 
     def result(self) -> list[Detections]:
@@ -98,12 +99,12 @@ class DetectorProcess:
 
     def __init__(self, threads: int = DEFAULT_THREADS):
         self.threads = threads
-        self._spec: tuple[Detector, Intrinsics | None] | None = None
+        self._spec: tuple[Detector, Lens | None] | None = None
         self._names: list[str] | None = None
         self._loading = False
         self._reloading = False  # a replacement child's answer to the re-sent load is due before any frame's
         # frames (and their cameras) sent and not yet answered, oldest first
-        self._flight: deque[tuple[np.ndarray, Intrinsics | None]] = deque()
+        self._flight: deque[tuple[np.ndarray, Lens | None]] = deque()
         self.restarts = 0
         self._start()
 
@@ -117,7 +118,7 @@ class DetectorProcess:
         theirs.close()
         self._conn = Connection(ours.detach())
 
-    def load(self, detector: Detector, probe: Intrinsics | None = None) -> None:
+    def load(self, detector: Detector, probe: Lens | None = None) -> None:
         """Ask the child for this detector; returns at once (`names` waits for the load and raises its error).
         The same detector again is not checked again."""
         self.drain()
@@ -144,7 +145,7 @@ class DetectorProcess:
             raise RuntimeError("no detectors loaded: the last load failed")
         return self._names
 
-    def submit(self, rgb: np.ndarray, intrinsics: Intrinsics | None = None) -> None:
+    def submit(self, rgb: np.ndarray, intrinsics: Lens | None = None) -> None:
         self.names  # noqa: B018 - a loading error surfaces here, not as a frame's result
         self._flight.append((rgb, intrinsics))
         self._send(("detect", (rgb, intrinsics)))
@@ -357,7 +358,7 @@ def use_process() -> bool:
     return os.environ.get("GARAGE_EXP_DETECT_PROCESS", "1").strip().lower() not in ("0", "false", "no")
 
 
-def open_detector(detector: Detector, probe: Intrinsics | None = None) -> DetectorProcess | InlineDetector:
+def open_detector(detector: Detector, probe: Lens | None = None) -> DetectorProcess | InlineDetector:
     """The process's detector child, loading and checking `detector` (from `build_detector`; probe: the camera
     of the check's probe frame). The child is started on first use and reused by later jobs; `names` waits for
     the check and raises its error."""
@@ -379,7 +380,7 @@ class WarmDetector:
     (`open_detector`): a caller outside the frame loop (the search's pre-screen) shares the job's child and its
     loaded models instead of loading them a second time in this process."""
 
-    def __init__(self, detector: Detector, probe: Intrinsics | None = None):
+    def __init__(self, detector: Detector, probe: Lens | None = None):
         self._detector, self._probe = detector, probe
         self._warm = open_detector(detector, probe)
         self.names = self._warm.names  # waits for the load: a detector that cannot load fails here (GarageError)

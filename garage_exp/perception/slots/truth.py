@@ -32,9 +32,9 @@ import numpy as np
 from garage_exp.core.state import STATE
 from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
 from garage_exp.render.bev import BevMaps, BevSpec
-from garage_exp.render.fisheye import lens_of
 from garage_exp.scene.bays import BAY_TYPES, Bay, bays, layout
-from garage_exp.scene.camera import camera_to_world, intrinsics_of, to_camera, to_pixels
+from garage_exp.scene.camera import camera_to_world, to_camera
+from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import Box, CameraSpec, Pose, Scene
 from garage_exp.scene.markings import _drawn_by_neighbour, unit_hash
 
@@ -230,8 +230,8 @@ def obstacles(scene: Scene, poses: dict[str, Pose | None] | None = None) -> list
 def camera_pixel(cam: CameraSpec, ego: Pose, point) -> tuple[float, float] | None:
     """Where a camera on the ego images a world point, None where it does not see it."""
     local = to_camera(camera_to_world(ego, cam), np.asarray(point, float).reshape(1, 3))
+    lens = lens_of(cam)
     if cam.fisheye:
-        lens = lens_of(cam)
         theta = math.atan2(math.hypot(local[0, 1], local[0, 2]), local[0, 0])
         if theta > lens.theta_max:
             return None
@@ -239,7 +239,7 @@ def camera_pixel(cam: CameraSpec, ego: Pose, point) -> tuple[float, float] | Non
     else:
         if local[0, 0] <= cam.near:
             return None
-        u, v = to_pixels(local, intrinsics_of(cam))
+        u, v = lens.pixels(local)
     u, v = float(u[0]), float(v[0])
     return (u, v) if 0 <= u < cam.width and 0 <= v < cam.height else None
 
