@@ -117,6 +117,7 @@ def test_the_detector_sees_the_same_camera():
         assert (cam.width, cam.height, cam.model) == (want[0], want[1], want[6])
         same([cam.fx, cam.fy, cam.cx, cam.cy], want[2:6])
         same(cam.K, matrix)
+        same(cam.matrix, matrix)  # the name users' callable: detectors read before
         if view == "raw":
             assert tuple(cam.k) == want[7] and cam.fov == want[8]
     cam = picture_lens(SPEC)

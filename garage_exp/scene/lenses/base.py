@@ -79,6 +79,12 @@ class Lens:
         """The 3x3 camera matrix (pixel (col, row) spans [col, col+1): OpenCV's principal point is 0.5 less)."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    @property
+    def matrix(self) -> np.ndarray:
+        """K by the name users' `callable:` detectors read before lenses owned it (detect.base.Intrinsics.matrix):
+        their files keep working."""
+        return self.K
+
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """Unit rays (HxWx3) of every pixel's centre, and whether each lies within the lens's field (HxW)."""
         raise NotImplementedError
