@@ -77,8 +77,8 @@ def _types_in(hint) -> list:
 def __getattr__(name: str):
     """`Config` and, for code written when every node was declared here, each registered node's dataclass by its
     name (its owner's module imported first, as the composer does)."""
-    if name == "Config":
-        return config_schema()
+    if name == "Config" and _ASSEMBLED:
+        return _ASSEMBLED[0]
     found = schema_named(name) if not name.startswith("_") else None
     if found is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r} (a node's dataclass lives beside its "
