@@ -76,12 +76,13 @@ class BevSpec:
     ego's forward axis, `width` across, centred on the ego, at `meters_per_pixel`. 18 m across holds the 5 m deep
     bays on both sides of a 6 m lane whole (their back corners 8 m from the lane's centre).
 
-The `camera.bev` node and the extent the BEV's code works with (render/bev.py: spec_of types a node as it):
-orientation and pixels as render/bev.py says. Equal and hashed by its extent (`enabled` aside), so that the maps
-cached per spec (render/bev.py: bev_maps) are shared; not frozen, so that overrides can set a node's keys."""
+    One class for the `camera.bev` node and the extent the BEV's code works with (render/bev.py: spec_of types a
+    node as it; orientation and pixels as render/bev.py says). Equal and hashed by its extent (`enabled` aside),
+    so that the maps cached per spec (bev_maps) are shared; not frozen, so that overrides can set a node's keys."""
 
-    # keyword-only: BevSpec(length, width, meters_per_pixel) is the extent
-    enabled: bool = field(default=False, kw_only=True, compare=False)  # write the BEV on any fisheye rig; a case with `slots: true` turns it on by itself
+    # Write the BEV on any fisheye rig; a case with `slots: true` turns it on by itself. Keyword-only, so that
+    # BevSpec(length, width, meters_per_pixel) is the extent.
+    enabled: bool = field(default=False, kw_only=True, compare=False)
     length: float = 12.0
     width: float = 18.0
     meters_per_pixel: float = 0.03
@@ -184,6 +185,10 @@ class ClutterConf:
     level: str = "none"  # none | typical | dense
 
 
-for _key, _schema in (("garage", GarageConf), ("light", LightConf), ("camera", CameraRigConf), ("palette", PaletteConf),
-                      ("look", LookConf), ("materials", MaterialsConf), ("clutter", ClutterConf)):
-    register_node(_key, _schema, group=True)
+register_node("garage", GarageConf, group=True)
+register_node("light", LightConf, group=True)
+register_node("camera", CameraRigConf, group=True)
+register_node("palette", PaletteConf, group=True)
+register_node("look", LookConf, group=True)
+register_node("materials", MaterialsConf, group=True)
+register_node("clutter", ClutterConf, group=True)
