@@ -46,4 +46,4 @@ ORDER = ("plan", "garage", "light", "camera", "palette", "occluder", "case", "eg
          "clutter", "detector", "slot_detector", "renderer", "tracking", "space", "modifiers", "seed", "replicates",
          "replicate", "search", "blank", "dataset", "export", "resume", "dry_run")
 
-Config = schema.assemble(ORDER, JobValues, __name__)
+Config = schema.register_config(schema.assemble(ORDER, JobValues, __name__))

@@ -171,7 +171,8 @@ def test_a_new_node_is_one_module_and_its_registration(tmp_path, monkeypatch):
     assembled = schema.config_schema()
     try:
         haze = importlib.import_module("my_factor").HazeConf
-        built = OmegaConf.structured(schema.assemble(config.ORDER, config.JobValues, config.__name__))
+        built = OmegaConf.structured(schema.register_config(schema.assemble(config.ORDER, config.JobValues,
+                                                                           config.__name__)))
         assert list(built)[-1] == "haze" and built.haze.density == 0.0 and OmegaConf.get_type(built.haze) is haze
         with pytest.raises(ConfigKeyError):  # a typo fails at composition, as in every node of the schema
             OmegaConf.merge(built, {"haze": {"densty": 1.0}})
@@ -181,4 +182,4 @@ def test_a_new_node_is_one_module_and_its_registration(tmp_path, monkeypatch):
     finally:
         del config_nodes.NODES["haze"]
         sys.modules.pop("my_factor", None)
-        schema._ASSEMBLED[:] = [assembled]  # the experiment's own Config again, as every other test knows it
+        schema.register_config(assembled)  # the experiment's own Config again, as every other test knows it

@@ -3,8 +3,8 @@
 
 A YAML level of a group is validated against its dataclass (typos and wrong types fail at compose time). Core
 declares no node and names no layer above it: the module that composes the experiment's config imports the
-owners (their registrations run on import) and calls `assemble` with the config's order and its own plain
-values. `Config` is the dataclass that makes (config_schema).
+owners (their registrations run on import), calls `assemble` with the config's order and its own plain values
+and registers the dataclass that makes, `Config` (register_config, config_schema).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from hydra.core.config_store import ConfigStore
 from garage_exp.core.config_nodes import NODES
 from garage_exp.core.state import STATE
 
-_ASSEMBLED: list[type] = []  # the experiment's Config, once its composer has assembled it
+_ASSEMBLED: list[type] = []  # the experiment's Config, once its composer has registered it (register_config)
 
 
 def assemble(order: Sequence[str], values: type, module: str) -> type:
@@ -41,12 +41,17 @@ def assemble(order: Sequence[str], values: type, module: str) -> type:
             spec.append((key, f.type, field(default=f.default, default_factory=f.default_factory)))
     config = dataclasses.make_dataclass("Config", spec)
     config.__module__ = module
+    return config
+
+
+def register_config(config: type) -> type:
+    """`config` (assemble's) as the experiment's Config: the schema check's and the ConfigStore's; returns it."""
     _ASSEMBLED[:] = [config]
     return config
 
 
 def config_schema() -> type:
-    """The experiment's `Config`, as its composer assembled it."""
+    """The experiment's `Config`, as its composer registered it."""
     if not _ASSEMBLED:
         raise LookupError("the experiment's config schema is not assembled: the command that composes the "
                           "experiment's config imports its composer first")
