@@ -171,10 +171,13 @@ def compose_cfg(*overrides: str, hydra: bool = False, config: str = "config", co
 
 
 def command_schemas(config: str) -> tuple:
-    """The schemas the command reading conf/<config>.yaml registers (its shell.Command's)."""
+    """The schemas the command reading conf/<config>.yaml registers (its shell.Command's); the experiment's
+    `Config` assembled first, as the main command's module does on import (garage_exp/config.py)."""
+    import importlib
+
+    import garage_exp.config  # noqa: F401
     if config == "config":
         return ()
-    import importlib
 
     return importlib.import_module(f"garage_exp.{config}.app").COMMAND.schemas
 

@@ -119,10 +119,23 @@ def test_the_maps_are_cached_per_rig_and_spec(rig):
 
 def test_the_bev_spec_is_checked():
     from garage_exp.core.errors import GarageError
-    from garage_exp.core.schema import BevConf
 
-    check_bev(BevConf())
+    check_bev(BevSpec())
     with pytest.raises(GarageError, match="camera.bev.meters_per_pixel"):
-        check_bev(BevConf(meters_per_pixel=0.001))
+        check_bev(BevSpec(meters_per_pixel=0.001))
     with pytest.raises(GarageError, match="camera.bev.meters_per_pixel"):
-        check_bev(BevConf(length=60.0, width=60.0, meters_per_pixel=0.02))
+        check_bev(BevSpec(length=60.0, width=60.0, meters_per_pixel=0.02))
+
+
+def test_the_camera_bev_node_is_the_bev_spec():
+    """One class for the `camera.bev` node and the extent the BEV code uses (no Conf/Spec pair): a composed node
+    typed as it is the spec, equal (and cached, bev_maps) by its extent whether or not it is enabled."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.render.bev import spec_of
+
+    node = OmegaConf.merge(OmegaConf.structured(BevSpec), {"enabled": True, "length": 10, "meters_per_pixel": 0.02})
+    assert OmegaConf.get_type(node) is BevSpec
+    spec = spec_of(node)
+    assert spec == BevSpec(10.0, 18.0, 0.02) and spec.enabled and hash(spec) == hash(BevSpec(10.0, 18.0, 0.02))
+    assert spec.size == (900, 500)

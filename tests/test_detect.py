@@ -327,7 +327,7 @@ def test_pt_weights_load_through_the_same_path(tmp_path):
 
 @pytest.mark.detect
 def test_from_config(detector):
-    from garage_exp.core.schema import DetectorConf
+    from garage_exp.perception.schema import DetectorConf
 
     conf = schema_node(DetectorConf, {"models": list(detector.models), "registry": None})
     made = detector_module.build_detector(conf)

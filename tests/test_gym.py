@@ -73,7 +73,7 @@ def test_limits_bound_every_action():
     """Whatever the actions, a child's value moves no faster than a child runs and speeds up no faster than a
     running start; 20 km/h (5.6 m/s) is refused as a limit, naming the key."""
     from garage_exp.core.errors import GarageError
-    from garage_exp.core.schema import ActorConf
+    from garage_exp.scenario.schema import ActorConf
     from garage_exp.gym.limits import advance, resolve_movers
     from garage_exp.gym.schema import MoverConf
 
@@ -358,7 +358,7 @@ def test_a_negative_gap_pulls_a_car_out_of_its_bay():
     from dataclasses import replace
 
     from garage_exp.core.errors import GarageError
-    from garage_exp.core.schema import ActorConf
+    from garage_exp.scenario.schema import ActorConf
     from garage_exp.scenario.place import pose_in_bay, site_bay
     from garage_exp.scenario.sites import find_site
 
@@ -404,7 +404,7 @@ def test_a_car_straight_out_of_its_bay_overlaps_only_what_is_in_the_lane():
 def test_a_car_pulls_out_no_faster_than_a_car_may():
     """A vehicle's gap moves at most 2 m/s, speeding up at most 2 m/s^2; faster is refused naming the key."""
     from garage_exp.core.errors import GarageError
-    from garage_exp.core.schema import ActorConf
+    from garage_exp.scenario.schema import ActorConf
     from garage_exp.gym.limits import advance, resolve_movers
     from garage_exp.gym.schema import MoverConf
 

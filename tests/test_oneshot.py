@@ -178,7 +178,7 @@ def test_a_one_shot_trials_composition_keeps_hydras_types_and_flags():
     from hydra.types import RunMode
     from omegaconf import OmegaConf
 
-    from garage_exp.core.schema import CaseConf
+    from garage_exp.scenario.schema import CaseConf
     from garage_exp.search.launch import CachedLaunch
 
     with hydra_loader() as loader:

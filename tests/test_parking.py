@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import require
 
-from garage_exp.core.schema import GarageConf, LightConf, PaletteConf
+from garage_exp.scene.schema import GarageConf, LightConf, PaletteConf
 from garage_exp.core.paths import PLANS_DIR
 from garage_exp.plan import classify, load_plan
 from garage_exp.scene.bays import bays, overlap

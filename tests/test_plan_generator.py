@@ -16,7 +16,7 @@ import pytest
 from conftest import ROOT, compose_cfg, require, run_app, run_module
 
 from garage_exp.core.errors import GarageError
-from garage_exp.core.schema import PlanGeneratorConf
+from garage_exp.plan.schema import PlanGeneratorConf
 from garage_exp.plan import classify, load_plan
 from garage_exp.plan import generator as G
 from garage_exp.plan.features import corners, entrance_distance, straight_runs

@@ -118,24 +118,68 @@ def test_a_pinhole_camera_keeps_no_lens_fields_and_an_unknown_model_is_refused()
     assert np.isclose(lenses.FISHEYE_FOV_RANGE[1], 200.0)
 
 
-def test_each_layers_schema_lives_beside_its_check_and_core_registers_it_by_name():
-    """Item 4: a node one layer owns is declared in that layer; core names it, imports no layer above it."""
+def test_each_node_is_registered_beside_its_owner_and_core_names_no_layer_above_it():
+    """Item 4: a node's dataclass is declared and registered in the layer that owns it; core declares none and
+    names no module above it (no dotted strings); the experiment's Config is assembled from the registrations."""
     import ast
     from pathlib import Path
 
-    from garage_exp.core import schema
+    from garage_exp import config
+    from garage_exp.core import config_nodes, schema
     from garage_exp.exports.openscenario import ExportConf
     from garage_exp.perception.slots.schema import SlotDetectorConf, SlotLinesConf
     from garage_exp.results.late import EgoConf
+    from garage_exp.scene.schema import BevSpec, CameraRigConf
     from garage_exp.search.schema import SearchConf
 
-    source = Path(schema.__file__).read_text()
-    declared = {n.name for n in ast.walk(ast.parse(source)) if isinstance(n, ast.ClassDef)}
-    assert not declared & {"SearchConf", "EgoConf", "SlotDetectorConf", "SlotLinesConf", "ExportConf"}
-    types = {f.name: f.type for f in dataclasses.fields(schema.Config)}
-    assert (types["search"], types["ego"], types["slot_detector"], types["export"]) == (
-        SearchConf, EgoConf, SlotDetectorConf, ExportConf)
-    assert schema.SlotLinesConf is SlotLinesConf  # code written before the move still imports it from core
-    config = OmegaConf.structured(schema.Config)
-    assert list(config)[:8] == ["plan", "garage", "light", "camera", "palette", "occluder", "case", "ego"]
-    assert config.search.objective == "difficulty" and config.slot_detector.lines.max_gap == 0.8
+    for module in (schema, config_nodes):
+        tree = ast.parse(Path(module.__file__).read_text())
+        assert not [n.name for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name.endswith("Conf")]
+        strings = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+        assert not [s for s in strings if "garage_exp." in s and not s.startswith("garage_exp.core")]
+    owners = {key: node.schema.__module__ for key, node in config_nodes.NODES.items()}
+    assert not [key for key, module in owners.items() if module.startswith("garage_exp.core")]
+    assert owners["search"] == "garage_exp.search.schema" and owners["ego"] == "garage_exp.results.late"
+    types = {f.name: f.type for f in dataclasses.fields(config.Config)}
+    assert (types["search"], types["ego"], types["slot_detector"], types["export"], types["camera"]) == (
+        SearchConf, EgoConf, SlotDetectorConf, ExportConf, CameraRigConf)
+    assert schema.Config is config.Config and schema.SlotLinesConf is SlotLinesConf  # code written before the move
+    assert schema.BevSpec is BevSpec and not hasattr(schema, "BevConf")  # one class for the node and the spec
+    built = OmegaConf.structured(config.Config)
+    assert list(built)[:8] == ["plan", "garage", "light", "camera", "palette", "occluder", "case", "ego"]
+    assert list(built) == [*config.ORDER]
+    assert built.search.objective == "difficulty" and built.slot_detector.lines.max_gap == 0.8
+
+
+def test_a_new_node_is_one_module_and_its_registration(tmp_path, monkeypatch):
+    """A new factor's node: its dataclass and `register_node` in a module of its own (here a temporary one); the
+    assembled Config holds it after the placed keys, and the schema check refuses a typo in it."""
+    import importlib
+    import sys
+
+    from garage_exp import config
+    from garage_exp.core import config_nodes, schema
+    from garage_exp.core.schema_check import check_schema
+    from omegaconf.errors import ConfigKeyError
+
+    (tmp_path / "my_factor.py").write_text(
+        "from dataclasses import dataclass\n"
+        "from garage_exp.core.config_nodes import register_node\n\n\n"
+        "@dataclass\nclass HazeConf:\n    density: float = 0.0\n\n\n"
+        "register_node('haze', HazeConf)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assembled = schema.config_schema()
+    try:
+        haze = importlib.import_module("my_factor").HazeConf
+        built = OmegaConf.structured(schema.register_config(schema.assemble(config.ORDER, config.JobValues,
+                                                                           config.__name__)))
+        assert list(built)[-1] == "haze" and built.haze.density == 0.0 and OmegaConf.get_type(built.haze) is haze
+        with pytest.raises(ConfigKeyError):  # a typo fails at composition, as in every node of the schema
+            OmegaConf.merge(built, {"haze": {"densty": 1.0}})
+        forced = OmegaConf.create({**OmegaConf.to_container(built), "haze": {"densty": 1.0}})  # as `+haze.densty`
+        with pytest.raises(GarageError, match=r"haze has no key 'densty' \(did you mean 'density'\?\)"):
+            check_schema(forced, [])
+    finally:
+        del config_nodes.NODES["haze"]
+        sys.modules.pop("my_factor", None)
+        schema.register_config(assembled)  # the experiment's own Config again, as every other test knows it

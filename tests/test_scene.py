@@ -10,7 +10,7 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from garage_exp.core.schema import GarageConf, LightConf
+from garage_exp.scene.schema import GarageConf, LightConf
 from garage_exp.core.errors import GarageError
 from garage_exp.plan import classify, load_plan, plan_from_lists
 from garage_exp.plan.features import UNIT

@@ -14,10 +14,11 @@ import pytest
 from conftest import ROOT, compose_cfg
 from hydra.errors import ConfigCompositionException
 
-from garage_exp.core.exits import input_error, unknown_key_line
-from garage_exp.core.schema import ActorConf, CaseConf, Config
+from garage_exp.config import Config
 from garage_exp.core.errors import GarageError, did_you_mean
+from garage_exp.core.exits import input_error, unknown_key_line
 from garage_exp.core.schema_check import check_schema, override_of, unknown_keys
+from garage_exp.scenario.schema import ActorConf, CaseConf
 
 
 

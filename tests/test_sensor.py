@@ -129,7 +129,7 @@ def test_unknown_kind_and_config_objects():
         make_sensor(**{"name": "x", "kind": "thermal"})
     from omegaconf import OmegaConf
 
-    from garage_exp.core.schema import SensorConf
+    from garage_exp.perception.schema import SensorConf
 
     conf = schema_node(SensorConf, {"name": "noisy", **LEVELS["noisy"]})
     from garage_exp.core.plugins import build

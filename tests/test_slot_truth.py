@@ -11,8 +11,8 @@ from conftest import compose_cfg
 
 from garage_exp.perception.slots.truth import (VISIBILITY, Obstacle, WorldBay, obstacles, paint_left, slot_truth,
                                                 texture_left, world_bays)
-from garage_exp.render.bev import bev_maps, spec_of
-from garage_exp.core.schema import BevConf
+from garage_exp.render.bev import bev_maps
+from garage_exp.scene.schema import BevSpec
 from garage_exp.scene.description import Pose
 from garage_exp.scene.markings import unit_hash
 
@@ -32,7 +32,7 @@ def job():
 def truth_of(job, shot=0, wear=0.0, extra=()):
     cfg, prepared = job
     scene, setup = prepared.scene, prepared.setup
-    spec = spec_of(BevConf())
+    spec = BevSpec()
     ego = next(v for v in scene.vehicles() if v.role == "ego")
     maps = bev_maps(scene.cameras, spec, ego.extent)
     world = world_bays(prepared.classified, cfg.garage, wear)
@@ -134,7 +134,7 @@ def test_corners_under_the_ego_or_off_the_bev_are_outside(job):
     ego = shot.ego
     fake = WorldBay("under", ((ego.x - 0.5, ego.y), (ego.x + 0.5, ego.y), (ego.x + 0.5, ego.y + 30.0),
                               (ego.x - 0.5, ego.y + 30.0)), 90.0, ("L", "L"), (1.0, 1.0, 1.0, 1.0))
-    spec = spec_of(BevConf())
+    spec = BevSpec()
     scene = prepared.scene
     maps = bev_maps(scene.cameras, spec, next(v for v in scene.vehicles() if v.role == "ego").extent)
     truth = slot_truth([fake], spec, ego, scene.cameras, maps, [])

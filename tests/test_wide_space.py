@@ -76,7 +76,7 @@ def test_one_key_says_what_the_target_is(kind, expect):
 
 
 def test_a_crouching_target_is_an_adult_crouching():
-    from garage_exp.core.schema import ActorConf
+    from garage_exp.scenario.schema import ActorConf
     from garage_exp.scenario.actors import resolve_type
 
     actor = resolve_type(ActorConf(type="crouching", pose="walking"))
@@ -125,7 +125,7 @@ def test_yaw_turns_the_target():
 
 def test_stature_spans_each_age_groups_heights():
     from garage_exp.assets.people import STATURE
-    from garage_exp.core.schema import ActorConf
+    from garage_exp.scenario.schema import ActorConf
     from garage_exp.scenario.actors import height_of
 
     assert height_of(ActorConf(age="adult", stature=0.0), "x") == pytest.approx(STATURE["adult"][0], abs=0.025)

@@ -15,7 +15,7 @@ import time
 
 from benchmarks import jobkit
 
-from garage_exp.core.schema import GarageConf, LightConf
+from garage_exp.scene.schema import GarageConf, LightConf
 from garage_exp.plan import classify, plan_from_lists
 from garage_exp.plan.model import Plan
 from garage_exp.scene.structure import build_garage

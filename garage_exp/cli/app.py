@@ -11,6 +11,7 @@ import math
 
 from omegaconf import DictConfig
 
+from garage_exp import config  # noqa: F401 - the experiment's Config assembled from its nodes' owners
 from garage_exp.cli import callbacks
 from garage_exp.core import shell
 from garage_exp.core.errors import Infeasible

@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from garage_exp.core.config_nodes import register_node
 from garage_exp.core.errors import GarageError
 from garage_exp.plan.model import OPPOSITE, YAW
 from garage_exp.scene.description import Entity, Pose
@@ -753,7 +754,7 @@ def write_xosc(info: ExportInfo, moving: list[Track], label: str, notes: list[st
 
 @dataclass
 class ExportConf:
-    """The `export` node's schema, beside its check (check_export; core/schema.py registers it by name):
+    """The `export` node's schema, beside its check (check_export), registered below it:
     formats a job writes beside its frames for other tools (garage_exp/exports)."""
 
     # openscenario/scenario.xosc (ASAM OpenSCENARIO 1.2: entities, initial positions, routes, speeds, triggers)
@@ -766,6 +767,7 @@ class ExportConf:
     openscenario_version: str = "1.2"
 
 
+register_node("export", ExportConf)
 VERSIONS = {"1.2": 2, "1.0": 0}
 # CARLA 0.9.x blueprints for our bodies and people (ScenarioRunner spawns a Vehicle's `name`, a Pedestrian's
 # `model`)

@@ -24,7 +24,7 @@ import pandas as pd
 import yaml
 from omegaconf import DictConfig, OmegaConf
 
-from garage_exp.core.schema import GROUPS
+from garage_exp.core.config_nodes import group_keys
 from garage_exp.results.late import confirmed_text
 from garage_exp.search.suite import DEFAULT_BANDS, NOT_SCENARIO, band_of
 
@@ -55,7 +55,8 @@ def scenario_values(job: DictConfig, record: dict, movers) -> dict:
 
 
 def scenario_yaml(job: DictConfig, name: str, record: dict, movers) -> str:
-    choices = {g: str(job[g].name) for g in GROUPS if g != "tracking" and g in job and "name" in job[g]}
+    groups = group_keys()  # in the config's order
+    choices = {g: str(job[g].name) for g in job if g in groups and g != "tracking" and "name" in job[g]}
     values = scenario_values(job, record, movers)
     defaults = [{f"override /{group}": level} for group, level in choices.items()] + ["_self_"]
     moves = "; ".join(f"{n}: {', '.join(f'{v:.3f}' for v in seq)}" for n, seq in record["values"].items())

@@ -11,7 +11,8 @@ from typing import Optional
 
 from hydra.core.config_store import ConfigStore
 
-from garage_exp.core.schema import Config, TrackingConf
+from garage_exp.config import Config
+from garage_exp.tracking.schema import TrackingConf
 
 MODES = ("train", "check", "export")
 

@@ -38,7 +38,7 @@ def score_frames(model: Path, imgsz: int, trials: list[Trial], threshold: float,
     from omegaconf import OmegaConf
     from PIL import Image
 
-    from garage_exp.core.schema import DetectorConf
+    from garage_exp.perception.schema import DetectorConf
     from garage_exp.perception.detect import build_detector
 
     # The project's one factory, with the defaults a job uses (classes, conf 0.05), this model alone.

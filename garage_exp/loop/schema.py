@@ -7,7 +7,9 @@ from typing import Optional
 
 from hydra.core.config_store import ConfigStore
 
-from garage_exp.core.schema import SpaceConf, TrackingConf
+from garage_exp import config  # noqa: F401 - the loop composes the experiment's config (its steps' checks)
+from garage_exp.search.schema import SpaceConf
+from garage_exp.tracking.schema import TrackingConf
 
 # What an arm spends per round and training seed; every arm must spend the same (app.check_budgets).
 BUDGET_KEYS = ("frames", "trials", "train_frames", "epochs", "imgsz", "replay_fraction")

@@ -139,7 +139,7 @@ def generator_settings(node: Any) -> GeneratorSettings:
     """The `plan.generator` node (a mapping) checked: GarageError naming `plan.generator.KEY` on the first bad
     setting (an unknown key, a non-number, a value outside its physical range, a lane too narrow for the bays)."""
     from garage_exp.core.errors import did_you_mean
-    from garage_exp.core.schema import PlanGeneratorConf
+    from garage_exp.plan.schema import PlanGeneratorConf
 
     if not hasattr(node, "keys"):
         raise GarageError(f"expected a mapping of generator settings, got {_show(node)}", WHERE)

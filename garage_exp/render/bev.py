@@ -17,7 +17,6 @@ from the camera that sees it, more the higher it is. That is what every IPM surr
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +26,7 @@ from garage_exp.core.errors import GarageError, check_range
 from garage_exp.scene.camera import camera_to_world, to_camera
 from garage_exp.scene.description import CameraSpec, Pose
 from garage_exp.scene.lenses import camera_model, lens_of
+from garage_exp.scene.schema import BevSpec
 
 SIZE_RANGE = (2.0, 60.0)  # metres per side
 MPP_RANGE = (0.005, 0.5)  # metres per pixel
@@ -35,48 +35,9 @@ EGO_MARGIN = 0.1  # metres added around the ego's footprint that no camera sees
 OFF_IMAGE = -1.0  # cv2.remap's coordinate for "no sample" (black with BORDER_CONSTANT)
 
 
-@dataclass(frozen=True)
-class BevSpec:
-    """The BEV's extent: `length` metres along the ego's forward axis (image rows), `width` across (columns),
-    centred on the ego, `meters_per_pixel` square pixels."""
-
-    length: float = 12.0
-    width: float = 18.0
-    meters_per_pixel: float = 0.03
-
-    @property
-    def size(self) -> tuple[int, int]:
-        """(width, height) in pixels."""
-        return (int(round(self.width / self.meters_per_pixel)), int(round(self.length / self.meters_per_pixel)))
-
-    def ego_to_pixel(self, x, y) -> tuple[np.ndarray, np.ndarray]:
-        """Points in the ego's frame (forward, left; metres) -> continuous BEV pixel coordinates (col, row)."""
-        w, h = self.size
-        return (w / 2.0 - np.asarray(y, float) / self.meters_per_pixel,
-                h / 2.0 - np.asarray(x, float) / self.meters_per_pixel)
-
-    def pixel_to_ego(self, col, row) -> tuple[np.ndarray, np.ndarray]:
-        w, h = self.size
-        return ((h / 2.0 - np.asarray(row, float)) * self.meters_per_pixel,
-                (w / 2.0 - np.asarray(col, float)) * self.meters_per_pixel)
-
-    def world_to_pixel(self, ego: Pose, points) -> np.ndarray:
-        """World points (N x 2 or N x 3; z ignored) -> BEV pixels (N x 2) for an ego standing at `ego`."""
-        p = np.asarray(points, float).reshape(-1, np.asarray(points).shape[-1])[:, :2]
-        c, s = math.cos(math.radians(ego.yaw)), math.sin(math.radians(ego.yaw))
-        dx, dy = p[:, 0] - ego.x, p[:, 1] - ego.y
-        u, v = self.ego_to_pixel(c * dx + s * dy, -s * dx + c * dy)
-        return np.stack([u, v], axis=1)
-
-    def world_direction(self, ego: Pose, yaw: float) -> float:
-        """A world heading (degrees) as a direction in the BEV image, radians atan2(d_row, d_col)."""
-        rel = math.radians(yaw - ego.yaw)
-        return math.atan2(-math.cos(rel), -math.sin(rel))
-
-
 def spec_of(conf) -> BevSpec:
-    """A BevSpec from a `camera.bev` node (BevConf)."""
-    return BevSpec(float(conf.length), float(conf.width), float(conf.meters_per_pixel))
+    """A `camera.bev` node as its dataclass (the node is the spec: scene/schema.py)."""
+    return BevSpec(float(conf.length), float(conf.width), float(conf.meters_per_pixel), enabled=bool(conf.enabled))
 
 
 def check_bev(conf, where: str = "camera.bev") -> None:

@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
+from garage_exp.core.config_nodes import register_node
 from garage_exp.core.errors import GarageError
 
 
@@ -47,7 +48,7 @@ def critical_distance(ego) -> float:
 
 @dataclass
 class EgoConf:
-    """The `ego` node's schema, beside its check (check_ego; core/schema.py registers it by name): how the ego
+    """The `ego` node's schema, beside its check (check_ego), registered below it: how the ego
     drives and when it must know. Its stopping distance is speed x reaction + speed^2 / (2 deceleration); a
     target first confirmed (k hits in n frames) nearer than that plus `margin` (camera to the target's centre)
     was seen too late to stop. Sources in docs/late.md."""
@@ -58,6 +59,9 @@ class EgoConf:
     margin: float = 2.5  # m, roof camera to front bumper (~1.5 m) and the target's half depth, stopping short
     k: int = 2  # a target is confirmed at the frame completing k hits ...
     n: int = 3  # ... within the last n frames
+
+
+register_node("ego", EgoConf)
 
 
 def check_ego(ego, moving: bool = True) -> None:

@@ -21,7 +21,7 @@ from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
 from garage_exp.scenario.replicate import build_replicate, merge
-from garage_exp.core.schema import MotionConf
+from garage_exp.scenario.schema import MotionConf
 from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs, typed
 from garage_exp.scenario.place import (check_overlaps, farthest, no_room, pose_between, pose_in_bay,
                                        pose_on_path, pose_relative, room, site_bay, site_path, sweep_clash)

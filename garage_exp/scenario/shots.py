@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 
 
-from garage_exp.core.schema import ActorConf
+from garage_exp.scenario.schema import ActorConf
 from garage_exp.core.errors import GarageError
 from garage_exp.core.plain import as_object, thawed
 from garage_exp.scene.description import Entity, Pose

@@ -43,7 +43,7 @@ BODIES = {"car": "car", "van": "van", "bus": "bus", "truck": "truck", "semitrail
 def load_site(plan: str, site_name: str):
     from garage_exp.core.paths import PLANS_DIR, PROJECT_ROOT
     from garage_exp.core.plain import structured
-    from garage_exp.core.schema import GarageConf
+    from garage_exp.scene.schema import GarageConf
     from garage_exp.plan import classify, load_plan
     from garage_exp.scenario.sites import find_site
 
@@ -228,7 +228,7 @@ def check_runs(case: dict, r: Read) -> None:
     """What a job asks of the case before it has a plan (the scenario's own checks: its schema, its motion, each
     variant's target), so that a case that would fail as a job is refused here, naming the file."""
     from garage_exp.core.plain import structured
-    from garage_exp.core.schema import CaseConf
+    from garage_exp.scenario.schema import CaseConf
     from garage_exp.scenario.build import _check_motion, variants
 
     try:

@@ -1,11 +1,13 @@
-"""The `search` node's schema (the sweeper's settings), beside its check (search/study.check_search); core's
-config schema registers it by name (core/schema.py, NODES).
+"""The `search` node's schema (the sweeper's settings), beside its check (search/study.check_search), and the `space`
+group's (search/space.py reads it), registered as config nodes here (core/config_nodes.py).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Optional
+
+from garage_exp.core.config_nodes import register_node
 
 
 @dataclass
@@ -35,15 +37,23 @@ class PrescreenConf:
 
 
 @dataclass
-class RequireConf:
-    """A space's requirements on every draw, checked from the scene description before anything is rendered
-    (garage_exp/search/require.py): a draw none of whose frames meets all of them is rejected and redrawn, as
-    Scenic's `require` does. None: no such requirement."""
+class SpaceRequireConf:
+    """What a space asks of a draw before it is rendered (None: no condition): the target at least
+    `min_visible` visible, its box at least `min_box` pixels tall, at most `max_distance` metres from the camera,
+    at most `max_truncation` of its box outside the image."""
 
     min_visible: Optional[float] = None  # the target's estimated visible fraction (0-1)
     min_box: Optional[float] = None  # its projected box's height in the scored camera's image (px)
     max_distance: Optional[float] = None  # camera to the target's box centre (m)
     max_truncation: Optional[float] = None  # the share of its projected box outside the image (0-1)
+
+
+@dataclass
+class RequireConf(SpaceRequireConf):
+    """A space's requirements on every draw, checked from the scene description before anything is rendered
+    (garage_exp/search/require.py): a draw none of whose frames meets all of them is rejected and redrawn, as
+    Scenic's `require` does. None: no such requirement."""
+
     max_draws: int = 1000  # draws rejected in a row before the search gives up on the space
 
 
@@ -148,3 +158,23 @@ class SearchConf:
     # trial's own run cost about as much as rendering it (docs/performance.md, "One-shot scenarios")
     runs: str = "per_trial"
     trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary
+
+
+@dataclass
+class SpaceConf:
+    """A search space shipped as a file (conf/space/NAME.yaml; `space=NAME`): `params` are overrides in the
+    search's grammar (`key=interval(a,b)`, `key=choice(a,b)`, fixed `key=value`), taken as if written on the
+    command line before the command's own (which win for the same key: garage_exp/search/space.py: expand);
+    `require` its conditions on a draw. Both are the search's (`search.require`, `search.descriptors`) unless the
+    command sets those itself (garage_exp/search/space.py: settle)."""
+
+    name: str = "none"
+    params: list[str] = field(default_factory=list)
+    require: SpaceRequireConf = field(default_factory=SpaceRequireConf)
+    # the archive's cells for this space: a named set of descriptors (search/schema.py: DESCRIPTOR_SETS);
+    # None: the search's own (`search.descriptors`)
+    descriptors: Optional[str] = None
+
+
+register_node("search", SearchConf)
+register_node("space", SpaceConf, group=True)

@@ -7,7 +7,7 @@ from typing import Optional
 
 from hydra.core.config_store import ConfigStore
 
-from garage_exp.core.schema import TrackingConf
+from garage_exp.tracking.schema import TrackingConf
 
 REGISTERED_NAME = "garage-detector"
 

@@ -7,7 +7,8 @@ from typing import Optional
 
 from hydra.core.config_store import ConfigStore
 
-from garage_exp.core.schema import DetectorConf, TrackingConf
+from garage_exp.perception.schema import DetectorConf
+from garage_exp.tracking.schema import TrackingConf
 
 
 @dataclass

@@ -1,11 +1,13 @@
-"""The `slot_detector` group's schema, beside its check (perception/slots/detector.check_slot_detector); core's
-config schema registers it by name (core/schema.py, NODES and GROUPS).
+"""The `slot_detector` group's schema, beside its check (perception/slots/detector.check_slot_detector), registered
+as a config node here (core/config_nodes.py).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any
+
+from garage_exp.core.config_nodes import register_node
 
 
 @dataclass
@@ -53,3 +55,6 @@ class SlotDetectorConf:
     imgsz: int = 640  # pose: the model's input size
     lines: SlotLinesConf = field(default_factory=SlotLinesConf)
     metrics: SlotMetricsConf = field(default_factory=SlotMetricsConf)
+
+
+register_node("slot_detector", SlotDetectorConf, group=True)
