@@ -54,9 +54,16 @@ def scenario_values(job: DictConfig, record: dict, movers) -> dict:
     return values
 
 
+# The order of an exported file's `defaults:` (the groups' order before config nodes moved beside their owners; a
+# group registered since goes after them): kept so an export's bytes do not change.
+EXPORTED_ORDER = ("plan", "garage", "light", "camera", "palette", "occluder", "case", "sensor", "detector", "look",
+                  "materials", "clutter", "slot_detector", "renderer", "space")
+
+
 def scenario_yaml(job: DictConfig, name: str, record: dict, movers) -> str:
-    groups = group_keys()  # in the config's order
-    choices = {g: str(job[g].name) for g in job if g in groups and g != "tracking" and "name" in job[g]}
+    groups = group_keys()
+    order = [g for g in EXPORTED_ORDER if g in groups] + [g for g in groups if g not in EXPORTED_ORDER]
+    choices = {g: str(job[g].name) for g in order if g != "tracking" and g in job and "name" in job[g]}
     values = scenario_values(job, record, movers)
     defaults = [{f"override /{group}": level} for group, level in choices.items()] + ["_self_"]
     moves = "; ".join(f"{n}: {', '.join(f'{v:.3f}' for v in seq)}" for n, seq in record["values"].items())
