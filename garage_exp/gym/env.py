@@ -124,15 +124,17 @@ class StepOutEnv(gymnasium.Env):
         from garage_exp.core.plugins import build
         from garage_exp.perception.detect import Intrinsics
         from garage_exp.perception.detect.worker import open_detector
-        from garage_exp.render import open_renderer
+        from garage_exp.render.open import open_renderer
+        from garage_exp.scenario.assemble import HIDDEN
 
         job = self.job
         if self.detector is None or (hasattr(self.detector, "alive") and not self.detector.alive()):
             self.detector = open_detector(self.checked_detector, Intrinsics.of(self.scene.cameras[0]))
         if self.sensor is None:
             self.sensor = build(job.sensor, "a sensor model", "sensor._target_")
-        self.renderer = open_renderer(self.job_spec.config.renderer)
-        if getattr(self.renderer, "description", None) is not self.scene:  # another env's scene was loaded since
+        if self.renderer is None:  # the job's render scene, opened as a job opens it (its forks share it)
+            self.renderer = open_renderer(self.job_spec.config.renderer, HIDDEN)
+        if self.renderer.description is not self.scene:  # another env's scene was loaded since
             self.renderer.load(self.scene)
 
     # -- the episode ----------------------------------------------------------------------------------------------
