@@ -119,7 +119,7 @@ def main() -> int:
     opts = parser.parse_args()
     os.environ.setdefault("YOLO_OFFLINE", "1")
     from garage_exp.core.errors import GarageError
-    from garage_exp.render.batch import require_cuda
+    from garage_exp.render.sapien_batch import require_cuda
 
     try:
         require_cuda()
