@@ -105,13 +105,19 @@ def make(*, far=60.0):
 
 @pytest.fixture
 def depth_boxes(tmp_path, monkeypatch):
-    """The backend's module written to a temporary folder and named in $GARAGE_EXP_PLUGINS; SAPIEN's factory made
-    to fail, so that a job that asked it would say so."""
-    import garage_exp.render.sapien_backend as sapien_backend
+    """The backend's module written to a temporary folder and named in $GARAGE_EXP_PLUGINS, imported afresh by the
+    test (its registration undone after it); SAPIEN's factory made to fail, so that a job that asked it would say
+    so."""
+    import sys
+
+    import garage_exp.render.sapien_backend as sapien_backend  # the shipped backend registered before the copy
+    from garage_exp.render import registry
 
     (tmp_path / "depth_boxes.py").write_text(DEPTH_BOXES)
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("GARAGE_EXP_PLUGINS", "depth_boxes")
+    monkeypatch.delitem(sys.modules, "depth_boxes", raising=False)
+    monkeypatch.setattr(registry, "BACKENDS", dict(registry.BACKENDS))
 
     def no_sapien(**_):
         raise AssertionError("the SAPIEN renderer was asked for")
@@ -146,18 +152,20 @@ def test_a_job_renders_through_a_backend_registered_from_a_plugin_module(depth_b
 
 def test_the_prescreen_opens_the_backend_the_job_opens(depth_boxes):
     """The search's pre-screen (ground truth only) renders through the same opener and pipeline."""
+    import sys
+
     from conftest import compose_cfg, require
 
+    from garage_exp.core.plugins import import_plugins
     from garage_exp.search.prescreen import frames_table
 
     require("vehicles")
+    import_plugins()  # as every command's shell does
     cfg = compose_cfg("plan=tiny", "case.motion.start=5.0", "case.motion.end=4.0", "case.motion.step=1.0",
                       "palette.target_colours=[black]", "renderer.backend=depthboxes")
-    from garage_exp.core.plugins import import_plugins
-
-    import_plugins()
     table, setup = frames_table(cfg, None, 0.5)
     assert len(table) == len(setup.shots) == 2 and table.visible_fraction.gt(0).any()
+    assert len(sys.modules["depth_boxes"].MADE) == 1  # renderer.scenes=1: one sub-scene
 
 
 def test_an_unknown_backend_is_one_line_naming_the_key():
