@@ -175,3 +175,17 @@ def test_an_unknown_backend_is_one_line_naming_the_key():
     with pytest.raises(GarageError) as info:
         check_renderer(conf)
     assert info.value.where == "renderer.backend" and "unknown renderer backend 'blender'" in str(info.value)
+
+
+def test_the_default_backend_keeps_the_identity_of_jobs_run_before_the_key_existed():
+    """`renderer.backend=sapien` is left out of a job's config hash (an earlier run of the same config is still
+    found); another backend is another job."""
+    from conftest import compose_cfg
+
+    from garage_exp.tracking.provenance import config_hash
+
+    cfg = compose_cfg()
+    before = OmegaConf.to_container(cfg, resolve=True)
+    del before["renderer"]["backend"]  # the config as composed before the key existed
+    assert config_hash(cfg) == config_hash(OmegaConf.create(before))
+    assert config_hash(compose_cfg("renderer.backend=other")) != config_hash(cfg)
