@@ -4,9 +4,9 @@ group's settings -> the process's `Renderer`, sub-scene 0) and, optionally, its 
 own batch (a render scene of its making: SAPIEN's CUDA group); without one it gets the generic batch
 (render/batch.py, sub-scenes rendered one after another through the `Renderer` interface).
 
-`render.open.open_renderer` is the one way to open one; `render.open.check_renderer` checks the group. The shipped backend
-(`sapien`, render/sapien_backend.py) registers itself when imported; a module of the user's is named in
-$GARAGE_EXP_PLUGINS.
+`render.open.open_renderer` is the one way to open one; `render.open.check_renderer` checks the group. The
+shipped backend (`sapien`, render/sapien_backend.py) registers itself when imported (`render.open` imports it);
+a module of the user's is named in $GARAGE_EXP_PLUGINS.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Registered as the backend `sapien` (`renderer.backend`, the default; render/registry.py), with its own check of
 the group (`check_sapien`) and its own batch (render/sapien_batch.py: one RenderSystemGroup under
-`renderer.device=cuda`). One renderer per process (`get_renderer()`): the first frame of a process compiles SAPIEN's shaders (3-7 s
-measured on lavapipe here) and every later scene reuses them, provided SAPIEN's engine outlives the scenes
-(`device.ensure_device` holds it), so a job loads its scene into the existing renderer.
+`renderer.device=cuda`). One renderer per process (`get_renderer()`): the first frame of a process compiles
+SAPIEN's shaders (3-7 s measured on lavapipe here) and every later scene reuses them, provided SAPIEN's engine
+outlives the scenes (`device.ensure_device` holds it), so a job loads its scene into the existing renderer.
 
 The renderer is made of separate parts, each in its own module:
 - `sapien_builder.py`: the SAPIEN entities, shapes and materials of a description (one converter per shape
@@ -33,7 +33,6 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError, check_range
 from garage_exp.core.state import STATE
-from garage_exp.render.registry import register_backend
 from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.bodies import Bodies
 from garage_exp.render.cull import frustum_planes, outside_frustum
@@ -41,6 +40,7 @@ from garage_exp.render.device import ensure_device
 from garage_exp.render.fisheye import lookup, remap_bilinear
 from garage_exp.render.icd import check_available
 from garage_exp.render.light_pool import LightPool
+from garage_exp.render.registry import register_backend
 from garage_exp.render.sapien_builder import DECALS, SceneBuilder, merges, static_key
 from garage_exp.render.sapien_batch import open_scene
 from garage_exp.render.sapien_cameras import SapienCamera, add_camera, take, take_ids
