@@ -23,12 +23,21 @@ def compose(overrides: list[str]):
         return hydra_compose("config", overrides=app.quote_numeric_choices(overrides))
 
 
+def open_job_renderer(cfg):
+    """The job's render scene, opened as a job opens it (`render.open.open_renderer`: the configured backend, its
+    batching and sub-scenes)."""
+    from garage_exp.render.open import open_renderer
+    from garage_exp.scenario.assemble import HIDDEN
+
+    return open_renderer(cfg.renderer, HIDDEN)
+
+
 @dataclass
 class Job:
     cfg: object
     scene: object
     setup: object
-    renderer: object
+    renderer: object  # the render scene (render/batch.py), opened by `open_job_renderer`
     sensor: object
 
     def frames(self, n: int | None = None):
@@ -55,9 +64,8 @@ class Prepared:
     def load(self) -> Job:
         """The scene loaded into the process's renderer, its shaders compiled: a Job."""
         from garage_exp.core.plugins import build
-        from garage_exp.render.sapien_backend import get_renderer
 
-        renderer = get_renderer(max_lights=self.cfg.renderer.max_lights, shadows=self.cfg.renderer.shadows)
+        renderer = open_job_renderer(self.cfg)
         renderer.load(self.scene)
         job = Job(self.cfg, self.scene, self.setup, renderer, build(self.cfg.sensor, "a sensor model",
                                                                       "sensor._target_"))
@@ -82,7 +90,6 @@ def build_job(overrides: list[str], edit=None) -> Job:
     from garage_exp.scenario.assemble import build_scene
     from garage_exp.plan import classify, load_plan
     from garage_exp.run.preflight import resolve_plan_path
-    from garage_exp.render.sapien_backend import get_renderer
     from garage_exp.core.plugins import build
 
     cfg = compose(overrides)
@@ -90,7 +97,7 @@ def build_job(overrides: list[str], edit=None) -> Job:
     scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     if edit is not None:
         edit(scene)
-    renderer = get_renderer(max_lights=cfg.renderer.max_lights, shadows=cfg.renderer.shadows)
+    renderer = open_job_renderer(cfg)
     renderer.load(scene)
     job = Job(cfg, scene, setup, renderer, build(cfg.sensor, "a sensor model", "sensor._target_"))
     for _ in job.frames(1):  # the first frame compiles the shaders: a start-up cost, not a per-frame one

@@ -170,7 +170,8 @@ def test_every_shipped_case_has_a_fair_frame_on_the_small_plan():
     from omegaconf import OmegaConf
 
     from garage_exp.core.plugins import build as build_plugin
-    from garage_exp.render import open_renderer
+    from garage_exp.render.open import open_renderer
+    from garage_exp.scenario.assemble import HIDDEN
     from garage_exp.results.table import fair_mask, frame_row
     from garage_exp.run.pipeline import render_frames
     from garage_exp.run.preflight import preflight
@@ -185,7 +186,7 @@ def test_every_shipped_case_has_a_fair_frame_on_the_small_plan():
         cfg = cheap_config(compose_cfg("plan=small", f"case={case}", *RIG.get(case, [])),
                            scale)
         prepared = preflight(cfg, check_space=False, load=False)  # ground truth only: no detector loaded
-        renderer = open_renderer(cfg.renderer)
+        renderer = open_renderer(cfg.renderer, HIDDEN)
         renderer.load(prepared.scene)
         sensor = build_plugin(cfg.sensor, "a sensor model", "sensor._target_")
         rule = OmegaConf.create({**OmegaConf.to_container(cfg.search), "min_box": cfg.search.min_box * scale})

@@ -12,7 +12,7 @@ from conftest import compose_cfg
 
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect import detector, devices, ultralytics_entry
-from garage_exp.render import check_renderer
+from garage_exp.render.open import check_renderer
 from garage_exp.render import device, icd
 
 LAVAPIPE = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json"

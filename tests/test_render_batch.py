@@ -1,4 +1,4 @@
-"""The GPU path's batching logic (render/batch.py) on the CPU: rows of the pose tensor, rotation matrices to
+"""The GPU path's batching logic (render/sapien_batch.py) on the CPU: rows of the pose tensor, rotation matrices to
 SAPIEN's quaternions, a batch of shots packed; and the one-line refusal where no CUDA device is."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from garage_exp.core.errors import GarageError
-from garage_exp.render.batch import Layout, actor_matrix, pack, pose_rows, quaternion, require_cuda
+from garage_exp.render.sapien_batch import Layout, actor_matrix, pack, pose_rows, quaternion, require_cuda
 from garage_exp.scenario import Shot
 from garage_exp.scene.camera import camera_to_world
 from garage_exp.scene.description import CameraSpec, Pose

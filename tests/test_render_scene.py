@@ -88,9 +88,9 @@ def test_the_cuda_branch_is_refused_in_one_line_without_a_gpu():
         pytest.skip("a CUDA device is here")
     from omegaconf import OmegaConf
 
-    from garage_exp.render.batch import RenderScene
+    from garage_exp.render.open import open_renderer
     from garage_exp.scene.description import Pose
 
-    conf = OmegaConf.create({"_target_": "garage_exp.render.sapien_backend.make", "device": "cuda", "scenes": 4})
+    conf = OmegaConf.create({"backend": "sapien", "device": "cuda", "scenes": 4})
     with pytest.raises(GarageError, match="^renderer.device: renderer.device=cuda needs a CUDA GPU"):
-        RenderScene.open(conf, Pose())
+        open_renderer(conf, Pose())

@@ -379,7 +379,8 @@ def test_the_renderer_paints_the_target_and_the_paint_does_not_stay_on_its_model
     from conftest import require
 
     from garage_exp.core.plugins import build as build_plugin
-    from garage_exp.render import open_renderer
+    from garage_exp.render.open import open_renderer
+    from garage_exp.scenario.assemble import HIDDEN
     from garage_exp.run.pipeline import render_frames
     from garage_exp.run.preflight import preflight
 
@@ -390,7 +391,7 @@ def test_the_renderer_paints_the_target_and_the_paint_does_not_stay_on_its_model
                           "case.actors.occluder.offset=3.5", "sensor=ideal", "camera.width=160", "camera.height=120",
                           *paint)
         job = preflight(cfg, check_space=False, load=False)
-        renderer = open_renderer(cfg.renderer)
+        renderer = open_renderer(cfg.renderer, HIDDEN)
         renderer.load(job.scene)
         (item,) = render_frames(cfg, job.scene, job.setup.shots, renderer,
                                 build_plugin(cfg.sensor, "a sensor model", "sensor._target_"), np.random.default_rng(0))

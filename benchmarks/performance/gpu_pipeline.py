@@ -4,7 +4,7 @@
 
 On a machine without CUDA it refuses in one line (exit 2). It measures, in this process, on the project's real
 garage (the research plan, case 1, 640x480 unless --width/--height):
-- ceiling: the render scene's CUDA branch (`render.batch.RenderScene.open` with `renderer.device=cuda`, N
+- ceiling: the render scene's CUDA branch (`render.open.open_renderer` with `renderer.device=cuda`, N
   sub-scenes in one RenderSystemGroup): poses from the CUDA tensor, one group picture, Color and Segmentation
   read as CUDA tensors; no project work. frames/s for each N of --scenes.
 - pipeline: the frame pipeline over that scene (`run.pipeline.FramePipeline.shots`: `render_batch`, the
@@ -63,12 +63,12 @@ class Batched:
     def __init__(self, job, scenes: int):
         import numpy as np
 
-        from garage_exp.render.batch import RenderScene
+        from garage_exp.render.open import open_renderer
         from garage_exp.run.pipeline import FramePipeline, in_view
         from garage_exp.scenario.assemble import HIDDEN
 
         self.job = job
-        self.stage = RenderScene.open(job.cfg.renderer, HIDDEN, scenes)
+        self.stage = open_renderer(job.cfg.renderer, HIDDEN, scenes)
         self.stage.load(job.scene)
         self.pipeline = FramePipeline(job.cfg, job.scene, self.stage, job.sensor, np.random.default_rng(1))
         self.names = in_view(job.scene, {})
@@ -119,7 +119,7 @@ def main() -> int:
     opts = parser.parse_args()
     os.environ.setdefault("YOLO_OFFLINE", "1")
     from garage_exp.core.errors import GarageError
-    from garage_exp.render.batch import require_cuda
+    from garage_exp.render.sapien_batch import require_cuda
 
     try:
         require_cuda()
@@ -156,13 +156,16 @@ def main() -> int:
 
     def agreement():
         from garage_exp.perception.groundtruth import mask_stats
-        from garage_exp.render.batch import RenderScene
+        from omegaconf import OmegaConf
+
+        from garage_exp.render.open import open_renderer
         from garage_exp.scenario.assemble import HIDDEN
 
         n = min(16, len(shots))
         b = Batched(job, n)
         batch = batch_of(shots, n)
-        cpu = RenderScene.over(job.renderer, HIDDEN)  # the CPU path's renderer, one sub-scene
+        cpu = open_renderer(OmegaConf.merge(job.cfg.renderer, {"device": "auto"}), HIDDEN, 1)  # the CPU path
+        cpu.load(job.scene)
         diffs, equal = [], 0
         for k, take in enumerate(b.render(batch)):
             (want,) = cpu.render_batch([batch[k]], [b.camera], [b.names])

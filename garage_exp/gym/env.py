@@ -123,7 +123,8 @@ class StepOutEnv(gymnasium.Env):
     def _open(self) -> None:
         from garage_exp.core.plugins import build
         from garage_exp.perception.detect.worker import open_detector
-        from garage_exp.render import open_renderer
+        from garage_exp.render.open import open_renderer
+        from garage_exp.scenario.assemble import HIDDEN
         from garage_exp.scene.views import picture_lens
 
         job = self.job
@@ -131,8 +132,9 @@ class StepOutEnv(gymnasium.Env):
             self.detector = open_detector(self.checked_detector, picture_lens(self.scene.cameras[0]))
         if self.sensor is None:
             self.sensor = build(job.sensor, "a sensor model", "sensor._target_")
-        self.renderer = open_renderer(self.job_spec.config.renderer)
-        if getattr(self.renderer, "description", None) is not self.scene:  # another env's scene was loaded since
+        if self.renderer is None:  # the job's render scene, opened as a job opens it (its forks share it)
+            self.renderer = open_renderer(self.job_spec.config.renderer, HIDDEN)
+        if self.renderer.description is not self.scene:  # another env's scene was loaded since
             self.renderer.load(self.scene)
 
     # -- the episode ----------------------------------------------------------------------------------------------

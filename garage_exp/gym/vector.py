@@ -11,11 +11,11 @@ camera noise from its own stream (the job's seed + 1, frame after frame), and a 
 A step: each env moves its movers and makes its shot; the K shots go through the frame pipeline as one batch
 (`env.shoot` -> `FramePipeline.detect_shots`), which hands them to the render scene's one call,
 `render.batch.RenderScene.render_batch`, as many at a time as it has sub-scenes; each env then judges its frame
-(`StepOutEnv.finish`). The envs' pipeline is over the process's renderer, a render scene of one sub-scene: the
-batch's shots are posed and rendered one after another while the detector child works on the previous frame
-(detection overlaps rendering, as in a job). A scene of K sub-scenes (`RenderScene.open(job.renderer, HIDDEN, K)`,
-one RenderSystemGroup under `renderer.device=cuda`) takes the same call whole; the envs do not open one yet
-(unmeasured: no GPU was lent to the session that wrote the CUDA branch).
+(`StepOutEnv.finish`). The envs' pipeline is over the render scene a job of their config opens
+(`render.open.open_renderer`: `renderer.scenes` sub-scenes, 1 by default): on the CPU the batch's shots are posed
+and rendered one after another while the detector child works on the previous frame (detection overlaps
+rendering, as in a job); `renderer.scenes=K` under `renderer.device=cuda` takes the same call whole, as one
+RenderSystemGroup picture (unmeasured: no GPU was lent to the sessions that wrote it).
 
 Autoreset is gymnasium's NEXT_STEP: the step after an env's episode ended resets that env (its action ignored,
 reward 0, not terminated) and returns its first observation. Infos are gymnasium's dict of arrays with `_key`

@@ -1,7 +1,8 @@
 """What every renderer gives the job: a `Frame` per camera, and the `Renderer` interface.
 
 Plain data, no SAPIEN: ground truth and tests use `Frame` without a Vulkan device. A backend is a module with a
-factory `make(conf) -> Renderer` named by `_target_` in `conf/renderer/<name>.yaml`.
+factory returning a `Renderer`, registered under a word (`render.registry.register_backend`, `renderer.backend`);
+the render scene (render/batch.py) batches any `Renderer` through the members named here and nothing else.
 """
 
 from __future__ import annotations
@@ -67,7 +68,10 @@ class Frame:
 
 
 class Renderer(Protocol):
-    """What the job needs from a renderer. One instance per process is expected (compiled shaders)."""
+    """One sub-scene of a render scene (render/batch.py), which reads a backend only through these members. One
+    instance per process is expected for sub-scene 0 (compiled shaders); `sibling` makes the others."""
+
+    description: Scene | None  # the scene description loaded last (None before a load): a load of it is skipped
 
     def load(self, scene: Scene) -> None:
         """(Re)build from a scene description; cameras, lights and ids are replaced."""
@@ -85,3 +89,10 @@ class Renderer(Protocol):
     def unoccluded_ids(self, camera_name: str, names: Iterable[str]) -> dict[str, np.ndarray]:
         """Each named entity's silhouette (HxW bool) as the camera would see it with nothing in the way; entities
         outside the image are left out."""
+
+    def restyle(self, change: dict) -> None:
+        """Give the loaded materials other pictures (old -> new `Material`s: a replicate's stains and wetness);
+        a backend without textures does nothing."""
+
+    def sibling(self) -> "Renderer":
+        """A new renderer with these settings: another sub-scene of the render scene (`renderer.scenes` > 1)."""

@@ -1,29 +1,14 @@
 """The render scene: ONE object owning N sub-scenes, whose `render_batch(shots)` is the only render call (the
 ManiSkill way: its `ManiSkillScene` over sub-scenes). Every caller of the frame pipeline (`run.pipeline`: a job's
-frames, hence a search batch's trials, the pre-screen, the gym's vector env, the benchmarks) renders through it.
+frames, hence a search batch's trials, the pre-screen, the gym's envs, the benchmarks) renders through it, and
+gets it from the one opener, `render.open.open_renderer` (the backend the config names, render/registry.py).
 
 A batch is up to N shots: shot i is posed in sub-scene i, and each of its cameras rendered with the unoccluded
-silhouettes of the actors ground truth asks for (`Take`).
-- CPU (`renderer.scenes`, 1 by default): each sub-scene is a renderer of its own (sub-scene 0 the process's warm
-  one, the others its `sibling()`s), rendered one after another through the `Renderer` interface: numpy pictures,
-  exactly those of N separate jobs (tests/test_render_scene.py).
-- CUDA (`renderer.device=cuda`): the N sub-scenes' SAPIEN scenes in one `sapien.render.RenderSystemGroup`
-  (`CudaGroup`), pictures as torch CUDA tensors; ground truth and the camera model then run on them in torch
-  (perception/groundtruth.py and sensor.py take numpy or torch), and the frame goes to numpy for the detector.
-
-The CUDA recipe (../shared/FACTS.md, "SAPIEN and YOLO on an NVIDIA H100"): each sub-scene is the project's own scene
-(`SapienRenderer` builds it, so materials, lamps and merged statics are the CPU path's); every camera and every
-render shape of a moving actor gets a row of one pose tensor (`set_gpu_pose_batch_index`), a torch float32 CUDA
-tensor of rows (p xyz, q wxyz, 6 unused) handed to `RenderSystemGroup.set_cuda_poses`; a batch writes poses into
-the tensor, `update_render()`, `take_picture()` on a camera group per camera, and reads Color and Segmentation as
-CUDA tensors. Silhouettes are one more group picture per actor with everything else hidden in every sub-scene.
-It reads the renderer only through its public methods (`SapienRenderer.camera_components`, `render_shapes`,
-`movers`, `place_camera`, `show`). Pinhole cameras only (a fisheye's cube faces are not batched).
-
-What runs without a GPU (and is tested on the CPU): the CPU branch; `Layout` (which row each posed thing has),
-`pose_rows` (4x4 poses -> rows), `pack` (a batch of shots -> the tensor's rows). The CUDA branch needs CUDA and
-refuses in one line otherwise (`require_cuda`). Unmeasured: no GPU was lent to the session that wrote it
-(docs/gpu.md); benchmarks/performance/gpu_pipeline.py checks it against the CPU path on the GPU machine.
+silhouettes of the actors ground truth asks for (`Take`). This class is the batch every backend gets for free:
+each sub-scene a `Renderer` of its own (sub-scene 0 the process's warm one, the others its `sibling()`s), rendered
+one after another through the `Renderer` interface (render/base.py) and nothing else: numpy pictures, exactly
+those of N separate jobs (tests/test_render_scene.py). A backend that batches on its own (SAPIEN's CUDA group,
+render/sapien_batch.py) subclasses it and overrides `load` and `render_batch`; its callers see no difference.
 """
 
 from __future__ import annotations
@@ -31,115 +16,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
-from garage_exp.core.errors import GarageError
-from garage_exp.render.base import BLANK_GREY, Frame
-from garage_exp.scene.camera import camera_to_world
+from garage_exp.render.base import Frame, Renderer
 from garage_exp.scene.description import Pose
-
-ROW = 13  # p xyz, q wxyz, 6 unused (SAPIEN's pose buffer layout)
-
-
-def require_cuda() -> None:
-    """GarageError (one line) unless torch sees a CUDA device: the batched path renders and computes there."""
-    try:
-        import torch
-    except ImportError:
-        raise GarageError("renderer.device=cuda needs torch with CUDA; torch is not installed",
-                          "renderer.device") from None
-    if not torch.cuda.is_available():
-        raise GarageError("renderer.device=cuda needs a CUDA GPU; none is visible here (use renderer.device=auto)",
-                          "renderer.device")
-
-
-@dataclass(frozen=True)
-class Layout:
-    """Rows of the pose tensor: for each of `scenes` sub-scenes, one row per camera (its lit and silhouette
-    components share it) and one per moving actor (all its render shapes share it), in that order."""
-
-    scenes: int
-    cameras: tuple[str, ...]
-    actors: tuple[str, ...]
-
-    @property
-    def per_scene(self) -> int:
-        return len(self.cameras) + len(self.actors)
-
-    @property
-    def rows(self) -> int:
-        return self.scenes * self.per_scene
-
-    def row(self, scene: int, name: str) -> int:
-        """The row of camera or actor `name` in sub-scene `scene`."""
-        if not 0 <= scene < self.scenes:
-            raise IndexError(f"sub-scene {scene} of {self.scenes}")
-        names = (*self.cameras, *self.actors)
-        if name not in names:
-            raise KeyError(f"{name!r} is neither a camera nor a moving actor of the batch")
-        return scene * self.per_scene + names.index(name)
-
-
-def quaternion(rot: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions w, x, y, z (w >= 0), robust for every angle
-    (the largest of the four candidates' squares picks the formula)."""
-    rot = np.asarray(rot, dtype=np.float64)
-    m = rot.reshape(-1, 3, 3)
-    out = np.empty((len(m), 4))
-    for i, r in enumerate(m):
-        t = np.trace(r)
-        cands = [t, r[0, 0], r[1, 1], r[2, 2]]
-        k = int(np.argmax(cands))
-        if k == 0:
-            s = np.sqrt(1.0 + t) * 2
-            q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-        elif k == 1:
-            s = np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2
-            q = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-        elif k == 2:
-            s = np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2
-            q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
-        else:
-            s = np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2
-            q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
-        q = np.asarray(q)
-        out[i] = q if q[0] >= 0 else -q
-    return out.reshape(*rot.shape[:-2], 4)
-
-
-def pose_rows(matrices: np.ndarray) -> np.ndarray:
-    """(M, 4, 4) world poses -> (M, 13) float32 rows of SAPIEN's pose buffer."""
-    matrices = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
-    out = np.zeros((len(matrices), ROW), np.float32)
-    out[:, :3] = matrices[:, :3, 3]
-    out[:, 3:7] = quaternion(matrices[:, :3, :3])
-    return out
-
-
-def actor_matrix(pose: Pose) -> np.ndarray:
-    """An actor's 4x4 world pose (yaw about +z), as `sapien_backend._sapien_pose` places it."""
-    c, s = np.cos(np.radians(pose.yaw)), np.sin(np.radians(pose.yaw))
-    m = np.eye(4)
-    m[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    m[:3, 3] = [pose.x, pose.y, pose.z]
-    return m
-
-
-def pack(layout: Layout, shots: Sequence, specs: dict, hidden: Pose, rest: dict) -> np.ndarray:
-    """A batch of shots (at most `layout.scenes`; shot i in sub-scene i) as the pose tensor's rows: each
-    camera at the ego's pose (`scene.camera.camera_to_world`, `specs` by name), each actor at its pose in the
-    shot (`hidden` when None: out of sight), else at `rest` (name -> its scene pose: `shot.poses` holds only the
-    case's actors, parked cars stand still). Rows of sub-scenes without a shot keep identity poses."""
-    if len(shots) > layout.scenes:
-        raise ValueError(f"{len(shots)} shots for {layout.scenes} sub-scenes")
-    mats = np.tile(np.eye(4), (layout.rows, 1, 1))
-    for i, shot in enumerate(shots):
-        for cam in layout.cameras:
-            mats[layout.row(i, cam)] = camera_to_world(shot.ego, specs[cam])
-        for name in layout.actors:
-            pose = shot.ego if name == "ego" else shot.poses[name] if name in shot.poses else rest[name]
-            mats[layout.row(i, name)] = actor_matrix(hidden if pose is None else pose)
-    return pose_rows(mats)
 
 
 @dataclass
@@ -160,38 +38,21 @@ class RenderScene:
     """N sub-scenes of one scene description behind one `render_batch` (see the module's doc). subs: the
     sub-scenes' renderers (`Renderer`s); hidden: where an actor absent from a shot waits (out of sight)."""
 
-    def __init__(self, subs: Sequence, hidden: Pose, cuda: bool = False):
+    def __init__(self, subs: Sequence[Renderer], hidden: Pose):
         if not subs:
             raise ValueError("a render scene needs at least one sub-scene")
-        self.subs, self.hidden, self.cuda = list(subs), hidden, cuda
+        self.subs, self.hidden = list(subs), hidden
         self.dressed = [0] * len(self.subs)  # the replicate whose materials each sub-scene holds
-        self._group = None  # the CUDA branch's RenderSystemGroup, built on load
 
     @classmethod
-    def over(cls, renderer, hidden: Pose) -> "RenderScene":
+    def over(cls, renderer: Renderer, hidden: Pose) -> "RenderScene":
         """One sub-scene: a renderer already loaded (the CPU path's batch of one)."""
         return cls([renderer], hidden)
 
     @classmethod
-    def open(cls, conf, hidden: Pose, scenes: int | None = None) -> "RenderScene":
-        """The `renderer` group's scene of `scenes` sub-scenes (default `renderer.scenes`, 1 when unset): the
-        CUDA branch when `renderer.device=cuda` (refused in one line without a GPU), else the CPU branch with the
-        process's renderer as sub-scene 0."""
-        from garage_exp.render import open_renderer
-
-        n = int(scenes if scenes is not None else conf.get("scenes", 1) or 1)
-        cuda = str(conf.get("device", "auto")) == "cuda"
-        if cuda:
-            require_cuda()
-        first = open_renderer(conf)
-        if cuda:  # the group's sub-scenes, all built alike (no culling: one pose tensor poses every sub-scene)
-            return cls([first.sibling(cull=False) for _ in range(n)], hidden, cuda=True)
+    def of(cls, first: Renderer, n: int, hidden: Pose) -> "RenderScene":
+        """`n` sub-scenes: `first` (the process's renderer) and n - 1 of its siblings."""
         return cls([first, *(first.sibling() for _ in range(n - 1))], hidden)
-
-    @property
-    def gpu(self) -> "CudaGroup | None":
-        """The CUDA branch's group (its RenderSystemGroup and camera groups), None on the CPU."""
-        return self._group
 
     @property
     def n(self) -> int:
@@ -205,20 +66,15 @@ class RenderScene:
 
     @property
     def description(self):
-        return getattr(self.subs[0], "description", None)
+        """The scene description every sub-scene holds (None before a load)."""
+        return self.subs[0].description
 
     def load(self, scene) -> None:
-        """Build every sub-scene from the description (a sub-scene that holds it already is kept). Under CUDA a
-        new description gets new sub-scenes: nothing can be added to a SAPIEN scene once it is in a group."""
-        if self.cuda and any(getattr(sub, "description", None) is not scene for sub in self.subs):
-            self.subs = [sub.sibling(cull=False) for sub in self.subs]
+        """Build every sub-scene from the description (a sub-scene that holds it already is kept)."""
         for k, sub in enumerate(self.subs):
-            if getattr(sub, "description", None) is not scene:
+            if sub.description is not scene:
                 sub.load(scene)
                 self.dressed[k] = 0
-                self._group = None
-        if self.cuda and self._group is None:
-            self._group = CudaGroup(self.subs, scene, self.hidden)
 
     def render_batch(self, shots: Sequence, cameras: Sequence[str], actors: Sequence[Sequence[str]],
                      redress: Callable[[int, int], dict] | None = None) -> list[Take]:
@@ -230,12 +86,13 @@ class RenderScene:
         if len(actors) != len(shots):
             raise ValueError(f"{len(actors)} actor lists for {len(shots)} shots")
         for k, shot in enumerate(shots):
-            sub = self.subs[k]
-            if redress is not None and shot.replicate != self.dressed[k] and hasattr(sub, "restyle"):
-                sub.restyle(redress(shot.replicate, self.dressed[k]))
+            if redress is not None and shot.replicate != self.dressed[k]:
+                self.subs[k].restyle(redress(shot.replicate, self.dressed[k]))
                 self.dressed[k] = shot.replicate
-        if self._group is not None:
-            return self._group.render(shots, cameras, actors)
+        return self.takes(shots, cameras, actors)
+
+    def takes(self, shots: Sequence, cameras: Sequence[str], actors: Sequence[Sequence[str]]) -> list[Take]:
+        """The batch's pictures, the sub-scenes dressed: each shot posed in its sub-scene, then rendered."""
         takes = []
         for k, shot in enumerate(shots):
             sub = self.subs[k]
@@ -246,99 +103,3 @@ class RenderScene:
                 frame = sub.render(camera)
                 takes.append(Take(shot, camera, frame, sub.unoccluded_ids(camera, actors[k]), sub.ids))
         return takes
-
-
-class CudaGroup:
-    """The CUDA branch of `RenderScene`: the sub-scenes' SAPIEN scenes in one RenderSystemGroup, a camera group
-    per camera (lit: Color and Segmentation; its ids-only twins: PositionSegmentation), poses from one CUDA
-    tensor. Needs CUDA (`require_cuda`)."""
-
-    def __init__(self, subs: Sequence, scene, hidden: Pose):
-        require_cuda()
-        import sapien
-        import torch
-
-        if any(spec.fisheye for spec in scene.cameras):
-            raise GarageError("the batched renderer takes pinhole cameras; render a fisheye rig with "
-                              "renderer.device=auto or cpu", "renderer.device")
-        self.subs, self.scene, self.hidden = list(subs), scene, hidden
-        self.specs = {spec.name: spec for spec in scene.cameras}
-        first = self.subs[0]
-        self.layout = Layout(len(self.subs), tuple(self.specs), ("ego", *first.movers))
-        for i, sub in enumerate(self.subs):
-            for name in self.specs:
-                for component in sub.camera_components(name):
-                    component.set_gpu_pose_batch_index(self.layout.row(i, name))
-            for name in self.layout.actors:
-                for shape in sub.render_shapes(sub.ego if name == "ego" else name):
-                    shape.set_gpu_pose_batch_index(self.layout.row(i, name))
-        self.group = sapien.render.RenderSystemGroup([sub.sapien_scene.render_system for sub in self.subs])
-        self.lit = {name: self.group.create_camera_group([sub.camera_components(name)[0] for sub in self.subs],
-                                                         ["Color", "Segmentation"]) for name in self.specs}
-        self.ids_only = {name: self.group.create_camera_group(
-            [sub.camera_components(name)[1] for sub in self.subs], ["PositionSegmentation"]) for name in self.specs}
-        self.poses = torch.zeros((self.layout.rows, ROW), dtype=torch.float32, device="cuda")
-        self.group.set_cuda_poses(sapien.pysapien.CudaArray(self.poses))  # the tensor's memory, kept
-        self.rest = {e.name: e.pose for e in scene.entities}
-        self.vehicles, self.ego = first.vehicles, first.ego
-        self.see_through = first.decal_ids
-        self.pillars = first.pillar_ids
-
-    def render(self, shots: Sequence, cameras: Sequence[str], actors: Sequence[Sequence[str]]) -> list[Take]:
-        import torch
-
-        from garage_exp.scene.lenses import lens_of
-
-        self.poses.copy_(torch.from_numpy(pack(self.layout, shots, self.specs, self.hidden, self.rest)))
-        n, frames = len(shots), {}
-        for camera in cameras:
-            for sub, shot in zip(self.subs, shots):  # the light pool follows each camera (CPU-side, per sub-scene)
-                sub.place_camera(camera, camera_to_world(shot.ego, self.specs[camera]))
-                sub.show()
-            self.group.update_render()
-            lit = self.lit[camera]
-            lit.take_picture()
-            rgba = torch.as_tensor(lit.get_picture_cuda("Color"), device="cuda")[:n]
-            seg = torch.as_tensor(lit.get_picture_cuda("Segmentation"), device="cuda")[:n]
-            rgb = (rgba[..., :3].clamp(0.0, 1.0) * 255.0 + 0.5).to(torch.uint8)  # as sapien_cameras.take rounds
-            ids = seg[..., 1].to(torch.int32)
-            if not self.scene.background:
-                rgb[ids == 0] = BLANK_GREY
-            frames[camera] = (rgb, ids, self._silhouettes(camera, n, sorted({a for names in actors for a in names})))
-        takes = []
-        for k, shot in enumerate(shots):
-            for camera in cameras:
-                rgb, ids, masks = frames[camera]
-                spec = self.specs[camera]
-                frame = Frame(camera, rgb[k], ids[k], camera_to_world(shot.ego, spec), lens_of(spec),
-                              self._vehicle_poses(shot), see_through=self.see_through,
-                              pillars=self.pillars)
-                takes.append(Take(shot, camera, frame, {a: masks[a][k] for a in actors[k]}, self.subs[k].ids))
-        return takes
-
-    def _silhouettes(self, camera: str, n: int, names: Sequence[str]) -> dict:
-        """name -> (n, H, W) bool CUDA masks: the actor alone in each sub-scene; the ids picture's channel 3, as
-        `sapien_cameras.take_ids` reads it."""
-        import torch
-
-        masks = {}
-        group = self.ids_only[camera]
-        for name in names:
-            for sub in self.subs:
-                sub.show([name])
-            self.group.update_render()
-            group.take_picture()
-            ids = torch.as_tensor(group.get_picture_cuda("PositionSegmentation"), device="cuda")
-            mine = torch.tensor([sub.ids[name] for sub in self.subs[:n]], device="cuda").view(-1, 1, 1)
-            masks[name] = ids[:n, ..., 3] == mine
-        for sub in self.subs:
-            sub.show()
-        return masks
-
-    def _vehicle_poses(self, shot) -> dict[str, Pose]:
-        """Where each vehicle stood in the shot (`Frame.poses`): the shot's pose, else the scene's."""
-        out = {}
-        for name in self.vehicles:
-            pose = shot.ego if name == self.ego else shot.poses[name] if name in shot.poses else self.rest.get(name)
-            out[name] = self.hidden if pose is None else pose
-        return out

@@ -1,6 +1,6 @@
 """Which Vulkan ICD files this machine has, and whether `renderer.device` (auto | cpu | cuda) can be had here.
 
-File globs only, no SAPIEN: the preflight checks a config with it (render.check_renderer), and device.py points
+File globs only, no SAPIEN: the preflight checks a config with it (render.open.check_renderer), and device.py points
 the Vulkan loader with it.
 """
 

@@ -1,8 +1,10 @@
 """SAPIEN 3 backend: loads a `Scene` description into SAPIEN and renders its cameras.
 
-One renderer per process (`get_renderer()`): the first frame of a process compiles SAPIEN's shaders (3-7 s
-measured on lavapipe here) and every later scene reuses them, provided SAPIEN's engine outlives the scenes
-(`device.ensure_device` holds it), so a job loads its scene into the existing renderer.
+Registered as the backend `sapien` (`renderer.backend`, the default; render/registry.py), with its own check of
+the group (`check_sapien`) and its own batch (render/sapien_batch.py: one RenderSystemGroup under
+`renderer.device=cuda`). One renderer per process (`get_renderer()`): the first frame of a process compiles
+SAPIEN's shaders (3-7 s measured on lavapipe here) and every later scene reuses them, provided SAPIEN's engine
+outlives the scenes (`device.ensure_device` holds it), so a job loads its scene into the existing renderer.
 
 The renderer is made of separate parts, each in its own module:
 - `sapien_builder.py`: the SAPIEN entities, shapes and materials of a description (one converter per shape
@@ -29,15 +31,18 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from garage_exp.core.errors import GarageError
+from garage_exp.core.errors import GarageError, check_range
 from garage_exp.core.state import STATE
 from garage_exp.render.base import BLANK_GREY, Frame
 from garage_exp.render.bodies import Bodies
 from garage_exp.render.cull import frustum_planes, outside_frustum
 from garage_exp.render.device import ensure_device
 from garage_exp.render.fisheye import lookup, remap_bilinear
+from garage_exp.render.icd import check_available
 from garage_exp.render.light_pool import LightPool
+from garage_exp.render.registry import register_backend
 from garage_exp.render.sapien_builder import DECALS, SceneBuilder, merges, static_key
+from garage_exp.render.sapien_batch import open_scene
 from garage_exp.render.sapien_cameras import SapienCamera, add_camera, take, take_ids
 from garage_exp.render.silhouettes import disjoint_groups, image_rect
 from garage_exp.scene.camera import camera_to_world
@@ -409,7 +414,7 @@ class SapienRenderer:
 
 def get_renderer(max_lights: int = 8, shadows: bool = False, device: str = "auto") -> SapienRenderer:
     """The process's renderer (created on first call, then reused so shaders compile once per process);
-    settings apply from the next `load()`. max_lights: 1-10 (SAPIEN's default shader; render.check_renderer).
+    settings apply from the next `load()`. max_lights: 1-10 (SAPIEN's default shader; render.open.check_renderer).
     device: auto | cpu | cuda (device.ensure_device; a process keeps the device it first rendered on)."""
     renderer = STATE.renderer
     if not isinstance(renderer, SapienRenderer):
@@ -419,9 +424,25 @@ def get_renderer(max_lights: int = 8, shadows: bool = False, device: str = "auto
     return renderer
 
 
+MAX_KEPT = 16  # loaded garages kept (renderer.kept_garages): each holds its SAPIEN scene's memory
+
+
+def check_sapien(conf) -> None:
+    """The `renderer` group's keys that are SAPIEN's: a light pool its default shader can compile (1-10), 1 to
+    MAX_KEPT kept garages, a device (auto | cpu | cuda) whose Vulkan driver's files are there (whether Vulkan
+    really finds the device shows when the first scene loads, `ensure_device`)."""
+    check_range(conf.max_lights, 1, 10, "renderer.max_lights")
+    check_range(conf.get("kept_garages", 1), 1, MAX_KEPT, "renderer.kept_garages")
+    check_available(conf.device)
+
+
+@register_backend("sapien", scene=open_scene, check=check_sapien,
+                  says="SAPIEN 3: RGB and segmentation on Vulkan; a RenderSystemGroup under renderer.device=cuda")
 def make(*, max_lights: int = 8, shadows: bool = False, save_frames: str = "key", name: str = "sapien",
-         device: str = "auto") -> SapienRenderer:
-    """The factory `conf/renderer/sapien.yaml` names (`_target_`), called with the `renderer` group's keys:
-    the process's renderer with its light pool, shadows and Vulkan device. save_frames and name are the frame
-    loop's and the level's, not the renderer's (`scenes`, the render scene's, never reaches a backend)."""
-    return get_renderer(max_lights=int(max_lights), shadows=bool(shadows), device=str(device))
+         device: str = "auto", kept_garages: int = 1) -> SapienRenderer:
+    """The backend's factory (`render.open.open_renderer` calls it with the `renderer` group's keys): the process's
+    renderer with its light pool, shadows, Vulkan device and kept garages. save_frames and name are the frame
+    loop's and the level's, not the renderer's."""
+    renderer = get_renderer(max_lights=int(max_lights), shadows=bool(shadows), device=str(device))
+    renderer.kept_garages = int(kept_garages)
+    return renderer

@@ -11,10 +11,11 @@ from garage_exp.core.config_nodes import register_node
 
 @dataclass
 class RendererConf:
-    """The renderer: `_target_` names the backend's factory, called with the other keys, returning a
-    `garage_exp.render.Renderer`."""
+    """The renderer: `backend` names a registered backend (render/registry.py), whose factory is called with the
+    other keys it takes; `_target_`, kept for configs that name a factory there, wins when it is not SAPIEN's."""
 
     name: str = "sapien"
+    backend: str = "sapien"
     _target_: str = "garage_exp.render.sapien_backend.make"
     max_lights: int = 8
     shadows: bool = False

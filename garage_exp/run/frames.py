@@ -41,7 +41,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> JobSummary:
     `spec` saying how), log them on the job's run, and return the summary (`difficulty`, and `fair_*`: the
     search's objective). `cfg` goes only to the job's own stages (the frame pipeline, the slot frames)."""
     from garage_exp.core.plugins import build
-    from garage_exp.render.batch import RenderScene
+    from garage_exp.render.open import open_renderer
     from garage_exp.scenario.assemble import HIDDEN
     from garage_exp.scene.gltf import export_glb
 
@@ -50,7 +50,7 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> JobSummary:
     detector = prepared.open_detector()
     classes = spec.detector.scoring()
     sensor = build(spec.sensor, "a sensor model", "sensor._target_")
-    renderer = RenderScene.open(spec.renderer, HIDDEN)  # renderer.scenes sub-scenes; the GPU's group under cuda
+    renderer = open_renderer(spec.renderer, HIDDEN)  # renderer.scenes sub-scenes, batched by the backend
     renderer.load(scene)
     trial = spec.outputs.lean  # a search trial: lean (the study's parent holds map, plots, frames)
     if not trial:

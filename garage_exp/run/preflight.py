@@ -112,7 +112,7 @@ def check_config(cfg) -> None:
     needed. `cfg`: the composed config, or it as `Settings` (what the checks are handed: plain data)."""
     from garage_exp.perception.detect.detector import check_detector
     from garage_exp.perception.slots.detector import check_slot_detector
-    from garage_exp.render import check_renderer
+    from garage_exp.render.open import check_renderer
     from garage_exp.results.late import check_ego
     from garage_exp.scenario import check_case
     from garage_exp.scenario.build import moves_ego

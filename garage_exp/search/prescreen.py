@@ -94,32 +94,48 @@ def prepare(cfg: DictConfig, scale: float):
 
 def frames_table(cfg: DictConfig, detector, scale: float, prepared=None) -> tuple[pd.DataFrame, object]:
     """The frames' table at `scale` of the resolution (ground truth; with `detector`, a `Detector` or a `WarmDetector`,
-    its scores too) and the job's setup. `prepared`: the cheap job (`prepare`) when at hand, else prepared here."""
+    its scores too) and the job's setup. `prepared`: the cheap job (`prepare`) when at hand, else prepared here.
+    The job's pipeline does it: the renderer opened as a job opens it, and, with a detector that detects in a
+    child (`submit`/`result`: a `WarmDetector`), the scored camera's frame k detected while frame k+1 renders."""
     from garage_exp.core.plugins import build
-    from garage_exp.render import open_renderer
+    from garage_exp.render.open import open_renderer
     from garage_exp.results.table import frame_row
     from garage_exp.run.pipeline import FramePipeline
+    from garage_exp.scenario.assemble import HIDDEN
 
     prepared = prepared if prepared is not None else prepare(cfg, scale)
     spec = prepared.spec
-    renderer = open_renderer(spec.renderer)
+    renderer = open_renderer(spec.renderer, HIDDEN)
     renderer.load(prepared.scene)
     sensor = build(spec.sensor, "a sensor model", "sensor._target_")
     pipeline = FramePipeline(spec.config, prepared.scene, renderer, sensor, np.random.default_rng(spec.seed + 1),
                              detector, detector.scoring() if detector is not None else {}, spec.scoring)
     scored = spec.primary
+    frames = (item for item in pipeline.frames(prepared.setup.shots) if item.camera == scored)
+    names = detector.names if detector is not None else []
     rows = []
-    for item in pipeline.frames(prepared.setup.shots):
-        if item.camera != scored:
-            continue
-        if detector is None:  # ground truth alone: no score
-            score = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)
-        else:
-            dets = detector.detect([item.rgb], pipeline.intrinsics[item.camera])[0]  # the scored camera's own
-            score = pipeline.score(item, dets)
-        rows.append(frame_row(item.shot, item.camera, item.target, score, detector.names if detector else [],
-                              replicated=spec.replicates > 1))
+    try:
+        for item, dets in detected(pipeline, frames, detector):
+            score = UNSCORED if dets is None else pipeline.score(item, dets)
+            rows.append(frame_row(item.shot, item.camera, item.target, score, names, replicated=spec.replicates > 1))
+    finally:
+        if hasattr(detector, "drain"):
+            detector.drain()  # a failed look leaves no answer in the pipe for the next job
     return pd.DataFrame(rows), prepared.setup
+
+
+UNSCORED = SimpleNamespace(per_model=[], composite=0.0, detected=False, false_positives=0)  # ground truth alone
+
+
+def detected(pipeline, frames, detector):
+    """Each scored frame with its detections: overlapped with the next render as the job's (`FramePipeline.detected`)
+    when the detector works in a child, in this process frame by frame otherwise (a built `Detector`), None
+    without one."""
+    if detector is None:
+        return ((item, None) for item in frames)
+    if hasattr(detector, "submit"):
+        return pipeline.detected(frames)
+    return ((item, detector.detect([item.rgb], pipeline.intrinsics[item.camera])[0]) for item in frames)
 
 
 def lenient(rule: FairRule, scale: float, slack_visible: float) -> FairRule:

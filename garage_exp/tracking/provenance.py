@@ -73,6 +73,8 @@ def config_hash(cfg, plan_digest: str = "") -> str:
         if not container["detector"].get("class_names"):  # added later: an empty one keeps older jobs' identity
             container["detector"].pop("class_names", None)
     _drop_unset_plan_keys(container)  # added for plan=generated: unset, they keep older jobs' identity
+    if isinstance(container.get("renderer"), dict) and container["renderer"].get("backend") == "sapien":
+        container["renderer"].pop("backend")  # added with the backends' registry: the default keeps older jobs'
     if plan_digest:
         container["plan_sha256"] = plan_digest
     return hashlib.sha256(json.dumps(container, sort_keys=True, default=str).encode()).hexdigest()[:16]

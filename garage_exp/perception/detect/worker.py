@@ -390,15 +390,26 @@ class WarmDetector:
 
     def detect(self, frames, intrinsics=None) -> list[list[Detections]]:
         batch = as_batch(frames)
-        if self._warm.loaded != self._detector:  # a job's preflight loaded its own since
-            self._warm.load(self._detector, self._probe)
         try:
             for rgb, cam in zip(batch, per_frame(intrinsics, len(batch))):
-                self._warm.submit(rgb, cam)
+                self.submit(rgb, cam)
             return [self._warm.result() for _ in batch]
         except BaseException:
             self._warm.drain()  # the next caller starts in step
             raise
+
+    # The frame pipeline's interface (run/pipeline.py `overlapped`): frame k detected while k + 1 renders.
+
+    def submit(self, rgb, intrinsics: Lens | None = None) -> None:
+        if self._warm.loaded != self._detector:  # a job's preflight loaded its own since
+            self._warm.load(self._detector, self._probe)
+        self._warm.submit(rgb, intrinsics)
+
+    def result(self) -> list[Detections]:
+        return self._warm.result()
+
+    def drain(self) -> None:
+        self._warm.drain()
 
 
 @atexit.register
