@@ -79,15 +79,15 @@ def slot_files(out: Path) -> dict[str, bytes]:
     from omegaconf import OmegaConf
 
     from garage_exp.core.schema import BevConf
-    from garage_exp.exports.slots import SlotExports, ps2_record
-    from garage_exp.perception.slots.detector import load
-    from garage_exp.perception.slots.schema import SlotDetectorConf
-    from garage_exp.perception.slots.synthetic import bev_row
-    from garage_exp.perception.slots.truth import obstacles, slot_truth, world_bays
+    from garage_exp.slots.export import SlotExports, ps2_record
+    from garage_exp.slots.detector import load
+    from garage_exp.slots.schema import SlotDetectorConf
+    from garage_exp.slots.synthetic import bev_row
+    from garage_exp.slots.truth import obstacles, slot_truth, world_bays
     from garage_exp.render.bev import bev_maps, spec_of
     from garage_exp.report import slots as slot_report
-    from garage_exp.report.tables import markdown_table
-    from garage_exp.results.slots import pool, score
+    from garage_exp.report.tables import markdown_table, with_ci
+    from garage_exp.slots.results import pool, score
     from garage_exp.run.preflight import preflight
 
     cfg = compose_cfg(*SLOTS)
@@ -118,7 +118,7 @@ def slot_files(out: Path) -> dict[str, bytes]:
     frames = pd.DataFrame([{"run_id": r, "replicate": k, **s} for r, s in zip("abcd", scores) for k in (0, 1)])
     units = slot_report.slot_units(runs, frames, ["factor.wear"])
     effects = slot_report.slot_effects(units, ["factor.wear"])
-    files["slots/report.md"] = "\n".join(slot_report.section(effects, markdown_table)).encode()
+    files["slots/report.md"] = "\n".join(slot_report.section(effects, markdown_table, with_ci)).encode()
     return files
 
 

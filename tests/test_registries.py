@@ -124,8 +124,8 @@ def test_each_layers_schema_lives_beside_its_check_and_core_registers_it_by_name
     from pathlib import Path
 
     from garage_exp.core import schema
-    from garage_exp.exports.openscenario import ExportConf
-    from garage_exp.perception.slots.schema import SlotDetectorConf, SlotLinesConf
+    from garage_exp.openscenario.checks import ExportConf
+    from garage_exp.slots.schema import SlotDetectorConf, SlotLinesConf
     from garage_exp.results.late import EgoConf
     from garage_exp.search.schema import SearchConf
 

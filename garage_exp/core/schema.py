@@ -437,7 +437,7 @@ NODES: dict[str, type | str] = {
     "plan": PlanConf, "garage": GarageConf, "light": LightConf, "camera": CameraRigConf, "palette": PaletteConf,
     "occluder": OccluderConf, "case": CaseConf, "ego": "garage_exp.results.late.EgoConf", "sensor": SensorConf,
     "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf, "detector": DetectorConf,
-    "slot_detector": "garage_exp.perception.slots.schema.SlotDetectorConf", "renderer": RendererConf,
+    "slot_detector": "garage_exp.slots.schema.SlotDetectorConf", "renderer": RendererConf,
     "tracking": TrackingConf, "space": SpaceConf,
 }
 
@@ -458,7 +458,7 @@ class Shared:
     search: Any = ByName("garage_exp.search.schema.SearchConf")  # the sweeper's settings (search/schema.py)
     blank: bool = False  # the blank control: only the vehicles, background removed
     dataset: bool = False  # also write frames with YOLO, COCO and KITTI labels (garage_exp/exports)
-    export: Any = ByName("garage_exp.exports.openscenario.ExportConf")  # formats beside the frames
+    export: Any = ByName("garage_exp.openscenario.checks.ExportConf")  # formats beside the frames
     resume: bool = False
     dry_run: bool = False  # plan + map + MLflow only: no rendering or detection
 
@@ -467,16 +467,16 @@ GROUPS: dict[str, type | str] = {
     "plan": PlanConf, "garage": GarageConf, "light": LightConf, "camera": CameraRigConf, "palette": PaletteConf,
     "occluder": OccluderConf, "case": CaseConf, "sensor": SensorConf, "detector": DetectorConf,
     "look": LookConf, "materials": MaterialsConf, "clutter": ClutterConf,
-    "slot_detector": "garage_exp.perception.slots.schema.SlotDetectorConf", "renderer": RendererConf,
+    "slot_detector": "garage_exp.slots.schema.SlotDetectorConf", "renderer": RendererConf,
     "tracking": TrackingConf, "space": SpaceConf,
 }
 # Names that moved beside their checks, still importable from here for code written before the move.
 MOVED = {"EgoConf": "garage_exp.results.late.EgoConf", "SearchConf": "garage_exp.search.schema.SearchConf",
          "SuiteConf": "garage_exp.search.schema.SuiteConf", "PrescreenConf": "garage_exp.search.schema.PrescreenConf",
-         "SlotDetectorConf": "garage_exp.perception.slots.schema.SlotDetectorConf",
-         "SlotLinesConf": "garage_exp.perception.slots.schema.SlotLinesConf",
-         "SlotMetricsConf": "garage_exp.perception.slots.schema.SlotMetricsConf",
-         "ExportConf": "garage_exp.exports.openscenario.ExportConf"}
+         "SlotDetectorConf": "garage_exp.slots.schema.SlotDetectorConf",
+         "SlotLinesConf": "garage_exp.slots.schema.SlotLinesConf",
+         "SlotMetricsConf": "garage_exp.slots.schema.SlotMetricsConf",
+         "ExportConf": "garage_exp.openscenario.checks.ExportConf"}
 
 
 def schema_of(entry: type | str) -> type:

@@ -1,16 +1,12 @@
-"""`export.openscenario=true`: a job's scenario as OpenSCENARIO and its garage as OpenDRIVE
-(garage_exp/exports/openscenario.py writes them), from the scene the job's preflight built: here each variant's
-shots become its actors' tracks (where each starts, where it ends, how fast, from when). The search and the suite
-export the jobs they compose (their hardest trials, their scenarios) the same way, without rendering them."""
+"""A job's case as an export's tracks: each variant's shots (replicate 0) become its actors' tracks (where each
+starts, where it ends, how fast, from when), from the case setup the job's preflight built (run/openscenario.py
+hands it over; export.py writes the files). Handed plain data (Settings), never a config node."""
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
-from omegaconf import DictConfig
-
-from garage_exp.exports.openscenario import Track
+from garage_exp.openscenario.model import ExportInfo, Track
 from garage_exp.scenario.build import along_value, frame_times, moves_ego
 from garage_exp.scenario.shots import CaseSetup, Shot
 from garage_exp.scenario.timing import speed_at, start_time
@@ -19,27 +15,14 @@ from garage_exp.scene.description import Pose
 PERSON_SPEED = 1.4  # m/s: a static case's moved person walks through its placements at this pace
 
 
-def export(cfg: DictConfig, out: Path, prepared=None) -> list[Path]:
-    """`out`/garage.xodr and `out`/scenario.xosc (one .xosc per variant); `prepared`: the job's own preflight,
-    else the job is prepared here (its plan, assets and scene; nothing rendered)."""
-    from garage_exp.exports import openscenario
-
-    if prepared is None:
-        from garage_exp.run.preflight import preflight
-
-        prepared = preflight(cfg, check_space=False, load=False)  # its scene only: no model loads for a file
-    from garage_exp.core.plain import settings
-
-    cfg = settings(cfg)  # the exporter is handed plain data
-    variants = [(label, shots[0].target, frame_step(shots), *tracks(cfg, prepared.setup, shots))
-                for label, shots in variants_of(prepared.setup)]
-    return openscenario.write(export_info(cfg), prepared.classified, variants, out)
+def variants(cfg, setup: CaseSetup) -> list[tuple[str, str, float | None, list[Track], list[str]]]:
+    """Each variant as export.write takes it: (label, its target, its frames' step, its actors' tracks, notes)."""
+    return [(label, shots[0].target, frame_step(shots), *tracks(cfg, setup, shots))
+            for label, shots in variants_of(setup)]
 
 
-def export_info(cfg: DictConfig):
-    """The job's names and values the files carry (exports.openscenario.ExportInfo)."""
-    from garage_exp.exports.openscenario import ExportInfo
-
+def export_info(cfg) -> ExportInfo:
+    """The job's names and values the files carry."""
     garage = cfg.garage
     return ExportInfo(str(cfg.export.openscenario_version), str(cfg.case.name), str(cfg.case.site),
                       float(cfg.case.motion.step), str(cfg.plan.name), str(cfg.light.name), float(cfg.ego.speed),

@@ -4,7 +4,7 @@ its config's lens fields its CameraSpec carries, and what the rest of the pipeli
 Everything that treats cameras by their model reads it from here instead of comparing names: the config check
 (scene/camera.check_camera), the specs (scene/camera.rig_specs), the renderer (CameraSpec.fisheye: drawn from
 a cube map through the model's lens, render/fisheye.py), the bird's-eye view and slot cases
-(run/preflight.py, run/slots.py, the search's slots objective), the frame table's off-axis angle
+(run/preflight.py, slots/frames.py, the search's slots objective), the frame table's off-axis angle
 (run/frames.py) and the KITTI export's pinhole calibration (check_camera with dataset=true).
 
 What a model must provide: a pinhole model is rendered as one picture with `scene/camera.intrinsics_of`
