@@ -8,7 +8,8 @@ ground truth on the tiny plan (PS2.0-like labels, truth, COCO keypoints), the `l
 and scores on synthetic bird's-eye views, and the sweep report's slot section on a made-up table. No rendering.
 
 What the writers stamp with the clock (the OpenDRIVE and OpenSCENARIO headers' date, the COCO file's
-date_created) and the temporary folder in the import's comment line are set to fixed text before hashing.
+date_created) and the temporary folder in the import's comment line are set to fixed text before hashing; the
+OpenDRIVE objects' ids, which scenariogeneration counts per process, restart as in a fresh process.
 `python tests/test_golden_exports.py` prints the digests as tests/golden/exports.json holds them (it wrote that
 file on 7a6a6a4); a failing test names the file and leaves the normalised bytes under its tmp_path to diff.
 """
@@ -54,6 +55,12 @@ def openscenario_files(library, out: Path) -> dict[str, bytes]:
     from garage_exp.run.openscenario import export
     from garage_exp.run.preflight import PreparedJob
 
+    from scenariogeneration.xodr.signals_objects import _SignalObjectBase
+
+    # scenariogeneration numbers a road file's objects from counters on the class, shared by every file the
+    # process writes: start them as in the fresh process the digests were recorded in, whatever exported before
+    _SignalObjectBase._usedIDs.clear()
+    _SignalObjectBase._IDCounter.clear()
     jobs = [(plan, case, "1.2") for plan in PLANS for case in CASES]
     jobs += [("research", case, "1.0") for case in ("crossing", "cpnco")]
     files = {}
