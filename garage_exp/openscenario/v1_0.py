@@ -16,6 +16,16 @@ CARLA_VEHICLES = {"car": "vehicle.tesla.model3", "suv": "vehicle.nissan.patrol",
 CARLA_WALKERS = {"adult": "walker.pedestrian.0001", "child": "walker.pedestrian.0009"}
 
 
+def vehicle(body: str) -> str:
+    """The blueprint ScenarioRunner spawns for one of our bodies (a car's for a body it has none for)."""
+    return CARLA_VEHICLES.get(body, CARLA_VEHICLES["car"])
+
+
+def walker(size_class: str | None) -> str:
+    """The walker blueprint for a person of our size class (an adult's when it has none)."""
+    return CARLA_WALKERS.get(size_class or "adult", CARLA_WALKERS["adult"])
+
+
 def check_tracks(version: str, label: str, moving: list[Track]) -> None:
     """What OpenSCENARIO `version` cannot say, refused in one line: 1.0 for ScenarioRunner has no negative
     speed, so no reversing ego."""

@@ -41,7 +41,7 @@ from pathlib import Path
 
 from garage_exp.openscenario.lanes import EgoLane, lane_of
 from garage_exp.openscenario.model import ExportInfo, Track, axle_offset, reference
-from garage_exp.openscenario.v1_0 import CARLA_VEHICLES, CARLA_WALKERS
+from garage_exp.openscenario import v1_0
 from garage_exp.scene.description import Entity, Pose
 
 OSC_MINOR = 2
@@ -67,7 +67,7 @@ def _entity_object(track: Track, carla: bool = False):
         parts = (e.model or "").split("-")
         if len(parts) == 5 and parts[4].endswith("cm") and parts[4][:-2].isdigit():
             props.update(gender=parts[1], build=parts[2], pose=parts[3], height=f"{int(parts[4][:-2]) / 100:.2f}")
-        model = CARLA_WALKERS.get(e.size_class or "adult", CARLA_WALKERS["adult"]) if carla else e.model or "pedestrian"
+        model = v1_0.walker(e.size_class) if carla else e.model or "pedestrian"
         obj = xosc.Pedestrian(track.name, 20.0 if e.size_class == "child" else 70.0, xosc.PedestrianCategory.pedestrian,
                               box, model=model)
     elif e.kind == "box":
@@ -80,7 +80,7 @@ def _entity_object(track: Track, carla: bool = False):
         props["size"] = e.size_class or ""
         wheel = 0.65 if body in ("car", "suv") else 0.8
         base = 2 * axle_offset(e)  # the wheelbase: both axles REAR_AXLE_IN from their bumpers
-        name = CARLA_VEHICLES.get(body, CARLA_VEHICLES["car"]) if carla else track.name
+        name = v1_0.vehicle(body) if carla else track.name
         obj = xosc.Vehicle(name, getattr(xosc.VehicleCategory, CATEGORIES.get(body, "car")), box,
                            xosc.Axle(0.6, wheel, width * 0.85, base, wheel / 2),
                            xosc.Axle(0.0, wheel, width * 0.85, 0.0, wheel / 2), 30.0, 3.0, 8.0)
