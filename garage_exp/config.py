@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 # The owners: each import registers its nodes (noqa: imported for that).
-import garage_exp.exports.openscenario  # noqa: F401 - export
+import garage_exp.openscenario.checks  # noqa: F401 - export
 import garage_exp.perception.schema  # noqa: F401 - sensor, detector
-import garage_exp.perception.slots.schema  # noqa: F401 - slot_detector
+import garage_exp.slots.schema  # noqa: F401 - slot_detector
 import garage_exp.plan.schema  # noqa: F401 - plan
 import garage_exp.render.schema  # noqa: F401 - renderer
 import garage_exp.results.late  # noqa: F401 - ego

@@ -39,7 +39,7 @@ def preload() -> None:
     import garage_exp.run.preflight  # noqa: F401
     import garage_exp.core.schema_check  # noqa: F401
     import garage_exp.scenario.assemble  # noqa: F401
-    import garage_exp.perception.slots.detector  # noqa: F401  the checks preflight.check_config imports
+    import garage_exp.slots.detector  # noqa: F401  the checks preflight.check_config imports
     import garage_exp.render.bev  # noqa: F401
     import garage_exp.scene.clutter  # noqa: F401
     import garage_exp.scene.look  # noqa: F401

@@ -52,11 +52,11 @@ def missing(capability: str) -> str | None:
 
                 problem = cluster_problem()
             elif capability == "asam-qc":
-                from garage_exp.exports.asam_qc import qc_bin
+                from tools.asam_qc import qc_bin
 
                 qc_bin()
             elif capability == "esmini":
-                from garage_exp.exports.esmini import esmini_path
+                from tools.esmini import esmini_path
 
                 esmini_path()
             elif capability == "vehicles":

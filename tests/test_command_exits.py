@@ -39,7 +39,7 @@ ARGPARSE = {
     "garage_exp.search.grade": ("garage_exp.search.grade", "garage_exp.search.grade"),
     "garage_exp.exports": ("garage_exp.exports.__main__", "garage_exp.exports"),
     "garage_exp.assets": ("garage_exp.assets.__main__", "garage_exp.assets"),
-    "garage_exp.scenario.import": ("garage_exp.scenario.xosc_import", "garage_exp.scenario.import"),
+    "garage_exp.scenario.import": ("garage_exp.openscenario.xosc_import", "garage_exp.scenario.import"),
     "garage_exp.tracking.store": ("garage_exp.tracking.store", "garage_exp.tracking.store"),
     "garage_exp.tracking.ui": ("garage_exp.tracking.ui", "garage_exp.tracking.ui"),
 }

@@ -126,7 +126,7 @@ def export_job(page_command: str, tmp_path) -> None:
 @pytest.mark.parametrize("start, version", [("python -m garage_exp case=cpnco", "OpenSCENARIO_1_2"),
                                             ("python -m garage_exp case=crossing", "OpenSCENARIO_1_0")])
 def test_an_export_command_writes_its_files(start, version, tmp_path, built):
-    from garage_exp.scenario.asam import validate
+    from garage_exp.openscenario.asam import validate
 
     export_job(command("openscenario.md", start), tmp_path)
     assert validate(tmp_path / "run" / "openscenario" / "scenario.xosc").startswith(version)
@@ -138,7 +138,7 @@ def test_the_documented_esmini_command_plays_an_export(tmp_path, built):
     the project lays it out (conf/config.yaml's run dir), with `shared/` beside the project: esmini is found by the
     block's relative path, writes log.csv, and its own log goes where the block says, beside the scenario; no
     log.txt anywhere (issue 47, item 5: the block had one `..` too few and left log.txt in the current folder)."""
-    from garage_exp.exports.esmini import esmini_path
+    from tools.esmini import esmini_path
 
     require("esmini")
     assert "dir: ${garage_root:}/outputs/runs/${now:%Y-%m-%d}/${now:%H-%M-%S}" in (ROOT / "conf" / "config.yaml").read_text()

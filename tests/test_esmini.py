@@ -45,7 +45,7 @@ def on_road(road, x: float, y: float) -> bool:
 
 def declared_lanes(xosc) -> dict[str, tuple[str, int]]:
     """Each entity's start as the file declares it: (road id, lane id) of its LanePosition."""
-    from garage_exp.scenario.asam import parse
+    from garage_exp.openscenario.asam import parse
 
     out = {}
     for private in parse(xosc).getroot().iterfind("Storyboard/Init/Actions/Private"):
@@ -65,11 +65,12 @@ def test_esmini_replays_the_export_as_the_job_ran(case, plan, library, tmp_path)
 def judge(library, tmp_path, *overrides: str) -> list:
     """Export the case, play each variant in esmini and hold it to the job's frames (the module's docstring);
     the exported paths."""
-    from garage_exp.exports.esmini import play
-    from garage_exp.run.openscenario import export, frame_clock, tracks, variants_of
+    from tools.esmini import play
+    from garage_exp.run.openscenario import export
+    from garage_exp.openscenario.tracks import frame_clock, tracks, variants_of
     from garage_exp.run.preflight import PreparedJob
-    from garage_exp.scenario.asam import validate
-    from garage_exp.scenario.xodr_read import read_roads
+    from garage_exp.openscenario.asam import validate
+    from garage_exp.openscenario.xodr_read import read_roads
 
     cfg, classified, setup = case_setup(library, *overrides)
     plan = cfg.plan.name
@@ -115,8 +116,8 @@ def test_a_1_0_export_is_what_scenario_runner_reads_and_plays_the_same(library, 
     type=ego_vehicle, CARLA blueprints as vehicle names and pedestrian models, no expressions, no negative speed;
     esmini plays it as the job ran, as the 1.2 file."""
     require("esmini")
-    from garage_exp.exports.openscenario import CARLA_VEHICLES, CARLA_WALKERS
-    from garage_exp.scenario.asam import parse, validate
+    from garage_exp.openscenario.v1_0 import CARLA_VEHICLES, CARLA_WALKERS
+    from garage_exp.openscenario.asam import parse, validate
 
     for case in ("crossing", "cpnco"):
         paths = judge(library, tmp_path / case, f"case={case}", "export.openscenario_version=1.0")
@@ -138,9 +139,9 @@ def test_a_1_0_export_is_what_scenario_runner_reads_and_plays_the_same(library, 
 def test_the_road_file_holds_the_garage_s_pillars_walls_obstacles_and_bays(tmp_path):
     """garage.xodr: the header's bounds are the plan's extent; every pillar is a pole, every perimeter wall a
     barrier, every obstacle cell a building and every bay beside a lane a parkingSpace, with their dimensions."""
-    from garage_exp.exports.openscenario import write_xodr
+    from garage_exp.openscenario.xodr_write import write_xodr
     from garage_exp.plan import classify, load_plan
-    from garage_exp.scenario.asam import parse, validate
+    from garage_exp.openscenario.asam import parse, validate
 
     classified = classify(load_plan(PLANS_DIR / "research.yaml"))
     path = write_xodr(classified, tmp_path / "garage.xodr")
@@ -165,7 +166,7 @@ def test_asam_s_checker_bundles_find_nothing_in_the_exports(library, tmp_path):
     skips a rule of another version of the standard than the file's) and finds no issue. A broken copy of each
     (an entity that does not exist, two roads of one id) gets its issue: the bundles can fail."""
     require("asam-qc")
-    from garage_exp.exports.asam_qc import checkers
+    from tools.asam_qc import checkers
     from garage_exp.run.openscenario import export
     from garage_exp.run.preflight import PreparedJob
 
@@ -197,8 +198,9 @@ def test_esmini_reports_two_cars_that_overlap_as_a_collision(tmp_path):
     require("esmini")
     from scenariogeneration import xosc
 
-    from garage_exp.exports.esmini import play
-    from garage_exp.exports.openscenario import lane_runs, write_xodr
+    from tools.esmini import play
+    from garage_exp.openscenario.lanes import lane_runs
+    from garage_exp.openscenario.xodr_write import write_xodr
     from garage_exp.plan import classify, load_plan
 
     classified = classify(load_plan(PLANS_DIR / "research.yaml"))
@@ -229,8 +231,9 @@ def test_a_route_that_turns_a_corner_plays(tmp_path):
     require("esmini")
     from scenariogeneration import xosc
 
-    from garage_exp.exports.esmini import play
-    from garage_exp.exports.openscenario import arms, junction_cells, lane_runs, write_xodr
+    from tools.esmini import play
+    from garage_exp.openscenario.lanes import arms, junction_cells, lane_runs
+    from garage_exp.openscenario.xodr_write import write_xodr
     from garage_exp.plan import classify, load_plan
 
     classified = classify(load_plan(PLANS_DIR / "research.yaml"))

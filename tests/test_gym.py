@@ -197,7 +197,7 @@ def test_export_writes_a_suite_whose_scenario_runs(env, store, tmp_path):
     from omegaconf import OmegaConf
 
     from garage_exp.gym.export import write_suite
-    from garage_exp.scenario.asam import validate
+    from garage_exp.openscenario.asam import validate
 
     rng = np.random.default_rng(3)  # a child running out at uneven speeds, from anywhere in its gap
     records = [episode(env, lambda: rng.uniform([0.3, -1.0], [1.0, 1.0]))[1]["episode_verdict"],

@@ -114,7 +114,8 @@ def test_a_job_opens_its_detector_once(tmp_path, mlflow_uri, monkeypatch):
     assert len(opened) == 1, opened
 
 
-BELOW_RUN = ("plan", "scene", "scenario", "render", "perception", "results", "tracking", "exports")
+BELOW_RUN = ("plan", "scene", "scenario", "render", "perception", "results", "tracking", "slots", "exports",
+             "openscenario")
 
 
 @contextlib.contextmanager

@@ -1,6 +1,6 @@
 """Every kind a config names by a word is a registry with the registration beside what it registers: camera views
 (scene/views.py `@register_view`), sensor kinds and tone curves (perception/sensor.py `@register_sensor_kind`,
-`@register_tone_curve`), slot detector kinds (perception/slots/detector.py `@register_slot_kind`), detector entry
+`@register_tone_curve`), slot detector kinds (slots/detector.py `@register_slot_kind`), detector entry
 kinds (perception/detect/kinds.py `@register_entry_kind`), objectives (search/objectives.py `register_objective`)
 and lenses, one per camera model (scene/lenses `@register_lens`): adding one is one module. Each test adds some from a
 temporary module and uses them where the shipped ones are used; one adds one of each through $GARAGE_EXP_PLUGINS,
@@ -22,7 +22,7 @@ from optuna.trial import TrialState
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect.kinds import KINDS as ENTRY_KINDS
 from garage_exp.perception.sensor import KINDS, TONES, make_sensor
-from garage_exp.perception.slots.detector import KINDS as SLOT_KINDS
+from garage_exp.slots.detector import KINDS as SLOT_KINDS
 from garage_exp.scene.lenses import LENSES
 from garage_exp.scene.views import VIEWS
 from garage_exp.search.objectives import OBJECTIVES
@@ -125,8 +125,8 @@ def square(x):
 '''
 
 SLOT_MODULE = '''
-from garage_exp.perception.slots.detector import SlotKind, register_slot_kind
-from garage_exp.perception.slots.marks import SlotFrame
+from garage_exp.slots.detector import SlotKind, register_slot_kind
+from garage_exp.slots.marks import SlotFrame
 
 
 @register_slot_kind("nothing")
@@ -243,8 +243,8 @@ def test_a_sensor_kind_and_a_tone_curve_from_a_module_of_their_own(plugin):
 
 
 def test_a_slot_detector_kind_from_a_module_of_its_own(plugin):
-    from garage_exp.perception.slots.detector import check_slot_detector, load
-    from garage_exp.perception.slots.schema import SlotDetectorConf
+    from garage_exp.slots.detector import check_slot_detector, load
+    from garage_exp.slots.schema import SlotDetectorConf
 
     conf = schema_node(SlotDetectorConf, {"kind": "nothing"})
     with pytest.raises(GarageError, match="slot_detector.kind: unknown kind 'nothing'"):
@@ -261,8 +261,8 @@ import numpy as np
 from garage_exp.perception.detect.base import Detections, Entry
 from garage_exp.perception.detect.kinds import register_entry_kind
 from garage_exp.perception.sensor import register_sensor_kind
-from garage_exp.perception.slots.detector import SlotKind, register_slot_kind
-from garage_exp.perception.slots.marks import MarkingPoint, SlotFrame
+from garage_exp.slots.detector import SlotKind, register_slot_kind
+from garage_exp.slots.marks import MarkingPoint, SlotFrame
 from garage_exp.scene.lenses import NO_K, Fisheye, register_lens
 from garage_exp.search.objectives import NOT_VISIBLE, Objective, register_objective
 
@@ -335,8 +335,8 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
     from garage_exp.core.plugins import import_plugins
     from garage_exp.perception.detect import make_detector
     from garage_exp.perception.detect.worker import DetectorProcess
-    from garage_exp.perception.slots.detector import load
-    from garage_exp.perception.slots.schema import SlotDetectorConf
+    from garage_exp.slots.detector import load
+    from garage_exp.slots.schema import SlotDetectorConf
     from garage_exp.scene.camera import check_camera, rig_specs
     from garage_exp.scene.lenses import lens_of
     from garage_exp.search import objectives

@@ -55,10 +55,10 @@ def cpnco(exported):
 def test_cpnco_exports_validate_against_the_asam_schemas_and_read_back(cpnco):
     from scenariogeneration import xosc
 
-    from garage_exp.exports.openscenario import lane_runs, turns
-    from garage_exp.scenario.xodr_read import read_roads
+    from garage_exp.openscenario.lanes import lane_runs, turns
+    from garage_exp.openscenario.xodr_read import read_roads
 
-    from garage_exp.scenario.asam import validate
+    from garage_exp.openscenario.asam import validate
 
     cfg, classified, setup, paths = cpnco
     assert [p.name for p in paths] == ["garage.xodr", "scenario.xosc"]
@@ -98,7 +98,7 @@ def assert_same_placements(original: list, again: list) -> None:
 
 def test_the_cpnco_export_imports_back_to_the_same_placements(cpnco, library, tmp_path):
     """Round trip: the imported case builds every frame's poses within 5 cm of the original's."""
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     cfg, classified, setup, paths = cpnco
     out = tmp_path / "conf" / "case" / "cpnco_rt.yaml"
@@ -112,7 +112,7 @@ def test_the_cpnco_export_imports_back_at_other_ego_speeds(cpnco, placed, librar
     """The child's timed arrival is a SynchronizeAction with the ego, not a trigger fixed for the exported speed:
     imported back and run at 5 or 20 km/h, the case builds the same frames as the original at that speed (with a
     trigger the child set off 10 frames early at 5 km/h, and was 2.5 m short of the ego's path at 20)."""
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     cfg, classified, setup, paths = cpnco
     assert "SynchronizeAction" in paths[1].read_text()
@@ -127,7 +127,7 @@ def test_the_cpnco_export_imports_back_at_other_ego_speeds(cpnco, placed, librar
 def test_a_reversing_ego_and_a_synchronised_walker_import_back(exported, library, tmp_path):
     """cpra's walking variant at 4 km/h (the ego reverses: a negative speed; the adult's walk is timed to meet
     it) exported and imported again: the same placements, frame for frame."""
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     cfg, classified, setup, paths = exported("cpra", 4)
     walking = paths[7]  # the seventh variant: adult walking 50 %
@@ -145,7 +145,7 @@ def test_a_stepout_job_with_export_openscenario_writes_both_files(tmp_path, mlfl
     """A job (three frames) writes openscenario/scenario.xosc and garage.xodr beside its frames."""
     from conftest import require, run_app
 
-    from garage_exp.scenario.asam import validate
+    from garage_exp.openscenario.asam import validate
 
     require("vulkan", "vehicles", "models")
     out = tmp_path / "run"
@@ -167,7 +167,7 @@ BAD_XOSC = {
 
 @pytest.mark.parametrize("name", sorted(BAD_XOSC))
 def test_a_bad_xosc_is_one_line_exit_2_and_nothing_written(name, tmp_path, capsys):
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     text, says = BAD_XOSC[name]
     path = tmp_path / name
@@ -182,7 +182,7 @@ def test_a_bad_xosc_is_one_line_exit_2_and_nothing_written(name, tmp_path, capsy
 def test_a_road_the_plan_cannot_place_is_refused(cpnco, tmp_path, capsys):
     """A lane position on a road the road file lacks, and an actor moved outside the plan: one line naming the
     element, exit 2."""
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     from lxml import etree
 
@@ -283,7 +283,7 @@ def test_a_foreign_file_maps_onto_the_sites_lane(tmp_path, capsys):
     everything else where it stood relative to the ego, the walk as a co-motion across the lane."""
     import yaml
 
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     (tmp_path / "road.xodr").write_text(FOREIGN_XODR)
     path = tmp_path / "crossing.xosc"
@@ -321,7 +321,7 @@ def test_a_synchronised_walk_becomes_meet_and_the_ego_stops_short(tmp_path, caps
 
     import yaml
 
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     (tmp_path / "road.xodr").write_text(FOREIGN_XODR)
     text = re.sub(r'<Action name="walk">.*?</Action>', SYNCHRONISED, FOREIGN_XOSC, flags=re.S)
@@ -356,8 +356,8 @@ def test_every_export_imports_back_to_the_job_s_frames_at_three_ego_speeds(case,
     import contextlib
     import io
 
-    from garage_exp.run.openscenario import variants_of
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.tracks import variants_of
+    from garage_exp.openscenario.xosc_import import main
 
     speeds = [4, 8, 10] if case == "cpra" else [5, 10, 20]
     for speed in speeds:

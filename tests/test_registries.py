@@ -126,8 +126,8 @@ def test_each_node_is_registered_beside_its_owner_and_core_names_no_layer_above_
 
     from garage_exp import config
     from garage_exp.core import config_nodes, schema
-    from garage_exp.exports.openscenario import ExportConf
-    from garage_exp.perception.slots.schema import SlotDetectorConf, SlotLinesConf
+    from garage_exp.openscenario.checks import ExportConf
+    from garage_exp.slots.schema import SlotDetectorConf, SlotLinesConf
     from garage_exp.results.late import EgoConf
     from garage_exp.scene.schema import BevSpec, CameraRigConf
     from garage_exp.search.schema import SearchConf

@@ -24,7 +24,7 @@ CASES = yaml.safe_load((CORPUS / "cases.yaml").read_text())
 BY_ID = {c["id"]: c for c in CASES}
 # `command`: which command an entry runs (default the main one), as its cli's "module:function" ("" = garage_exp's).
 COMMANDS = {"garage_exp": "", **{c: f"garage_exp.{c}.app:cli" for c in ("gym", "train", "loop", "verify")},
-            "scenario.import": "garage_exp.scenario.xosc_import:cli"}
+            "scenario.import": "garage_exp.openscenario.xosc_import:cli"}
 NOT_HYDRA = {"scenario.import"}  # commands of plain arguments: no hydra.run.dir or tracking.uri appended
 # Entries refused by a check that needs no model, so before any model loads (the preflight's order: a user waits
 # a second for the one line, not the detectors' loading): their children crash if one loads.

@@ -115,7 +115,7 @@ def test_a_graded_suite_reruns_to_the_same_frames_and_a_failed_trial_is_kept(tmp
 
     # export.openscenario=true: each scenario, and the study's hardest trials, as OpenSCENARIO + OpenDRIVE (schema-valid);
     # the trials' own jobs, lean, write none
-    from garage_exp.scenario.asam import validate
+    from garage_exp.openscenario.asam import validate
 
     for folder in [suite / "openscenario" / "any_1", suite / "openscenario" / "any_2",
                    *sorted((tmp_path / "sweep" / "search" / "openscenario").glob("rank*_trial*"))]:

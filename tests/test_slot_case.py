@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 from conftest import run_app
 
-from garage_exp.perception.slots.marks import SlotFrame
+from garage_exp.slots.marks import SlotFrame
 from garage_exp.tracking import runs as tracking
 
 SLOTS = ["plan=tiny", "camera=fisheye4", "case=slots", "case.motion.start=3.0", "case.motion.end=4.0",
@@ -21,7 +21,7 @@ SLOTS = ["plan=tiny", "camera=fisheye4", "case=slots", "case.motion.start=3.0", 
 @pytest.fixture(scope="module")
 def job(tmp_path_factory):
     """One job with a stand-in slot detector: it returns nothing, and the stand-in score counts the fair slots."""
-    import garage_exp.run.slots as run_slots
+    import garage_exp.slots.frames as run_slots
 
     tmp = tmp_path_factory.mktemp("slots")
     seen = []

@@ -1,5 +1,5 @@
-"""The slot detectors (garage_exp/perception/slots/detector.py) on synthetic bird's-eye views drawn with OpenCV
-(garage_exp/perception/slots/synthetic.py: grey floor with noise, white bay lines 0.15 m wide, a row of four
+"""The slot detectors (garage_exp/slots/detector.py) on synthetic bird's-eye views drawn with OpenCV
+(garage_exp/slots/synthetic.py: grey floor with noise, white bay lines 0.15 m wide, a row of four
 perpendicular bays, one holding a dark car): no rendering."""
 
 import math
@@ -12,11 +12,11 @@ from conftest import compose_cfg, schema_node
 from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
-from garage_exp.perception.slots.schema import SlotDetectorConf, SlotLinesConf, SlotMetricsConf
-from garage_exp.perception.slots.detector import check_slot_detector, check_slot_weights, from_pose, load
-from garage_exp.perception.slots.marks import SlotFrame
-from garage_exp.perception.slots.synthetic import bev_row
-from garage_exp.results.slots import pool, score
+from garage_exp.slots.schema import SlotDetectorConf, SlotLinesConf, SlotMetricsConf
+from garage_exp.slots.detector import check_slot_detector, check_slot_weights, from_pose, load
+from garage_exp.slots.marks import SlotFrame
+from garage_exp.slots.synthetic import bev_row
+from garage_exp.slots.results import pool, score
 
 SEEDS = range(4)
 
@@ -78,7 +78,7 @@ def test_an_empty_floor_has_no_slots():
 
 def test_the_callable_kind_loads_the_users_function(tmp_path, monkeypatch):
     (tmp_path / "my_slots.py").write_text(textwrap.dedent("""\
-        from garage_exp.perception.slots.marks import MarkingPoint, SlotFrame
+        from garage_exp.slots.marks import MarkingPoint, SlotFrame
 
         def detect(image, mpp):
             return SlotFrame([MarkingPoint(1.0, 2.0, 0.5)], [], mpp, (image.shape[1], image.shape[0]))
@@ -204,7 +204,7 @@ def test_a_line_end_at_unseen_pixels_gives_no_point_and_an_unseen_slot_no_occupa
     found = load(node())(image, truth.meters_per_pixel)
     m = score(truth, found, None, SlotMetricsConf())
     assert (m["point_tp"], m["point_fp"], m["point_fn"]) == (4, 0, 1)  # not a point at the black edge instead
-    from garage_exp.perception.slots.lines import occupancy
+    from garage_exp.slots.lines import occupancy
 
     seen = np.ones(image.shape[:2], bool)
     corners = truth.slots[0].corners

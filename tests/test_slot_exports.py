@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from garage_exp.core.errors import GarageError
-from garage_exp.exports.slots import SlotExports, read_coco_keypoints, read_ps2
-from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
-from garage_exp.perception.slots.truth import SlotTruth
+from garage_exp.slots.export import SlotExports, read_coco_keypoints, read_ps2
+from garage_exp.slots.marks import MarkingPoint, Slot, SlotFrame
+from garage_exp.slots.truth import SlotTruth
 
 
 def hand_made() -> SlotTruth:

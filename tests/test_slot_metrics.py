@@ -1,13 +1,13 @@
-"""PS2.0 slot metrics (garage_exp/results/slots.py) on hand-made frames: no images, no rendering."""
+"""PS2.0 slot metrics (garage_exp/slots/results.py) on hand-made frames: no images, no rendering."""
 
 import math
 from dataclasses import replace
 
 import pytest
 
-from garage_exp.perception.slots.schema import SlotMetricsConf
-from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
-from garage_exp.results.slots import pool, score
+from garage_exp.slots.schema import SlotMetricsConf
+from garage_exp.slots.marks import MarkingPoint, Slot, SlotFrame
+from garage_exp.slots.results import pool, score
 
 MPP = 0.02  # 0.17 m tolerance = 8.5 px
 DOWN = math.pi / 2  # into the slots: rows grow downwards

@@ -8,8 +8,8 @@ import math
 import pandas as pd
 import pytest
 
-from garage_exp.report.slots import hardest, pictures, section, slot_effects, slot_units
-from garage_exp.report.tables import markdown_table
+from garage_exp.slots.report import hardest, pictures, section, slot_effects, slot_units
+from garage_exp.report.tables import markdown_table, with_ci
 
 
 def frame(run, rep, tp, fn, fp=0, ptp=0, pfn=0, pfp=0, right=0, n=0):
@@ -38,7 +38,7 @@ def test_slot_units_pool_frames_and_effects_name_the_hardest_factor():
     assert wear.loc["worn", "n"] == 4 and wear.loc["worn", "slot_recall_low"] <= wear.loc["worn", "slot_recall"]
     factor, level, spread = hardest(effects)
     assert (factor, level) == ("wear", "worn") and spread > 0.5
-    text = "\n".join(section(effects, markdown_table))
+    text = "\n".join(section(effects, markdown_table, with_ci))
     assert "Hardest factor for slot recall: **wear**" in text and "light" in text
 
 
@@ -81,14 +81,14 @@ def test_levels_that_find_slots_alike_name_no_hardest_factor_and_show_no_frames(
     effects = slot_effects(obs, ["factor.wear"])
     assert hardest(effects) is None
     assert pictures(Store(tmp_path), obs, effects, tmp_path) == []
-    assert "Hardest factor" not in "\n".join(section(effects, markdown_table))
+    assert "Hardest factor" not in "\n".join(section(effects, markdown_table, with_ci))
 
 
 def test_no_scored_slots_no_section():
     runs = pd.DataFrame({"run_id": ["a"], "factor.light": ["dim"]})
     truth_only = pd.DataFrame([{"run_id": "a", "shot": 0, "slots": 5, "fair": 3}])  # no detector: no counts
     assert slot_units(runs, truth_only, ["factor.light"]).empty
-    assert section(pd.DataFrame(), markdown_table) == []
+    assert section(pd.DataFrame(), markdown_table, with_ci) == []
     unscored = slot_units(runs, pd.DataFrame([frame("a", 0, 0, 0)]), ["factor.light"])
     assert math.isnan(unscored.slot_recall.iloc[0]) and hardest(slot_effects(unscored, ["factor.light"])) is None
 

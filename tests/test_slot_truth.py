@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import compose_cfg
 
-from garage_exp.perception.slots.truth import (VISIBILITY, Obstacle, WorldBay, obstacles, paint_left, slot_truth,
+from garage_exp.slots.truth import (VISIBILITY, Obstacle, WorldBay, obstacles, paint_left, slot_truth,
                                                 texture_left, world_bays)
 from garage_exp.render.bev import bev_maps
 from garage_exp.scene.schema import BevSpec

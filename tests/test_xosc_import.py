@@ -15,7 +15,7 @@ from xosc_files import (CONTROLLER, EGO, PERSON, event, pedestrian, polyline, sc
 
 
 def imported(tmp_path, capsys, text: str, *args: str) -> tuple[dict, str]:
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     path = write(tmp_path, "s.xosc", text)
     out = tmp_path / "case" / "s.yaml"
@@ -32,7 +32,7 @@ def imported(tmp_path, capsys, text: str, *args: str) -> tuple[dict, str]:
     ("not ($a >= 2) or false", False), ("not ($a > 2)", True), ("$a >= 2 and $a != 3 and true", True), ("1 < $a < 3", True),
     ("$flag and 2 == 2", True)])
 def test_the_standards_expressions_evaluate(text, value):
-    from garage_exp.scenario.xosc_params import _evaluate
+    from garage_exp.openscenario.xosc_params import _evaluate
 
     assert _evaluate(text, {"a": "2", "flag": "true"}) == pytest.approx(value)
 
@@ -44,7 +44,7 @@ def test_the_standards_expressions_evaluate(text, value):
     ("__import__('os')", "no function __import__()"), ("[1, 2]", "not an OpenSCENARIO expression"),
     ("1 +", "syntax error"), ("(" * 300 + "1" + ")" * 300, "syntax error|nested too deeply")])
 def test_a_bad_expression_is_a_value_error(text, says):
-    from garage_exp.scenario.xosc_params import _evaluate
+    from garage_exp.openscenario.xosc_params import _evaluate
 
     with pytest.raises(ValueError, match=says.replace("(", r"\(").replace(")", r"\)")):
         _evaluate(text, {"a": "2"})
@@ -100,7 +100,7 @@ def test_the_size_table_is_the_vehicle_librarys():
 
 
 def test_no_target_is_refused_at_import_and_target_names_one(tmp_path, capsys):
-    from garage_exp.scenario.xosc_import import main
+    from garage_exp.openscenario.xosc_import import main
 
     text = scenario(vehicle("Ego") + vehicle("Parked", length=4.6), {**EGO, "Parked": teleport(40, 2.0)})
     path = write(tmp_path, "s.xosc", text)
@@ -128,7 +128,7 @@ def test_a_timed_polyline_walks(tmp_path, capsys):
 
 
 def test_a_timed_polyline_with_an_offset_and_uneven_legs(tmp_path, capsys):
-    from garage_exp.scenario.xosc_read import read
+    from garage_exp.openscenario.xosc_read import read
 
     walk = polyline([(45, -3.0), (45, 0.0), (45, 3.0)], times=[1.0, 2.0, 5.0]).replace('offset="0.0"/>',
                                                                                       'offset="0.5"/>')

@@ -30,12 +30,12 @@ def main() -> None:
     import cv2
     from PIL import Image
 
-    from garage_exp.exports.slots import draw_frame
-    from garage_exp.perception.slots.truth import obstacles, slot_truth, world_bays
+    from garage_exp.slots.export import draw_frame
+    from garage_exp.slots.truth import obstacles, slot_truth, world_bays
     from garage_exp.plan import classify, load_plan
     from garage_exp.render.bev import bev_maps
     from garage_exp.run.preflight import resolve_plan_path
-    from garage_exp.run.slots import bev_spec, finder
+    from garage_exp.slots.frames import bev_spec, finder
     from garage_exp.scenario.assemble import marking_wear
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -1,4 +1,4 @@
-"""The `lines` slot-detector baseline scored on synthetic bird's-eye views (garage_exp/perception/slots/synthetic.py):
+"""The `lines` slot-detector baseline scored on synthetic bird's-eye views (garage_exp/slots/synthetic.py):
 `python -m benchmarks.studies.slot_detector [--frames 40] [--png docs/img/slot_detector.png]`.
 
 Each condition is the same `--frames` seeds (the same layouts, cars and noise draws), drawn with the bay lines
@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from garage_exp.perception.slots.schema import SlotDetectorConf
-from garage_exp.perception.slots.detector import load
-from garage_exp.perception.slots.synthetic import bev_row
-from garage_exp.results.slots import pool, score
+from garage_exp.slots.schema import SlotDetectorConf
+from garage_exp.slots.detector import load
+from garage_exp.slots.synthetic import bev_row
+from garage_exp.slots.results import pool, score
 from garage_exp.results.stats import ratio_ci
 
 CONDITIONS = {  # name -> bev_row settings
@@ -75,7 +75,7 @@ def save_png(path: str, detect) -> None:
     the image that holds the bays and shrunk to 80 %."""
     import cv2
 
-    from garage_exp.perception.slots.draw import TRUTH, draw_slots
+    from garage_exp.slots.draw import TRUTH, draw_slots
 
     panels = []
     for label, settings in (("fresh", {}), ("worn 0.7", {"wear": 0.7})):

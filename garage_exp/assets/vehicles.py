@@ -121,7 +121,7 @@ def size_class_of(length: float, height: float) -> str:
 
 # The size classes the library files each kind under (its models, above): cars are small or medium (none is over
 # 5.0 m long or 1.9 m tall), SUVs medium, and everything large is a pickup, van, bus or truck. An importer asking
-# for a vehicle by its size and kind asks for one of these (garage_exp/scenario/xosc_import.py).
+# for a vehicle by its size and kind asks for one of these (garage_exp/openscenario/xosc_import.py).
 SIZES_OF_KIND = {"car": ("small", "medium"), "suv": ("medium",), "pickup": ("large",), "van": ("large",),
                  "bus": ("large",), "truck": ("large",)}
 

@@ -1,6 +1,6 @@
 """`python -m garage_exp.exports DATASET [IMAGE] -o out.png` draws one exported frame: its COCO boxes (green,
 visible part yellow) and its KITTI 3D boxes projected with the calib's P2 (red); given a job's `slots/` export
-(bird's-eye views, garage_exp/exports/slots.py), its slots read back from the COCO keypoints (red occupied, green
+(bird's-eye views, garage_exp/slots/export.py), its slots read back from the COCO keypoints (red occupied, green
 free) and marking points. Bad input: one line, exit 2."""
 
 from __future__ import annotations
@@ -17,10 +17,11 @@ COMMAND = shell.Command("garage_exp.exports")
 def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
-    from garage_exp.exports import show, slots
+    from garage_exp.exports import show
+    from garage_exp.slots import export as slot_export
 
-    slot_export = (args.dataset / "coco_keypoints.json").exists()
-    rgb, name = (slots.draw if slot_export else show.draw)(args.dataset, args.image)
+    slots = (args.dataset / "coco_keypoints.json").exists()
+    rgb, name = (slot_export.draw if slots else show.draw)(args.dataset, args.image)
     out = args.output or Path(f"exports_{name}")
     Image.fromarray(rgb).save(out)
     print(out)

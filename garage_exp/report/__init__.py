@@ -20,11 +20,12 @@ import pandas as pd
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
 from garage_exp.results import stats
+from garage_exp.slots import report as slots
 from garage_exp.tracking import runs as tracking
-from garage_exp.report import plots, slots, visibility
+from garage_exp.report import plots, visibility
 from garage_exp.report.tables import (breakdown, by_camera, child_runs, factors_of, late_table, main_effects,
                                       markdown_table, number, pair_effects, parse_overrides, pivot, significance,
-                                      significance_text, summary, units)
+                                      significance_text, summary, units, with_ci)
 
 __all__ = ["child_runs", "factors_of", "main_effects", "markdown", "pair_effects", "parse_overrides",
            "summary", "sweep_report", "latest_parent", "main"]
@@ -81,7 +82,7 @@ def markdown(runs: pd.DataFrame, obs: pd.DataFrame, effects: pd.DataFrame, pairs
         text += ["## Visible fraction at which recall crosses 0.5 (logistic fit, 95 % CI)\n",
                  markdown_table(curves.drop(columns="fit"))]
     if slot_effects is not None:
-        text += slots.section(slot_effects, markdown_table)
+        text += slots.section(slot_effects, markdown_table, with_ci)
     if len(failed):
         text += ["## Failed runs\n", markdown_table(failed[["run_name", "status", "error"]])]
     if len(skipped):
@@ -118,7 +119,7 @@ def write_report(mlc, parent_run_id: str, runs: pd.DataFrame, out: Path) -> None
     tables = {BREAKDOWN_TITLES[w]: breakdown(frames, runs, factors, w) for w in BREAKDOWN_TITLES}
     bins, curves = visibility.by_bins(frames, runs), visibility.curves(frames, runs)
     cameras = by_camera(frames, runs, factors)
-    slot_obs = slots.slot_units(runs, slots.slot_tables(mlc, runs), factors)
+    slot_obs = slots.slot_units(runs, visibility.run_tables(mlc, runs, "slots.csv"), factors)
     slot_effects = slots.slot_effects(slot_obs, factors) if not slot_obs.empty else pd.DataFrame()
     for name, df in (("runs", runs), ("units", obs), ("main_effects", effects), ("pair_effects", pairs),
                      ("anova", anova), ("labels", tables[BREAKDOWN_TITLES["label"]]),

@@ -21,8 +21,8 @@ from garage_exp.results import table as frame_table
 from garage_exp.results.summary import JobSummary
 from garage_exp.run.pipeline import FramePipeline
 from garage_exp.scenario import CaseSetup
-from garage_exp.run.slots import SlotFrames, slot_line
-from garage_exp.run.slots import wanted as slot_frames_wanted
+from garage_exp.slots.frames import SlotFrames, slot_line
+from garage_exp.slots.frames import wanted as slot_frames_wanted
 from garage_exp.run.spec import JobSpec
 from garage_exp.scenario.fits import hint
 

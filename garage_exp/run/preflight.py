@@ -111,7 +111,7 @@ def check_config(cfg) -> None:
     """Every group's values, by its owner's check (the schema already checked the types); no plan or assets
     needed. `cfg`: the composed config, or it as `Settings` (what the checks are handed: plain data)."""
     from garage_exp.perception.detect.detector import check_detector
-    from garage_exp.perception.slots.detector import check_slot_detector
+    from garage_exp.slots.detector import check_slot_detector
     from garage_exp.render.open import check_renderer
     from garage_exp.results.late import check_ego
     from garage_exp.scenario import check_case
@@ -124,7 +124,7 @@ def check_config(cfg) -> None:
     from garage_exp.scene.parking import check_palette
     from garage_exp.scene.structure import check_garage
     from garage_exp.core.plugins import build
-    from garage_exp.exports.openscenario import check_export
+    from garage_exp.openscenario.checks import check_export
 
     from garage_exp.run.spec import scene_spec
 
@@ -155,7 +155,7 @@ def check_config(cfg) -> None:
 def check_slots(cfg) -> None:
     """A bird's-eye view (`camera.bev.enabled`, or a case with `slots: true` on a fisheye rig) is stitched from
     raw fisheye pictures over a sane extent. A slot case on a rig without fisheyes runs as an object case
-    (run/slots.py)."""
+    (slots/frames.py)."""
     from garage_exp.render.bev import check_bev
     from garage_exp.scene.lenses import rig_has
 
@@ -198,7 +198,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     detector = None
     if not cfg.dry_run:
         from garage_exp.perception.detect import build_detector
-        from garage_exp.perception.slots.detector import check_slot_weights
+        from garage_exp.slots.detector import check_slot_weights
 
         detector = build_detector(config.detector)  # a missing file or unknown format fails here (nothing downloaded)
         check_slot_weights(config.slot_detector)
@@ -212,7 +212,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
             raise
         raise exc.again(f"{exc}; {where}", None) from None
     if cfg.export.openscenario:
-        from garage_exp.exports.openscenario import check_version
+        from garage_exp.openscenario.checks import check_version
 
         check_version(str(cfg.export.openscenario_version), setup)
     if not cfg.dry_run:

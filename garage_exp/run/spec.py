@@ -62,14 +62,28 @@ def job_names(cfg) -> JobNames:
     return JobNames(str(cfg.case.name), str(cfg.light.name), str(cfg.sensor.name), str(cfg.plan.name))
 
 
+def config_sources() -> tuple[tuple[str, ...], dict[str, Any]]:
+    """The command's config folders and group choices (Hydra's runtime), read here, at the job, so that the scene
+    builder is handed them (scenario/build.py's level_file names the file a bad value came from); none outside a
+    Hydra app (tests, the sweep's preflight)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    try:
+        runtime = HydraConfig.get().runtime
+    except ValueError:
+        return (), {}
+    return tuple(s.path for s in runtime.config_sources if s.schema == "file"), dict(runtime.choices)
+
+
 def scene_spec(cfg) -> SceneSpec:
     """The scene builder's settings from the job's composed config (a job's, a search trial's, the adversary's)."""
     group = lambda key: settings(cfg.get(key)) or Settings()  # noqa: E731 - a config without the group: none set
+    dirs, choices = config_sources()
     return SceneSpec(garage=group("garage"), light=group("light"), palette=group("palette"), camera=group("camera"),
                      case=group("case"), occluder=group("occluder"), replicate=group("replicate"), look=group("look"),
                      materials=group("materials"), clutter=group("clutter"), modifiers=group("modifiers"),
                      ego=group("ego"), seed=int(cfg.get("seed") or 0), replicates=int(cfg.get("replicates", 1)),
-                     blank=bool(cfg.get("blank")))
+                     blank=bool(cfg.get("blank")), config_dirs=dirs, choices=choices)
 
 
 def job_spec(cfg, detector=None, scene: SceneSpec | None = None, config: Settings | None = None) -> JobSpec:

@@ -244,15 +244,8 @@ def level_file(job: SceneSpec, group: str) -> str:
     scenario) when one set them, else the group's level (named as its `name`); else `group=NAME`."""
     from garage_exp.core.paths import PROJECT_ROOT
 
-    dirs, choices = [], {}
-    try:
-        from hydra.core.hydra_config import HydraConfig
-
-        runtime = HydraConfig.get().runtime
-        dirs = [s.path for s in runtime.config_sources if s.schema == "file"]
-        choices = dict(runtime.choices)
-    except ValueError:  # composed outside a Hydra app (tests, the sweep's preflight)
-        pass
+    # the command's config sources as the job read them (SceneSpec: the scene builder reads no Hydra state)
+    dirs, choices = list(getattr(job, "config_dirs", ())), dict(getattr(job, "choices", {}))
     folders = [*dirs, str(PROJECT_ROOT / "conf")]
     setting = [path for other, level in choices.items() if other != group and level
                for path in [_file_of(folders, other, str(level))] if path and _sets(path, group)]

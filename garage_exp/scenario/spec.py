@@ -5,7 +5,7 @@ never the job's config node. `run.spec.scene_spec` builds it from the composed c
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from garage_exp.core.plain import Settings
@@ -28,6 +28,10 @@ class SceneSpec:
     seed: int
     replicates: int = 1
     blank: bool = False
+    # where the command's config came from (Hydra's file sources and group choices, read by the job: run/spec.py),
+    # for errors that name the YAML file a value came from (build.level_file); none outside a Hydra app
+    config_dirs: tuple[str, ...] = ()
+    choices: Mapping[str, Any] = field(default_factory=dict)
 
     def get(self, key: str, default: Any = None) -> Any:
         """A setting by name, `default` when the job has none (as a config node's `get` reads)."""

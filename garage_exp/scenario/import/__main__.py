@@ -1,4 +1,4 @@
-from garage_exp.scenario.xosc_import import cli
+from garage_exp.openscenario.xosc_import import cli
 
 if __name__ == "__main__":
     cli()

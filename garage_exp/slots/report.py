@@ -1,8 +1,8 @@
 """The sweep report's slot section (issue 25): how well slots were found on the bird's-eye view, per factor level,
 with 95 % intervals over units, and which factor makes slot finding hardest.
 
-A run of a slot case logs `slots.csv` (garage_exp/run/slots.py): one row per BEV frame with the slot detector's
-counts (results/slots.score: point_tp, point_fp, point_fn, slot_tp, slot_fp, slot_fn, occupancy_right,
+A run of a slot case logs `slots.csv` (garage_exp/slots/frames.py): one row per BEV frame with the slot detector's
+counts (slots/results.score: point_tp, point_fp, point_fn, slot_tp, slot_fp, slot_fn, occupancy_right,
 occupancy_n; fair truth slots only). A unit is a run's replicate, as for the object metrics: its frames' counts
 are pooled into rates (PS2.0's recall and precision over all its frames), and intervals are bootstrapped over
 units, never frames.
@@ -24,13 +24,6 @@ RATES = {"slot_recall": ("slot_tp", "slot_fn"), "slot_precision": ("slot_tp", "s
          "slot_point_recall": ("point_tp", "point_fn"), "slot_point_precision": ("point_tp", "point_fp"),
          "slot_occupancy_acc": ("occupancy_right", None)}
 RESPONSES = list(RATES)
-
-
-def slot_tables(mlc, runs: pd.DataFrame) -> pd.DataFrame:
-    """Every finished run's `slots.csv` with its run id; runs without one (object cases) are left out."""
-    from garage_exp.report.visibility import run_tables
-
-    return run_tables(mlc, runs, "slots.csv")
 
 
 def _rate(num: float, den: float) -> float:
@@ -80,13 +73,12 @@ def hardest(effects: pd.DataFrame, response: str = "slot_recall") -> tuple[str, 
     return best  # None too when no factor's levels differ
 
 
-def section(effects: pd.DataFrame, markdown_table) -> list[str]:
-    """The report's slot section (markdown lines); none when no run scored slots."""
+def section(effects: pd.DataFrame, markdown_table, with_ci) -> list[str]:
+    """The report's slot section (markdown lines); none when no run scored slots. The sweep report hands over its
+    table and interval formats (report/tables.py's markdown_table and with_ci: the report sits above slots)."""
     if effects.empty:
         return []
     cells = effects.copy()
-    from garage_exp.report.tables import with_ci
-
     for r in RESPONSES:
         cells[r] = [with_ci(m, lo, hi) for m, lo, hi in zip(cells[r], cells[f"{r}_low"], cells[f"{r}_high"])]
     table = cells[["factor", "level", "n", *RESPONSES]]

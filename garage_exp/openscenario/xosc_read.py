@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from garage_exp.core.errors import GarageError
-from garage_exp.scenario.xodr_read import read_roads
-from garage_exp.scenario.xosc_params import Values
+from garage_exp.openscenario.xodr_read import read_roads
+from garage_exp.openscenario.xosc_params import Values
 
 
 @dataclass
@@ -98,7 +98,7 @@ class Reader:
         """The catalog element a CatalogReference names, with its parameters in scope (pushed: pop after)."""
         name, entry = self.values.get(ref, "catalogName"), self.values.get(ref, "entryName")
         folders = [self.values.get(d, "path") for d in self.root.findall("CatalogLocations/*/Directory")]
-        from garage_exp.scenario.asam import parse
+        from garage_exp.openscenario.asam import parse
 
         for folder in folders:
             for file in sorted((self.path.parent / folder).glob("*.xosc")):
@@ -256,7 +256,7 @@ def along_polyline(pts: list[tuple[float, float]], s: float) -> tuple[float, flo
 
 def read(path: Path, params: dict[str, str] | None = None) -> Read:
     """The file, schema-checked, as plain data (module docstring)."""
-    from garage_exp.scenario.asam import parse, validate
+    from garage_exp.openscenario.asam import parse, validate
 
     tree = parse(path)
     validate(path, tree)

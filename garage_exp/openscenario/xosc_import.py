@@ -30,7 +30,7 @@ import yaml
 from garage_exp.assets.vehicles import SIZES_OF_KIND, size_class_for, size_class_of
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError
-from garage_exp.scenario.xosc_read import Read, read
+from garage_exp.openscenario.xosc_read import Read, read
 
 STEP = 0.5  # m a frame of the ego's motion (the case's default)
 SWEEP = 0.25  # m a frame of a static case's sweep (the pedestrian case's)

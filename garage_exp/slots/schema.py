@@ -1,4 +1,4 @@
-"""The `slot_detector` group's schema, beside its check (perception/slots/detector.check_slot_detector), registered
+"""The `slot_detector` group's schema, beside its check (slots/detector.check_slot_detector), registered
 as a config node here (core/config_nodes.py).
 """
 
@@ -12,7 +12,7 @@ from garage_exp.core.config_nodes import register_node
 
 @dataclass
 class SlotLinesConf:
-    """The `lines` baseline's settings (garage_exp/perception/slots/lines.py), in metres where lengths."""
+    """The `lines` baseline's settings (garage_exp/slots/lines.py), in metres where lengths."""
 
     line_width: tuple[float, float] = (0.08, 0.25)  # painted line widths it looks for
     min_contrast: float = 20.0  # paint at least this much brighter than the floor beside it (0-255 grey levels)
@@ -29,7 +29,7 @@ class SlotLinesConf:
 
 @dataclass
 class SlotMetricsConf:
-    """PS2.0's matching tolerances (garage_exp/results/slots.py). PS2.0 images are 600 px for 10 m, and a
+    """PS2.0's matching tolerances (garage_exp/slots/results.py). PS2.0 images are 600 px for 10 m, and a
     marking point matches within 10 px (0.167 m) and 30 degrees."""
 
     point_tolerance_m: float = 0.17
@@ -39,14 +39,14 @@ class SlotMetricsConf:
 
 @dataclass
 class SlotDetectorConf:
-    """The slot detector run on the BEV (garage_exp/perception/slots/detector.py): `lines`, the classical
+    """The slot detector run on the BEV (garage_exp/slots/detector.py): `lines`, the classical
     baseline (no weights); `callable`, the user's function `detect: {_target_: package.module.function, ...}`
     (called with the BEV RGB image and its metres per pixel, then the node's other keys, returning a SlotFrame); `pose`, an ultralytics pose model `model`
     (.pt) whose keypoints are a slot's four corners (`keypoints: corners`) or a marking point and a point along
     its direction (`keypoints: points`)."""
 
     name: str = "lines"
-    kind: str = "lines"  # a registered kind (perception/slots/detector.py KINDS): lines | callable | pose
+    kind: str = "lines"  # a registered kind (slots/detector.py KINDS): lines | callable | pose
     detect: Any = None  # callable: {_target_: package.module.function, ...its keyword arguments}
     target: str = ""  # the old form of `detect` ("package.module:function"): refused, naming the new one
     model: str = ""  # pose: path to the .pt

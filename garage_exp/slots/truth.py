@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from garage_exp.core.state import STATE
-from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
+from garage_exp.slots.marks import MarkingPoint, Slot, SlotFrame
 from garage_exp.render.bev import BevMaps, BevSpec
 from garage_exp.scene.bays import BAY_TYPES, Bay, bays, layout
 from garage_exp.scene.camera import camera_to_world, to_camera

@@ -42,7 +42,7 @@ class Road:
 
 def read_roads(xodr: Path) -> tuple[dict[str, Road], dict[str, str]]:
     """The OpenDRIVE file's straight roads by id; and each other road's reason it cannot be placed."""
-    from garage_exp.scenario.asam import parse
+    from garage_exp.openscenario.asam import parse
 
     roads, refused = {}, {}
     for road in parse(xodr).getroot().iter("road"):

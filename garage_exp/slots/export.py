@@ -11,7 +11,7 @@ A job with slots (`case=slots`) writes under `slots/`:
   entrance_1, entrance_2, back_2, back_1 and COCO's visibility flags: 2 seen, 1 hidden (by a car, a person or a
   pillar, or under the ego), 0 off the image. A corner's coordinates are written whatever its flag (COCO's tools
   skip the flag-0 ones), so the slot reads back whole;
-- `truth/STEM.json`: the full ground truth (garage_exp/perception/slots/truth.py: visibility per corner,
+- `truth/STEM.json`: the full ground truth (garage_exp/slots/truth.py: visibility per corner,
   fairness, each corner in each camera).
 `read_ps2` and `read_coco_keypoints` read them back into SlotFrames.
 """
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from garage_exp.core.errors import GarageError
-from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
+from garage_exp.slots.marks import MarkingPoint, Slot, SlotFrame
 
 SHAPES = {"T": 0, "L": 1}
 KEYPOINTS = ["entrance_1", "entrance_2", "back_2", "back_1"]

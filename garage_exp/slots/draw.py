@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from garage_exp.perception.slots.marks import SlotFrame
+from garage_exp.slots.marks import SlotFrame
 
 TRUTH = (0, 220, 0)  # RGB
 FOUND = (255, 40, 200)

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
-from garage_exp.perception.slots.schema import SlotLinesConf
+from garage_exp.slots.marks import MarkingPoint, Slot, SlotFrame
+from garage_exp.slots.schema import SlotLinesConf
 
 INSET = 0.2  # the occupancy test skips this share of the quad at its edges (the lines, a neighbour's overhang)
 MERGE_DEG = 5.0  # Hough segments within this angle may be one painted line

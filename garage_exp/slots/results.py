@@ -20,7 +20,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from garage_exp.perception.slots.marks import SlotFrame
+from garage_exp.slots.marks import SlotFrame
 
 COUNTS = ("point_tp", "point_fp", "point_fn", "slot_tp", "slot_fp", "slot_fn", "occupancy_right", "occupancy_n",
           "point_error_sum_m", "point_angle_sum_deg")

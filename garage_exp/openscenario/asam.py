@@ -1,8 +1,8 @@
 """The ASAM schemas (XSD) of OpenSCENARIO and OpenDRIVE that `scenariogeneration` ships, and a check of a file
 against them that fails with one line naming the file and the element.
 
-Shared by the exporter (garage_exp/exports/openscenario.py: its tests validate what it writes) and the importer
-(garage_exp/scenario/xosc_import.py: a file that fails the schema is refused before anything is read from it).
+Shared by the writers (xosc_write.py, xodr_write.py: their tests validate what they write) and the importer
+(garage_exp/openscenario/xosc_import.py: a file that fails the schema is refused before anything is read from it).
 """
 
 from __future__ import annotations

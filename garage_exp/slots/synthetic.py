@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
+from garage_exp.slots.marks import MarkingPoint, Slot, SlotFrame
 
 ASPHALT = np.array([62.0, 62.0, 66.0])
 BAY_FLOOR = np.array([118.0, 114.0, 104.0])

@@ -3,7 +3,7 @@
 `load(conf)` returns `detect(image, meters_per_pixel) -> SlotFrame` (image: BEV RGB uint8 (H, W, 3)) of the
 node's kind (`slot_detector.kind`). The kinds are a registry, each registered beside its class with
 `@register_slot_kind(NAME)` (a `SlotKind`: `check`, `weights`, `load`), so adding one is one module with its class:
-- `lines`: the classical baseline (garage_exp/perception/slots/lines.py), no weights;
+- `lines`: the classical baseline (garage_exp/slots/lines.py), no weights;
 - `callable`: the user's function, named by `detect._target_` like every component a config names and built the
   project's one way (core.plugins.build, as a partial: the node's other keys are its keyword arguments; the
   module must lie under garage_exp. or a prefix in $GARAGE_EXP_MODIFIER_MODULES);
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from garage_exp.core.errors import GarageError, check_range, did_you_mean
 from garage_exp.core.plain import plain
-from garage_exp.perception.slots.marks import MarkingPoint, Slot, SlotFrame
+from garage_exp.slots.marks import MarkingPoint, Slot, SlotFrame
 
 KEYPOINTS = ("corners", "points")
 Detect = Callable[[np.ndarray, float], SlotFrame]
@@ -113,12 +113,12 @@ def load(conf: Any) -> Detect:
 
 @register_slot_kind("lines")
 class Lines(SlotKind):
-    """The classical baseline (perception/slots/lines.py), no weights."""
+    """The classical baseline (slots/lines.py), no weights."""
 
     @staticmethod
     def load(conf: Any) -> Detect:
-        from garage_exp.perception.slots.lines import detect as detect_lines
-        from garage_exp.perception.slots.schema import SlotLinesConf
+        from garage_exp.slots.lines import detect as detect_lines
+        from garage_exp.slots.schema import SlotLinesConf
 
         # plain attribute reads in the detector's loops (a config node's are slow); missing keys take the defaults
         params = conf.lines if isinstance(conf.lines, SlotLinesConf) else SlotLinesConf(**plain(conf.lines))
@@ -212,7 +212,7 @@ def from_pose(result: Any, keypoints: str, mpp: float, size: tuple[int, int], li
     entrance to the back; classes named free/occupied give its occupancy.
     points: each object a marking point, K >= 2: the point and a point along its direction; a class named T or L
     gives its shape; slots are paired as the lines baseline pairs them (lines.bay_width, lines.depth)."""
-    from garage_exp.perception.slots.lines import pair_points
+    from garage_exp.slots.lines import pair_points
 
     xy = _numpy(result.keypoints.xy) if result.keypoints is not None else np.zeros((0, 0, 2))
     n = len(xy)

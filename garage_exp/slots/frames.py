@@ -2,11 +2,12 @@
 
 Active when the case asks for slots (`case.slots`) on a rig with fisheyes, or `camera.bev.enabled`. Each shot's
 fisheye pictures (what the detectors get: after the sensor model) are stitched into the BEV (render/bev.py); the slot
-ground truth for the ego's pose there (perception/slots/truth.py) is exported (exports/slots.py: slots/ under
+ground truth for the ego's pose there (slots/truth.py) is exported (slots/export.py: slots/ under
 the job's dir, logged), and the `slot_detector` group's detector runs on the BEV and is scored against the truth
-(results/slots.py), fair slots only. Per frame: `slots.csv` (a row per BEV frame); per job:
+(slots/results.py), fair slots only. Per frame: `slots.csv` (a row per BEV frame); per job:
 the pooled metrics `slot_point_recall`, `slot_point_precision`, `slot_recall`, `slot_precision`,
-`slot_occupancy_acc` and the truth's counts (`slot_truth_*`), logged with the job's other metrics.
+`slot_occupancy_acc` and the truth's counts (`slot_truth_*`), logged with the job's other metrics. The job's
+frame loop (run/frames.py) drives it, handing it the job's config as plain data (Settings).
 """
 
 from __future__ import annotations
@@ -16,17 +17,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig
-
+from garage_exp.core.plain import Settings
 from garage_exp.scene.lenses import rig_has
 
-# results.slots' names -> the job's metric names
+# slots.results' names -> the job's metric names
 METRICS = {"point_recall": "slot_point_recall", "point_precision": "slot_point_precision",
            "slot_recall": "slot_recall", "slot_precision": "slot_precision",
            "occupancy_accuracy": "slot_occupancy_acc", "point_error_m": "slot_point_error_m"}
 
 
-def wanted(cfg: DictConfig) -> bool:
+def wanted(cfg: Settings) -> bool:
     """A BEV is set on the rig, or the case asks for slots and the rig has fisheyes to stitch (a slot case on
     a pinhole rig runs as an object case, and says so)."""
     if cfg.camera.bev.enabled:
@@ -40,24 +40,24 @@ def wanted(cfg: DictConfig) -> bool:
     return False
 
 
-def bev_spec(cfg: DictConfig):
+def bev_spec(cfg: Settings):
     from garage_exp.render.bev import spec_of
 
     return spec_of(cfg.camera.bev)
 
 
-def finder(cfg: DictConfig):
+def finder(cfg: Settings):
     """(detect, score, pool, metrics conf) from the `slot_detector` group (`lines` unless another is chosen)."""
     conf = cfg.slot_detector
-    from garage_exp.perception.slots.detector import load
-    from garage_exp.results.slots import pool, score
+    from garage_exp.slots.detector import load
+    from garage_exp.slots.results import pool, score
 
     return load(conf), score, pool, conf.get("metrics")
 
 
 @dataclass
 class SlotFrames:
-    cfg: DictConfig
+    cfg: Settings
     scene: object
     out: Path
     spec: object
@@ -73,8 +73,8 @@ class SlotFrames:
     @classmethod
     def open(cls, cfg, prepared, out: Path) -> "SlotFrames":
         from garage_exp.core.plain import settings
-        from garage_exp.exports.slots import SlotExports
-        from garage_exp.perception.slots.truth import world_bays
+        from garage_exp.slots.export import SlotExports
+        from garage_exp.slots.truth import world_bays
         from garage_exp.render.bev import bev_maps
         from garage_exp.scenario.assemble import marking_wear
 
@@ -100,8 +100,8 @@ class SlotFrames:
             self._frame(shot, self.waiting.pop(shot.index))
 
     def _frame(self, shot, pictures: dict) -> None:
-        from garage_exp.exports.slots import draw_frame
-        from garage_exp.perception.slots.truth import obstacles, slot_truth
+        from garage_exp.slots.export import draw_frame
+        from garage_exp.slots.truth import obstacles, slot_truth
 
         bev = self.maps.stitch({k: v for k, v in pictures.items() if k in self.maps.cameras})
         truth = slot_truth(self.world, self.spec, shot.ego, self.scene.cameras, self.maps,
@@ -137,7 +137,7 @@ class SlotFrames:
     def _write_found(self, stem: str, found) -> None:
         import json
 
-        from garage_exp.exports.slots import ps2_record
+        from garage_exp.slots.export import ps2_record
 
         (self.out / "slots" / "found").mkdir(exist_ok=True)
         (self.out / "slots" / "found" / f"{stem}.json").write_text(json.dumps(ps2_record(found)))
