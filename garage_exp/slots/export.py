@@ -111,7 +111,7 @@ class SlotExports:
         self.annotations: list[dict] = []
 
     def add(self, stem: str, bev_rgb: np.ndarray, truth) -> Path:
-        """One BEV frame: `truth` is a perception.slots.truth.SlotTruth. Returns the image's path."""
+        """One BEV frame: `truth` is a slots.truth.SlotTruth. Returns the image's path."""
         from PIL import Image
 
         image = self.root / "images" / f"{stem}.png"
