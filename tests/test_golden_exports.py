@@ -85,7 +85,7 @@ def slot_files(out: Path) -> dict[str, bytes]:
     from conftest import compose_cfg
     from omegaconf import OmegaConf
 
-    from garage_exp.core.schema import BevConf
+    from garage_exp.scene.schema import BevSpec
     from garage_exp.slots.export import SlotExports, ps2_record
     from garage_exp.slots.detector import load
     from garage_exp.slots.schema import SlotDetectorConf
@@ -100,7 +100,7 @@ def slot_files(out: Path) -> dict[str, bytes]:
     cfg = compose_cfg(*SLOTS)
     prepared = preflight(cfg, check_space=False, load=False)
     scene = prepared.scene
-    spec = spec_of(BevConf())
+    spec = spec_of(BevSpec())
     ego = next(v for v in scene.vehicles() if v.role == "ego")
     maps = bev_maps(scene.cameras, spec, ego.extent)
     world = world_bays(prepared.classified, cfg.garage, 0.3)
