@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import copy
 import math
+import shlex
 
 import gymnasium
 import numpy as np
@@ -146,7 +147,7 @@ class SpaceEnv(gymnasium.Env):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(len(self.params),), dtype=np.float32)
         self.observation_space = spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)
         self.renders = self.draws = self.rejected = 0
-        self.job = None  # the last draw's job config (what an export writes)
+        self.job = self.detector = None  # the last draw's job config; the detector child
         self._lines = {}  # override line -> parsed override (a choice's levels recur)
         self.prepare(space_mod.middle_point(self.space))  # the middle's job: the detector loads (or is refused) now
 
@@ -181,6 +182,7 @@ class SpaceEnv(gymnasium.Env):
             prepared = preflight(job, check_space=False)
         except Infeasible:
             return job, None
+        self.detector = prepared.opened  # the process's detector child (train.py counts its CPU time)
         return job, prepared
 
     # -- the episode ------------------------------------------------------------------------------------------------
@@ -232,13 +234,7 @@ class SpaceEnv(gymnasium.Env):
         actors = [in_view(scene, s.poses, placed_only=True) for s in shots]
         rows = []
         for item, dets in pipeline.detect_shots(shots, prepared.spec.primary, actors, [rng] * len(shots)):
-            score, target = pipeline.score(item, dets), item.target
-            row = {"frame": len(rows),
-                   "distance": round(target.distance, 4) if target else math.nan,
-                   "visible_fraction": round(target.visible_fraction, 6) if target else 0.0,
-                   "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
-                   "truncation": round(target.truncation, 4) if target else math.nan,
-                   "composite": round(float(score.composite), 6), "detected": bool(score.detected)}
+            row = {"frame": len(rows), **reward.measured(item.target, pipeline.score(item, dets))}
             row["fair"] = reward.fair(row, self.search)
             rows.append(row)
         self.renders += len(rows)
@@ -276,8 +272,8 @@ class SpaceEnv(gymnasium.Env):
                 continue
             count[band] = count.get(band, 0) + 1
             rows.append({"scenario": f"{band}_{count[band]}", "band": band, "difficulty": r["difficulty"],
-                         "episode": k, "command": " ".join(["python -m garage_exp", *self.rerun_fixed(),
-                                                            *r["overrides"]])})
+                         "episode": k, "command": shlex.join(["python", "-m", "garage_exp", *self.rerun_fixed(),
+                                                               *r["overrides"]])})
         path = root / "manifest.csv"
         pd.DataFrame(rows, columns=["scenario", "band", "difficulty", "episode", "command"]).to_csv(path, index=False)
         return [path]
