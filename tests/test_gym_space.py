@@ -106,3 +106,32 @@ def test_the_command_checks_the_space_env(tmp_path):
                         f"hydra.run.dir={tmp_path / 'run'}"], tmp_path, entry=cli)
     assert r.returncode == 0, r.stderr[-2000:]
     assert f"the env checker passed; a random draw of space wide ({len(wide_factors())} factors)" in r.stdout
+
+
+@pytest.mark.slow
+def test_training_on_the_space_counts_hard_draws_and_their_acceptance(tmp_path):
+    """A tiny PPO run on space=wide through the command line: episodes.csv holds one draw an episode with its hard
+    verdict and why a draw was rejected; the summary counts the draws and the rejected ones; the trained
+    policy's draws go into a manifest of rerun commands."""
+    require("vulkan", "vehicles", "models")
+    import json
+
+    import pandas as pd
+
+    from conftest import run_in_process
+
+    from garage_exp.gym.app import cli
+
+    out = tmp_path / "run"
+    r = run_in_process([*FAST, "gym.timesteps=4", "gym.n_steps=4", "gym.batch_size=4", "gym.eval_episodes=2",
+                        f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}", f"hydra.run.dir={out}"], tmp_path,
+                       entry=cli)
+    assert r.returncode == 0, r.stderr[-2000:]
+    episodes = pd.read_csv(out / "episodes.csv")
+    assert list(episodes.phase.value_counts().sort_index()) == [2, 2, 4]  # after, before, train
+    assert {"hard_fair", "rejected", "param.case.actors.target.distance"} <= set(episodes.columns)
+    result = json.loads((out / "result.json").read_text())
+    assert result["draws"] == 8 and result["rejected"] == episodes.rejected.notna().sum()
+    assert "hard rate" in r.stdout and "draws of space wide" in r.stdout
+    manifest = pd.read_csv(out / "suite" / "manifest.csv")
+    assert list(manifest.columns) == ["scenario", "band", "difficulty", "episode", "command"]

@@ -150,6 +150,8 @@ def run_train(cfg: DictConfig, env, out: Path, venv=None) -> dict:
             run.log_metrics({"episode_return": r["return"], "episode_late": float(r[key]),
                              "episode_renders": r["renders"]}, step=k)
         summary = {"train_episodes": len(result["train"]), "renders": result["renders"], "wall_s": result["wall_s"]}
+        if hasattr(env, "space"):  # a space's draws: how many its requirements (or overlaps) rejected unrendered
+            summary.update(draws=env.draws, rejected=env.rejected)
         for name, (k, n) in (("late_rate_before", before), ("late_rate_after", after), ("train_late_rate", trained)):
             # each rate with its Wilson interval: a few evaluation episodes are a wide one
             low, high = wilson(k, n)
@@ -167,6 +169,9 @@ def run_train(cfg: DictConfig, env, out: Path, venv=None) -> dict:
     (out / "result.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.gym: {rates_line(before, after, WORDS.get(key, key))}; {len(result['train'])} training episodes, "
           f"{result['renders']} renders in {result['wall_s']:.0f} s; policy {out / 'policy.zip'}")
+    if hasattr(env, "space") and env.draws:
+        print(f"garage_exp.gym: {env.draws} draws of space {cfg.space.name}, {env.rejected} rejected before rendering "
+              f"(acceptance {1 - env.rejected / env.draws:.2f})")
     return summary
 
 
