@@ -305,12 +305,7 @@ class StepOutEnv(gymnasium.Env):
         target = item.target
         row = {"frame": self.k, "time": round(self.k * self.dt, 6), "ego": self.drive[self.k],
                **{m.name: round(self.values[m.name], 6) for m in self.movers},
-               "range": self._range(item.shot.ego, item.shot.poses),
-               "distance": round(target.distance, 4) if target else math.nan,
-               "visible_fraction": round(target.visible_fraction, 6) if target else 0.0,
-               "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
-               "truncation": round(target.truncation, 4) if target else math.nan,
-               "composite": round(float(score.composite), 6), "detected": bool(score.detected)}
+               "range": self._range(item.shot.ego, item.shot.poses), **reward.measured(target, score)}
         row["fair"] = reward.fair(row, self.search)
         return row
 

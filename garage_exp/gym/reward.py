@@ -37,6 +37,16 @@ def fair(row: dict, search) -> bool:
     return bool(fair_mask(pd.DataFrame([row]), search).iloc[0])
 
 
+def measured(target, score) -> dict:
+    """A rendered frame's target (its ground truth, None when not in view) and score, as the frame row's columns
+    the fairness rule and the reward read (the step-out env's and a space's draws alike)."""
+    return {"distance": round(target.distance, 4) if target else math.nan,
+            "visible_fraction": round(target.visible_fraction, 6) if target else 0.0,
+            "box_height": (target.full_box[3] - target.full_box[1]) if target and target.full_box else 0,
+            "truncation": round(target.truncation, 4) if target else math.nan,
+            "composite": round(float(score.composite), 6), "detected": bool(score.detected)}
+
+
 def episode(frames: list[dict], ego, movers: list[str], critical_m: float, wall_s: float) -> dict:
     """One episode's record: the late verdict on its frames (late.judge: testable only when a perfect detector
     could have confirmed the target in time, so one fair peek earns nothing), its fair difficulty and hard_fair,
