@@ -26,7 +26,7 @@ def arm_budget(cfg, arm: str) -> dict:
 def failures(trials: list[Trial], hard_below: float) -> tuple[int, int]:
     """(hard-and-fair failures, trials): a failure is a COMPLETE trial (some fair frame) whose mean confidence over
     its fair frames is below `hard_below`; every trial that ran counts in the denominator."""
-    ran = [t for t in trials if t.state in ("COMPLETE", "PRUNED", "FAIL")]
+    ran = [t for t in trials if t.ran]
     hard = [t for t in ran if t.state == "COMPLETE" and 1.0 - t.difficulty < hard_below]
     return len(hard), len(ran)
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from garage_exp.loop.stats import wilson
 from garage_exp.loop.steps import Trial
 from garage_exp.search import archive
 
@@ -45,10 +46,18 @@ def cell_table(scores: pd.DataFrame, cells: dict[int, tuple[int, ...]], grid: ar
         failed = [set(f) for f in group.failed]
         for cell, numbers in sorted(by_cell.items()):
             hits = sum(len(f & set(numbers)) for f in failed)
+            low, high = wilson(hits, len(numbers) * len(failed))  # seeds pooled, as the round table's pooled rate
             rows.append({"cell": grid.name(cell), "index": list(cell), "arm": arm, "round": int(k),
                          "scenarios": len(numbers), "detectors": len(failed), "failures": hits,
-                         "failed_share": hits / (len(numbers) * len(failed))})
+                         "failed_share": hits / (len(numbers) * len(failed)), "low": low, "high": high})
     return pd.DataFrame(rows)
+
+
+def reach(cells: dict[int, tuple[int, ...]], grid: archive.Grid) -> dict:
+    """How many of the grid's cells the held-out sample reaches (holds a scenario of), of how many."""
+    import math
+
+    return {"reached": len(set(cells.values())), "cells": math.prod(grid.dims)}
 
 
 def resisted(table: pd.DataFrame, arm: str, k: int, share: float = 0.5) -> list[str]:

@@ -13,7 +13,9 @@ def detectors(cfg) -> int:
 def estimate(cfg) -> dict[str, float]:
     """Seconds per part of the loop, and `total`."""
     c = cfg.cost
-    per_trial = c.trial_overhead_s + c.frames_per_trial * c.render_s_per_frame
+    # A space with requirements redraws what they reject: every trial costs its rejected draws too.
+    redraw = (1.0 / float(c.acceptance) - 1.0) * float(c.reject_s)
+    per_trial = c.trial_overhead_s + c.frames_per_trial * c.render_s_per_frame + redraw
 
     def study(trials: int) -> float:
         return c.search_s + trials * per_trial
@@ -21,7 +23,8 @@ def estimate(cfg) -> dict[str, float]:
     runs = len(cfg.arms) * int(cfg.rounds) * len(cfg.seeds)  # searches, and as many fine-tunings
     if int(cfg.get("frames") or 0) > 0:  # a frame budget: crossed, on average, by half a trial's frames
         spent = int(cfg.frames) + c.frames_per_trial / 2
-        generator = c.search_s + spent * c.render_s_per_frame + spent / c.frames_per_trial * c.trial_overhead_s
+        generator = c.search_s + spent * c.render_s_per_frame + spent / c.frames_per_trial * (c.trial_overhead_s
+                                                                                            + redraw)
     else:
         generator = study(int(cfg.trials))
     images = int(cfg.train_frames) * (1.0 + float(cfg.replay_fraction))
@@ -29,15 +32,17 @@ def estimate(cfg) -> dict[str, float]:
     epochs = int(cfg.epochs)
     training = c.command_s + epochs * images * c.train_s_per_image_epoch + (epochs + 1) * val_frames * c.val_s_per_image
     protocol_jobs = sum(_jobs(overrides) for overrides in cfg.protocol.values())
+    job_s = per_trial if c.get("protocol_job_s") is None else float(c.protocol_job_s)
+    job_frames = c.frames_per_trial if c.get("protocol_frames_per_job") is None else float(c.protocol_frames_per_job)
     last = 1 + len(cfg.arms) * len(cfg.seeds)  # D0 and the last round's detectors: every suite
     held_frames = int(cfg.heldout_trials) * c.frames_per_trial
     out = {"base data": study(int(cfg.base_trials)),
            "held-out sample": study(int(cfg.heldout_trials)),
-           "protocol suite": len(cfg.protocol) * c.command_s + protocol_jobs * per_trial,
+           "protocol suite": len(cfg.protocol) * c.command_s + protocol_jobs * job_s,
            "generators": runs * generator,
            "fine-tunings": runs * training,
            "evaluation": detectors(cfg) * (c.load_s + held_frames * c.detect_s_per_frame)
-           + last * protocol_jobs * c.frames_per_trial * c.detect_s_per_frame,
+           + last * protocol_jobs * job_frames * c.detect_s_per_frame,
            "real photos": (int(bool(cfg.photos)) + len(cfg.real_sets)) * (c.command_s + last * c.verify_s)}
     if not str(cfg.base).endswith(".pt"):
         out["D0"] = c.command_s + int(cfg.base_epochs) * (1 - float(cfg.val_fraction)) * int(cfg.base_trials) \
@@ -61,3 +66,26 @@ def _jobs(overrides) -> int:
 def describe(parts: dict[str, float]) -> str:
     return ", ".join(f"{k} {v / 60:.0f} min" for k, v in parts.items() if k != "total") + \
         f"; total {parts['total'] / 3600:.2f} h"
+
+
+def comparisons(cfg) -> int:
+    """The comparisons the report corrects as one Holm family (report.comparisons): every pair of arms and each
+    arm against D0 on the failure rate, and each arm against D0 on the protocol and the real photos' recall."""
+    arms = len(cfg.arms)
+    per_arm = 1 + int(bool(cfg.protocol)) + int(bool(cfg.photos) or bool(cfg.real_sets))
+    return arms * (arms - 1) // 2 + arms * per_arm
+
+
+def power_line(cfg) -> str:
+    """The power estimate in words (loop/stats.py, scenarios_for), from the config's pilot failure rate."""
+    from garage_exp.loop.stats import scenarios_for
+
+    p, m = cfg.power, comparisons(cfg)
+    n = scenarios_for(float(p.pilot_rate), float(p.relative), m, float(p.alpha), float(p.power))
+    scenarios = int(int(cfg.heldout_trials) * float(p.scenario_share))  # less the infeasible draws
+    enough = "enough" if scenarios >= n else "too few"
+    return (f"power: at a pilot failure rate of {float(p.pilot_rate):.2f}, {n} held-out scenarios per detector "
+            f"detect {100 * float(p.relative):.0f} % fewer failures ({float(p.pilot_rate):.3f} -> "
+            f"{float(p.pilot_rate) * (1 - float(p.relative)):.3f}) at alpha {float(p.alpha):g} (Holm over {m} "
+            f"comparisons), power {float(p.power):g}; this config's heldout_trials={int(cfg.heldout_trials)} hold about "
+            f"{scenarios} scenarios: {enough}")
