@@ -334,7 +334,7 @@ def cli(argv: list[str] | None = None) -> None:
     import sys
     import tempfile
 
-    argv = schema.space_by_name(list(sys.argv[1:] if argv is None else argv))
+    argv = schema.space_by_name(schema.space_config(list(sys.argv[1:] if argv is None else argv)))
     if not estimating(argv):
         COMMAND.run(main, argv)
         return

@@ -1,6 +1,19 @@
 """The loop's cost model: how long a config takes, from rates measured on the machine (`cost` in conf/loop.yaml;
 docs/loop.md says how they were measured). `python -m garage_exp.loop estimate=true` prints it and stops; the
-loop prints it before it starts. Steps already done cost nothing when a loop resumes (not counted here)."""
+loop prints it before it starts. Steps already done cost nothing when a loop resumes (not counted here).
+
+The wide space's rates (conf/loop_wide.yaml's `cost`) were fitted on a pilot of one-shot scenarios, 2026-12-06,
+commit de8f920 (branch loopwide), the shared 2-core CPU (AMD EPYC, 2 vCPUs, load average 2-10):
+  python -m garage_exp -m hydra/sweeper=search space=wide search.trials=12 search.sampler=random search.seed=7 \
+      dataset=true 'plan.seed=int(interval(0,499999))' detector.models=[<yolo11n_fp32_from_int8.pt>] detector.imgsz=320
+  and the same with search.trials=40 search.seed=11 plan=generated 'plan.seed=int(interval(500000,999999))'
+      'plan.generator.family=choice(loop,comb,grid,spine)' (the held-out sample's garages).
+63 draws over 220 s of trials: 34 rendered (4.96 s each, mean), 18 infeasible (1.09 s: actors overlap, nothing
+rendered), 11 rejected by the requirements (0.76 s). Fitted: trial_overhead_s 0.7, render_s_per_frame 4.3 (a
+rendered scenario 0.7 + 4.3 = 5.0 s), frames_per_trial 0.65 (34 of 52 accepted draws render), acceptance 0.83
+(52 of 63), reject_s 0.76; search_s 120 (the two commands' start, check and analysis after their trials: 90 s
+and 250 s). D0 failed 19 of the 34 scenarios: power.pilot_rate 0.56.
+"""
 
 from __future__ import annotations
 

@@ -159,6 +159,19 @@ def searched(cfg) -> list[str]:
     return params
 
 
+def space_config(argv: list[str]) -> list[str]:
+    """`space=NAME` with no config named: the loop's config sized for that space, conf/loop_NAME.yaml, when one is
+    shipped (`space=wide`: conf/loop_wide.yaml, whose budgets fit one-shot scenarios; conf/loop.yaml's frame
+    budget is for the loop space's scenarios of many frames), else the argv as given."""
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    named = [a.split("=", 1)[1] for a in argv if a.startswith("space=")]
+    if not named or any(a.startswith(("--config-name", "-cn", "--config-dir", "-cd")) for a in argv):
+        return argv
+    config = f"loop_{named[-1]}"
+    return ["--config-name", config, *argv] if (PROJECT_ROOT / "conf" / f"{config}.yaml").is_file() else argv
+
+
 def space_by_name(argv: list[str]) -> list[str]:
     """`space=NAME` on the loop's command line as the space's name and params (`space.name=NAME`,
     `space.params=[...]`): the loop reads a shipped space's list of overrides, not the whole level, whose defaults
