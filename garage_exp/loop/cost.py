@@ -12,7 +12,8 @@ commit de8f920 (branch loopwide), the shared 2-core CPU (AMD EPYC, 2 vCPUs, load
 rendered), 11 rejected by the requirements (0.76 s). Fitted: trial_overhead_s 0.7, render_s_per_frame 4.3 (a
 rendered scenario 0.7 + 4.3 = 5.0 s), frames_per_trial 0.65 (34 of 52 accepted draws render), acceptance 0.83
 (52 of 63), reject_s 0.76; search_s 120 (the two commands' start, check and analysis after their trials: 90 s
-and 250 s). D0 failed 19 of the 34 scenarios: power.pilot_rate 0.56.
+and 250 s); check_s 300 (`python -m garage_exp.loop space=wide estimate=true`: 5.2 min of wall time at load 9,
+1.4 min of CPU). D0 failed 19 of the 34 scenarios: power.pilot_rate 0.56.
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ def estimate(cfg) -> dict[str, float]:
            "evaluation": detectors(cfg) * (c.load_s + held_frames * c.detect_s_per_frame)
            + last * protocol_jobs * job_frames * c.detect_s_per_frame,
            "real photos": (int(bool(cfg.photos)) + len(cfg.real_sets)) * (c.command_s + last * c.verify_s)}
+    if float(c.get("check_s") or 0) > 0:
+        out["checks"] = float(c.check_s)
     if not str(cfg.base).endswith(".pt"):
         out["D0"] = c.command_s + int(cfg.base_epochs) * (1 - float(cfg.val_fraction)) * int(cfg.base_trials) \
             * c.frames_per_trial * c.train_s_per_image_epoch

@@ -50,6 +50,7 @@ class CostConf:
     # The protocol suite's jobs (shipped cases with motion, not the space's scenarios): a job's seconds and frames;
     # None: a trial's (the loop's space is the protocol's kind of scenario).
     protocol_job_s: Optional[float] = None
+    check_s: float = 0.0  # the loop's up-front check of every step (check.py): seconds on a wide space, else few
     protocol_frames_per_job: Optional[float] = None
 
 
