@@ -168,3 +168,22 @@ def test_the_cells_say_how_many_the_sample_reaches():
     table = cells.cell_table(scores, {0: (0, 0, 0, 0, 0, 0), 1: (0, 0, 0, 0, 0, 0)}, grid)
     row = table.iloc[0]
     assert (row.failures, row.scenarios) == (1, 2) and row.low < 0.5 < row.high  # Wilson, seeds pooled
+
+
+def test_a_base_data_too_small_for_the_replay_stops_before_the_fine_tuning(tmp_path):
+    """One-shot draws are often infeasible: base_trials scenarios may hold fewer frames than a fine-tuning replays
+    (train_frames x replay_fraction); the loop says so in one line (exit 1) instead of the training's refusal."""
+    from garage_exp.core.errors import JobFault
+    from garage_exp.loop import budget
+
+    pool = []
+    for k in range(3):
+        (tmp_path / str(k) / "images").mkdir(parents=True)
+        (tmp_path / str(k) / "images" / "0000_front.png").write_bytes(b"")
+        pool.append(tmp_path / str(k))
+    cfg = small(["train_frames=6", "replay_fraction=0.5"])
+    budget.check_replay(cfg, pool, "its dir")  # 3 frames replayed, 3 held
+    cfg.replay_fraction = 1.0
+    with pytest.raises(JobFault, match="the base data holds 3 replay frames outside its validation scenarios, "
+                                       "fewer than the 6 a fine-tuning replays"):
+        budget.check_replay(cfg, pool, "its dir")

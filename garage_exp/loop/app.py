@@ -223,6 +223,7 @@ def run_loop(cfg: DictConfig) -> dict:
                 generated[arm] = found
                 # Short of its frame budget at its cap of trials: stop before its fine-tuning (exit 1, kept).
                 budget.check_spent(arm, found, int(b["frames"]), f"round {k}, seed {seed}{suffix}", str(loop.dir))
+                budget.check_replay(cfg, [Path(d) for d in train_s], str(loop.dir))  # before its fine-tuning
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
                 try:

@@ -106,6 +106,20 @@ def assert_equal_budget(trained: dict[str, dict]) -> None:
             raise AssertionError(f"unequal budgets between the arms ({arms[0]}, {arm}): {unequal}")
 
 
+def check_replay(cfg, pool: list[Path], kept: str) -> None:
+    """The base data's training scenarios hold every arm's replay (train_frames x replay_fraction frames), else a
+    JobFault (one line, exit 1) before a fine-tuning: on a space whose draws are often infeasible
+    (one-shot scenarios whose actors overlap render nothing), base_trials scenarios hold fewer frames than trials,
+    and the fine-tuning's own refusal would stop the loop with a traceback."""
+    need = max(round(float(arm_budget(cfg, arm)["replay_fraction"]) * int(arm_budget(cfg, arm)["train_frames"]))
+               for arm in cfg.arms)
+    have = len(images(pool))
+    if have < need:
+        raise JobFault(f"the base data holds {have} replay frames outside its validation scenarios, fewer than the "
+                       f"{need} a fine-tuning replays (train_frames x replay_fraction): raise base_trials (in another "
+                       f"dir) or lower replay_fraction; the steps done so far are kept under {kept}")
+
+
 def check_spent(arm: str, found: list[Trial], frames: int, where: str, kept: str) -> None:
     """The arm's generator rendered its budget of `frames` (nothing to check without one: the arms then spend equal
     trials). A JobFault (one line, exit 1) when it stopped short at its cap of trials: a shortfall the loop's check
