@@ -85,7 +85,8 @@ def test_no_training_search_draws_a_held_out_garage(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("bad, expect", [
     ("garages.heldout_seeds=[400000,999999]", "garages.heldout_seeds: the held-out seeds [400000, 999999] overlap "
-                                              "the training seeds [0, 499999]"),
+                                              "the training seeds [0, 499999]: held-out garages must be ones no "
+                                              "training frame came from"),
     ("garages.heldout_families=[comb]", "garages.heldout_families: ['comb']: a held-out family is also a training "
                                         "family")])
 def test_held_out_garages_that_training_shares_are_refused_in_one_line(tmp_path, bad, expect):
