@@ -155,7 +155,7 @@ def test_the_shipped_wide_loop_fits_its_budget_and_its_power():
     assert "enough" in cost.power_line(gpu)
 
 
-def test_the_cells_say_how_many_the_sample_reaches():
+def test_the_cells_say_how_many_the_sample_reaches(tmp_path):
     from omegaconf import OmegaConf
 
     from garage_exp.loop import cells
@@ -169,6 +169,11 @@ def test_the_cells_say_how_many_the_sample_reaches():
     table = cells.cell_table(scores, {0: (0, 0, 0, 0, 0, 0), 1: (0, 0, 0, 0, 0, 0)}, grid)
     row = table.iloc[0]
     assert (row.failures, row.scenarios) == (1, 2) and row.low < 0.5 < row.high  # Wilson, seeds pooled
+    marginals = cells.marginal_table(table, grid, 1)  # per descriptor bin, the cells pooled
+    first = marginals[(marginals.descriptor == "target_class")].set_index("bin")
+    assert first.loc["small_person", "tests"] == 2 and first.loc["small_person", "failed_share"] == 0.5
+    assert first.loc["car", "tests"] == 0 and len(marginals) == 4 + 4 + 3 + 3 + 3 + 2
+    assert cells.draw_marginals(marginals, tmp_path / "m.png").stat().st_size > 0
 
 
 def test_a_base_data_too_small_for_the_replay_stops_before_the_fine_tuning(tmp_path):

@@ -130,6 +130,9 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
         table = cells_mod.cell_table(scores, cells, grid)
         table.to_csv(out / "cells.csv", index=False)
         cells_mod.draw(table, grid, out, k)
+        marginals = cells_mod.marginal_table(table, grid, k)  # a readable summary of a grid of many cells
+        marginals.to_csv(out / "cells_marginals.csv", index=False)
+        cells_mod.draw_marginals(marginals, out / "cells_marginals.png")
         resisting = {arm: cells_mod.resisted(table, arm, k) for arm in arms}
         reach = cells_mod.reach(cells, grid)
     summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms}, "seeds": list(cfg.seeds),
@@ -138,7 +141,7 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.loop: results in {out} (failure_rate.csv, comparisons.csv, scores.csv, photos.csv, "
           "rounds_bookkeeping.csv, power.json, loop.png" + (", failure_rate_parts.csv" if len(parts) else "")
-          + (", cells.csv, cells_*.png" if resisting else "") + ")")
+          + (", cells.csv, cells_marginals.csv, cells_*.png" if resisting else "") + ")")
     if sample:
         print(f"garage_exp.loop: held-out sample on {sample.get('garages')}: {sample.get('scenarios')} scenarios of "
               f"{sample.get('draws')} draws ({sample.get('accepted')} accepted by the space's requirements, "
