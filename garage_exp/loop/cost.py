@@ -11,8 +11,8 @@ commit de8f920 (branch loopwide), the shared 2-core CPU (AMD EPYC, 2 vCPUs, load
 63 draws over 220 s of trials: 34 rendered (4.96 s each, mean), 18 infeasible (1.09 s: actors overlap, nothing
 rendered), 11 rejected by the requirements (0.76 s). Fitted: trial_overhead_s 0.7, render_s_per_frame 4.3 (a
 rendered scenario 0.7 + 4.3 = 5.0 s), frames_per_trial 0.65 (34 of 52 accepted draws render), acceptance 0.83
-(52 of 63), reject_s 0.76; search_s 120 (the two commands' start, check and analysis after their trials: 90 s
-and 250 s); check_s 300 (`python -m garage_exp.loop space=wide estimate=true`: 5.2 min of wall time at load 9,
+(52 of 63), reject_s 0.76; search_s 160 (the two commands' start, check and analysis after their trials: 90 s
+and 250 s; the smoke loop's base data and held-out searches, 8 trials each: 222 s and 175 s); check_s 300 (`python -m garage_exp.loop space=wide estimate=true`: 5.2 min of wall time at load 9,
 1.4 min of CPU). D0 failed 19 of the 34 scenarios: power.pilot_rate 0.56.
 """
 
