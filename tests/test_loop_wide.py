@@ -129,6 +129,10 @@ def test_the_power_estimate_on_known_numbers():
         h = 2 * math.asin(math.sqrt(rate)) - 2 * math.asin(math.sqrt(0.8 * rate))
         n = 2 * ((norm.ppf(1 - 0.05 / (2 * m)) + norm.ppf(0.8)) / h) ** 2
         assert scenarios_for(rate, 0.2, m) == math.ceil(n)
+    from garage_exp.loop import report
+
+    d0 = pd.DataFrame([{"arm": "D0", "round": 0, "seed": -1, "suite": "heldout", "per_100": 40.0}])
+    assert report.power(d0, ["R"], 1, comparisons=12)["scenarios_needed_20pct_holm"] == scenarios_for(0.4, 0.2, 12)
     cfg = compose_cfg(config="loop")
     assert cost.comparisons(cfg) == 3 + 3 * 3  # the report's Holm family: 3 pairs, each arm against D0 three ways
     assert "held-out scenarios per detector detect 20 % fewer failures" in cost.power_line(cfg)
