@@ -86,14 +86,14 @@ def test_the_loop_decides_reuse_by_every_steps_full_inputs(tmp_path, monkeypatch
     monkeypatch.setattr(steps, "trials", lambda cfg, study: [])
     monkeypatch.setattr(steps, "study_done", lambda cfg, study, n, frames=0: False)  # interrupted: 4 of 4 never finished
     cfg = compose_cfg(f"dir={tmp_path}", "tracking.uri=sqlite:///x.db", config="loop")
-    study = ("base", ["research"], 4, "qmc", 0)
+    study = ("base", ["plan=research"], 4, "qmc", 0)
     loop = Loop(cfg)
     loop.step("base data", lambda: loop.study(*study))
     loop.step("base data", lambda: loop.study(*study))  # the same inputs: resumed
     assert len(ran) == 2
     with pytest.raises(GarageError, match=r"'base' made from other inputs \(search.trials=4 -> 5\)"):
         fresh = Loop(cfg)
-        fresh.step("base data", lambda: fresh.study("base", ["research"], 5, "qmc", 0))
+        fresh.step("base data", lambda: fresh.study("base", ["plan=research"], 5, "qmc", 0))
     data = tmp_path / "data" / "base_train.yaml"
     data.parent.mkdir()
     data.write_text("train: [a]\n")

@@ -88,4 +88,6 @@ def test_a_loop_command_of_the_docs_checks_and_estimates(args, work, monkeypatch
     r = run_in_process([*given, f"dir={work / 'loop'}", "estimate=true"], work, entry=cli)
     assert r.returncode == 0, r.stderr[-3000:]
     assert re.search(r"garage_exp\.loop: estimate: .*total [\d.]+ h", r.stdout), r.stdout[-3000:]
+    assert re.search(r"garage_exp\.loop: power: .* \d+ held-out scenarios per detector detect 20 % fewer failures",
+                     r.stdout), r.stdout[-3000:]  # the power estimate, from the config's pilot failure rate
     assert list(work.rglob("*")) == []  # an estimate writes nothing (item 10)

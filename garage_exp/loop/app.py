@@ -15,9 +15,8 @@ from omegaconf import DictConfig, open_dict
 
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, JobFault, check_range
-from garage_exp.loop import budget, schema, steps
+from garage_exp.loop import budget, garages, schema, steps
 from garage_exp.loop.budget import arm_budget
-from garage_exp.loop.schema import searched
 
 COMMAND = shell.Command("garage_exp.loop", "loop", (schema.register,),
                         resume_hint="rerun the same command to go on where it stopped")
@@ -66,9 +65,7 @@ def check_loop(cfg: DictConfig) -> None:
         raise GarageError(f"{cfg.heldout_method!r}: sobol | halton", "heldout_method")
     if int(cfg.imgsz) % 32:
         raise GarageError(f"{cfg.imgsz} is not a multiple of 32", "imgsz")
-    if cfg.eval_plan in cfg.train_plans:
-        raise GarageError(f"{cfg.eval_plan!r} is also a training plan: held-out data must come from another plan",
-                          "eval_plan")
+    garages.check(cfg)  # the held-out garages share no plan, generator seed or layout family with training's
     if str(cfg.base).endswith(".pt") and not Path(str(cfg.base)).expanduser().is_file():
         raise GarageError("base .pt not found", str(cfg.base))
 
@@ -129,11 +126,11 @@ class Loop:
         print(f"garage_exp.loop: {self.name} ...", flush=True)  # said once its inputs passed the check
         steps.run(cmd, self.log)
 
-    def study(self, name: str, plans, trials: int, sampler: str, seed: int, models=None, before=None, startup=None,
-              frames: int = 0):
-        """A search (`before`: called once its inputs passed the check and before it runs, e.g. to enqueue);
-        `frames`: its budget of rendered frames, `trials` then its cap."""
-        cmd = steps.search_command(self.cfg, name, list(plans), trials, sampler, seed, models, startup, frames)
+    def study(self, name: str, garage: list[str], trials: int, sampler: str, seed: int, models=None, before=None,
+              startup=None, frames: int = 0):
+        """A search on the garages `garage` says (loop/garages.py; `before`: called once its inputs passed the
+        check and before it runs, e.g. to enqueue); `frames`: its budget of rendered frames, `trials` then its cap."""
+        cmd = steps.search_command(self.cfg, name, list(garage), trials, sampler, seed, models, startup, frames)
         done = steps.study_done(self.cfg, name, trials, frames)
         if not self.reuse(name, cmd, done, [Path(m) for m in models or ()]):
             if before is not None:
@@ -177,7 +174,7 @@ def run_loop(cfg: DictConfig) -> dict:
           flush=True)
     names = coco_names()
     data = loop.dir / "data"
-    plans = list(cfg.train_plans)
+    plans = garages.train(cfg)  # the training garages: the train_plans, or generated ones of the training seeds
     base_pt = str(Path(str(cfg.base)).expanduser().absolute()) if str(cfg.base).endswith(".pt") else None
     # 1. Base data: a QMC sample of the space on the training plans: the replay pool and the validation scenarios.
     base = loop.step("base data", lambda: loop.study("base", plans, cfg.base_trials, "qmc", 0,
@@ -196,9 +193,11 @@ def run_loop(cfg: DictConfig) -> dict:
                                                 study="base", calibrate=False))
     # 3. The held-out suites, rendered once: the failure-rate sample (a fixed QMC sample of the space on eval_plan),
     # the protocol cases, and (scored later) the real photos.
-    points = heldout.sample(searched(cfg), int(cfg.heldout_trials), int(cfg.heldout_seed), str(cfg.heldout_method))
+    held_space = steps.with_garage(cfg, garages.heldout(cfg))
+    points = heldout.draws(held_space, int(cfg.heldout_trials), int(cfg.heldout_seed), str(cfg.heldout_method),
+                           heldout.requires(cfg))
     held = loop.step("held-out sample", lambda: loop.study(
-        "heldout", [cfg.eval_plan], cfg.heldout_trials, "random", 0, [d0["model"]],
+        "heldout", garages.heldout(cfg), cfg.heldout_trials, "random", 0, [d0["model"]],
         before=lambda: heldout.enqueue(steps.storage(cfg), "heldout", points)))
     protocol = {name: loop.step(f"protocol {name}", lambda name=name, o=overrides: loop.sweep(
         f"protocol_{name}", [*o, *cfg.protocol_fixed])) for name, overrides in cfg.protocol.items()}
@@ -224,6 +223,7 @@ def run_loop(cfg: DictConfig) -> dict:
                 generated[arm] = found
                 # Short of its frame budget at its cap of trials: stop before its fine-tuning (exit 1, kept).
                 budget.check_spent(arm, found, int(b["frames"]), f"round {k}, seed {seed}{suffix}", str(loop.dir))
+                budget.check_replay(cfg, [Path(d) for d in train_s], str(loop.dir))  # before its fine-tuning
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
                 try:
@@ -239,7 +239,8 @@ def run_loop(cfg: DictConfig) -> dict:
                     replay_fraction=float(b["replay_fraction"]), calibrate=bool(base_pt)))
                 detectors[name] = {"arm": arm, "round": k, "seed": seed, **trained[arm]}
                 book.append({"arm": arm, "round": k, "seed": seed, "sampler": cfg.arms[arm].sampler,
-                             "trials": len(found), "rendered_frames": budget.rendered(found),
+                             "trials": sum(t.ran for t in found), "rejected": sum(t.rejected for t in found),
+                             "rendered_frames": budget.rendered(found),
                              "failures": budget.failures(found, float(cfg.hard_below))[0],
                              "joined": len(new), "suite_scenarios": len(suite),
                              "train_frames": trained[arm]["train_frames"], "topped_up_frames": topped,
@@ -251,8 +252,9 @@ def run_loop(cfg: DictConfig) -> dict:
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
     easy = loop.step("easy suite", lambda: evaluate.easy_suite(loop.dir / "eval", held, d0, cfg))
+    parts = heldout.parts(held, list(cfg.garages.heldout_families))  # new seeds / new family, on generated garages
     scores = loop.step(f"evaluation{suffix}", lambda: evaluate.score_all(loop.dir / "eval", cfg, detectors, held, easy,
-                                                               protocol, last), always=True)
+                                                               protocol, last, parts), always=True)
     photos = loop.step(f"real photos{suffix}", lambda: real_photos(loop, last), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")
     from omegaconf import OmegaConf
@@ -260,9 +262,12 @@ def run_loop(cfg: DictConfig) -> dict:
     from garage_exp.loop.cells import cells_of
     from garage_exp.search.schema import SearchConf
 
-    search = OmegaConf.structured(SearchConf)  # the generators' searches use the search's shipped descriptors
+    search = OmegaConf.structured(SearchConf)  # the generators' searches' descriptors: the search's, or the space's
+    if schema.space_descriptors(cfg):
+        search.descriptors = OmegaConf.structured(schema.space_descriptors(cfg))
+    sample = {"garages": garages.label(cfg, "heldout"), "points": len(points), **heldout.acceptance(held, len(points))}
     return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times,
-                        cells=cells_of(held, search), search=search)
+                        cells=cells_of(held, search), search=search, sample=sample)
 
 
 def real_photos(loop: Loop, detectors: dict) -> list[dict]:
@@ -309,10 +314,11 @@ def main(cfg: DictConfig) -> dict:
     check_loop(cfg)  # bad input: the shell removes Hydra's log dir (and `dir` if it made it) and says it in one line
     check_steps(cfg)  # what the steps would refuse, before the first (an estimate too: it is of a loop that can run)
     if cfg.estimate:
-        from garage_exp.loop.cost import describe, estimate
+        from garage_exp.loop.cost import describe, estimate, power_line
 
         parts = estimate(cfg)
         print(f"garage_exp.loop: estimate: {describe(parts)}")
+        print(f"garage_exp.loop: {power_line(cfg)}")
         return parts
     with open_dict(cfg):
         cfg.tracking.uri = tracking_uri(cfg.tracking.uri)  # every step's store, also for models:/ entries
@@ -329,7 +335,7 @@ def cli(argv: list[str] | None = None) -> None:
     import sys
     import tempfile
 
-    argv = schema.space_by_name(list(sys.argv[1:] if argv is None else argv))
+    argv = schema.space_by_name(schema.space_config(list(sys.argv[1:] if argv is None else argv)))
     if not estimating(argv):
         COMMAND.run(main, argv)
         return

@@ -26,7 +26,7 @@ def arm_budget(cfg, arm: str) -> dict:
 def failures(trials: list[Trial], hard_below: float) -> tuple[int, int]:
     """(hard-and-fair failures, trials): a failure is a COMPLETE trial (some fair frame) whose mean confidence over
     its fair frames is below `hard_below`; every trial that ran counts in the denominator."""
-    ran = [t for t in trials if t.state in ("COMPLETE", "PRUNED", "FAIL")]
+    ran = [t for t in trials if t.ran]
     hard = [t for t in ran if t.state == "COMPLETE" and 1.0 - t.difficulty < hard_below]
     return len(hard), len(ran)
 
@@ -104,6 +104,20 @@ def assert_equal_budget(trained: dict[str, dict]) -> None:
         unequal = {k: (first.get(k), trained[arm].get(k)) for k in BUDGET_KEYS if first.get(k) != trained[arm].get(k)}
         if unequal:
             raise AssertionError(f"unequal budgets between the arms ({arms[0]}, {arm}): {unequal}")
+
+
+def check_replay(cfg, pool: list[Path], kept: str) -> None:
+    """The base data's training scenarios hold every arm's replay (train_frames x replay_fraction frames), else a
+    JobFault (one line, exit 1) before a fine-tuning: on a space whose draws are often infeasible
+    (one-shot scenarios whose actors overlap render nothing), base_trials scenarios hold fewer frames than trials,
+    and the fine-tuning's own refusal would stop the loop with a traceback."""
+    need = max(round(float(arm_budget(cfg, arm)["replay_fraction"]) * int(arm_budget(cfg, arm)["train_frames"]))
+               for arm in cfg.arms)
+    have = len(images(pool))
+    if have < need:
+        raise JobFault(f"the base data holds {have} replay frames outside its validation scenarios, fewer than the "
+                       f"{need} a fine-tuning replays (train_frames x replay_fraction): raise base_trials (in another "
+                       f"dir) or lower replay_fraction; the steps done so far are kept under {kept}")
 
 
 def check_spent(arm: str, found: list[Trial], frames: int, where: str, kept: str) -> None:

@@ -27,10 +27,12 @@ def check_steps(cfg: DictConfig) -> None:
 
     base_pt = str(Path(str(cfg.base)).expanduser().absolute()) if str(cfg.base).endswith(".pt") else None
     models = [base_pt] if base_pt else None  # D0 trained from a model YAML is not there yet: the shipped detectors
-    plans = list(cfg.train_plans)
-    # (step, study, plans, trials, sampler, seed, models, startup, frames): as run_loop asks for them
+    from garage_exp.loop import garages
+
+    plans = garages.train(cfg)
+    # (step, study, garage overrides, trials, sampler, seed, models, startup, frames): as run_loop asks for them
     studies = [("base data", "base", plans, int(cfg.base_trials), "qmc", 0, models, None, 0),
-               ("held-out sample", "heldout", [str(cfg.eval_plan)], int(cfg.heldout_trials), "random", 0, models,
+               ("held-out sample", "heldout", garages.heldout(cfg), int(cfg.heldout_trials), "random", 0, models,
                 None, 0)]
     for arm in cfg.arms:  # round 1's generators: the later rounds differ only in their detector and search seed
         b = arm_budget(cfg, arm)

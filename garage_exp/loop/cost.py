@@ -1,6 +1,20 @@
 """The loop's cost model: how long a config takes, from rates measured on the machine (`cost` in conf/loop.yaml;
 docs/loop.md says how they were measured). `python -m garage_exp.loop estimate=true` prints it and stops; the
-loop prints it before it starts. Steps already done cost nothing when a loop resumes (not counted here)."""
+loop prints it before it starts. Steps already done cost nothing when a loop resumes (not counted here).
+
+The wide space's rates (conf/loop_wide.yaml's `cost`) were fitted on a pilot of one-shot scenarios, 2026-12-06,
+commit de8f920 (branch loopwide), the shared 2-core CPU (AMD EPYC, 2 vCPUs, load average 2-10):
+  python -m garage_exp -m hydra/sweeper=search space=wide search.trials=12 search.sampler=random search.seed=7 \
+      dataset=true 'plan.seed=int(interval(0,499999))' detector.models=[<yolo11n_fp32_from_int8.pt>] detector.imgsz=320
+  and the same with search.trials=40 search.seed=11 plan=generated 'plan.seed=int(interval(500000,999999))'
+      'plan.generator.family=choice(loop,comb,grid,spine)' (the held-out sample's garages).
+63 draws over 220 s of trials: 34 rendered (4.96 s each, mean), 18 infeasible (1.09 s: actors overlap, nothing
+rendered), 11 rejected by the requirements (0.76 s). Fitted: trial_overhead_s 0.7, render_s_per_frame 4.3 (a
+rendered scenario 0.7 + 4.3 = 5.0 s), frames_per_trial 0.65 (34 of 52 accepted draws render), acceptance 0.83
+(52 of 63), reject_s 0.76; search_s 160 (the two commands' start, check and analysis after their trials: 90 s
+and 250 s; the smoke loop's base data and held-out searches, 8 trials each: 222 s and 175 s); check_s 300 (`python -m garage_exp.loop space=wide estimate=true`: 5.2 min of wall time at load 9,
+1.4 min of CPU). D0 failed 19 of the 34 scenarios: power.pilot_rate 0.56.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +27,9 @@ def detectors(cfg) -> int:
 def estimate(cfg) -> dict[str, float]:
     """Seconds per part of the loop, and `total`."""
     c = cfg.cost
-    per_trial = c.trial_overhead_s + c.frames_per_trial * c.render_s_per_frame
+    # A space with requirements redraws what they reject: every trial costs its rejected draws too.
+    redraw = (1.0 / float(c.acceptance) - 1.0) * float(c.reject_s)
+    per_trial = c.trial_overhead_s + c.frames_per_trial * c.render_s_per_frame + redraw
 
     def study(trials: int) -> float:
         return c.search_s + trials * per_trial
@@ -21,7 +37,8 @@ def estimate(cfg) -> dict[str, float]:
     runs = len(cfg.arms) * int(cfg.rounds) * len(cfg.seeds)  # searches, and as many fine-tunings
     if int(cfg.get("frames") or 0) > 0:  # a frame budget: crossed, on average, by half a trial's frames
         spent = int(cfg.frames) + c.frames_per_trial / 2
-        generator = c.search_s + spent * c.render_s_per_frame + spent / c.frames_per_trial * c.trial_overhead_s
+        generator = c.search_s + spent * c.render_s_per_frame + spent / c.frames_per_trial * (c.trial_overhead_s
+                                                                                            + redraw)
     else:
         generator = study(int(cfg.trials))
     images = int(cfg.train_frames) * (1.0 + float(cfg.replay_fraction))
@@ -29,16 +46,20 @@ def estimate(cfg) -> dict[str, float]:
     epochs = int(cfg.epochs)
     training = c.command_s + epochs * images * c.train_s_per_image_epoch + (epochs + 1) * val_frames * c.val_s_per_image
     protocol_jobs = sum(_jobs(overrides) for overrides in cfg.protocol.values())
+    job_s = per_trial if c.get("protocol_job_s") is None else float(c.protocol_job_s)
+    job_frames = c.frames_per_trial if c.get("protocol_frames_per_job") is None else float(c.protocol_frames_per_job)
     last = 1 + len(cfg.arms) * len(cfg.seeds)  # D0 and the last round's detectors: every suite
     held_frames = int(cfg.heldout_trials) * c.frames_per_trial
     out = {"base data": study(int(cfg.base_trials)),
            "held-out sample": study(int(cfg.heldout_trials)),
-           "protocol suite": len(cfg.protocol) * c.command_s + protocol_jobs * per_trial,
+           "protocol suite": len(cfg.protocol) * c.command_s + protocol_jobs * job_s,
            "generators": runs * generator,
            "fine-tunings": runs * training,
            "evaluation": detectors(cfg) * (c.load_s + held_frames * c.detect_s_per_frame)
-           + last * protocol_jobs * c.frames_per_trial * c.detect_s_per_frame,
+           + last * protocol_jobs * job_frames * c.detect_s_per_frame,
            "real photos": (int(bool(cfg.photos)) + len(cfg.real_sets)) * (c.command_s + last * c.verify_s)}
+    if float(c.get("check_s") or 0) > 0:
+        out["checks"] = float(c.check_s)
     if not str(cfg.base).endswith(".pt"):
         out["D0"] = c.command_s + int(cfg.base_epochs) * (1 - float(cfg.val_fraction)) * int(cfg.base_trials) \
             * c.frames_per_trial * c.train_s_per_image_epoch
@@ -61,3 +82,26 @@ def _jobs(overrides) -> int:
 def describe(parts: dict[str, float]) -> str:
     return ", ".join(f"{k} {v / 60:.0f} min" for k, v in parts.items() if k != "total") + \
         f"; total {parts['total'] / 3600:.2f} h"
+
+
+def comparisons(cfg) -> int:
+    """The comparisons the report corrects as one Holm family (report.comparisons): every pair of arms and each
+    arm against D0 on the failure rate, and each arm against D0 on the protocol and the real photos' recall."""
+    arms = len(cfg.arms)
+    per_arm = 1 + int(bool(cfg.protocol)) + int(bool(cfg.photos) or bool(cfg.real_sets))
+    return arms * (arms - 1) // 2 + arms * per_arm
+
+
+def power_line(cfg) -> str:
+    """The power estimate in words (loop/stats.py, scenarios_for), from the config's pilot failure rate."""
+    from garage_exp.loop.stats import scenarios_for
+
+    p, m = cfg.power, comparisons(cfg)
+    n = scenarios_for(float(p.pilot_rate), float(p.relative), m, float(p.alpha), float(p.power))
+    scenarios = int(int(cfg.heldout_trials) * float(p.scenario_share))  # less the infeasible draws
+    enough = "enough" if scenarios >= n else "too few"
+    return (f"power: at a pilot failure rate of {float(p.pilot_rate):.2f}, {n} held-out scenarios per detector "
+            f"detect {100 * float(p.relative):.0f} % fewer failures ({float(p.pilot_rate):.3f} -> "
+            f"{float(p.pilot_rate) * (1 - float(p.relative)):.3f}) at alpha {float(p.alpha):g} (Holm over {m} "
+            f"comparisons), power {float(p.power):g}; this config's heldout_trials={int(cfg.heldout_trials)} hold about "
+            f"{scenarios} scenarios: {enough}")

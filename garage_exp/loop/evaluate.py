@@ -148,9 +148,11 @@ def easy_suite(eval_dir: Path, held: list[Trial], d0: dict, cfg) -> list[Trial]:
 
 
 def score_all(eval_dir: Path, cfg, detectors: dict, held: list[Trial], easy: list[Trial],
-              protocol: dict[str, list[Trial]], last: dict) -> pd.DataFrame:
-    """One row per detector and suite: the failure rate on the held-out sample (every detector), fair recall and
-    mAP50 on the easy suite and the protocol suite (D0 and the last round's detectors)."""
+              protocol: dict[str, list[Trial]], last: dict, parts: dict[str, list[Trial]] | None = None
+              ) -> pd.DataFrame:
+    """One row per detector and suite: the failure rate on the held-out sample (every detector; and on each of
+    its `parts`, suite `heldout:<part>`, from the same scored frames), fair recall and mAP50 on the easy suite and
+    the protocol suite (D0 and the last round's detectors)."""
     from garage_exp.loop import heldout
 
     done = [t for t in held if t.state == "COMPLETE" and t.dataset is not None]
@@ -161,6 +163,8 @@ def score_all(eval_dir: Path, cfg, detectors: dict, held: list[Trial], easy: lis
         frames, dets = scored(eval_dir, name, "heldout", d["weights"], int(cfg.imgsz), done, float(cfg.threshold))
         rows.append({**who, "suite": "heldout", **heldout.failures(frames, held, float(cfg.hard_below)),
                      "fair_recall": float(frames[frames.fair].detected.mean()) if len(frames) else float("nan")})
+        for part, trials in (parts or {}).items():  # the same frames, counted over the part's scenarios alone
+            rows.append({**who, "suite": f"heldout:{part}", **heldout.failures(frames, trials, float(cfg.hard_below))})
         if name not in last:
             continue
         part = frames[frames.trial.isin(easy_ids)]

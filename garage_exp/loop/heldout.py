@@ -59,6 +59,29 @@ def sample(space: list[str], n: int, seed: int, method: str = "sobol") -> list[d
     return [{name: value_of(dist, float(u)) for (name, dist), u in zip(params.items(), row)} for row in points]
 
 
+# On a space with requirements, the Sobol' points past the sample's size, enqueued after it: a rejected draw is
+# redrawn, and the search then takes the sequence's next point, not a random one. Three sizes more: the
+# requirements of the wide space accepted about 0.6 of a pilot's draws (docs/loop.md), so 4n points hold n
+# accepted ones with a wide margin; past them, the study's own sampler would draw (the report counts those).
+SPARE = 3
+
+
+def requires(cfg) -> bool:
+    """Whether the loop's space rejects draws: a shipped space (`space=NAME`, loop/schema.searched) whose file has
+    a `require:` block (the search takes it only from the file, so a space given as params has none)."""
+    from garage_exp.loop.schema import space_file
+
+    require = (space_file(cfg) or {}).get("require") or {}
+    return any(v is not None for v in require.values())
+
+
+def draws(space: list[str], n: int, seed: int, method: str = "sobol", rejecting: bool = False) -> list[dict]:
+    """The points the held-out study is given, in order: the sample's n (`sample`), and on a space that rejects
+    draws (`rejecting`) the same sequence's next SPARE * n, so that the n scenarios that run are the sequence's
+    first n accepted points: the same seed gives the same scenarios."""
+    return sample(space, n * (1 + SPARE) if rejecting else n, seed, method)
+
+
 def enqueue(storage: str, study: str, points: list[dict]) -> None:
     """Put the points in the held-out study before its search runs (a study that holds trials already is a resumed
     one: nothing is added). The search asks for enqueued trials first, so its trials are these points in order."""
@@ -78,13 +101,41 @@ def enqueue(storage: str, study: str, points: list[dict]) -> None:
 def failures(frames: pd.DataFrame, trials: list[Trial], hard_below: float) -> dict:
     """A detector's hard-and-fair failures on the held-out sample, from its scored frames (evaluate.score_frames):
     a scenario fails when it has fair frames and the detector's mean confidence over them is below `hard_below`.
-    Every sample scenario that ran counts in the denominator (one with no fair frame cannot fail)."""
+    Every sample scenario that ran counts in the denominator (one with no fair frame cannot fail); a draw whose
+    actors overlap (infeasible: nothing was rendered) or that the requirements rejected is no scenario."""
     from garage_exp.loop.stats import wilson
 
-    ran = {t.number for t in trials if t.state in ("COMPLETE", "PRUNED", "FAIL")}
-    fair = frames[frames.fair & frames.trial.isin(ran)].groupby("trial").confidence.mean()
+    ran = {t.number for t in trials if t.ran and not t.infeasible}
+    if not len(frames):  # no scenario rendered a frame: none can fail
+        frames = pd.DataFrame({"trial": [], "fair": [], "confidence": []})
+    fair = frames[frames.fair.astype(bool) & frames.trial.isin(ran)].groupby("trial").confidence.mean()
     k, n = int((fair < hard_below).sum()), len(ran)
     low, high = wilson(k, n)
     return {"failures": k, "scenarios": n, "per_100": 100.0 * k / n if n else math.nan,
             "low": 100.0 * low, "high": 100.0 * high,
             "failed": sorted(int(t) for t in fair[fair < hard_below].index)}
+
+
+def parts(held: list[Trial], families: list[str]) -> dict[str, list[Trial]]:
+    """The held-out sample on generated garages split by what it holds out (loop/garages.py): `new_seeds` (the
+    training families, on seeds no training garage had) and `new_family` (the held-out families, never trained
+    on), by each scenario's drawn family; {} when its scenarios draw no family (the shipped plans)."""
+    from garage_exp.loop.garages import FAMILY
+
+    if not any(t.params and FAMILY in t.params for t in held):
+        return {}
+    out: dict[str, list[Trial]] = {"new_seeds": [], "new_family": []}
+    for t in held:
+        family = (t.params or {}).get(FAMILY)
+        out["new_family" if family in families else "new_seeds"].append(t)
+    return out
+
+
+def acceptance(held: list[Trial], enqueued: int) -> dict:
+    """What the space's requirements did to the sample: draws, accepted, their share, and how many draws went
+    past the enqueued Sobol' points (drawn by the study's own sampler, 0 when the spare points sufficed)."""
+    drawn = [t for t in held if t.ran or t.rejected]
+    accepted = sum(t.ran for t in drawn)
+    return {"draws": len(drawn), "accepted": accepted, "acceptance": accepted / len(drawn) if drawn else math.nan,
+            "infeasible": sum(t.infeasible for t in drawn), "scenarios": sum(t.ran and not t.infeasible for t in drawn),
+            "past_sobol": max(0, len(drawn) - enqueued)}

@@ -17,10 +17,11 @@ from garage_exp.loop import stats
 DELTA = 5.0  # the difference in failures per 100 scenarios the power estimate is for (issue 39: 0.05)
 
 
-def round_table(scores: pd.DataFrame) -> pd.DataFrame:
+def round_table(scores: pd.DataFrame, suite: str = "heldout") -> pd.DataFrame:
     """Failures per 100 held-out scenarios per round and arm: the seeds' mean with its t interval (one seed, as
-    D0: its Wilson interval), and the seeds pooled (every seed's scenarios counted) with a Wilson interval."""
-    held = scores[scores.suite == "heldout"]
+    D0: its Wilson interval), and the seeds pooled (every seed's scenarios counted) with a Wilson interval.
+    `suite`: the whole sample, or one of its parts (`heldout:new_family`)."""
+    held = scores[scores.suite == suite]
     rows = []
     for (k, arm), g in held.groupby(["round", "arm"], sort=True):
         mean, low, high = stats.t_interval(g.per_100)
@@ -65,9 +66,10 @@ def comparisons(scores: pd.DataFrame, photos: pd.DataFrame, arms: list[str], k: 
     return stats.compare(rows)
 
 
-def power(scores: pd.DataFrame, arms: list[str], k: int) -> dict:
+def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1) -> dict:
     """How many seeds and held-out scenarios would detect a 5-per-100 difference, from this run's variance: the
-    per-seed differences between arms (seeds), and D0's failure rate (scenarios per detector)."""
+    per-seed differences between arms (seeds), and D0's failure rate (scenarios per detector); and how many
+    detect 20 % fewer failures than D0's at Holm's first step over `comparisons` (stats.scenarios_for)."""
     held = scores[scores.suite == "heldout"]
     out = {"delta_per_100": DELTA, "alpha": 0.05, "power": 0.8}
     sds = {}
@@ -85,13 +87,24 @@ def power(scores: pd.DataFrame, arms: list[str], k: int) -> dict:
         q = max(0.0, p - DELTA / 100) if p >= DELTA / 100 else p + DELTA / 100
         out["d0_rate"] = p
         out["scenarios_needed"] = math.ceil(stats.scenarios_needed(p, q))
+        if 0 < p < 1:  # issue 50's question: 20 % fewer failures than this D0, Holm over the report's family
+            out["scenarios_needed_20pct_holm"] = stats.scenarios_for(p, 0.2, comparisons)
     return out
 
 
+def part_tables(scores: pd.DataFrame) -> pd.DataFrame:
+    """round_table of each part of the held-out sample (`heldout:<part>` suites: new seeds, new family), one
+    table with a `part` column; empty when the sample has no parts (the shipped plans)."""
+    suites = sorted(s for s in scores.get("suite", pd.Series(dtype=str)).unique() if str(s).startswith("heldout:"))
+    tables = [round_table(scores, s).assign(part=s.split(":", 1)[1]) for s in suites]
+    return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+
+
 def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[dict], detectors: dict,
-          times: dict, cells: dict | None = None, search=None) -> dict:
+          times: dict, cells: dict | None = None, search=None, sample: dict | None = None) -> dict:
     """The result files; `cells` (held-out trial number -> archive cell, loop.cells.cells_of) and the search
-    config they were measured with add cells.csv and the per-group heatmaps."""
+    config they were measured with add cells.csv and the per-group heatmaps; `sample`: what the held-out sample
+    is (its garages, and what the space's requirements accepted: heldout.acceptance)."""
     from garage_exp.loop.figure import draw
 
     out.mkdir(parents=True, exist_ok=True)
@@ -103,12 +116,15 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     pd.DataFrame(book).to_csv(out / "rounds_bookkeeping.csv", index=False)
     rounds = round_table(scores)
     rounds.to_csv(out / "failure_rate.csv", index=False)
+    parts = part_tables(scores)
+    if len(parts):
+        parts.to_csv(out / "failure_rate_parts.csv", index=False)
     family = comparisons(scores, photo_table, arms, k)
     family.to_csv(out / "comparisons.csv", index=False)
-    estimate = power(scores, arms, k)
+    estimate = power(scores, arms, k, max(1, len(family)))  # the family Holm corrects
     (out / "power.json").write_text(json.dumps(estimate, indent=1))
     draw(rounds, scores, photo_table, out / "loop.png")
-    resisting = {}
+    resisting, reach = {}, {}
     if cells and "failed" in scores:
         from garage_exp.loop import cells as cells_mod
         from garage_exp.search.archive import Grid
@@ -117,14 +133,27 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
         table = cells_mod.cell_table(scores, cells, grid)
         table.to_csv(out / "cells.csv", index=False)
         cells_mod.draw(table, grid, out, k)
+        marginals = cells_mod.marginal_table(table, grid, k)  # a readable summary of a grid of many cells
+        marginals.to_csv(out / "cells_marginals.csv", index=False)
+        cells_mod.draw_marginals(marginals, out / "cells_marginals.png")
         resisting = {arm: cells_mod.resisted(table, arm, k) for arm in arms}
+        reach = cells_mod.reach(cells, grid)
     summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms}, "seeds": list(cfg.seeds),
                "detectors": {n: d.get("weights") for n, d in detectors.items()}, "power": estimate,
-               "times_s": times, "cells_resisting": resisting}
+               "times_s": times, "cells_resisting": resisting, "cells_reached": reach, "sample": sample or {}}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.loop: results in {out} (failure_rate.csv, comparisons.csv, scores.csv, photos.csv, "
-          "rounds_bookkeeping.csv, power.json, loop.png" + (", cells.csv, cells_*.png" if resisting else "") + ")")
+          "rounds_bookkeeping.csv, power.json, loop.png" + (", failure_rate_parts.csv" if len(parts) else "")
+          + (", cells.csv, cells_marginals.csv, cells_*.png" if resisting else "") + ")")
+    if sample:
+        print(f"garage_exp.loop: held-out sample on {sample.get('garages')}: {sample.get('scenarios')} scenarios of "
+              f"{sample.get('draws')} draws ({sample.get('accepted')} accepted by the space's requirements, "
+              f"{sample.get('infeasible')} infeasible); {sample.get('past_sobol')} drawn past the Sobol' points")
+    if reach:
+        print(f"garage_exp.loop: the held-out sample reaches {reach['reached']} of {reach['cells']} cells")
     print(rounds.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
+    if len(parts):
+        print(parts.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
     if len(family):
         shown = family.copy()
         for col in ("p", "p_holm"):  # a comparison with no spread or one seed has no test: say so, print no p

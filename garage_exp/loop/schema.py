@@ -45,6 +45,39 @@ class CostConf:
     detect_s_per_frame: float = 0.06  # scoring one held-out frame with one detector (evaluation)
     load_s: float = 8.0  # loading one detector for the evaluation
     verify_s: float = 10.0  # one detector in `python -m garage_exp.verify` on a real set: its load and its images
+    # A space with requirements (space=wide) rejects draws before rendering and redraws them: the share of draws
+    # accepted and the time one rejected draw takes (composing its scene and checking it).
+    acceptance: float = 1.0
+    reject_s: float = 0.0
+    # The protocol suite's jobs (shipped cases with motion, not the space's scenarios): a job's seconds and frames;
+    # None: a trial's (the loop's space is the protocol's kind of scenario).
+    protocol_job_s: Optional[float] = None
+    check_s: float = 0.0  # the loop's up-front check of every step (check.py): seconds on a wide space, else few
+    protocol_frames_per_job: Optional[float] = None
+
+
+@dataclass
+class GaragesConf:
+    """On a space of generated garages (`plan=generated`, `space=wide`; loop/garages.py): the generator seeds the
+    training searches draw from, the disjoint range the held-out sample draws from, and the layout families only
+    the held-out sample has."""
+
+    train_seeds: list[int] = field(default_factory=lambda: [0, 499_999])
+    heldout_seeds: list[int] = field(default_factory=lambda: [500_000, 999_999])
+    heldout_families: list[str] = field(default_factory=lambda: ["spine"])
+
+
+@dataclass
+class PowerConf:
+    """The power estimate printed with the cost (loop/stats.py, scenarios_for): from a pilot's failure rate, how
+    many held-out scenarios per detector detect a relative difference in failure rate at alpha (Holm over every
+    comparison the report makes: its first step tests at alpha / comparisons), with this power."""
+
+    pilot_rate: float = 0.3  # D0's failures per scenario on a pilot of the loop's held-out sample
+    relative: float = 0.2  # the difference to detect: 20 % fewer failures
+    alpha: float = 0.05
+    power: float = 0.8
+    scenario_share: float = 1.0  # of the held-out trials, those that render a scenario (else: actors overlap)
 
 
 @dataclass
@@ -61,6 +94,8 @@ class LoopConf:
     fixed: list[str] = field(default_factory=lambda: ["case.motion.step=2.0"])  # set on every job
     train_plans: list[str] = field(default_factory=lambda: ["research", "realistic"])
     eval_plan: str = "obstacles"  # no training frame comes from it
+    # On a space of generated garages the plans above are not used: these seeds and families are (loop/garages.py).
+    garages: GaragesConf = field(default_factory=GaragesConf)
     # D0: a .pt detector (the COCO-pretrained yolo11n rebuilt from INT8), or a model YAML trained from scratch on
     # the base data (base_epochs, base_lr0).
     base: str = "../shared/models/yolo11n_fp32_from_int8.pt"
@@ -102,6 +137,7 @@ class LoopConf:
     hard_below: float = 0.4  # a failure: a fair scenario whose mean confidence is below this
     threshold: float = 0.5  # composite confidence counted as detected
     estimate: bool = False  # print the cost model's estimate of this config and stop
+    power: PowerConf = field(default_factory=PowerConf)
     cost: CostConf = field(default_factory=CostConf)
     tracking: TrackingConf = field(default_factory=lambda: TrackingConf(experiment="garage_loop"))
 
@@ -111,8 +147,8 @@ def register() -> None:
 
 
 def searched(cfg) -> list[str]:
-    """The loop's space as a search command's overrides: `space=NAME` while its params are its file's (the search
-    then takes the file's requirements, cells and one-shot case too), else the params alone (`space.params=[...]`
+    """The loop's space as a search command's overrides: `space=NAME` while its params are its file's or empty (the
+    search then takes the file's requirements, cells and one-shot case too), else the params alone (`space.params=[...]`
     on the loop's command line replaces the file's list, as the loop's space list always did)."""
     from omegaconf import OmegaConf
 
@@ -120,9 +156,23 @@ def searched(cfg) -> list[str]:
 
     name, params = str(cfg.space.name), [str(p) for p in cfg.space.params]
     path = PROJECT_ROOT / "conf" / "space" / f"{name}.yaml"
-    if path.is_file() and [str(p) for p in OmegaConf.load(path).get("params") or []] == params:
+    # no params of its own: the named file's (a config such as conf/loop_wide.yaml names its space so)
+    if path.is_file() and (not params or [str(p) for p in OmegaConf.load(path).get("params") or []] == params):
         return [f"space={name}"]
     return params
+
+
+def space_config(argv: list[str]) -> list[str]:
+    """`space=NAME` with no config named: the loop's config sized for that space, conf/loop_NAME.yaml, when one is
+    shipped (`space=wide`: conf/loop_wide.yaml, whose budgets fit one-shot scenarios; conf/loop.yaml's frame
+    budget is for the loop space's scenarios of many frames), else the argv as given."""
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    named = [a.split("=", 1)[1] for a in argv if a.startswith("space=")]
+    if not named or any(a.startswith(("--config-name", "-cn", "--config-dir", "-cd")) for a in argv):
+        return argv
+    config = f"loop_{named[-1]}"
+    return ["--config-name", config, *argv] if (PROJECT_ROOT / "conf" / f"{config}.yaml").is_file() else argv
 
 
 def space_by_name(argv: list[str]) -> list[str]:
@@ -144,3 +194,24 @@ def space_by_name(argv: list[str]) -> list[str]:
         params = [str(p) for p in OmegaConf.load(path).get("params") or []]
         out += [f"space.name={name}", "space.params=[" + ",".join(f'"{p}"' for p in params) + "]"]
     return out
+
+
+def space_file(cfg):
+    """The shipped space's file (conf/space/NAME.yaml) when the loop's searches are given it by name (searched()),
+    else None: its `require` and `descriptors` then hold for every search of the loop."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.paths import PROJECT_ROOT
+
+    named = [e.split("=", 1)[1] for e in searched(cfg) if e.startswith("space=")]
+    path = PROJECT_ROOT / "conf" / "space" / f"{named[0]}.yaml" if named else None
+    return OmegaConf.load(path) if path and path.is_file() else None
+
+
+def space_descriptors(cfg) -> list:
+    """The archive's cells the shipped space names (its file's `descriptors: NAME`, search/schema.py's
+    DESCRIPTOR_SETS), which its searches then use; [] for a space that names none."""
+    from garage_exp.search.schema import DESCRIPTOR_SETS
+
+    name = (space_file(cfg) or {}).get("descriptors")
+    return DESCRIPTOR_SETS[name]() if name in DESCRIPTOR_SETS else []

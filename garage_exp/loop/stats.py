@@ -90,3 +90,14 @@ def scenarios_needed(p1: float, p2: float, alpha: float = 0.05, power: float = 0
         return math.inf
     return float(NormalIndPower().solve_power(effect_size=h, alpha=alpha, power=power, ratio=1.0,
                                               alternative="two-sided"))
+
+
+def scenarios_for(rate: float, relative: float = 0.2, comparisons: int = 1, alpha: float = 0.05,
+                  power: float = 0.8) -> int:
+    """Held-out scenarios per detector that detect a failure rate `relative` lower than `rate` (a pilot's: 0.3 and
+    0.2 ask 0.3 against 0.24), two-sided, at Holm's first step over `comparisons` tests (alpha / comparisons: the
+    smallest p-value of the family must clear it), with this power (two independent proportions, Cohen's h: the
+    detectors score the same scenarios, so this is an upper bound)."""
+    if not 0 < rate < 1 or not 0 < relative < 1:
+        raise ValueError(f"a failure rate {rate} and a relative difference {relative} in (0, 1)")
+    return math.ceil(scenarios_needed(rate, rate * (1 - relative), alpha / max(1, comparisons), power))

@@ -26,6 +26,14 @@ class Trial:
     difficulty: float | None  # 1 - mean confidence over the fair frames (COMPLETE only)
     output_dir: Path | None
     frames: int = 0  # frames the trial rendered (its job's count)
+    params: dict | None = None  # its searched values (a held-out scenario's garage family, for the report)
+    rejected: bool = False  # a draw the space's requirements rejected before rendering (PRUNED, redrawn)
+    infeasible: bool = False  # a draw whose actors overlap: PRUNED, nothing rendered (a trial of the budget)
+
+    @property
+    def ran(self) -> bool:
+        """A scenario that counts: finished and not a rejected draw (which takes no place in any budget)."""
+        return self.state in ("COMPLETE", "PRUNED", "FAIL") and not self.rejected
 
     @property
     def dataset(self) -> Path | None:
@@ -39,14 +47,14 @@ def storage(cfg: DictConfig) -> str:
     return f"sqlite:///{Path(cfg.dir) / 'optuna.db'}"
 
 
-def search_command(cfg: DictConfig, study: str, plans: list[str], trials: int, sampler: str, seed: int,
+def search_command(cfg: DictConfig, study: str, garage: list[str], trials: int, sampler: str, seed: int,
                    models: list[str] | None = None, startup: int | None = None, frames: int = 0) -> list[str]:
-    """`python -m garage_exp -m hydra/sweeper=search ...` over the loop's space on `plans`, each trial with its
-    dataset; scored by `models` (None: the shipped detectors)."""
-    plan = f"plan=choice({','.join(plans)})" if len(plans) > 1 else f"plan={plans[0]}"
+    """`python -m garage_exp -m hydra/sweeper=search ...` over the loop's space on the garages `garage` says
+    (overrides: loop/garages.py's train() or heldout()), each trial with its dataset; scored by `models` (None:
+    the shipped detectors)."""
     cmd = [sys.executable, "-m", "garage_exp", "-m", "hydra/sweeper=search", f"search.trials={trials}",
            f"search.sampler={sampler}", f"search.seed={seed}", f"search.study={study}",
-           f"search.storage={storage(cfg)}", plan, *searched(cfg), *cfg.fixed, "dataset=true",
+           f"search.storage={storage(cfg)}", *with_garage(cfg, garage), *cfg.fixed, "dataset=true",
            f"detector.threshold={cfg.threshold}", f"tracking.uri={cfg.tracking.uri}",
            f"tracking.experiment={cfg.tracking.experiment}", f"hydra.sweep.dir={Path(cfg.dir) / 'studies' / study}"]
     if models:
@@ -75,6 +83,13 @@ def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: 
     if calibrate:  # fine-tuning the pretrained D0 and its descendants: the biases warm up from 0, not 0.1
         cmd.append(f"warmup_bias_lr={cfg.warmup_bias_lr}")
     return cmd
+
+
+def with_garage(cfg: DictConfig, garage: list[str]) -> list[str]:
+    """The garage's overrides, then the loop's space less the entries whose key they set (a space given as its
+    params lists `plan.seed` itself; a shipped space's `space=NAME` yields its keys to the command's own)."""
+    keys = {g.split("=", 1)[0] for g in garage}
+    return [*garage, *(e for e in searched(cfg) if e.split("=", 1)[0] not in keys)]
 
 
 def sweep_command(cfg: DictConfig, out: Path, overrides: list[str]) -> list[str]:
@@ -124,7 +139,8 @@ def trials(cfg: DictConfig, study: str) -> list[Trial]:
     for t in s.get_trials(deepcopy=False):
         d = t.user_attrs.get("output_dir")
         out.append(Trial(study, t.number, t.state.name, t.values[0] if t.values else None,
-                         Path(d) if d else None, int(t.user_attrs.get("frames") or 0)))
+                         Path(d) if d else None, int(t.user_attrs.get("frames") or 0), dict(t.params),
+                         "rejected" in t.user_attrs, bool(t.user_attrs.get("infeasible"))))
     return out
 
 
@@ -132,7 +148,7 @@ def study_done(cfg: DictConfig, study: str, n: int, frames: int = 0) -> bool:
     """Whether the study holds its n trials or, under a frame budget, rendered its frames."""
     try:
         # WAITING (enqueued, not run yet) and RUNNING trials are not done
-        done = [t for t in trials(cfg, study) if t.state in ("COMPLETE", "PRUNED", "FAIL")]
+        done = [t for t in trials(cfg, study) if t.ran]  # a rejected draw was redrawn: it is no trial
     except KeyError:  # no such study yet
         return False
     return len(done) >= n or (frames > 0 and sum(t.frames for t in done) >= frames)
