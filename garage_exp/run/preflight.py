@@ -205,7 +205,8 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     # A dry run builds the scene description too (~0.1 s, no rendering): it refuses every job the real run would
     # refuse at scene build (placements, overlaps, reach), in the same words. It keeps none of it.
     try:
-        scene, setup = build_scene(job, prepared.classified, _library(), np.random.default_rng(job.seed))
+        scene, setup = handed_scene(job, prepared.classified) or \
+            build_scene(job, prepared.classified, _library(), np.random.default_rng(job.seed))
     except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
         where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file, refused=True)
         if not where:
@@ -227,6 +228,28 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
         out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
         check_free([(out, prepared.bytes_out), (store_dir(cfg), prepared.bytes_store)], "this job")
     return load_models(prepared) if load else prepared
+
+
+# A search's requirement check (search/loop.py) builds the draw's scene description to judge it; the draw it
+# accepts is then launched as a job whose preflight would build the very same scene again (same settings, same
+# plan, same seed: the build is a pure function of them). The check hands its scene on here instead; the job's
+# preflight takes it once, when its scene settings equal the checked ones, and builds it itself otherwise.
+_HANDED: dict = STATE.cache("run.preflight.handed", "command")
+
+
+def hand_on_scene(prepared: PreparedJob) -> None:
+    """Keep a checked draw's scene description for the next preflight of the same settings (one, at most)."""
+    _HANDED.clear()
+    if prepared.scene is not None and prepared.spec is not None:
+        _HANDED["checked"] = (prepared.classified, prepared.spec.scene, prepared.scene, prepared.setup)
+
+
+def handed_scene(job, classified) -> tuple | None:
+    """The (scene, setup) handed on for these scene settings on this very plan, taken (None: build it)."""
+    held = _HANDED.pop("checked", None)
+    if held is None or held[0] is not classified or held[1] != job:
+        return None
+    return held[2], held[3]
 
 
 def load_models(prepared: PreparedJob) -> PreparedJob:

@@ -221,7 +221,7 @@ class SearchLoop:
         rejected it (told PRUNED with `rejected`; the loop asks for another in its place)."""
         if self.require is None or self.compose is None:
             return False
-        from garage_exp.run.preflight import preflight
+        from garage_exp.run.preflight import hand_on_scene, preflight
 
         try:
             with heartbeat(self.study, trial):
@@ -240,6 +240,7 @@ class SearchLoop:
                                                      "truncation": round(verdict.best.truncation, 3)})
         if verdict.ok:
             self.in_a_row = 0
+            hand_on_scene(prepared)  # the job's preflight takes this scene instead of building it again
             return False
         self.in_a_row += 1
         trial.set_user_attr("rejected", verdict.why)
