@@ -263,3 +263,31 @@ def test_an_accepted_draw_hands_its_checked_scene_to_its_job_which_builds_none(t
     assert [n for n, _ in handed] == [0, 0, 0, 0]  # no job built its scene: each took the checked one
     assert len(builds) == len(trials)  # one build a draw: the check's
     assert all(scene is not None and scene.entities for _, scene in handed)
+
+
+def test_a_checked_draw_whose_actors_collide_is_refused_by_its_job_without_a_second_build(monkeypatch):
+    """The check's refusal (Infeasible: two actors in one another) is handed on as a scene is: the job's preflight
+    of the same settings raises it again, in the same words, and builds nothing; other settings are built."""
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.run import preflight as pf
+    from garage_exp.scenario import assemble
+
+    builds = []
+
+    def refuse(job, *args, **kwargs):
+        builds.append(job)
+        raise Infeasible("the target stands in the occluder", "case.actors.target.distance")
+
+    monkeypatch.setattr(assemble, "build_scene", refuse)
+    monkeypatch.setattr(pf, "_library", lambda: None)
+    from types import SimpleNamespace as Job
+
+    plan, job, other = object(), Job(seed=1, case="a"), Job(seed=2, case="a")
+    with pytest.raises(Infeasible):
+        pf.scene_of(job, plan, hand=True)
+    with pytest.raises(Infeasible, match="stands in the occluder"):
+        pf.scene_of(Job(seed=1, case="a"), plan)  # equal settings, another object (the job's own)
+    assert len(builds) == 1
+    with pytest.raises(Infeasible):
+        pf.scene_of(other, plan)  # nothing handed on for these settings: built (and refused) afresh
+    assert len(builds) == 2

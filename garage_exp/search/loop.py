@@ -221,11 +221,12 @@ class SearchLoop:
         rejected it (told PRUNED with `rejected`; the loop asks for another in its place)."""
         if self.require is None or self.compose is None:
             return False
-        from garage_exp.run.preflight import hand_on_scene, preflight
+        from garage_exp.run.preflight import preflight
 
         try:
             with heartbeat(self.study, trial):
-                prepared = preflight(self.compose(overrides), check_space=False, load=False)
+                # hand: the job of an accepted (or colliding) draw takes this scene (or refusal), not building it again
+                prepared = preflight(self.compose(overrides), check_space=False, load=False, hand=True)
                 verdict = require_mod.judge(self.require, prepared.scene, prepared.setup, prepared.spec.primary)
         except (KeyboardInterrupt, SystemExit):
             self.study.tell(trial, state=TrialState.FAIL)
@@ -240,7 +241,6 @@ class SearchLoop:
                                                      "truncation": round(verdict.best.truncation, 3)})
         if verdict.ok:
             self.in_a_row = 0
-            hand_on_scene(prepared)  # the job's preflight takes this scene instead of building it again
             return False
         self.in_a_row += 1
         trial.set_user_attr("rejected", verdict.why)
