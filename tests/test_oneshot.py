@@ -115,6 +115,38 @@ def test_a_kept_garage_taken_back_renders_what_a_fresh_load_renders(library):
     assert one.sapien_scene is not was
 
 
+@pytest.mark.render
+def test_a_garage_loaded_with_its_kept_textures_renders_what_fresh_textures_render(library):
+    """The uploaded textures are kept by material (render/sapien_builder._uploaded): a garage of the real look loaded
+    into another renderer's SAPIEN scene takes every one of them from the cache (nothing made or uploaded again), and
+    its frame is pixel-equal to the one drawn with every texture made afresh."""
+    from conftest import require
+
+    require("vulkan", "vehicles")
+    from garage_exp.core.state import STATE
+    from garage_exp.render.sapien_backend import get_renderer
+    from garage_exp.render.sapien_builder import _uploaded
+
+    cfg = compose_cfg("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]", "camera.width=96",
+                      "camera.height=72", "plan=small", "materials.wetness=0.6")
+    classified = classify(load_plan(resolve_plan_path(cfg.plan)))
+    scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    assert any(s.material.texture is not None for e in scene.entities for s in e.shapes if hasattr(s, "material"))
+    frames = []
+    for fresh_textures in (True, False):
+        if fresh_textures:
+            _uploaded.cache_clear()
+        STATE.renderer = None  # another renderer, another SAPIEN scene
+        renderer = get_renderer()
+        renderer.kept_garages = 1
+        made = _uploaded.cache_info().misses
+        renderer.load(scene)
+        frames.append(rendered(scene, setup, renderer, cfg))
+        if not fresh_textures:
+            assert _uploaded.cache_info().misses == made  # every texture taken from the cache
+    assert np.array_equal(frames[0], frames[1]) and frames[0].std() > 0
+
+
 # A one-shot search: one frame a scenario (the lighting case at one distance), the archive's sampler over two
 # garages kept loaded, one detector, one MLflow run for the search.
 ONESHOT = ["-m", "hydra/sweeper=search", "search.sampler=archive", "search.trials=6", "search.startup=3",

@@ -105,3 +105,26 @@ def test_case_3_cars_stand_in_the_bays_beside_the_lane(library):
     dist = {v.name: np.hypot(v.pose.x - ego0.x, v.pose.y - ego0.y) for v in parked}
     assert dist["close_large"] < dist["far_small"]
     assert [s.target for s in setup.shots] == ["far_small"] * 5 + ["far_medium"] * 5
+
+
+def test_a_plans_bays_are_made_once_for_its_sizes_and_afresh_for_other_sizes(monkeypatch):
+    """scene.bays.bays keeps each plan's bays by its sizes (a scene's build asks for them ~9 times): a second call
+    makes none, a copy each time (a caller's list is its own), other sizes are made afresh."""
+    from types import SimpleNamespace
+
+    from garage_exp.plan import classify, load_plan
+    from garage_exp.scene import bays as bays_mod
+
+    from garage_exp.core.paths import PLANS_DIR
+
+    classified = classify(load_plan(PLANS_DIR / "small.yaml"))
+    made = []
+    real = bays_mod._all_bays
+    monkeypatch.setattr(bays_mod, "_all_bays", lambda *args: made.append(args[1:]) or real(*args))
+    garage = SimpleNamespace(bay_width=2.5, pillar_size=0.6)
+    first = bays_mod.bays(classified, garage)
+    first.clear()
+    again = bays_mod.bays(classified, garage)
+    assert again and again == real(classified, 2.5, 0.6) and made == [(2.5, 0.6)]
+    assert bays_mod.bays(classified, SimpleNamespace(bay_width=2.7, pillar_size=0.6)) != again
+    assert made == [(2.5, 0.6), (2.7, 0.6)]

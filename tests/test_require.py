@@ -216,3 +216,78 @@ def test_a_space_its_requirements_always_reject_stops_with_one_line(tmp_path):
         with pytest.raises(GarageError, match="rejected 3 draws in a row") as err:
             loop.run()
     assert err.value.where == "search.require"
+
+
+def test_an_accepted_draw_hands_its_checked_scene_to_its_job_which_builds_none(tmp_path, monkeypatch):
+    """The requirement check builds each draw's scene description once; the job of an accepted draw takes that very
+    scene from its preflight instead of building it again: one build a draw, whether accepted or rejected."""
+    from types import SimpleNamespace
+
+    from hydra.types import RunMode
+
+    from garage_exp.run.preflight import preflight
+    from garage_exp.scenario import assemble
+
+    builds, handed = [], []
+    real = assemble.build_scene
+
+    def counted(job, *args, **kwargs):
+        builds.append(job)
+        return real(job, *args, **kwargs)
+
+    monkeypatch.setattr(assemble, "build_scene", counted)
+    store = f"search.storage=sqlite:///{tmp_path / 'optuna.db'}"
+    with hydra_loader() as loader:
+        master = loader.load_configuration(
+            "config", ["hydra/sweeper=search", "plan=tiny", "search.sampler=random", "search.require.max_distance=9",
+                       "palette.target_colours=[black]", store], RunMode.MULTIRUN)
+        compose = lambda overrides: loader.load_sweep_config(master, overrides)  # noqa: E731
+
+        def launch(batch, idx):  # each accepted draw's job, as far as its preflight (where its scene is built)
+            out = []
+            for overrides in batch:
+                before = len(builds)
+                prepared = preflight(compose(overrides), check_space=False, load=False)
+                handed.append((len(builds) - before, prepared.scene))
+                out.append(SimpleNamespace(return_value={"fair_frames": 2.0, "fair_difficulty": 0.5,
+                                                         "fair_confidence": 0.5, "fair_recall": 1.0, "frames": 2.0,
+                                                         "visible_fraction_mean": 0.9, "run_id": "r",
+                                                         "output_dir": "/nowhere"}))
+            return out
+
+        space = space_mod.build(SPACE, master, {"plan": ["tiny"]})
+        study = study_mod.open_study(master.search, "handed", 0, space.params)
+        SearchLoop(master.search, space, study, launch, 4, compose=compose).run()
+    trials = study.get_trials()
+    assert len(handed) == 4 and any("rejected" in t.user_attrs for t in trials)
+    assert [n for n, _ in handed] == [0, 0, 0, 0]  # no job built its scene: each took the checked one
+    assert len(builds) == len(trials)  # one build a draw: the check's
+    assert all(scene is not None and scene.entities for _, scene in handed)
+
+
+def test_a_checked_draw_whose_actors_collide_is_refused_by_its_job_without_a_second_build(monkeypatch):
+    """The check's refusal (Infeasible: two actors in one another) is handed on as a scene is: the job's preflight
+    of the same settings raises it again, in the same words, and builds nothing; other settings are built."""
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.run import preflight as pf
+    from garage_exp.scenario import assemble
+
+    builds = []
+
+    def refuse(job, *args, **kwargs):
+        builds.append(job)
+        raise Infeasible("the target stands in the occluder", "case.actors.target.distance")
+
+    monkeypatch.setattr(assemble, "build_scene", refuse)
+    monkeypatch.setattr(pf, "_library", lambda: None)
+    from types import SimpleNamespace as Job
+
+    plan, job, other = object(), Job(seed=1, case="a"), Job(seed=2, case="a")
+    with pytest.raises(Infeasible):
+        pf.scene_of(job, plan, hand=True)
+    with pytest.raises(Infeasible, match="stands in the occluder"):
+        pf.scene_of(Job(seed=1, case="a"), plan)  # equal settings, another object (the job's own)
+    assert len(builds) == 1
+    with pytest.raises(Infeasible):
+        pf.scene_of(other, plan)  # nothing handed on for these settings: built (and refused) afresh
+    assert len(builds) == 2

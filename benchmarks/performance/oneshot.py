@@ -18,14 +18,17 @@ frame row and the study's tell.
 The rate is sustained: scenarios told per second after the first `--warmup` (shaders, each garage's first load and
 the detector's start are paid once per process), from the study's own clock (each trial's end). With `--rounds 2`
 the arms alternate (today, oneshot, today, oneshot) so that another process's load falls on both. `--before DIR`
-runs today's arm on another checkout (e.g. the commit before this benchmark) instead of this one's per_trial path.
+runs today's arm on another checkout (e.g. the commit before this benchmark) instead of this one's per_trial path;
+with `--before-oneshot` that checkout's oneshot arm runs too (`oneshot@before`), so that one invocation gives both
+the ratio to today's search and this checkout's gain on the one-shot path itself.
 The page: benchmarks/results/oneshot.md.
 
 `--space wide` measures the wide space instead (conf/space/wide.yaml: one-shot scenarios over 31 factors, each
 draw checked against the space's requirements before it is rendered, a rejected draw redrawn), on generated garages:
 `plan.seed` drawn among `--garages` seeds (16: with 400 scenarios, a garage not seen before every 25 scenarios on
 average, inside the issue's "at least every 32"), the oneshot arm keeping them all loaded. Its rate counts the
-scenarios rendered and scored (a rejected draw costs its check, and counts as none). The page:
+scenarios told (a rejected draw costs its check, and counts as none; a draw whose actors collide is told PRUNED
+infeasible without rendering, and counts), and `rendered / s` those rendered and scored alone. The page:
 benchmarks/results/oneshot_wide.md.
 """
 
@@ -90,12 +93,14 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str]) -> int
     print(f"garage_exp from {Path(app.__file__).parent.parent}", file=sys.stderr)
 
     ends: list[float] = []
+    told: list[str] = []  # each told trial's state, in the order of `ends` (COMPLETE: rendered and scored)
     cpu: list[tuple[float, float]] = []
     real_tell = loop.SearchLoop.tell
 
     def tell(self, trial, outcome):
         real_tell(self, trial, outcome)
         ends.append(time.perf_counter())
+        told.append(outcome.state.name)
         if len(ends) in (warmup, trials):
             cpu.append(cpu_seconds())
 
@@ -120,7 +125,8 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str]) -> int
         plans = [t.params.get("plan", t.params.get("plan.seed")) for t in kept]
         states = [t.state.name for t in kept]
         rejected = len(study.trials) - len(kept)
-    Path(out).write_text(json.dumps({"arm": arm, "code": code, "ends": [e - start for e in ends], "total": total,
+    Path(out).write_text(json.dumps({"arm": arm, "code": code, "ends": [e - start for e in ends], "told": told,
+                                     "total": total,
                                      "plans": plans, "complete": states.count("COMPLETE"), "cpu": cpu,
                                      "trials": len(states), "rejected": rejected}))
     return code
@@ -134,6 +140,17 @@ def rate(ends: list[float], warmup: int) -> tuple[float, int]:
     return counted / (ends[-1] - ends[warmup - 1]), counted
 
 
+def rendered_rate(r: dict, warmup: int) -> float:
+    """Scenarios rendered and scored (told COMPLETE) a second over `rate`'s span: a draw the job refused before
+    rendering (two actors in one another: PRUNED infeasible) is told too, and counts in `rate`, not here."""
+    ends, told = r["ends"], r.get("told") or []
+    if len(ends) - warmup < 2:
+        return float("nan")
+    if len(told) != len(ends):  # a --before checkout's child records no states: its arm's share of complete ones
+        return rate(ends, warmup)[0] * r["complete"] / max(r["trials"], 1)
+    return told[warmup:].count("COMPLETE") / (ends[-1] - ends[warmup - 1])
+
+
 def longest_run(plans: list) -> int:
     """The most consecutive scenarios on one garage."""
     best = run = 0
@@ -143,10 +160,10 @@ def longest_run(plans: list) -> int:
     return best
 
 
-def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[str]) -> dict:
+def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[str], name: str | None = None) -> dict:
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
         out = fh.name
-    name = "before" if code is not None else arm
+    name = name or ("before" if code is not None else arm)
     # the file, not `-m`, from the code's own checkout: `python -m` would put the working dir first on sys.path
     # and import this checkout's garage_exp for --before's arm (as performance/before.py runs its children)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name, "--trials", str(trials),
@@ -171,6 +188,8 @@ def main() -> int:
     parser.add_argument("--warmup", type=int, default=16, help="scenarios left out at each arm's start")
     parser.add_argument("--rounds", type=int, default=1, help="today and oneshot alternated this many times")
     parser.add_argument("--before", type=Path, default=None, help="today's arm on this checkout instead")
+    parser.add_argument("--before-oneshot", action="store_true",
+                        help="with --before: also its oneshot arm (oneshot@before), for this checkout's gain on it")
     parser.add_argument("--page", type=Path, default=None, help="default: results/oneshot.md (oneshot_<space>.md)")
     parser.add_argument("--space", default="", help="a shipped space (wide) on generated garages instead")
     parser.add_argument("--garages", type=int, default=16, help="with --space: generated garages drawn among")
@@ -193,6 +212,8 @@ def main() -> int:
     runs = []
     for _ in range(opts.rounds):
         runs.append(run_arm("today", opts.today_trials, opts.warmup, opts.before, opts.overrides))
+        if opts.before is not None and opts.before_oneshot:
+            runs.append(run_arm("oneshot@before", opts.trials, opts.warmup, opts.before, opts.overrides, "oneshot"))
         runs.append(run_arm("oneshot", opts.trials, opts.warmup, None, opts.overrides))
     rows = []
     for r in runs:
@@ -202,20 +223,25 @@ def main() -> int:
                      "cpu_main": round((own1 - own0) / max(counted, 1), 3),
                      "cpu_detector": round((kids1 - kids0) / max(counted, 1), 3),
                      "per_s": round(per_s, 3), "s_each": round(1 / per_s, 3), "garages": len(set(r["plans"])),
+                     "rendered_per_s": round(rendered_rate(r, opts.warmup), 3),
                      "rejected": r.get("rejected", 0),
                      "longest_on_one": longest_run(r["plans"]), "wall_s": round(r["wall"], 1),
                      "load": f"{r['load_before']:.2f} -> {r['load_after']:.2f}"})
     today = [row["per_s"] for row in rows if row["arm"] == "today"]
     new = [row["per_s"] for row in rows if row["arm"] == "oneshot"]
     ratio = (sum(new) / len(new)) / (sum(today) / len(today))
-    header = ("| arm | scenarios | rejected before rendering | complete | counted | scenarios / s | s / scenario | "
+    old = [row["per_s"] for row in rows if row["arm"] == "oneshot@before"]
+    gain = (sum(new) / len(new)) / (sum(old) / len(old)) if old else None
+    header = ("| arm | scenarios | rejected before rendering | complete | counted | scenarios / s | rendered / s | "
+              "s / scenario | "
               "CPU s / scenario: search process, detector | garages | most in a row on one | child wall (s) | "
               "load (1 min) |")
     lines = ["# One-shot scenarios a second (issue 49, item 6)", "",
              f"`{command}` · commit `{commit}` · {time.strftime('%Y-%m-%d %H:%M')} · {machine()}", "",
              f"scenario: {' '.join(SCENARIO)}", f"space: {' '.join(SPACE)}", "", header,
-             "|" + "---|" * 12]
+             "|" + "---|" * 13]
     lines += [f"| {r['arm']} | {r['scenarios']} | {r['rejected']} | {r['complete']} | {r['counted']} | {r['per_s']:.2f} | "
+              f"{r['rendered_per_s']:.2f} | "
               f"{r['s_each']:.3f} | {r['cpu_main']:.3f}, {r['cpu_detector']:.3f} | {r['garages']} | "
               f"{r['longest_on_one']} | {r['wall_s']} | {r['load']} |"
               for r in rows]
@@ -224,8 +250,10 @@ def main() -> int:
     lines += ["", f"oneshot / today: **{ratio:.2f}x**; the oneshot arm sustains {min(new):.2f}-{max(new):.2f} "
               f"scenarios/s (goal >= 5: {verdict}). It used {cpu[0]:.3f} CPU s a scenario in all ({cpu[1]:.3f} in "
               f"the search's process, its render threads included): on two idle cores at most {2 / cpu[0]:.1f} "
-              "scenarios/s.", "",
-              "```json", json.dumps({"rows": rows, "ratio": ratio}), "```"]
+              "scenarios/s."]
+    if gain is not None:
+        lines += ["", f"oneshot / oneshot@before (the same one-shot path on {opts.before}): **{gain:.2f}x**."]
+    lines += ["", "```json", json.dumps({"rows": rows, "ratio": ratio, "gain": gain}), "```"]
     text = "\n".join(lines) + "\n"
     print(text)
     page.write_text(text)

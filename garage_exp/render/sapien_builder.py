@@ -22,6 +22,7 @@ from functools import singledispatch
 import numpy as np
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.state import STATE
 from garage_exp.scene.description import VEHICLE_ROLES, Box, Decal, Entity, Material, Mesh, Pose
 
 STATIC_ROLES = ("structure", "marking", "lamp")
@@ -294,16 +295,35 @@ def _plain(shape) -> bool:
 
 def _texture(rm, material: Material) -> None:
     """Give a SAPIEN material its procedural picture (8-bit sRGB with mipmaps: a far floor does not shimmer)."""
+    base, rough = _uploaded(material)
+    rm.base_color_texture = base
+    if rough is not None:
+        rm.roughness_texture = rough
+
+
+# A search on generated garages loads another garage (or the same with another floor) at nearly every trial: each
+# full load made all its ~100 textures again (79 of them bay-number signs) and uploaded them, ~0.3 s a load, as the
+# pictures' own cache (scene.textures, 128) holds one garage's. The uploaded textures are kept instead, by material
+# (its picture's kind, seed and parameters): the garages' signs and walls are shared, only a new floor is made.
+# SAPIEN's textures are read-only once made (a painted car makes a copy, restyle() replaces one), so materials of
+# several scenes may share one. 512 at most (8-bit; ~0.1 MB a sign, a few MB a floor).
+UPLOADS_KEPT = 512
+
+
+@STATE.memo("process", maxsize=UPLOADS_KEPT)
+def _uploaded(material: Material) -> tuple:
+    """The material's picture uploaded: (base colour texture, roughness texture or None)."""
     import sapien.render as sr
 
     from garage_exp.scene.textures import image, image8
 
     rgba, rough = image(material)
     levels = max(1, int(math.log2(min(rgba.shape[:2]))) - 1)
-    rm.base_color_texture = sr.RenderTexture2D(np.ascontiguousarray(image8(material)), "R8G8B8A8Unorm", mipmap_levels=levels, srgb=True)
+    base = sr.RenderTexture2D(np.ascontiguousarray(image8(material)), "R8G8B8A8Unorm", mipmap_levels=levels, srgb=True)
     if rough is not None:
-        rm.roughness_texture = sr.RenderTexture2D(np.ascontiguousarray(rough, dtype=np.float32)[..., None], "R32Sfloat",
-                                                  mipmap_levels=levels)
+        rough = sr.RenderTexture2D(np.ascontiguousarray(rough, dtype=np.float32)[..., None], "R32Sfloat",
+                                   mipmap_levels=levels)
+    return base, rough
 
 
 def _box_mesh(size: Sequence[float], world: Pose, tile: float):

@@ -172,14 +172,16 @@ def check_slots(cfg) -> None:
                           "(camera.view=raw)", "camera.view")
 
 
-def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> PreparedJob:
+def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand: bool = False) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem: the config, the plan, the vehicle assets, and the scene description (garage, case,
     palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also that the detector's files exist.
     Then the disk space the job will write, against the free space unless check_space is false (a sweep adds up
     all its jobs' estimates and checks them once). Last, the one check that needs the models (seconds): every
     detector entry loads and answers a probe frame - unless load is false (a sweep loads them after its disk
-    check: load_models). Checks that need no model come first, so that their refusal costs no model loading."""
+    check: load_models). Checks that need no model come first, so that their refusal costs no model loading. With
+    `hand` (a search's requirement check) the scene built, or its refusal, is handed on to the next preflight
+    (scene_of)."""
     from garage_exp.core.schema_check import check_schema
 
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
@@ -188,10 +190,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     hand_on(cfg, prepared.classified.plan)
     config = settings(cfg)  # the layers below are handed plain data, never the config node
     check_config(config)
-    import numpy as np
-
     from garage_exp.run.spec import job_spec, scene_spec
-    from garage_exp.scenario.assemble import build_scene
 
     job = scene_spec(config)
 
@@ -205,7 +204,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
     # A dry run builds the scene description too (~0.1 s, no rendering): it refuses every job the real run would
     # refuse at scene build (placements, overlaps, reach), in the same words. It keeps none of it.
     try:
-        scene, setup = build_scene(job, prepared.classified, _library(), np.random.default_rng(job.seed))
+        scene, setup = scene_of(job, prepared.classified, hand)
     except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
         where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file, refused=True)
         if not where:
@@ -227,6 +226,38 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True) -> P
         out = Path(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else Path.cwd()
         check_free([(out, prepared.bytes_out), (store_dir(cfg), prepared.bytes_store)], "this job")
     return load_models(prepared) if load else prepared
+
+
+# A search's requirement check (search/loop.py) builds each draw's scene description to judge it; the draw it
+# accepts is then launched as a job whose preflight would build the very same scene again (same settings, same
+# plan, same seed: the build is a pure function of them), and a draw whose actors collide (Infeasible) would fail
+# the same way twice. The check's preflight (`hand=True`) hands what it built, or the refusal, on to the next
+# preflight, which takes it once when its scene settings equal the checked ones and builds the scene otherwise.
+_HANDED: dict = STATE.cache("run.preflight.handed", "command")
+
+
+def scene_of(job, classified, hand: bool = False) -> tuple:
+    """(scene, setup) of the scene settings `job` on the classified plan: the one handed on for them, else built
+    (and handed on itself with `hand`)."""
+    import numpy as np
+
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.scenario.assemble import build_scene
+
+    held = _HANDED.pop("checked", None)
+    if held is not None and held[0] is classified and held[1] == job:
+        if isinstance(held[2], Infeasible):
+            raise held[2]
+        return held[2]
+    try:
+        built = build_scene(job, classified, _library(), np.random.default_rng(job.seed))
+    except Infeasible as exc:
+        if hand:
+            _HANDED["checked"] = (classified, job, exc)
+        raise
+    if hand:
+        _HANDED["checked"] = (classified, job, built)
+    return built
 
 
 def load_models(prepared: PreparedJob) -> PreparedJob:

@@ -43,15 +43,22 @@ def park_vehicles(classified, garage, palette, library, rng: np.random.Generator
     chosen = sorted(rng.choice(len(free), size=count, replace=False).tolist())
     allowed = set(palette.models) if palette.models else None
     pillars = pillar_footprints(scene)
+    longest = max((m.length for m in library.models), default=0.0)
+    widest = max((m.width for m in library.models), default=0.0)
     out = []
     for n, k in enumerate(chosen):
         bay = free[k]
+        # Only the pillars the bay's largest car footprint touches can touch any car's: every model's footprint
+        # at the bay lies inside it (same centre and axis). A generated garage has hundreds of pillars, and
+        # testing each against each model of each bay took about 0.5 s a scene.
+        reach = car_footprint(bay.x, bay.y, bay.yaw, longest, widest)
+        near = [p for p in pillars if overlap(reach, p) > 0]
         candidates = [m for m in library.models
                       if m.size_class in palette.parked_classes and m.height + 0.1 < garage.ceiling_height
                       and m.length <= bay.depth and m.width <= bay.width + 0.15  # widths include mirrors
                       and (allowed is None or m.name in allowed)
                       and not any(overlap(car_footprint(bay.x, bay.y, bay.yaw, m.length, m.width), p) > 0
-                                  for p in pillars)]
+                                  for p in near)]
         if not candidates:
             continue
         model = candidates[int(rng.integers(len(candidates)))]

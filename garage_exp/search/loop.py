@@ -225,7 +225,8 @@ class SearchLoop:
 
         try:
             with heartbeat(self.study, trial):
-                prepared = preflight(self.compose(overrides), check_space=False, load=False)
+                # hand: the job of an accepted (or colliding) draw takes this scene (or refusal), not building it again
+                prepared = preflight(self.compose(overrides), check_space=False, load=False, hand=True)
                 verdict = require_mod.judge(self.require, prepared.scene, prepared.setup, prepared.spec.primary)
         except (KeyboardInterrupt, SystemExit):
             self.study.tell(trial, state=TrialState.FAIL)
