@@ -35,6 +35,13 @@ COVERED = {
         "not run: <suite study> is the reader's own suite as written; the command runs on a suite study of its own in "
         "tests/test_grade.py (test_the_fresh_draws_run_through_the_real_search_as_enqueued)",
     "python -m garage_exp -m hydra/sweeper=search space=wide search.trials=2": "test_the_wide_space_search_runs",
+    "python -m garage_exp -m hydra/sweeper=search space=wide search.mode=suite search.suite.levels=5":
+        "not run: the graded suite measured in docs/search.md (about 40 minutes a detector); a suite with levels and "
+        "its fresh draws through the real search is tests/test_grade.py "
+        "(test_the_fresh_draws_run_through_the_real_search_as_enqueued), the wide space's search above",
+    "python -m garage_exp.search.grade --storage sqlite:///DIR/optuna.db --study suite-NAME":
+        "not run: DIR and NAME are the measured suite's (the command above); the same command on a suite study of "
+        "its own is tests/test_grade.py (test_the_fresh_draws_run_through_the_real_search_as_enqueued)",
     "python -m benchmarks.studies.archive_cells --space wide --trials 60":
         "not run: a benchmark of minutes that rewrites benchmarks/results/archive_cells_wide_pilot.md; its arguments "
         "parse in tests/test_benchmarks.py, its searches are the wide space's search above",
