@@ -206,7 +206,12 @@ def main() -> int:
 
     from benchmarks.jobkit import machine
 
-    command = " ".join(["python -m benchmarks.performance.oneshot", *sys.argv[1:]])
+    args = sys.argv[1:]
+    if opts.before is not None:  # the page keeps no machine path: the other checkout is named by its commit below
+        args = [("DIR" if a == str(opts.before) else a.replace(str(opts.before), "DIR")) for a in args]
+    command = " ".join(["python -m benchmarks.performance.oneshot", *args])
+    before_commit = "" if opts.before is None else subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=opts.before, capture_output=True, text=True).stdout.strip()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                             text=True).stdout.strip()
     runs = []
@@ -252,7 +257,7 @@ def main() -> int:
               f"the search's process, its render threads included): on two idle cores at most {2 / cpu[0]:.1f} "
               "scenarios/s."]
     if gain is not None:
-        lines += ["", f"oneshot / oneshot@before (the same one-shot path on {opts.before}): **{gain:.2f}x**."]
+        lines += ["", f"oneshot / oneshot@before (the same one-shot path on the checkout at {before_commit}): **{gain:.2f}x**."]
     lines += ["", "```json", json.dumps({"rows": rows, "ratio": ratio, "gain": gain}), "```"]
     text = "\n".join(lines) + "\n"
     print(text)
