@@ -109,6 +109,9 @@ def test_the_report_writes_the_paired_table_and_its_verdict_uses_it_with_one_see
     sentence = summary["verdict"]
     assert sentence.startswith("After round 1, Q beats R (paired by held-out scenario, 200 scenarios, one seed)")
     assert "T 28.0 vs R 30.0 per 100 (relative -7 %" in sentence  # T: fewer failures, not 20 % fewer
+    estimate = summary["power"]  # McNemar's scenarios from the run's most discordant pair of arms (Q-T: 26 of 200)
+    assert estimate["discordant_share"]["Q-T"] == 0.13
+    assert estimate["scenarios_needed_20pct_holm_paired"] == stats.scenarios_for_paired(0.35, 0.17, 0.2, 6)
     md = (tmp_path / "report.md").read_text()
     assert md.startswith(sentence) and "| round | seed | a | b |" in md and "| Q | R |" in md
 

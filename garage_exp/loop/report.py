@@ -176,10 +176,13 @@ def markdown(paired: pd.DataFrame, sentence: str) -> str:
     return text
 
 
-def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1) -> dict:
+def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1,
+          paired: pd.DataFrame | None = None) -> dict:
     """How many seeds and held-out scenarios would detect a 5-per-100 difference, from this run's variance: the
     per-seed differences between arms (seeds), and D0's failure rate (scenarios per detector); and how many
-    detect 20 % fewer failures than D0's at Holm's first step over `comparisons` (stats.scenarios_for)."""
+    detect 20 % fewer failures than D0's at Holm's first step over `comparisons` (stats.scenarios_for), and, from
+    the share of scenarios that round k's arms disagreed on (`paired`, paired_scenarios), how many McNemar's test
+    needs when every detector scores the same scenarios (stats.scenarios_for_paired)."""
     held = scores[scores.suite == "heldout"]
     out = {"delta_per_100": DELTA, "alpha": 0.05, "power": 0.8}
     sds = {}
@@ -199,6 +202,16 @@ def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1) -
         out["scenarios_needed"] = math.ceil(stats.scenarios_needed(p, q))
         if 0 < p < 1:  # issue 50's question: 20 % fewer failures than this D0, Holm over the report's family
             out["scenarios_needed_20pct_holm"] = stats.scenarios_for(p, 0.2, comparisons)
+            between = paired[(paired["round"] == k) & (paired.b != "D0")] if paired is not None and len(paired) \
+                else pd.DataFrame()
+            if len(between):
+                shares = (between.a_only + between.b_only) / between.scenarios
+                out["discordant_share"] = {f"{a}-{b}": float(v) for (a, b), v in
+                                           shares.groupby([between.a, between.b]).mean().items()}
+                # the most discordant pair needs the most scenarios; a share below the difference sought cannot
+                # hold it, so it is raised to the difference (every disagreement one way)
+                share = max(float(shares.max()), 0.2 * p)
+                out["scenarios_needed_20pct_holm_paired"] = stats.scenarios_for_paired(p, share, 0.2, comparisons)
     return out
 
 
@@ -231,10 +244,10 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
         parts.to_csv(out / "failure_rate_parts.csv", index=False)
     family = comparisons(scores, photo_table, arms, k)
     family.to_csv(out / "comparisons.csv", index=False)
-    estimate = power(scores, arms, k, max(1, len(family)))  # the family Holm corrects
-    (out / "power.json").write_text(json.dumps(estimate, indent=1))
     reference = baseline(cfg)
     by_scenario = paired_scenarios(scores, arms, reference)
+    estimate = power(scores, arms, k, max(1, len(family)), by_scenario)  # the family Holm corrects
+    (out / "power.json").write_text(json.dumps(estimate, indent=1))
     if len(by_scenario):
         by_scenario.to_csv(out / "paired_scenarios.csv", index=False)
     sentence = verdict(by_scenario, family, rounds, arms, reference, k, len(cfg.seeds))
