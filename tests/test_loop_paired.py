@@ -127,3 +127,15 @@ def test_several_seeds_are_compared_per_seed_and_the_verdict_keeps_the_seed_pair
     # the same difference at both seeds: the seed-paired test has no spread, so no test, and nothing is decided
     assert summary["verdict"].startswith("After round 1, no targeted arm fails at least 20 % less often than R")
     assert "(paired by training seed, 2 seeds)" in summary["verdict"] and "Holm p no test" in summary["verdict"]
+
+
+def test_the_estimate_adds_the_paired_power_when_a_pilot_measured_disagreement():
+    from conftest import compose_cfg
+
+    from garage_exp.loop import cost, stats
+
+    cfg = compose_cfg(config="loop")
+    assert "paired by scenario" not in cost.power_line(cfg)  # no pilot has measured a discordant share
+    cfg.power.pilot_discordant = 0.1
+    n = stats.scenarios_for_paired(float(cfg.power.pilot_rate), 0.1, 0.2, cost.comparisons(cfg))
+    assert cost.power_line(cfg).endswith(f"paired by scenario (McNemar, a pilot's discordant share 0.10): {n}")

@@ -1,7 +1,8 @@
 """The loop's results: the failure rate on the held-out sample per detector, per round and arm (mean over the
 training seeds with a t interval; the seeds pooled with a Wilson interval), the easy, protocol and real-photo
-suites, the comparisons that decide (paired by seed, Holm-corrected as one family), a power estimate from this
-run's own variance (for the next), the rounds' bookkeeping and a figure.
+suites, the comparisons that decide (paired by seed, Holm-corrected as one family; and paired by held-out
+scenario, McNemar's test, per round and seed), the verdict in one sentence (report.md), a power estimate from
+this run's own variance (for the next), the rounds' bookkeeping and a figure.
 """
 
 from __future__ import annotations

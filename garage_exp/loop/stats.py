@@ -2,6 +2,8 @@
 project's one), paired comparisons by training seed (scipy's t-test) with Holm's correction over every
 comparison reported (statsmodels' multipletests), and power: how many seeds and held-out scenarios make a
 difference in failure rate detectable (statsmodels' TTestPower and NormalIndPower), from a pilot's variance.
+Paired by held-out scenario (every detector scores the same frames): McNemar's exact test (statsmodels),
+Newcombe's paired interval of the difference, and McNemar's power from a pilot's discordant share (Connor's).
 """
 
 from __future__ import annotations
