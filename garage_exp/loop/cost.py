@@ -104,4 +104,17 @@ def power_line(cfg) -> str:
             f"detect {100 * float(p.relative):.0f} % fewer failures ({float(p.pilot_rate):.3f} -> "
             f"{float(p.pilot_rate) * (1 - float(p.relative)):.3f}) at alpha {float(p.alpha):g} (Holm over {m} "
             f"comparisons), power {float(p.power):g}; this config's heldout_trials={int(cfg.heldout_trials)} hold about "
-            f"{scenarios} scenarios: {enough}")
+            f"{scenarios} scenarios: {enough}" + paired_power(cfg, m))
+
+
+def paired_power(cfg, m: int) -> str:
+    """McNemar's scenarios for the same difference when every detector scores the same scenarios, from the
+    pilot's discordant share (power.pilot_discordant; empty when none was measured)."""
+    from garage_exp.loop.stats import scenarios_for_paired
+
+    p = cfg.power
+    if p.get("pilot_discordant") is None:
+        return ""
+    share = max(float(p.pilot_discordant), float(p.pilot_rate) * float(p.relative))  # below the difference: impossible
+    n = scenarios_for_paired(float(p.pilot_rate), share, float(p.relative), m, float(p.alpha), float(p.power))
+    return f"; paired by scenario (McNemar, a pilot's discordant share {share:.2f}): {n}"

@@ -1,7 +1,8 @@
 """The loop's results: the failure rate on the held-out sample per detector, per round and arm (mean over the
 training seeds with a t interval; the seeds pooled with a Wilson interval), the easy, protocol and real-photo
-suites, the comparisons that decide (paired by seed, Holm-corrected as one family), a power estimate from this
-run's own variance (for the next), the rounds' bookkeeping and a figure.
+suites, the comparisons that decide (paired by seed, Holm-corrected as one family; and paired by held-out
+scenario, McNemar's test, per round and seed), the verdict in one sentence (report.md), a power estimate from
+this run's own variance (for the next), the rounds' bookkeeping and a figure.
 """
 
 from __future__ import annotations
@@ -66,10 +67,123 @@ def comparisons(scores: pd.DataFrame, photos: pd.DataFrame, arms: list[str], k: 
     return stats.compare(rows)
 
 
-def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1) -> dict:
+def baseline(cfg) -> str:
+    """The arm the targeted ones are judged against: the one drawing random scenarios (R), else the first."""
+    arms = list(cfg.arms)
+    return next((a for a in arms if cfg.arms[a].sampler == "random"), arms[0])
+
+
+def paired_scenarios(scores: pd.DataFrame, arms: list[str], reference: str) -> pd.DataFrame:
+    """Per round and training seed, each pair of arms and each arm against D0 on the held-out sample, paired by
+    scenario (stats.paired_scenarios: every detector scored the same rendered frames, so a scenario is a pair of
+    outcomes; McNemar's exact test, Newcombe's paired interval). `a` is the arm judged and `b` its reference (the
+    `reference` arm, then arms in their order, then D0): diff = a - b failures per 100, relative = (a - b) / b.
+    Holm's correction over each round's rows (its pairs and seeds: the family a verdict after that round reads).
+    The seeds are not pooled: every seed's detectors score the same scenarios, so the seeds' pairs are not
+    independent and neither a pooled nor a seed-stratified McNemar test would hold; several seeds keep the
+    seed-paired test (`comparisons`). Empty when the scores hold no failed scenarios (`failed`)."""
+    if "failed" not in scores:
+        return pd.DataFrame()
+    held = scores[(scores.suite == "heldout") & scores.failed.apply(lambda f: isinstance(f, (list, tuple)))]
+    order = [reference] + [a for a in arms if a != reference]
+    d0 = held[held.arm == "D0"]
+    rows = []
+    for k in sorted(int(x) for x in held["round"].unique() if int(x) > 0):
+        pairs = [(a, b) for i, b in enumerate(order) for a in order[i + 1:]]
+        here = held[held["round"] == k]
+        for seed in sorted(int(s) for s in here.seed.unique()):
+            one = {a: r for a, r in zip(here[here.seed == seed].arm, here[here.seed == seed].itertuples())}
+            if len(d0):
+                one["D0"] = next(d0.itertuples())
+            for a, b in pairs + [(a, "D0") for a in order]:
+                if a in one and b in one and int(one[a].scenarios) == int(one[b].scenarios):
+                    rows.append({"round": k, "seed": seed, "a": a, "b": b,
+                                 **stats.paired_scenarios(one[a].failed, one[b].failed, int(one[a].scenarios))})
+    table = pd.DataFrame(rows)
+    if table.empty:
+        return table
+    parts = [stats.compare(g.to_dict("records")) for _, g in table.groupby("round", sort=True)]
+    return pd.concat(parts, ignore_index=True)
+
+
+def beats(row, versus_d0) -> bool:
+    """Issue 50's goal for arm a against the reference: at least 20 % fewer failures (relative), the 95 %
+    interval of the difference below 0, Holm's correction rejecting, and fewer failures than D0."""
+    return bool(row.relative <= -0.2 and row.high < 0 and row.reject_holm
+                and (versus_d0 is None or versus_d0["diff"] < 0))
+
+
+def verdict(paired: pd.DataFrame, family: pd.DataFrame, rounds: pd.DataFrame, arms: list[str], reference: str,
+            k: int, seeds: int) -> str:
+    """The report's verdict in one sentence after round k: does a targeted arm's detector fail at least 20 %
+    less often than the reference's (random scenarios) on the held-out sample, the difference's 95 % interval
+    excluding 0 with Holm's correction, and less often than D0? One seed: the test paired by held-out scenario
+    (`paired_scenarios`); several: the test paired by seed (`comparisons`), the seeds' mean failure rates."""
+    targeted = [a for a in arms if a != reference]
+    said, won = [], []
+    if seeds == 1 and len(paired):
+        last = paired[paired["round"] == k]
+        for a in targeted:
+            mine = last[(last.a == a) & (last.b == reference)]
+            if not len(mine):
+                continue
+            r = mine.iloc[0]
+            d0 = last[(last.a == a) & (last.b == "D0")]
+            against = f"; D0 {d0.iloc[0].b_per_100:.1f}" if len(d0) else ""
+            said.append(f"{a} {r.a_per_100:.1f} vs {reference} {r.b_per_100:.1f} per 100 (relative "
+                        f"{100 * r.relative:+.0f} %, difference {r['diff']:+.1f}, 95 % CI {r.low:+.1f} to "
+                        f"{r.high:+.1f}, McNemar exact Holm p {r.p_holm:.3g}{against})")
+            won += [a] if beats(r, d0.iloc[0] if len(d0) else None) else []
+        how = f"paired by held-out scenario, {int(last.scenarios.iloc[0])} scenarios, one seed" if len(last) else ""
+    else:
+        held = family[family.metric == "failures per 100 (held-out)"] if len(family) else family
+        rates = rounds[rounds["round"] == k].set_index("arm").per_100 if len(rounds) else pd.Series(dtype=float)
+        for a in targeted:
+            # comparisons pairs arms in their order (a before b): the row is reference - a or a - reference
+            mine = held[((held.a == reference) & (held.b == a)) | ((held.a == a) & (held.b == reference))]
+            if not len(mine) or a not in rates or reference not in rates:
+                continue
+            r = mine.iloc[0]
+            sign = 1 if r.a == a else -1
+            diff, low, high = sign * r["diff"], *sorted((sign * r.low, sign * r.high))
+            relative = diff / rates[reference] if rates[reference] > 0 else math.nan
+            d0 = held[(held.a == a) & (held.b == "D0")]
+            row = pd.Series({"relative": relative, "high": high, "reject_holm": bool(r.reject_holm)})
+            won += [a] if beats(row, d0.iloc[0] if len(d0) else None) else []
+            p = f"{r.p_holm:.3g}" if r.p_holm == r.p_holm else "no test"
+            said.append(f"{a} {rates[a]:.1f} vs {reference} {rates[reference]:.1f} per 100 (relative "
+                        f"{100 * relative:+.0f} %, 95 % CI of the difference {low:+.1f} to {high:+.1f}, Holm p {p})")
+        how = f"paired by training seed, {seeds} seeds"
+    if not said:
+        return f"After round {k}: no comparison of a targeted arm with {reference} to decide on."
+    head = (f"After round {k}, {' and '.join(won)} beat{'s' if len(won) == 1 else ''} {reference}" if won else
+            f"After round {k}, no targeted arm fails at least 20 % less often than {reference} with the 95 % "
+            "interval excluding 0 (Holm)")
+    return f"{head} ({how}): " + "; ".join(said) + "."
+
+
+def markdown(paired: pd.DataFrame, sentence: str) -> str:
+    """report.md: the verdict and the table paired by held-out scenario, for docs/loop.md."""
+    from garage_exp.report.tables import markdown_table
+
+    text = f"{sentence}\n\n"
+    if len(paired):
+        shown = paired[["round", "seed", "a", "b", "scenarios", "a_only", "b_only", "a_per_100", "b_per_100",
+                        "diff", "low", "high", "relative", "p", "p_holm"]].rename(
+            columns={"low": "diff_low", "high": "diff_high"})
+        for col in ("p", "p_holm"):  # small p-values would print as 0.000
+            shown[col] = [f"{v:.3g}" for v in shown[col]]
+        text += markdown_table(shown)
+    return text
+
+
+def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1,
+          paired: pd.DataFrame | None = None) -> dict:
     """How many seeds and held-out scenarios would detect a 5-per-100 difference, from this run's variance: the
     per-seed differences between arms (seeds), and D0's failure rate (scenarios per detector); and how many
-    detect 20 % fewer failures than D0's at Holm's first step over `comparisons` (stats.scenarios_for)."""
+    detect 20 % fewer failures than D0's at Holm's first step over `comparisons` (stats.scenarios_for), and, from
+    the share of scenarios that round k's arms disagreed on (`paired`, paired_scenarios), how many McNemar's test
+    needs when every detector scores the same scenarios (stats.scenarios_for_paired)."""
     held = scores[scores.suite == "heldout"]
     out = {"delta_per_100": DELTA, "alpha": 0.05, "power": 0.8}
     sds = {}
@@ -89,6 +203,16 @@ def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1) -
         out["scenarios_needed"] = math.ceil(stats.scenarios_needed(p, q))
         if 0 < p < 1:  # issue 50's question: 20 % fewer failures than this D0, Holm over the report's family
             out["scenarios_needed_20pct_holm"] = stats.scenarios_for(p, 0.2, comparisons)
+            between = paired[(paired["round"] == k) & (paired.b != "D0")] if paired is not None and len(paired) \
+                else pd.DataFrame()
+            if len(between):
+                shares = (between.a_only + between.b_only) / between.scenarios
+                out["discordant_share"] = {f"{a}-{b}": float(v) for (a, b), v in
+                                           shares.groupby([between.a, between.b]).mean().items()}
+                # the most discordant pair needs the most scenarios; a share below the difference sought cannot
+                # hold it, so it is raised to the difference (every disagreement one way)
+                share = max(float(shares.max()), 0.2 * p)
+                out["scenarios_needed_20pct_holm_paired"] = stats.scenarios_for_paired(p, share, 0.2, comparisons)
     return out
 
 
@@ -121,8 +245,14 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
         parts.to_csv(out / "failure_rate_parts.csv", index=False)
     family = comparisons(scores, photo_table, arms, k)
     family.to_csv(out / "comparisons.csv", index=False)
-    estimate = power(scores, arms, k, max(1, len(family)))  # the family Holm corrects
+    reference = baseline(cfg)
+    by_scenario = paired_scenarios(scores, arms, reference)
+    estimate = power(scores, arms, k, max(1, len(family)), by_scenario)  # the family Holm corrects
     (out / "power.json").write_text(json.dumps(estimate, indent=1))
+    if len(by_scenario):
+        by_scenario.to_csv(out / "paired_scenarios.csv", index=False)
+    sentence = verdict(by_scenario, family, rounds, arms, reference, k, len(cfg.seeds))
+    (out / "report.md").write_text(markdown(by_scenario, sentence))
     draw(rounds, scores, photo_table, out / "loop.png")
     resisting, reach = {}, {}
     if cells and "failed" in scores:
@@ -140,10 +270,12 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
         reach = cells_mod.reach(cells, grid)
     summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms}, "seeds": list(cfg.seeds),
                "detectors": {n: d.get("weights") for n, d in detectors.items()}, "power": estimate,
-               "times_s": times, "cells_resisting": resisting, "cells_reached": reach, "sample": sample or {}}
+               "times_s": times, "cells_resisting": resisting, "cells_reached": reach, "sample": sample or {},
+               "verdict": sentence}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.loop: results in {out} (failure_rate.csv, comparisons.csv, scores.csv, photos.csv, "
-          "rounds_bookkeeping.csv, power.json, loop.png" + (", failure_rate_parts.csv" if len(parts) else "")
+          "rounds_bookkeeping.csv, power.json, report.md, loop.png"
+          + (", paired_scenarios.csv" if len(by_scenario) else "") + (", failure_rate_parts.csv" if len(parts) else "")
           + (", cells.csv, cells_marginals.csv, cells_*.png" if resisting else "") + ")")
     if sample:
         print(f"garage_exp.loop: held-out sample on {sample.get('garages')}: {sample.get('scenarios')} scenarios of "
@@ -159,4 +291,8 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
         for col in ("p", "p_holm"):  # a comparison with no spread or one seed has no test: say so, print no p
             shown[col] = [f"{v:.3f}" if v == v else "no test" for v in shown[col]]
         print(shown.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    if len(by_scenario):
+        print(by_scenario[["round", "seed", "a", "b", "a_only", "b_only", "diff", "low", "high", "relative", "p",
+                           "p_holm"]].to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    print(f"garage_exp.loop: {sentence}")
     return summary

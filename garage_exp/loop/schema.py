@@ -78,6 +78,9 @@ class PowerConf:
     alpha: float = 0.05
     power: float = 0.8
     scenario_share: float = 1.0  # of the held-out trials, those that render a scenario (else: actors overlap)
+    # A pilot's share of held-out scenarios two arms' detectors disagreed on (a run's power.json,
+    # discordant_share): the estimate then adds McNemar's scenarios (stats.scenarios_for_paired); None: not measured.
+    pilot_discordant: Optional[float] = None
 
 
 @dataclass
