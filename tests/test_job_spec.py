@@ -200,3 +200,23 @@ def test_no_stage_below_the_job_is_handed_a_config_node(tmp_path, mlflow_uri):
         env.step(env.action_space.sample())
         env.close()
     assert not handed, "\n".join(map(str, sorted(set(handed))))
+
+
+def test_a_job_converts_its_config_once(tmp_path, mlflow_uri, monkeypatch):
+    """The job's levels are named (run.job.name_levels) before the preflight converts the config, so the whole
+    config becomes plain data once and the spec says the names the run logs; before, the job converted it a
+    second time after renaming it."""
+    require("assets")
+    from garage_exp.core.plain import Settings
+
+    converted = []
+
+    def counting(self, *args, **kwargs):
+        dict.__init__(self, *args, **kwargs)
+        if {"plan", "case", "seed", "renderer"} <= self.keys():  # the whole config, not one of its groups
+            converted.append(self.case.name)
+
+    monkeypatch.setattr(Settings, "__init__", counting)
+    r = run_app(["plan=tiny", "dry_run=true", "camera=front", f"tracking.uri={mlflow_uri}"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert len(converted) == 1, converted

@@ -21,9 +21,9 @@ from garage_exp.run.preflight import preflight
 
 
 def name_levels(cfg: DictConfig, plan_name: str) -> None:
-    """Make every `name` in the config say what runs, before it is logged: `plan.name` is the name of the plan
-    file actually loaded (with `plan.file=big.yaml` the group's default name `research` would stay), and a
-    group level's name is the level composed (a user's `conf/light/night.yaml` without `name:`, or copied from
+    """Make every `name` in the config say what runs, before it is converted and logged (the preflight calls it
+    once the plan is read): `plan.name` is the name of the plan file actually loaded (with `plan.file=big.yaml`
+    the group's default name `research` would stay), and a group level's name is the level composed (a user's `conf/light/night.yaml` without `name:`, or copied from
     bright.yaml, would log `light.name=bright`). A `GROUP.name=...` given on the command line is kept (not
     `plan.name`: with `plan.file` it is not what ran)."""
     hc = HydraConfig.get()
@@ -130,18 +130,12 @@ def _run_job(cfg: DictConfig) -> float | JobSummary:
     out = Path(hc.runtime.output_dir)
     multirun = shell.multirun()
     try:
-        prepared = preflight(cfg)  # bad input fails here, before anything is logged
+        prepared = preflight(cfg, name=name_levels)  # bad input fails here, before anything is logged
     except NotEnoughSpace as exc:  # the disk filled since the sweep's own check: a sweep stops here
         if shell.refuse_job():
             raise SweepStopped(str(exc), "free space and rerun with resume=true") from None
         raise  # a single run: the command's shell says it in one line, as any bad input
-    name_levels(cfg, prepared.classified.plan.name)
-    from garage_exp.run.spec import job_names
-
-    from garage_exp.core.plain import settings
-
-    config = settings(cfg)  # as renamed: what tracking logs and hashes, as plain data
-    prepared.spec = prepared.spec.renamed(job_names(cfg), config)  # the names the run logs
+    config = prepared.config  # as renamed (name_levels, in the preflight): what tracking logs and hashes
     digest = tracking.config_hash(config, tracking.file_digest(prepared.plan_path))
     if cfg.resume:
         done = tracking.finished_run(config, digest)

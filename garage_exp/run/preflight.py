@@ -34,6 +34,7 @@ class PreparedJob:
     detector: Any = None  # garage_exp.perception.detect.Detector, checked (every entry loaded); None for a dry run
     loaded: bool = False  # the detector's models were loaded (load_models); a job runs only a loaded one
     spec: Any = None  # garage_exp.run.spec.JobSpec: what the stages below the job are told (never the config)
+    config: Any = None  # the whole config as plain data (Settings), converted once: what the job logs and hashes
     opened: Any = None  # the detector's warm process (worker.open_detector), opened once by load_models
 
     def open_detector(self):
@@ -172,7 +173,8 @@ def check_slots(cfg) -> None:
                           "(camera.view=raw)", "camera.view")
 
 
-def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand: bool = False) -> PreparedJob:
+def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand: bool = False,
+              name=None) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem: the config, the plan, the vehicle assets, and the scene description (garage, case,
     palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also that the detector's files exist.
@@ -181,13 +183,17 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
     detector entry loads and answers a probe frame - unless load is false (a sweep loads them after its disk
     check: load_models). Checks that need no model come first, so that their refusal costs no model loading. With
     `hand` (a search's requirement check) the scene built, or its refusal, is handed on to the next preflight
-    (scene_of)."""
+    (scene_of). `name(cfg, plan_name)`: the job's naming of its levels (run.job.name_levels), called once the
+    plan is read and before the config is converted, so that the spec and the logged config say the same names
+    and the config is converted once."""
     from garage_exp.core.schema_check import check_schema
 
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
     plan_path = resolve_plan_path(cfg.plan)
     prepared = PreparedJob(plan_path, classified_plan(plan_path))
     hand_on(cfg, prepared.classified.plan)
+    if name is not None:
+        name(cfg, prepared.classified.plan.name)
     config = settings(cfg)  # the layers below are handed plain data, never the config node
     check_config(config)
     from garage_exp.run.spec import job_spec, scene_spec
@@ -216,7 +222,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
         check_version(str(cfg.export.openscenario_version), setup)
     if not cfg.dry_run:
         prepared.scene, prepared.setup, prepared.detector = scene, setup, detector
-    prepared.spec = job_spec(cfg, detector, job, config)
+    prepared.spec, prepared.config = job_spec(cfg, detector, job, config), config
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig

@@ -7,7 +7,7 @@ data, the detector, the outputs, the names), never the DictConfig.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from garage_exp.core.plain import Settings, plain, settings
@@ -51,11 +51,6 @@ class JobSpec:
     scene: SceneSpec | None = None  # what the scene builder is told (scene_spec)
     config: Settings | None = None  # the whole composed config as plain data: what tracking logs and hashes
     plan_file: str | None = None  # plan.file, for the hint where a case fits
-
-    def renamed(self, names: JobNames, config: Settings | None = None) -> "JobSpec":
-        """The spec under the names the job logs (run.job.name_levels settles them after the preflight), with the
-        config as renamed."""
-        return replace(self, names=names, config=config if config is not None else self.config)
 
 
 def job_names(cfg) -> JobNames:
