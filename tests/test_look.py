@@ -227,14 +227,16 @@ def test_each_replicate_draws_its_own_materials_and_comes_back():
     """Replicate k's surfaces are drawn from seed + k (materials=random: another garage); going from the loaded
     replicate to another and back is the identity, so the renderer's pictures follow the shots' order."""
     from garage_exp.run.pipeline import replicate_materials
+    from garage_exp.run.spec import FrameConf
 
     cfg, _, scene, _ = built("case=light", "materials=random")
-    forward = replicate_materials(cfg, scene, 1, 0)
+    conf = FrameConf.of_config(cfg)
+    forward = replicate_materials(conf, scene, 1, 0)
     assert forward and all(old.texture.seed + 1 == new.texture.seed for old, new in forward.items())
     assert any(dict(old.texture.params) != dict(new.texture.params) for old, new in forward.items())
-    back = replicate_materials(cfg, scene, 0, 1)
+    back = replicate_materials(conf, scene, 0, 1)
     assert {new: back[new] for new in forward.values()} == {new: old for old, new in forward.items()}
-    assert replicate_materials(compose_cfg("case=light", "look=flat"), scene, 1, 0) == {}
+    assert replicate_materials(FrameConf.of_config(compose_cfg("case=light", "look=flat")), scene, 1, 0) == {}
 
 
 def test_the_wear_factor_wears_the_textured_paint_too():

@@ -8,7 +8,6 @@ import re
 from pathlib import Path
 
 import numpy as np
-from omegaconf import OmegaConf
 
 from garage_exp.perception.sensor import make_sensor
 from garage_exp.render import Frame
@@ -17,6 +16,16 @@ from garage_exp.scenario import Shot
 from garage_exp.scene.camera import camera_to_world
 from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import CameraSpec, Entity, Pose, Scene
+from garage_exp.core.plain import Settings
+from garage_exp.perception.detect.matching import Scoring
+from garage_exp.run.spec import FrameConf
+
+RULE = Scoring(threshold=0.5, iou=0.5, match="full")
+
+
+def frame_conf(look: str) -> FrameConf:
+    """What the pipeline is told of a job without materials, wear or dataset, under `look`."""
+    return FrameConf(look, Settings({"level": "none"}), 0, 0.0, False)
 
 ROOT = Path(__file__).resolve().parent.parent
 # The stages a rendered frame goes through; a module that calls them on a render copies the pipeline. (Scoring
@@ -70,11 +79,10 @@ def test_frames_draw_the_sensor_stream_in_shot_then_camera_order():
                                static=False)],
                   cameras=[CameraSpec("front", Pose(0.0, 0.0, 1.0), width=40, height=30),
                            CameraSpec("rear", Pose(0.0, 0.0, 1.0, 180.0), width=40, height=30)])
-    cfg = OmegaConf.create({"look": {"name": "flat"}, "dataset": False,
-                            "detector": {"iou": 0.5, "match": "full", "threshold": 0.5}})
+    conf = frame_conf("flat")
     shots = [Shot(k, "", float(k), Pose(), {"target": Pose(10.0, float(k), 0.0, 90.0)}, "target") for k in range(3)]
     noisy = make_sensor(name="camera", kind="camera", params={})
-    got = list(FramePipeline(cfg, scene, Drawn(), noisy, np.random.default_rng(4)).frames(shots))
+    got = list(FramePipeline(conf, scene, Drawn(), noisy, np.random.default_rng(4), rule=RULE).frames(shots))
     assert [(f.shot.index, f.camera) for f in got] == [(k, c) for k in range(3) for c in ("front", "rear")]
     rng, renderer = np.random.default_rng(4), Drawn()
     for f in got:
@@ -97,8 +105,7 @@ def test_a_frame_of_torch_tensors_finishes_as_its_numpy_twin():
     scene = Scene("s", [Entity("target", "target", Pose(10.0, 0.0, 0.0, 90.0), extent=(4.5, 1.8, 1.5),
                                static=False)],
                   cameras=[CameraSpec("front", Pose(0.0, 0.0, 1.0), width=40, height=30)], background=False)
-    cfg = OmegaConf.create({"look": {"name": "real"}, "dataset": False,
-                            "detector": {"iou": 0.5, "match": "full", "threshold": 0.5}})
+    conf = frame_conf("real")
     renderer = Drawn()
     shot = Shot(0, "", 0.0, Pose(), {"target": Pose(10.0, 2.0, 0.0, 90.0)}, "target")
     renderer.set_pose("ego", shot.ego)
@@ -108,7 +115,7 @@ def test_a_frame_of_torch_tensors_finishes_as_its_numpy_twin():
     tensor_frame = Frame("front", torch.from_numpy(frame.rgb), torch.from_numpy(frame.ids), frame.cam_to_world,
                          frame.lens, frame.poses)
     sensor = make_sensor(name="camera", kind="camera", params={"blur_sigma": 0.8, "vignetting": 0.3})
-    pipeline = FramePipeline(cfg, scene, renderer, sensor, np.random.default_rng(0))
+    pipeline = FramePipeline(conf, scene, renderer, sensor, np.random.default_rng(0), rule=RULE)
     want = pipeline.finish(Take(shot, "front", frame, masks, renderer.ids), np.random.default_rng(5))
     got = pipeline.finish(Take(shot, "front", tensor_frame, {k: torch.from_numpy(m) for k, m in masks.items()},
                                renderer.ids), np.random.default_rng(5))

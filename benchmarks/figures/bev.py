@@ -61,7 +61,7 @@ def main() -> None:
     seamed = bev.copy()
     seamed[maps.seams] = (255, 0, 255)
     drawn = draw_frame(bev, truth.frame, thickness=1)
-    found_by = finder(cfg)
+    found_by = finder(cfg.slot_detector)
     if found_by is not None:
         found = found_by[0](bev, spec.meters_per_pixel)
         drawn = draw_frame(drawn, found, colour=(80, 200, 255), thickness=1)

@@ -133,7 +133,7 @@ class StepOutEnv(gymnasium.Env):
         if self.sensor is None:
             self.sensor = build(job.sensor, "a sensor model", "sensor._target_")
         if self.renderer is None:  # the job's render scene, opened as a job opens it (its forks share it)
-            self.renderer = open_renderer(self.job_spec.config.renderer, HIDDEN)
+            self.renderer = open_renderer(self.job_spec.renderer, HIDDEN)
         if self.renderer.description is not self.scene:  # another env's scene was loaded since
             self.renderer.load(self.scene)
 
@@ -295,8 +295,9 @@ class StepOutEnv(gymnasium.Env):
         from garage_exp.run.pipeline import FramePipeline
 
         if self.pipeline is None or self.pipeline.renderer is not self.renderer:
-            self.pipeline = FramePipeline(self.job_spec.config, self.scene, self.renderer, self.sensor, self.sensor_rng,
-                                          self.detector, self.checked_detector.scoring())
+            spec = self.job_spec
+            self.pipeline = FramePipeline(spec.frames, self.scene, self.renderer, self.sensor, self.sensor_rng,
+                                          self.detector, self.checked_detector.scoring(), spec.scoring)
         return self.pipeline
 
     def row(self, item, score) -> dict:

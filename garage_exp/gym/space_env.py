@@ -223,20 +223,20 @@ class SpaceEnv(gymnasium.Env):
         from garage_exp.run.pipeline import FramePipeline, in_view
         from garage_exp.scenario.assemble import HIDDEN
 
-        scene, setup, config = prepared.scene, prepared.setup, prepared.spec.config
+        scene, setup, spec = prepared.scene, prepared.setup, prepared.spec
         if getattr(self, "renderer", None) is None:  # the job's render scene, opened as a job opens it, kept
-            self.renderer = open_renderer(config.renderer, HIDDEN)
+            self.renderer = open_renderer(spec.renderer, HIDDEN)
         renderer = self.renderer
         if renderer.description is not scene:
             renderer.load(scene)
         sensor = build(self.job.sensor, "a sensor model", "sensor._target_")
         rng = np.random.default_rng(int(self.job.seed) + 1)  # the sensor's stream as a job draws it
-        pipeline = FramePipeline(config, scene, renderer, sensor, rng, prepared.opened,
-                                 prepared.detector.scoring())
+        pipeline = FramePipeline(spec.frames, scene, renderer, sensor, rng, prepared.opened,
+                                 prepared.detector.scoring(), spec.scoring)
         shots = list(setup.shots)
         actors = [in_view(scene, s.poses, placed_only=True) for s in shots]
         rows = []
-        for item, dets in pipeline.detect_shots(shots, prepared.spec.primary, actors, [rng] * len(shots)):
+        for item, dets in pipeline.detect_shots(shots, spec.primary, actors, [rng] * len(shots)):
             row = {"frame": len(rows), **reward.measured(item.target, pipeline.score(item, dets))}
             row["fair"] = reward.fair(row, self.search)
             rows.append(row)

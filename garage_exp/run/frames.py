@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig
 
 from garage_exp import exports
 from garage_exp.results import figures, late
@@ -36,10 +35,10 @@ def late_verdict(spec: JobSpec, table: pd.DataFrame, setup: CaseSetup, out: Path
     return late.summary(per, spec.ego)
 
 
-def run_frames(cfg: DictConfig, prepared, out: Path, run) -> JobSummary:
+def run_frames(prepared, out: Path, run) -> JobSummary:
     """Render and score the frames of the scene the job's preflight built (`run.preflight.PreparedJob`, its
     `spec` saying how), log them on the job's run, and return the summary (`difficulty`, and `fair_*`: the
-    search's objective). `cfg` goes only to the job's own stages (the frame pipeline, the slot frames)."""
+    search's objective). The stages are handed the spec's typed parts, never the config."""
     from garage_exp.core.plugins import build
     from garage_exp.render.open import open_renderer
     from garage_exp.scenario.assemble import HIDDEN
@@ -65,9 +64,9 @@ def run_frames(cfg: DictConfig, prepared, out: Path, run) -> JobSummary:
     kinds = {e.name: e.kind or "vehicle" for e in scene.actors()} if scene.people() else {}
     table_path = out / "frames.csv"
     fisheye = any(cam.fisheye for cam in scene.cameras)
-    cfg = spec.config or cfg  # the job's config as plain data: its stages below are handed no config node
-    slots = SlotFrames.open(cfg, prepared, out) if slot_frames_wanted(cfg) else None
-    pipeline = FramePipeline(cfg, scene, renderer, sensor, sensor_rng, detector, classes, spec.scoring)
+    slots = (SlotFrames.open(spec.scene, spec.slot_detector, spec.outputs.save_frames != "none", prepared, out)
+             if slot_frames_wanted(spec.scene) else None)
+    pipeline = FramePipeline(spec.frames, scene, renderer, sensor, sensor_rng, detector, classes, spec.scoring)
     one_run = trial and run.run_id is None  # a one-shot search's trial (search.runs=per_search): no bar a trial
     frames = pipeline.frames(setup.shots, progress=None if one_run else f"case {spec.names.case}")
     try:

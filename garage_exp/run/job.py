@@ -211,5 +211,5 @@ def _run_body(cfg: DictConfig, prepared, out: Path, run, digest: str) -> JobSumm
     else:
         from garage_exp.run.frames import run_frames
 
-        summary = run_frames(cfg, prepared, out, run)
+        summary = run_frames(prepared, out, run)
     return summary

@@ -35,6 +35,7 @@ from garage_exp import exports
 from garage_exp.perception.detect.matching import Scoring
 from garage_exp.perception.groundtruth import VehicleTruth
 from garage_exp.render.batch import RenderScene, Take
+from garage_exp.run.spec import FrameConf
 from garage_exp.scenario import Shot
 from garage_exp.scene.description import Scene
 
@@ -59,18 +60,17 @@ def in_view(scene: Scene, poses: dict, placed_only: bool = False) -> list[str]:
             if v.role != "ego" and v.kind != "box" and poses.get(v.name, None if placed_only else v.pose)]
 
 
-def replicate_materials(cfg, scene: Scene, replicate: int, loaded: int) -> dict:
+def replicate_materials(conf: FrameConf, scene: Scene, replicate: int, loaded: int) -> dict:
     """Old -> new materials that turn the loaded replicate's surfaces into `replicate`'s: each replicate draws
     its own stains, cracks and (materials=random) its own grime, wetness and tint: domain randomisation within a
     job, the same draw in every cell of a sweep."""
-    from garage_exp.scenario.assemble import marking_wear
     from garage_exp.scene.look import dress_for, redress
 
-    if str(cfg.materials.level) == "none":
+    if str(conf.materials.level) == "none":
         return {}
 
     def draw(k):
-        return dress_for(cfg.materials, int(cfg.seed) + k, marking_wear(cfg))  # cfg: plain (FramePipeline)
+        return dress_for(conf.materials, conf.seed + k, conf.wear)
 
     back = redress(scene, draw(loaded))  # the scene holds replicate 0's materials; the renderer `loaded`'s
     return {back[m]: new for m, new in redress(scene, draw(replicate)).items()}
@@ -92,8 +92,8 @@ def batches(items: Iterable, size: int) -> Iterator[list]:
 class FramePipeline:
     """A job's (or an environment's) frame pipeline over a render scene.
 
-    cfg: the job's composed config (look, materials, seed, dataset; the detector's iou/match/threshold unless `rule`
-    gives the job spec's). renderer: a
+    conf: the job spec's `FrameConf` (look, materials, seed, wear, dataset), with `rule` its matching rule; or a
+    config (tests, benchmarks), read here once, whose `detector` group gives the rule unless `rule` does. renderer: a
     `render.batch.RenderScene` (N sub-scenes), or one loaded `Renderer`, which becomes a scene of one sub-scene.
     sensor: the camera model (`perception.sensor.SensorModel` or any `apply(rgb, rng)`), drawing from
     `sensor_rng`. detector: what `detected` sends frames to (`submit`/`result`:
@@ -101,24 +101,27 @@ class FramePipeline:
     `score_target` (`Detector.scoring()`).
     """
 
-    cfg: Any  # a config node or its Settings; kept as Settings
+    conf: FrameConf | Any  # a config node or its Settings is read into a FrameConf
     scene: Scene
     renderer: object
     sensor: object
     sensor_rng: np.random.Generator
     detector: object | None = None
     scoring: dict = field(default_factory=dict)
-    rule: Scoring | None = None  # the job spec's matching rule; None: the config's `detector` group's
+    rule: Scoring | None = None  # the job spec's matching rule; None: a config's `detector` group's
 
     def __post_init__(self) -> None:
         from garage_exp.core.plain import settings
         from garage_exp.scenario.assemble import HIDDEN
 
-        self.cfg = settings(self.cfg)  # plain data for the stages below (a node given is read once, here)
+        if not isinstance(self.conf, FrameConf):  # a config (tests, benchmarks): read once, here
+            cfg = settings(self.conf)
+            self.conf = FrameConf.of_config(cfg)
+            self.rule = self.rule or Scoring.of(cfg.detector)
+        if self.rule is None:
+            raise TypeError("a FrameConf comes with its job spec's matching rule (rule=spec.scoring)")
         self.stage = (self.renderer if isinstance(self.renderer, RenderScene)
                       else RenderScene.over(self.renderer, HIDDEN))
-        if self.rule is None:
-            self.rule = Scoring.of(self.cfg.detector)
 
     @cached_property
     def intrinsics(self) -> dict:
@@ -131,7 +134,7 @@ class FramePipeline:
 
     def redress(self, replicate: int, loaded: int) -> dict:
         """The material change from the loaded replicate's surfaces to `replicate`'s (`replicate_materials`)."""
-        return replicate_materials(self.cfg, self.scene, replicate, loaded)
+        return replicate_materials(self.conf, self.scene, replicate, loaded)
 
     def shots(self, shots: Sequence[Shot], cameras: Sequence[str], actors: Sequence[Sequence[str]],
               rngs: Sequence[np.random.Generator]) -> Iterator[Rendered]:
@@ -152,7 +155,7 @@ class FramePipeline:
 
         shot, frame, scene, ids = take.shot, take.frame, self.scene, take.ids
         truth = ground_truth(frame, take.silhouettes, scene, ids)
-        if not scene.background and str(self.cfg.look.name) != "flat":
+        if not scene.background and self.conf.look != "flat":
             # The blank control is a scene (the car alone on grey, with its own contact shadow, under the look's
             # blank_light) that the camera then sees: exposure, blur and noise act on the grey too. The flat look
             # keeps the order its published tables used.
@@ -167,7 +170,7 @@ class FramePipeline:
         if not isinstance(rgb, np.ndarray):  # a GPU frame: the detector's worker and the tables take numpy
             rgb = rgb.cpu().numpy()
         # copied only when a dataset will label the frame in 3D
-        geometry = exports.FrameGeometry.of(frame) if self.cfg.get("dataset") else None
+        geometry = exports.FrameGeometry.of(frame) if self.conf.dataset else None
         return Rendered(shot, take.camera, rgb, truth, target, geometry)
 
     def frames(self, shots: Iterable[Shot], progress: str | None = None) -> Iterator[Rendered]:

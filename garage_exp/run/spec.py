@@ -33,6 +33,31 @@ class Outputs:
 
 
 @dataclass(frozen=True)
+class FrameConf:
+    """What the frame pipeline (run.pipeline.FramePipeline) reads of the job's settings, read once: not the
+    config."""
+
+    look: str  # look.name: the flat look keeps its published order of the blank control's compositing
+    materials: Settings  # the materials group: each replicate's own draw (scene.look.dress_for)
+    seed: int
+    wear: float  # the line paint's wear (scenario.assemble.marking_wear): a replicate's draw wears with it
+    dataset: bool  # the frames are labelled in 3D (each frame's geometry is kept)
+
+    @classmethod
+    def of(cls, job: SceneSpec, dataset: bool) -> "FrameConf":
+        """From the scene builder's settings (the look, materials, seed and wear it dressed the scene with)."""
+        from garage_exp.scenario.assemble import marking_wear
+
+        return cls(str(job.look.name), job.materials, int(job.seed), marking_wear(job), dataset)
+
+    @classmethod
+    def of_config(cls, cfg) -> "FrameConf":
+        """From a config (a node or its Settings): tests and benchmarks that build a pipeline without a job."""
+        cfg = settings(cfg)
+        return cls.of(scene_spec(cfg), bool(cfg.get("dataset")))
+
+
+@dataclass(frozen=True)
 class JobSpec:
     """One job, as the layers below `run` see it (module doc)."""
 
@@ -49,6 +74,8 @@ class JobSpec:
     replicates: int
     primary: str  # the camera whose frames the summary scores (case.camera, else the rig's first)
     scene: SceneSpec | None = None  # what the scene builder is told (scene_spec)
+    frames: FrameConf | None = None  # what the frame pipeline is told
+    slot_detector: Settings | None = None  # the slot_detector group, plain (slots/frames.py's finder)
     config: Settings | None = None  # the whole composed config as plain data: what tracking logs and hashes
     plan_file: str | None = None  # plan.file, for the hint where a case fits
 
@@ -95,5 +122,7 @@ def job_spec(cfg, detector=None, scene: SceneSpec | None = None, config: Setting
         outputs=Outputs(str(cfg.renderer.save_frames), bool(cfg.get("dataset")), bool(cfg.export.openscenario),
                         None if cfg.search.trial is None else int(cfg.search.trial)),
         seed=int(cfg.seed), replicates=int(cfg.replicates),
-        primary=scored_camera(scene.camera, str(scene.case.get("camera") or "")), scene=scene, config=config,
+        primary=scored_camera(scene.camera, str(scene.case.get("camera") or "")), scene=scene,
+        frames=FrameConf.of(scene, bool(config.get("dataset"))), slot_detector=config.get("slot_detector"),
+        config=config,
         plan_file=None if not cfg.plan.file else str(cfg.plan.file))

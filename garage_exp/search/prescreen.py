@@ -108,7 +108,7 @@ def frames_table(cfg: DictConfig, detector, scale: float, prepared=None) -> tupl
     renderer = open_renderer(spec.renderer, HIDDEN)
     renderer.load(prepared.scene)
     sensor = build(spec.sensor, "a sensor model", "sensor._target_")
-    pipeline = FramePipeline(spec.config, prepared.scene, renderer, sensor, np.random.default_rng(spec.seed + 1),
+    pipeline = FramePipeline(spec.frames, prepared.scene, renderer, sensor, np.random.default_rng(spec.seed + 1),
                              detector, detector.scoring() if detector is not None else {}, spec.scoring)
     scored = spec.primary
     frames = (item for item in pipeline.frames(prepared.setup.shots) if item.camera == scored)

@@ -7,7 +7,8 @@ the job's dir, logged), and the `slot_detector` group's detector runs on the BEV
 (slots/results.py), fair slots only. Per frame: `slots.csv` (a row per BEV frame); per job:
 the pooled metrics `slot_point_recall`, `slot_point_precision`, `slot_recall`, `slot_precision`,
 `slot_occupancy_acc` and the truth's counts (`slot_truth_*`), logged with the job's other metrics. The job's
-frame loop (run/frames.py) drives it, handing it the job's config as plain data (Settings).
+frame loop (run/frames.py) drives it, handing it what the scene builder is told (the job spec's SceneSpec: camera,
+case, garage, materials, seed, wear), the `slot_detector` group as plain data and whether frames are saved.
 """
 
 from __future__ import annotations
@@ -26,29 +27,29 @@ METRICS = {"point_recall": "slot_point_recall", "point_precision": "slot_point_p
            "occupancy_accuracy": "slot_occupancy_acc", "point_error_m": "slot_point_error_m"}
 
 
-def wanted(cfg: Settings) -> bool:
+def wanted(job) -> bool:
     """A BEV is set on the rig, or the case asks for slots and the rig has fisheyes to stitch (a slot case on
-    a pinhole rig runs as an object case, and says so)."""
-    if cfg.camera.bev.enabled:
+    a pinhole rig runs as an object case, and says so). `job`: the scene builder's settings (SceneSpec), or a
+    config's."""
+    if job.camera.bev.enabled:
         return True
-    if not cfg.case.get("slots", False):
+    if not job.case.get("slots", False):
         return False
-    if rig_has(cfg.camera, "bev"):
+    if rig_has(job.camera, "bev"):
         return True
-    print(f"garage_exp: case {cfg.case.name} scores slots on a bird's-eye view of fisheye cameras; rig "
-          f"{cfg.camera.name} has none, so no slot frames (camera=fisheye4)")
+    print(f"garage_exp: case {job.case.name} scores slots on a bird's-eye view of fisheye cameras; rig "
+          f"{job.camera.name} has none, so no slot frames (camera=fisheye4)")
     return False
 
 
-def bev_spec(cfg: Settings):
+def bev_spec(job):
     from garage_exp.render.bev import spec_of
 
-    return spec_of(cfg.camera.bev)
+    return spec_of(job.camera.bev)
 
 
-def finder(cfg: Settings):
+def finder(conf: Settings):
     """(detect, score, pool, metrics conf) from the `slot_detector` group (`lines` unless another is chosen)."""
-    conf = cfg.slot_detector
     from garage_exp.slots.detector import load
     from garage_exp.slots.results import pool, score
 
@@ -57,7 +58,8 @@ def finder(cfg: Settings):
 
 @dataclass
 class SlotFrames:
-    cfg: Settings
+    job: object  # the scene builder's settings (scenario.spec.SceneSpec)
+    save: bool  # the BEV frames are drawn and saved (renderer.save_frames is not none)
     scene: object
     out: Path
     spec: object
@@ -71,8 +73,8 @@ class SlotFrames:
     pictures: list = field(default_factory=list)  # the BEV frames written (for the run's artifacts)
 
     @classmethod
-    def open(cls, cfg, prepared, out: Path) -> "SlotFrames":
-        from garage_exp.core.plain import settings
+    def open(cls, job, detector: Settings, save: bool, prepared, out: Path) -> "SlotFrames":
+        """`job`: the scene builder's settings (SceneSpec); `detector`: the `slot_detector` group."""
         from garage_exp.slots.export import SlotExports
         from garage_exp.slots.truth import world_bays
         from garage_exp.render.bev import bev_maps
@@ -80,17 +82,16 @@ class SlotFrames:
 
         from garage_exp.scene.look import dress_for
 
-        cfg = settings(cfg)  # the stages below are handed plain data
         scene = prepared.scene
         ego = next(v for v in scene.vehicles() if v.role == "ego")
-        spec = bev_spec(cfg)
-        wear = marking_wear(cfg)
+        spec = bev_spec(job)
+        wear = marking_wear(job)
         # the paint texture of the materials' draw (replicate 0's: a replicate's own draw is close to it)
-        texture = (dress_for(cfg.materials, int(cfg.seed), wear).paint_wear if str(cfg.materials.level) != "none"
+        texture = (dress_for(job.materials, int(job.seed), wear).paint_wear if str(job.materials.level) != "none"
                    else 0.0)
-        return cls(cfg, scene, out, spec, bev_maps(scene.cameras, spec, ego.extent),
-                   world_bays(prepared.classified, cfg.garage, wear, texture), SlotExports(out / "slots"),
-                   finder(cfg))
+        return cls(job, save, scene, out, spec, bev_maps(scene.cameras, spec, ego.extent),
+                   world_bays(prepared.classified, job.garage, wear, texture), SlotExports(out / "slots"),
+                   finder(detector))
 
     def add(self, shot, camera: str, rgb: np.ndarray) -> None:
         """One camera's picture of a shot; the BEV frame is made once the shot's fisheyes are all in."""
@@ -123,7 +124,7 @@ class SlotFrames:
             row.update({k: float(v) for k, v in scored.items()})
             self._write_found(stem, found)
         self.rows.append(row)
-        if str(self.cfg.renderer.save_frames) != "none":  # drawn only to be saved
+        if self.save:  # drawn only to be saved
             from PIL import Image
 
             picture = draw_frame(bev, truth.frame)
