@@ -86,6 +86,8 @@ def test_the_preflight_hands_a_frozen_typed_spec_without_a_config_node():
     prepared = preflight(cfg, check_space=False, load=False)
     spec = prepared.spec
     assert isinstance(spec, JobSpec) and _config_nodes(spec) == []
+    assert "config" not in {f.name for f in dataclasses.fields(JobSpec)}  # typed parts only (issue 48 item 2)
+    assert spec.frames.look == str(cfg.look.name) and spec.frames.dataset and spec.frames.seed == int(cfg.seed)
     with pytest.raises(dataclasses.FrozenInstanceError):
         spec.seed = 1  # type: ignore[misc]
     assert spec.fair == FairRule(0.3, 25.0, 0.5) and spec.scoring == Scoring(0.4, float(cfg.detector.iou),

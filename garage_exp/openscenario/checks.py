@@ -30,13 +30,13 @@ class ExportConf:
 register_node("export", ExportConf)
 
 
-def check_export(cfg) -> None:
+def check_export(export, dry_run: bool) -> None:
     """The `export` group: a dry run builds no scenario to write; a version is one we write."""
-    if cfg.export.openscenario and cfg.dry_run:
+    if export.openscenario and dry_run:
         raise GarageError("a dry run builds no scenario to export; drop dry_run=true or export.openscenario=true",
                           "export.openscenario")
-    if str(cfg.export.openscenario_version) not in VERSIONS:
-        raise GarageError(f"{cfg.export.openscenario_version!r} is not a version we write (1.2, or 1.0 for CARLA's "
+    if str(export.openscenario_version) not in VERSIONS:
+        raise GarageError(f"{export.openscenario_version!r} is not a version we write (1.2, or 1.0 for CARLA's "
                           "ScenarioRunner)", "export.openscenario_version")
 
 

@@ -21,11 +21,11 @@ def variants(cfg, setup: CaseSetup) -> list[tuple[str, str, float | None, list[T
             for label, shots in variants_of(setup)]
 
 
-def export_info(cfg) -> ExportInfo:
-    """The job's names and values the files carry."""
-    garage = cfg.garage
-    return ExportInfo(str(cfg.export.openscenario_version), str(cfg.case.name), str(cfg.case.site),
-                      float(cfg.case.motion.step), str(cfg.plan.name), str(cfg.light.name), float(cfg.ego.speed),
+def export_info(job, version: str, plan: str) -> ExportInfo:
+    """The job's names and values the files carry; `job`: the scene builder's settings (SceneSpec)."""
+    garage = job.garage
+    return ExportInfo(version, str(job.case.name), str(job.case.site),
+                      float(job.case.motion.step), plan, str(job.light.name), float(job.ego.speed),
                       float(garage.pillar_size), float(garage.ceiling_height), float(garage.wall_thickness))
 
 

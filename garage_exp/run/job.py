@@ -23,9 +23,9 @@ from garage_exp.run.preflight import preflight
 def name_levels(cfg: DictConfig, plan_name: str) -> None:
     """Make every `name` in the config say what runs, before it is converted and logged (the preflight calls it
     once the plan is read): `plan.name` is the name of the plan file actually loaded (with `plan.file=big.yaml`
-    the group's default name `research` would stay), and a group level's name is the level composed (a user's `conf/light/night.yaml` without `name:`, or copied from
-    bright.yaml, would log `light.name=bright`). A `GROUP.name=...` given on the command line is kept (not
-    `plan.name`: with `plan.file` it is not what ran)."""
+    the group's default name `research` would stay), and a group level's name is the level composed (a user's
+    `conf/light/night.yaml` without `name:`, or copied from bright.yaml, would log `light.name=bright`). A
+    `GROUP.name=...` given on the command line is kept (not `plan.name`: with `plan.file` it is not what ran)."""
     hc = HydraConfig.get()
     given = {o.split("=", 1)[0].lstrip("+~") for o in hc.overrides.task}
     cfg.plan.name = plan_name

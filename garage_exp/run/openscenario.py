@@ -12,14 +12,19 @@ from omegaconf import DictConfig
 
 def export(cfg: DictConfig, out: Path, prepared=None) -> list[Path]:
     """`out`/garage.xodr and `out`/scenario.xosc (one .xosc per variant); `prepared`: the job's own preflight,
-    else the job is prepared here (its plan, assets and scene; nothing rendered)."""
+    else the job is prepared here (its plan, assets and scene; nothing rendered). The exporter is handed the
+    scene builder's settings (SceneSpec), the version and the plan's name."""
     from garage_exp.core.plain import settings
     from garage_exp.openscenario.export import write
     from garage_exp.openscenario.tracks import export_info, variants
+    from garage_exp.run.spec import scene_spec
 
     if prepared is None:
         from garage_exp.run.preflight import preflight
 
         prepared = preflight(cfg, check_space=False, load=False)  # its scene only: no model loads for a file
-    cfg = settings(cfg)  # the exporter is handed plain data
-    return write(export_info(cfg), prepared.classified, variants(cfg, prepared.setup), out)
+    # the preflight's one conversion; a PreparedJob put together by hand (tests) has none: converted here
+    config = prepared.config if prepared.config is not None else settings(cfg)
+    job = prepared.spec.scene if prepared.spec is not None else scene_spec(config)
+    return write(export_info(job, str(config.export.openscenario_version), str(config.plan.name)),
+                 prepared.classified, variants(job, prepared.setup), out)

@@ -150,7 +150,7 @@ def check_config(cfg) -> None:
     check_materials(cfg.materials)
     check_clutter(cfg.clutter)
     check_slots(cfg)
-    check_export(cfg)
+    check_export(cfg.export, bool(cfg.dry_run))
 
 
 def check_slots(cfg) -> None:
@@ -222,7 +222,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
         check_version(str(cfg.export.openscenario_version), setup)
     if not cfg.dry_run:
         prepared.scene, prepared.setup, prepared.detector = scene, setup, detector
-    prepared.spec, prepared.config = job_spec(cfg, detector, job, config), config
+    prepared.spec, prepared.config = job_spec(config, detector, job), config
     prepared.bytes_out, prepared.bytes_store = job_bytes(cfg, prepared.scene, prepared.setup)
     if check_space:
         from hydra.core.hydra_config import HydraConfig

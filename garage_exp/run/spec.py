@@ -1,8 +1,8 @@
 """A job's spec: what the layers below `run` are told about the job, read once from its composed config by the
 preflight (run.preflight.preflight puts it on the PreparedJob) and frozen. Results, perception, render and scene
 are handed its typed parts (the scoring and fairness rules, the ego, the sensor's and renderer's settings as plain
-data, the detector, the outputs, the names), never the DictConfig.
-"""
+data, the detector, the outputs, the names, the frame pipeline's FrameConf, the scene builder's SceneSpec), never
+the config (the job keeps the converted config on the PreparedJob: what tracking logs and hashes)."""
 
 from __future__ import annotations
 
@@ -76,7 +76,6 @@ class JobSpec:
     scene: SceneSpec | None = None  # what the scene builder is told (scene_spec)
     frames: FrameConf | None = None  # what the frame pipeline is told
     slot_detector: Settings | None = None  # the slot_detector group, plain (slots/frames.py's finder)
-    config: Settings | None = None  # the whole composed config as plain data: what tracking logs and hashes
     plan_file: str | None = None  # plan.file, for the hint where a case fits
 
 
@@ -108,21 +107,22 @@ def scene_spec(cfg) -> SceneSpec:
                      blank=bool(cfg.get("blank")), config_dirs=dirs, choices=choices)
 
 
-def job_spec(cfg, detector=None, scene: SceneSpec | None = None, config: Settings | None = None) -> JobSpec:
-    """The job's spec from its composed (and checked) config; `detector`: the one the preflight built."""
+def job_spec(config, detector=None, scene: SceneSpec | None = None) -> JobSpec:
+    """The job's spec from its composed (and checked) config, as plain data (the preflight's one conversion; a
+    node given is converted here); `detector`: the one the preflight built; `scene`: its scene_spec, if built."""
     from garage_exp.scenario.build import moves_ego
     from garage_exp.scene.camera import scored_camera
 
-    config = config or settings(cfg)  # converted once: every part below is read from it
+    config = settings(config)
     scene = scene or scene_spec(config)
+    search = config.search
+    outputs = Outputs(str(config.renderer.save_frames), bool(config.get("dataset")), bool(config.export.openscenario),
+                      None if search.get("trial") is None else int(search.trial))
     return JobSpec(
-        names=job_names(cfg), scoring=Scoring.of(config.detector), fair=FairRule.of(config.search),
+        names=job_names(config), scoring=Scoring.of(config.detector), fair=FairRule.of(search),
         ego=EgoConf(**plain(config.ego)), moving=bool(moves_ego(scene.case)), sensor=plain(config.sensor),
-        renderer=plain(config.renderer), detector=detector,
-        outputs=Outputs(str(cfg.renderer.save_frames), bool(cfg.get("dataset")), bool(cfg.export.openscenario),
-                        None if cfg.search.trial is None else int(cfg.search.trial)),
-        seed=int(cfg.seed), replicates=int(cfg.replicates),
+        renderer=plain(config.renderer), detector=detector, outputs=outputs,
+        seed=int(config.seed), replicates=int(config.replicates),
         primary=scored_camera(scene.camera, str(scene.case.get("camera") or "")), scene=scene,
-        frames=FrameConf.of(scene, bool(config.get("dataset"))), slot_detector=config.get("slot_detector"),
-        config=config,
-        plan_file=None if not cfg.plan.file else str(cfg.plan.file))
+        frames=FrameConf.of(scene, outputs.dataset), slot_detector=config.get("slot_detector"),
+        plan_file=None if not config.plan.get("file") else str(config.plan.file))
