@@ -147,6 +147,42 @@ def test_a_garage_loaded_with_its_kept_textures_renders_what_fresh_textures_rend
     assert np.array_equal(frames[0], frames[1]) and frames[0].std() > 0
 
 
+@pytest.mark.render
+def test_a_garage_with_another_floor_and_line_wear_is_restyled_in_place_as_a_fresh_load_renders_it(library):
+    """A wide space draws the floor's wetness and grime and the lines' wear per scenario: the same garage with
+    other pictures keeps its SAPIEN scene (its materials given the new pictures, nothing rebuilt), and its frame is
+    pixel-equal to the same scene loaded into a fresh renderer."""
+    from conftest import require
+
+    require("vulkan", "vehicles")
+    from garage_exp.core.state import STATE
+    from garage_exp.render.sapien_backend import get_renderer
+
+    base = ("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]", "camera.width=96",
+            "camera.height=72", "plan=small", "materials=worn")
+
+    def built(*more):
+        cfg = compose_cfg(*base, *more)
+        classified = classify(load_plan(resolve_plan_path(cfg.plan)))
+        return cfg, *build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+
+    dry = built("materials.wetness=0.0", "materials.grime=0.2")
+    wet = built("materials.wetness=0.9", "materials.grime=0.8", "case.actors.target.distance=6.5")
+    STATE.renderer = None
+    renderer = get_renderer()
+    renderer.load(dry[1])
+    loaded = renderer.sapien_scene
+    rendered(dry[1], dry[2], renderer, dry[0])
+    renderer.load(wet[1])
+    assert renderer.sapien_scene is loaded  # restyled in place, not rebuilt
+    restyled = rendered(wet[1], wet[2], renderer, wet[0])
+    STATE.renderer = None  # a fresh renderer, as a new process has
+    fresh = get_renderer()
+    fresh.load(wet[1])
+    assert np.array_equal(restyled, rendered(wet[1], wet[2], fresh, wet[0]))
+    assert restyled.std() > 0
+
+
 # A one-shot search: one frame a scenario (the lighting case at one distance), the archive's sampler over two
 # garages kept loaded, one detector, one MLflow run for the search.
 ONESHOT = ["-m", "hydra/sweeper=search", "search.sampler=archive", "search.trials=6", "search.startup=3",

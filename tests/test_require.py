@@ -161,16 +161,16 @@ def test_the_estimate_on_a_shipped_case_follows_the_pillar():
 SPACE = ["plan=tiny", "case.motion.values=[6.0]", "case.actors.target.distance=interval(3.0,10.0)"]
 
 
-def test_a_draw_the_requirements_reject_is_redrawn_and_never_launched(tmp_path, capsys):
-    """With the target required within 10 m of the camera, every far draw is told PRUNED with its reason and
-    redrawn: the study holds its budget of accepted trials, each launched, and no rejected one was launched."""
+def stubbed_search(tmp_path, name: str, budget: int, max_distance: float) -> tuple:
+    """A random search of `budget` trials on SPACE whose jobs are stand-ins that record what was launched:
+    (the study, the launched overrides, the trial numbers the loop ran)."""
+    from types import SimpleNamespace
+
     from hydra.types import RunMode
 
     launched = []
 
     def launch(batch, idx):
-        from types import SimpleNamespace
-
         launched.extend(batch)
         return [SimpleNamespace(return_value={"fair_frames": 2.0, "fair_difficulty": 0.5, "fair_confidence": 0.5,
                                               "fair_recall": 1.0, "visible_fraction_mean": 0.9, "frames": 2.0,
@@ -179,13 +179,20 @@ def test_a_draw_the_requirements_reject_is_redrawn_and_never_launched(tmp_path, 
     store = f"search.storage=sqlite:///{tmp_path / 'optuna.db'}"
     with hydra_loader() as loader:
         master = loader.load_configuration(
-            "config", ["hydra/sweeper=search", "plan=tiny", "search.sampler=random", "search.require.max_distance=9",
-                       "palette.target_colours=[black]", store], RunMode.MULTIRUN)
+            "config", ["hydra/sweeper=search", "plan=tiny", "search.sampler=random",
+                       f"search.require.max_distance={max_distance}", "palette.target_colours=[black]", store],
+            RunMode.MULTIRUN)
         space = space_mod.build(SPACE, master, {"plan": ["tiny"]})
-        study = study_mod.open_study(master.search, "req", 0, space.params)
-        loop = SearchLoop(master.search, space, study, launch, 6,
-                          compose=lambda overrides: loader.load_sweep_config(master, overrides))
-        loop.run()
+        study = study_mod.open_study(master.search, name, 0, space.params)
+        ran = SearchLoop(master.search, space, study, launch, budget,
+                         compose=lambda overrides: loader.load_sweep_config(master, overrides)).run()
+    return study, launched, ran
+
+
+def test_a_draw_the_requirements_reject_is_redrawn_and_never_launched(tmp_path, capsys):
+    """With the target required within 10 m of the camera, every far draw is told PRUNED with its reason and
+    redrawn: the study holds its budget of accepted trials, each launched, and no rejected one was launched."""
+    study, launched, _ = stubbed_search(tmp_path, "req", 6, max_distance=9)
     trials = study.get_trials()
     rejected = [t for t in trials if "rejected" in t.user_attrs]
     accepted = [t for t in trials if "rejected" not in t.user_attrs]
@@ -291,3 +298,30 @@ def test_a_checked_draw_whose_actors_collide_is_refused_by_its_job_without_a_sec
     with pytest.raises(Infeasible):
         pf.scene_of(other, plan)  # nothing handed on for these settings: built (and refused) afresh
     assert len(builds) == 2
+
+
+def test_a_draw_whose_actors_collide_is_told_infeasible_in_the_check_and_never_launched(tmp_path, monkeypatch, capsys):
+    """A draw the check's scene build refuses (Infeasible: two actors in one another) is told PRUNED infeasible
+    there, with the words its job would have returned, and counts in the budget; only the other draws are
+    launched (before, each colliding draw was launched as a job that refused it again)."""
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.scenario import assemble
+
+    real = assemble.build_scene
+
+    def collide_far(job, *args, **kwargs):  # a stand-in collision: every draw beyond 6 m
+        if float(job.case.actors["target"].distance) > 6.0:
+            raise Infeasible("the target stands in the occluder", "case.actors.target.distance")
+        return real(job, *args, **kwargs)
+
+    monkeypatch.setattr(assemble, "build_scene", collide_far)
+    study, launched, ran = stubbed_search(tmp_path, "collide", 8, max_distance=30)
+    trials = study.get_trials()
+    colliding = [t for t in trials if t.params["case.actors.target.distance"] > 6.0]
+    assert len(trials) == 8 and colliding and len(colliding) < 8  # both kinds drawn, every draw counted
+    assert all(t.state == TrialState.PRUNED and t.user_attrs["infeasible"] and t.user_attrs["frames"] == 0
+               and "stands in the occluder" in t.user_attrs["placement"] for t in colliding)
+    assert len(launched) == 8 - len(colliding)  # only the others were launched
+    assert all(float(dict(o.split("=", 1) for o in job)["case.actors.target.distance"]) <= 6.0 for job in launched)
+    assert sorted(ran) == [t.number for t in trials]
+    assert "stands in the occluder: infeasible" in capsys.readouterr().out

@@ -152,15 +152,18 @@ class SapienRenderer:
 
     def _recolouring(self, static: tuple) -> dict[Material, Material] | None:
         """When the new statics are the loaded ones with other materials (a search's light intensity changes
-        the lamp panels' glow), the old -> new material map that turns one into the other; None when they
-        differ otherwise (a full load), or when one old material would need two new ones (lamps switched on
-        or off: the merge groups shapes by material)."""
+        the lamp panels' glow; a wide space's draw the floor's wetness and the lines' wear: their pictures), the
+        old -> new material map that turns one into the other; None when they differ otherwise (a full load), or
+        when one old material would need two new ones (lamps switched on or off: the merge groups shapes by
+        material) or two old ones one new (a full load would merge their bodies)."""
         if self._static is None or static[0] != self._static[0] or static[2:] != self._static[2:]:
             return None
         change: dict[Material, Material] = {}
         for old, new in zip(self._static[1], static[1]):
             if change.setdefault(old, new) != new:
                 return None
+        if len(set(change.values())) != len(change):
+            return None
         return change
 
     def restyle(self, change: dict[Material, Material]) -> None:

@@ -23,7 +23,7 @@ import numpy as np
 
 from garage_exp.core.errors import GarageError
 from garage_exp.core.state import STATE
-from garage_exp.scene.description import VEHICLE_ROLES, Box, Decal, Entity, Material, Mesh, Pose
+from garage_exp.scene.description import VEHICLE_ROLES, Box, Decal, Entity, Material, Mesh, Pose, Texture
 
 STATIC_ROLES = ("structure", "marking", "lamp")
 STATIC_TILE = 12.0  # metres: static shapes merge per material and tile, so that frames can hide far tiles
@@ -48,14 +48,28 @@ def merges(entity: Entity, batch_static: bool) -> bool:
 
 
 def static_key(merged: Iterable[Entity]) -> tuple[list, list]:
-    """What merged static bodies are made of: their geometry (with each plain shape's material left out) and
-    the materials of their plain shapes in order."""
+    """What merged static bodies are made of: their geometry (with each box's and decal's material left out, but
+    for what its mesh is built from) and the materials of their boxes and decals in order."""
     merged = list(merged)
-    # A textured material's picture is part of the geometry (a mesh with UVs): it is not recoloured.
-    geometry = [(e.name, e.pose, [replace(sh, material=None) if _plain(sh) else sh for sh in e.shapes])
-                for e in merged]
-    materials = [sh.material for e in merged for sh in e.shapes if _plain(sh)]
+    # A wide space draws the floor's wetness and grime and the lines' wear per scenario: only the pictures change,
+    # and a box's mesh depends on its picture only by whether it has one and its `tile` (the UVs' repeat; a
+    # decal's span it once). So a picture is a material, changed in place (recolour) as a flat colour is, instead
+    # of a full load of the garage (0.3 s a scenario on the wide space).
+    geometry = [(e.name, e.pose, [replace(sh, material=_meshed(sh.material)) if _recoloured(sh) else sh
+                                  for sh in e.shapes]) for e in merged]
+    materials = [sh.material for e in merged for sh in e.shapes if _recoloured(sh)]
     return geometry, materials
+
+
+def _recoloured(shape) -> bool:
+    """A shape whose material can be changed in place: a box (flat or textured) or a decal."""
+    return isinstance(shape, (Box, Decal))
+
+
+def _meshed(material: Material) -> Texture | None:
+    """What of a box's or decal's material its mesh is built from: none for a flat colour, the repeat of a
+    picture."""
+    return None if material.texture is None else Texture("", tile=material.texture.tile)
 
 
 class SceneBuilder:
@@ -72,6 +86,7 @@ class SceneBuilder:
         self.materials: dict[Material, object] = {}  # one RenderMaterial per description material and load
         self.decal_ids: set[int] = set()  # bodies that are only decals (Frame.see_through)
         self.pillar_ids: set[int] = set()  # bodies that are only pillars (Frame.pillars)
+        self.clamped: set[Material] = set()  # materials made for a decal (alpha below 1: SAPIEN's blended pass)
 
     # ---- statics --------------------------------------------------------------------------------------------
 
@@ -108,17 +123,26 @@ class SceneBuilder:
             self.pillar_ids.add(int(node.per_scene_id))
 
     def recolour(self, change: dict[Material, Material]) -> None:
-        """Give each loaded RenderMaterial its new values; shapes keep their material objects."""
+        """Give each loaded RenderMaterial its new values and picture, as `material` would make it for the new
+        material; shapes keep their material objects."""
         moved = {}
         for old, new in change.items():
             rm = self.materials[old]
             if old != new:
-                rm.set_base_color(list(new.color))
+                colour = list(new.color)
+                if old in self.clamped:
+                    colour[3] = min(colour[3], 0.999)
+                rm.set_base_color(colour)
                 rm.set_emission([*new.emission, 1.0])
                 rm.set_roughness(new.roughness)
                 rm.set_metallic(new.metallic)
                 rm.set_specular(new.specular)
+                if new.texture is not None:
+                    _texture(rm, new)
+                    if _uploaded(new)[1] is None:
+                        rm.roughness_texture = None  # a fresh material of a picture without one has none
             moved[new] = rm
+        self.clamped = (self.clamped - change.keys()) | {new for old, new in change.items() if old in self.clamped}
         # rebuilt at once: a swap (A -> B, B -> A) must not read a value written in this loop
         self.materials = {**{m: rm for m, rm in self.materials.items() if m not in change}, **moved}
 
@@ -211,6 +235,7 @@ class SceneBuilder:
             colour = list(material.color)
             if decal:
                 colour[3] = min(colour[3], 0.999)  # alpha below 1: SAPIEN's blended (transparent) pass
+                self.clamped.add(material)
             rm = sr.RenderMaterial(emission=[*material.emission, 1.0], base_color=colour,
                                    roughness=material.roughness, metallic=material.metallic,
                                    specular=material.specular)
@@ -286,11 +311,6 @@ def _paint(rm, paint: tuple[float, float, float]) -> None:
 
 _LEVELS = np.arange(256, dtype=np.float32) / 255.0
 _SRGB_TO_LINEAR = np.where(_LEVELS <= 0.04045, _LEVELS / 12.92, ((_LEVELS + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def _plain(shape) -> bool:
-    """A box drawn in a flat colour (a SAPIEN box whose material can be recoloured in place)."""
-    return isinstance(shape, Box) and shape.material.texture is None
 
 
 def _texture(rm, material: Material) -> None:
