@@ -148,7 +148,7 @@ def test_a_garage_loaded_with_its_kept_textures_renders_what_fresh_textures_rend
 
 
 @pytest.mark.render
-def test_a_garage_with_another_floor_and_line_wear_is_restyled_in_place_as_a_fresh_load_renders_it(library):
+def test_a_garage_with_another_floor_wetness_and_grime_is_restyled_in_place_as_a_fresh_load_renders_it(library):
     """A wide space draws the floor's wetness and grime and the lines' wear per scenario: the same garage with
     other pictures keeps its SAPIEN scene (its materials given the new pictures, nothing rebuilt), and its frame is
     pixel-equal to the same scene loaded into a fresh renderer."""
