@@ -44,7 +44,7 @@ def built(monkeypatch) -> list:
     """The jobs' prepared scenes: each job stops after its preflight built its scene and its MLflow run opened."""
     seen = []
 
-    def run_frames(cfg, prepared, out, run):
+    def run_frames(prepared, out, run):
         seen.append(prepared)
         from garage_exp.results.summary import JobSummary
 
