@@ -141,9 +141,12 @@ def test_no_reward_for_a_target_never_fairly_visible(store):
 
 
 @pytest.mark.slow
-def test_seeded_ppo_is_deterministic(env):
+def test_seeded_ppo_is_deterministic(env, tmp_path, monkeypatch):
     """Two short PPO trainings with one seed (an update half-way, so the second rollout is the trained
-    policy's): the same actions and rewards, step for step."""
+    policy's): the same actions and rewards, step for step; and no SB3 log folder left in the temp dir."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     from stable_baselines3.common.callbacks import BaseCallback
 
     from garage_exp.gym.train import make_ppo
@@ -172,6 +175,7 @@ def test_seeded_ppo_is_deterministic(env):
     np.testing.assert_array_equal(np.concatenate(a.actions), np.concatenate(b.actions))
     assert a.rewards == b.rewards
     assert len({tuple(np.round(x.ravel(), 6)) for x in a.actions}) > 1  # a policy that acts, not a constant
+    assert not list(tmp_path.glob("SB3-*"))  # SB3's default logger makes one per learn() and never removes it
 
 
 def test_static_ego_is_refused(store, tmp_path):

@@ -12,6 +12,7 @@ from pathlib import Path
 from omegaconf import DictConfig, open_dict
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 
 from garage_exp.gym.env import StepOutEnv
 from garage_exp.gym.vector import StepOutVectorEnv
@@ -70,9 +71,13 @@ def make_ppo(env, cfg: DictConfig) -> PPO:
 
     torch.set_num_threads(1)
     g = cfg.gym
-    return PPO("MlpPolicy", env, n_steps=int(g.n_steps), batch_size=int(g.batch_size), n_epochs=int(g.n_epochs),
-               learning_rate=float(g.learning_rate), gamma=float(g.gamma), ent_coef=float(g.ent_coef),
-               seed=int(g.seed), device="cpu", verbose=0)
+    model = PPO("MlpPolicy", env, n_steps=int(g.n_steps), batch_size=int(g.batch_size), n_epochs=int(g.n_epochs),
+                learning_rate=float(g.learning_rate), gamma=float(g.gamma), ent_coef=float(g.ent_coef),
+                seed=int(g.seed), device="cpu", verbose=0)
+    # Our own callback records every episode; without a logger of its own, SB3's learn() makes a folder
+    # SB3-<date> in the system's temp dir for every model and never removes it.
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
 
 
 def rollouts(model: PPO, env: StepOutEnv, episodes: int, seed: int, phase: str) -> tuple[list[dict], list[dict]]:

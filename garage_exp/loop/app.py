@@ -266,8 +266,11 @@ def run_loop(cfg: DictConfig) -> dict:
     if schema.space_descriptors(cfg):
         search.descriptors = OmegaConf.structured(schema.space_descriptors(cfg))
     sample = {"garages": garages.label(cfg, "heldout"), "points": len(points), **heldout.acceptance(held, len(points))}
+    from garage_exp.loop import curves
+
     return report.write(cfg, loop.dir / f"results{suffix}", scores, photos, book, detectors, loop.times,
-                        cells=cells_of(held, search), search=search, sample=sample)
+                        cells=cells_of(held, search), search=search, sample=sample,
+                        curves=curves.read(loop.dir / "train", detectors))
 
 
 def real_photos(loop: Loop, detectors: dict) -> list[dict]:

@@ -162,11 +162,11 @@ def verdict(paired: pd.DataFrame, family: pd.DataFrame, rounds: pd.DataFrame, ar
     return f"{head} ({how}): " + "; ".join(said) + "."
 
 
-def markdown(paired: pd.DataFrame, sentence: str) -> str:
-    """report.md: the verdict and the table paired by held-out scenario, for docs/loop.md."""
+def markdown(paired: pd.DataFrame, sentence: str, checks: pd.DataFrame | None = None, kept: str = "") -> str:
+    """report.md: the verdict, the table paired by held-out scenario and the recall checks, for docs/loop.md."""
     from garage_exp.report.tables import markdown_table
 
-    text = f"{sentence}\n\n"
+    text = f"{sentence}\n\n" + (f"{kept}\n\n" if kept else "")
     if len(paired):
         shown = paired[["round", "seed", "a", "b", "scenarios", "a_only", "b_only", "a_per_100", "b_per_100",
                         "diff", "low", "high", "relative", "p", "p_holm"]].rename(
@@ -174,6 +174,8 @@ def markdown(paired: pd.DataFrame, sentence: str) -> str:
         for col in ("p", "p_holm"):  # small p-values would print as 0.000
             shown[col] = [f"{v:.3g}" for v in shown[col]]
         text += markdown_table(shown)
+    if checks is not None and len(checks):
+        text += "\n\n" + markdown_table(checks.round({"d0": 3, "recall": 3, "drop": 3}))
     return text
 
 
@@ -225,10 +227,14 @@ def part_tables(scores: pd.DataFrame) -> pd.DataFrame:
 
 
 def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[dict], detectors: dict,
-          times: dict, cells: dict | None = None, search=None, sample: dict | None = None) -> dict:
+          times: dict, cells: dict | None = None, search=None, sample: dict | None = None,
+          curves: pd.DataFrame | None = None) -> dict:
     """The result files; `cells` (held-out trial number -> archive cell, loop.cells.cells_of) and the search
     config they were measured with add cells.csv and the per-group heatmaps; `sample`: what the held-out sample
-    is (its garages, and what the space's requirements accepted: heldout.acceptance)."""
+    is (its garages, and what the space's requirements accepted: heldout.acceptance); `curves`: the fine-tunings'
+    validation curves (loop.curves.read)."""
+    from garage_exp.loop import curves as curves_mod
+    from garage_exp.loop import forgetting
     from garage_exp.loop.figure import draw
 
     out.mkdir(parents=True, exist_ok=True)
@@ -252,7 +258,16 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     if len(by_scenario):
         by_scenario.to_csv(out / "paired_scenarios.csv", index=False)
     sentence = verdict(by_scenario, family, rounds, arms, reference, k, len(cfg.seeds))
-    (out / "report.md").write_text(markdown(by_scenario, sentence))
+    tolerance = forgetting.tolerances(cfg)
+    checks = forgetting.recall_checks(scores, photo_table, arms, k, *tolerance)
+    checks.to_csv(out / "recall_checks.csv", index=False)
+    kept = forgetting.sentence(checks)
+    curves = curves if curves is not None else pd.DataFrame()
+    flat = curves_mod.converged(curves) if len(curves) else {}
+    if len(curves):
+        curves.to_csv(out / "validation.csv", index=False)
+        curves_mod.draw(curves, out / "validation.png")
+    (out / "report.md").write_text(markdown(by_scenario, sentence, checks, kept))
     draw(rounds, scores, photo_table, out / "loop.png")
     resisting, reach = {}, {}
     if cells and "failed" in scores:
@@ -271,12 +286,14 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms}, "seeds": list(cfg.seeds),
                "detectors": {n: d.get("weights") for n, d in detectors.items()}, "power": estimate,
                "times_s": times, "cells_resisting": resisting, "cells_reached": reach, "sample": sample or {},
-               "verdict": sentence}
+               "verdict": sentence, "not_forgetting": kept,
+               "recall_checks_hold": bool(len(checks)) and bool(checks.holds.all()), "validation": flat}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.loop: results in {out} (failure_rate.csv, comparisons.csv, scores.csv, photos.csv, "
           "rounds_bookkeeping.csv, power.json, report.md, loop.png"
           + (", paired_scenarios.csv" if len(by_scenario) else "") + (", failure_rate_parts.csv" if len(parts) else "")
-          + (", cells.csv, cells_marginals.csv, cells_*.png" if resisting else "") + ")")
+          + (", cells.csv, cells_marginals.csv, cells_*.png" if resisting else "")
+          + ", recall_checks.csv" + (", validation.csv, validation.png" if len(curves) else "") + ")")
     if sample:
         print(f"garage_exp.loop: held-out sample on {sample.get('garages')}: {sample.get('scenarios')} scenarios of "
               f"{sample.get('draws')} draws ({sample.get('accepted')} accepted by the space's requirements, "
@@ -294,5 +311,10 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     if len(by_scenario):
         print(by_scenario[["round", "seed", "a", "b", "a_only", "b_only", "diff", "low", "high", "relative", "p",
                            "p_holm"]].to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    still = [n for n, c in flat.items() if not c["converged"]]
+    if flat:
+        print(f"garage_exp.loop: validation curves of {len(flat)} fine-tunings: "
+              + (f"still rising at their last epoch: {', '.join(still)}" if still else "every one flattened"))
+    print(f"garage_exp.loop: {kept}")
     print(f"garage_exp.loop: {sentence}")
     return summary

@@ -84,6 +84,15 @@ class PowerConf:
 
 
 @dataclass
+class ForgettingConf:
+    """Issue 50's goals for what must not be forgotten (loop/forgetting.py): each arm's recall after the last round
+    may fall below D0's by at most this much, on each protocol suite and on each real-photo set."""
+
+    protocol_recall: float = 0.02
+    photo_recall: float = 0.05
+
+
+@dataclass
 class LoopConf:
     dir: str = "outputs/loop/default"  # every study, dataset, training and result of the loop
     # A name for another run of the arms (other replay, epochs ...) in the same dir, sharing its base data, D0 and
@@ -141,6 +150,7 @@ class LoopConf:
     threshold: float = 0.5  # composite confidence counted as detected
     estimate: bool = False  # print the cost model's estimate of this config and stop
     power: PowerConf = field(default_factory=PowerConf)
+    forgetting: ForgettingConf = field(default_factory=ForgettingConf)
     cost: CostConf = field(default_factory=CostConf)
     tracking: TrackingConf = field(default_factory=lambda: TrackingConf(experiment="garage_loop"))
 
