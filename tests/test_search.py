@@ -292,8 +292,9 @@ def test_two_worker_processes_share_one_study(tmp_path):
 
 
 def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
-    """The search's launcher composes once per combination of group levels and sets the values on a copy;
-    the config a job sees is Hydra's, key for key (the same values, choices, overrides and dirname)."""
+    """The search's launcher (and its check of the space: search/compose.py) composes once per combination of
+    group levels and sets the values on a copy; the config a job sees is Hydra's, key for key (the same values,
+    choices, overrides and dirname)."""
     from types import SimpleNamespace
 
     from conftest import hydra_loader
@@ -312,7 +313,7 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
             ours = OmegaConf.to_container(launch.compose(trial))
             hydras = OmegaConf.to_container(loader.load_sweep_config(master, trial))
             assert ours == hydras
-        assert len(launch.cache) == 2  # light=dim twice: one composition
+        assert len(launch.compositions.cache) == 2  # light=dim twice: one composition
 
 
 def test_a_suite_scenario_of_a_late_search_says_lateness():
@@ -359,3 +360,38 @@ def test_a_frame_budget_stops_the_study_once_its_trials_rendered_that_many(tmp_p
 def test_a_negative_frame_budget_is_refused(tmp_path):
     with pytest.raises(GarageError, match="search.frames"):
         study_mod.check_search(search_node(tmp_path, frames=-1).search)
+
+
+def test_the_check_of_a_space_composes_once_per_combination_of_group_levels(monkeypatch):
+    """The search's check probes every choice and each interval's ends (the wide space: about 300 points); each
+    point is composed as the launcher composes a trial (search/compose.py), so Hydra composes once per combination
+    of group levels, not once per point (each 0.3-0.9 s: most of the check's minutes on the wide space)."""
+    from conftest import hydra_loader
+    from hydra.types import RunMode
+    from omegaconf import open_dict
+
+    from garage_exp.core.state import STATE
+    from garage_exp.search import sweep
+
+    with hydra_loader() as loader:
+        task = ["hydra/sweeper=search", "plan=small", "case=light", "light=choice(bright,dim)",
+                "light.intensity=interval(0.3,0.9)", "case.actors.target.distance=interval(4.0,8.0)",
+                "case.actors.target.yaw=interval(-20.0,20.0)", "detector.models=[yolo11n_int8_openvino_model]"]
+        master = loader.load_configuration("config", task, RunMode.MULTIRUN)
+        with open_dict(master):
+            master.hydra.overrides.task = task
+        composed = []
+        real = type(loader).load_sweep_config
+        monkeypatch.setattr(type(loader), "load_sweep_config",
+                            lambda self, cfg, overrides: composed.append(list(overrides)) or real(self, cfg, overrides))
+        monkeypatch.setattr(sweep, "load_models", lambda job: None, raising=False)
+        import garage_exp.run.preflight as preflight_mod
+
+        monkeypatch.setattr(preflight_mod, "load_models", lambda job: None)
+        STATE.begin()
+        space = sweep.check(master, loader)
+    probed = 2 * 3 + 2 + 1  # three intervals' ends and middle, the choice's levels, the space's middle
+    assert len(space.params) == 4 and len(composed) < probed
+    # the fixed part, then one composition per level of `light` (the intervals' probes share them)
+    assert sorted(tuple(o for o in c if o.startswith("light=")) for c in composed[1:]) == [("light=bright",),
+                                                                                          ("light=dim",)]

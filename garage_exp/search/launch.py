@@ -2,8 +2,7 @@
 
 Hydra's basic launcher composes every job's config from the files (about 0.6 s here, a fifth of a 5-frame
 trial). A trial differs from the next by a few values, so this launcher composes once per combination of
-group levels (and structural overrides), then sets the trial's values on a copy, as Hydra's composition sets
-overrides on the composed defaults; `test_search.py` pins that the result equals Hydra's own composition.
+group levels (and structural overrides), then sets the trial's values on a copy (search/compose.py).
 Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging. A one-shot search's
 trials (`search.runs=per_search`) skip `run_job`'s two copies of the config and the per-job log file (`run_lean`).
 
@@ -13,16 +12,16 @@ batch's trial numbers, with gaps where the pre-screen pruned a trial (the job's 
 
 from __future__ import annotations
 
-import copy
 import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import JobReturn, JobRuntime, configure_log, run_job, setup_globals
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
+
+from garage_exp.search.compose import Compositions
 
 log = logging.getLogger(__name__)
 
@@ -30,42 +29,11 @@ log = logging.getLogger(__name__)
 class CachedLaunch:
     def __init__(self, hydra_context, task_function, config: DictConfig, groups: set[str]):
         self.hydra_context, self.task_function, self.config, self.groups = hydra_context, task_function, config, groups
-        self.parser = OverridesParser.create()
-        self.cache: dict[tuple[str, ...], DictConfig] = {}
-        self.parses: dict = {}  # override line -> its parsed Override
-
-    def structural(self, override) -> bool:
-        """Overrides that change the defaults list (a group's level, +/~) or Hydra's node: composed by Hydra."""
-        key = override.key_or_group
-        return (key in self.groups or "/" in key or key.startswith("hydra") or override.is_add()
-                or override.is_delete() or override.is_force_add())
-
-    def parsed(self, line: str):
-        """An override parsed once per launcher: a search's fixed overrides recur in every trial, its values
-        often (a choice's levels)."""
-        if line not in self.parses:
-            self.parses[line] = self.parser.parse_overrides([line])[0]
-        return self.parses[line]
+        self.compositions = Compositions(hydra_context.config_loader, config, groups)
 
     def compose(self, overrides: list[str]) -> DictConfig:
-        from hydra._internal.config_loader_impl import get_overrides_dirname
-
-        parsed = [self.parsed(line) for line in overrides]
-        fixed = tuple(o.input_line for o in parsed if self.structural(o))
-        if fixed not in self.cache:
-            self.cache[fixed] = self.hydra_context.config_loader.load_sweep_config(self.config, list(fixed))
-        cfg = copy.deepcopy(self.cache[fixed])
-        for o in parsed:
-            if not self.structural(o):
-                OmegaConf.update(cfg, o.key_or_group, o.value(), merge=True)  # as Hydra applies an override
-        with open_dict(cfg):
-            cfg.hydra.overrides.task = list(overrides)
-            job = cfg.hydra.job
-            cfg.hydra.job.override_dirname = get_overrides_dirname(
-                overrides=parsed, kv_sep=job.config.override_dirname.kv_sep,
-                item_sep=job.config.override_dirname.item_sep,
-                exclude_keys=list(job.config.override_dirname.exclude_keys))
-        return cfg
+        """A trial's config: composed once per combination of group levels, its values set on a copy."""
+        return self.compositions.compose(overrides)
 
     def __call__(self, batch, initial_job_idx: int | Sequence[int]):
         setup_globals()

@@ -16,6 +16,7 @@ from garage_exp.core.errors import GarageError
 from garage_exp.core.state import STATE
 from garage_exp.search import space as space_mod
 from garage_exp.search import study as study_mod
+from garage_exp.search.compose import Compositions
 from garage_exp.search.objectives import objective
 
 log = logging.getLogger("garage_exp")
@@ -83,11 +84,13 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     _check_objective(config.search, fixed)
     feasible = 0
     probes = [(name, {**base, name: value}) for name, value in space_mod.probe_points(space)]
+    # every probe composed as the search's launcher composes a trial: once per combination of group levels
+    compositions = Compositions(loader, config, group_levels(loader))
     for name, values in [*probes, (None, space_mod.middle_point(space))]:  # the first probe is `base` itself
         where = (f"search space {name}={space_mod.format_value(values[name])}" if name
                  else f"search space {' '.join(space.written.values())}")
         try:
-            prepared.append((where, _probe(config, loader, space.overrides(values), where)))
+            prepared.append((where, _probe(compositions, space.overrides(values), where)))
             feasible += 1
         except Infeasible as exc:
             infeasible.append(exc)
@@ -113,14 +116,13 @@ def check(config: DictConfig, loader) -> space_mod.Space:
     return space
 
 
-def _probe(config: DictConfig, loader, point: list[str], where: str):
+def _probe(compositions: Compositions, point: list[str], where: str):
     """One point of the space composed and checked as its trial's job would be, its models not loaded: the
     preflight's PreparedJob; GarageError naming `where` when a value is wrong on its own; core.errors.Infeasible
     as it is (the point's values together are)."""
     from garage_exp.run.preflight import preflight
 
-    return _probe_error(lambda: preflight(loader.load_sweep_config(config, point), check_space=False, load=False),
-                        where)
+    return _probe_error(lambda: preflight(compositions.compose(point), check_space=False, load=False), where)
 
 
 def _probe_error(check, where: str):
