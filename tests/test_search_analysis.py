@@ -299,3 +299,19 @@ def test_a_rate_without_episodes_gets_no_fisher_p_value():
 
     assert rates_line((0, 0), (2, 4)).endswith("; no test (no episodes on one side)")
     assert "Fisher's exact p = 1.00" in rates_line((2, 4), (2, 4))
+
+
+def test_a_large_studys_importances_come_from_a_seeded_sample_and_say_so(monkeypatch):
+    """fANOVA's cost grows with trials x parameters (700 trials of the wide space's 34: over 10 minutes): above
+    FANOVA_TRIALS complete trials the importances come from a seeded sample of that many, the same every time, and
+    still find what makes the scenarios hard; below it, from every trial as before (no note)."""
+    from garage_exp.report import why_hard
+
+    monkeypatch.setattr(why_hard, "FANOVA_TRIALS", 60)
+    study = study_of(90)
+    first, note = why_hard.importances(study)
+    again, _ = why_hard.importances(study)
+    assert note == "Importances from a seeded sample of 60 of the 90 complete trials." and first == again
+    assert max(first, key=first.get) == "light.intensity"
+    small, none = why_hard.importances(study_of(50))
+    assert none == "" and max(small, key=small.get) == "light.intensity"

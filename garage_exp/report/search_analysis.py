@@ -129,6 +129,7 @@ def hardest_section(study: optuna.Study, table: pd.DataFrame, out_dir: Path, top
 
 def importance_section(study: optuna.Study, importance: dict[str, float], skipped: str, name: str, out_dir: Path
                        ) -> tuple[list[str], list[Path]]:
+    # skipped: why there are no importances, or (with importances) how they were computed: from a sample
     """The fANOVA importances the report ranks by, beside optuna-dashboard's PED-ANOVA ones, and why they may
     rank the parameters differently (issue 47, item 11: the dashboard put one parameter first, the report another,
     for the same study, and neither said by what method)."""
@@ -144,7 +145,8 @@ def importance_section(study: optuna.Study, importance: dict[str, float], skippe
             "to 1), which the report ranks the parameters by. `dashboard_ped_anova` is what optuna-dashboard shows "
             f"for the same study: Optuna's PED-ANOVA evaluator, which measures how much each parameter matters to "
             f"reach the hardest 10 % of the trials, not how much of the variance of {name} over all of them it "
-            "explains; the two may rank the parameters differently, and neither is wrong.", "", *md_table(imp), "",
+            "explains; the two may rank the parameters differently, and neither is wrong.", "",
+            *([skipped, ""] if skipped else []), *md_table(imp), "",
             "![importances](importances.png)", ""], [out_dir / "importances.csv"]
 
 
