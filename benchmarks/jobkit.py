@@ -87,6 +87,7 @@ def prepared_job(overrides: list[str]) -> Prepared:
 def build_job(overrides: list[str], edit=None) -> Job:
     """The job of these overrides, its scene loaded (after `edit(scene)`, when given) and its shaders compiled."""
     from garage_exp.assets.vehicles import VehicleLibrary
+    from garage_exp.run.spec import scene_spec
     from garage_exp.scenario.assemble import build_scene
     from garage_exp.plan import classify, load_plan
     from garage_exp.run.preflight import resolve_plan_path
@@ -94,7 +95,7 @@ def build_job(overrides: list[str], edit=None) -> Job:
 
     cfg = compose(overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     if edit is not None:
         edit(scene)
     renderer = open_job_renderer(cfg)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import ROOT, compose_cfg, require
+from garage_exp.run.spec import scene_spec
 
 pytestmark = [pytest.mark.render]
 
@@ -26,7 +27,7 @@ def frame(*overrides: str):
     require("vulkan", "vehicles")
     cfg = compose_cfg(*SMALL, *overrides)
     classified = classify(load_plan(ROOT / "plans" / f"{cfg.plan.name}.yaml"))
-    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     renderer = get_renderer(max_lights=cfg.renderer.max_lights)
     renderer.load(scene)
     pipeline = FramePipeline(cfg, scene, renderer, make_sensor(), np.random.default_rng(0))

@@ -10,6 +10,7 @@ import pytest
 from conftest import ROOT, compose_cfg, require
 
 from garage_exp.plan.classify import LANE_TYPES
+from garage_exp.run.spec import scene_spec
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def build(library, *overrides: str):
 
     cfg = compose_cfg(*overrides)
     classified = job_plan(cfg)
-    scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
     return cfg, classified, scene, setup
 
 
@@ -46,7 +47,7 @@ def case_setup(library, *overrides: str):
 
     cfg = compose_cfg(*overrides)
     classified = job_plan(cfg)
-    return cfg, classified, make_case(cfg, classified, library, np.random.default_rng(cfg.seed))
+    return cfg, classified, make_case(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
 
 
 def on_lane(classified, pose) -> bool:
@@ -135,8 +136,8 @@ def test_the_scene_holds_the_case_s_vehicles_on_every_experiment_plan(library, p
 
     cfg = compose_cfg(f"plan={plan}", "case=3")
     classified = job_plan(cfg)
-    scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
-    alone = make_case(cfg, classified, library, np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
+    alone = make_case(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
     assert setup.shots == alone.shots
     names = {e.name for e in scene.entities}
     assert {v.name for v in setup.vehicles} <= names

@@ -14,6 +14,7 @@ from garage_exp.render.cull import box_corners, frustum_planes, outside_frustum
 from garage_exp.scene.camera import camera_to_world, to_camera
 from garage_exp.scene.lenses import lens_of
 from garage_exp.scene.description import CameraSpec, Pose
+from garage_exp.run.spec import scene_spec
 
 SPEC = CameraSpec("front", Pose(0.0, 0.0, 1.5), width=640, height=480, fovy=60.0, near=0.05, far=100.0)
 CAM = camera_to_world(Pose(), SPEC)  # at (0, 0, 1.5) looking along +x
@@ -89,7 +90,7 @@ def test_culled_frames_equal_unculled_ones_pixel_for_pixel():
 
     cfg = compose_cfg("palette=busy", "case=1")
     classified = classify(load_plan(ROOT / "plans" / "research.yaml"))
-    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     setup = replace(setup, shots=setup.shots[::30][:3])
     renderer = get_renderer(max_lights=cfg.renderer.max_lights)
     renderer.load(scene)

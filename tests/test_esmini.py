@@ -69,10 +69,12 @@ def judge(library, tmp_path, *overrides: str) -> list:
     from garage_exp.run.openscenario import export
     from garage_exp.openscenario.tracks import frame_clock, tracks, variants_of
     from garage_exp.run.preflight import PreparedJob
+    from garage_exp.run.spec import scene_spec
     from garage_exp.openscenario.asam import validate
     from garage_exp.openscenario.xodr_read import read_roads
 
     cfg, classified, setup = case_setup(library, *overrides)
+    job = scene_spec(cfg)  # what the exporter's tracks are handed, as the job hands them
     plan = cfg.plan.name
     paths = export(cfg, tmp_path / "osc", PreparedJob(PLANS_DIR / f"{plan}.yaml", classified, setup=setup))
     roads, _ = read_roads(paths[0])
@@ -80,9 +82,9 @@ def judge(library, tmp_path, *overrides: str) -> list:
     for (label, shots), xosc in zip(variants_of(setup), paths[1:], strict=True):
         where = f"{plan} case={cfg.case.name} [{label}]"
         assert validate(xosc).startswith("OpenSCENARIO")
-        moving, _ = tracks(cfg, setup, shots)
+        moving, _ = tracks(job, setup, shots)
         replay = play(xosc, tmp_path / xosc.stem)
-        for shot, t in zip(shots, frame_clock(cfg, shots, moving)):
+        for shot, t in zip(shots, frame_clock(job, shots, moving)):
             for name, pose in [("ego", shot.ego), *shot.poses.items()]:
                 if pose is None:
                     continue

@@ -16,6 +16,7 @@ from conftest import ROOT, compose_cfg, require, run_app
 
 from garage_exp.render.composite import blank_composite
 from garage_exp.tracking import runs as tracking
+from garage_exp.run.spec import scene_spec
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
@@ -52,7 +53,7 @@ def shoot(pipeline, *overrides: str):
     classified = classify(load_plan(ROOT / "plans" / f"{cfg.plan.name}.yaml"))
     from garage_exp.assets.vehicles import VehicleLibrary
 
-    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     renderer.load(scene)
     out = []
     for shot in setup.shots:

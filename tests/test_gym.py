@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import require, run_app, run_in_process
+from garage_exp.run.spec import scene_spec
 
 FAST = ["camera.width=320", "camera.height=240", "detector.imgsz=320", "renderer.save_frames=none",
         "case.motion.start=14", "case.motion.step=1.0"]
@@ -340,7 +341,8 @@ def pullout_scene(*overrides):
 
     cfg = compose_cfg("case=pullout", *overrides)
     classified = classify(load_plan(PLANS_DIR / f"{cfg.plan.name}.yaml"))
-    return (cfg, classified, *build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed)))
+    return (cfg, classified,
+            *build_scene(scene_spec(cfg), classified, VehicleLibrary(), np.random.default_rng(cfg.seed)))
 
 
 def past_bay_line(site, bays, pose, length):

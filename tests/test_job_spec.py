@@ -204,6 +204,32 @@ def test_no_stage_below_the_job_is_handed_a_config_node(tmp_path, mlflow_uri):
     assert not handed, "\n".join(map(str, sorted(set(handed))))
 
 
+def test_the_scene_builder_is_handed_each_group_as_its_schemas_dataclass(monkeypatch):
+    """Issue 48 item 2: the scene builder's parts are the typed dataclasses that own them, converted once by the
+    preflight, not attribute dicts: a misspelt key is an AttributeError (a dict's `get` was a silent None), and
+    nested groups (the case's motion, its actors, the rig's cameras) are typed too."""
+    require("assets")
+    from garage_exp.run import spec as spec_mod
+    from garage_exp.run.preflight import preflight
+    from garage_exp.scenario.schema import ActorConf, CaseConf, MotionConf
+    from garage_exp.scene.schema import CameraConf, CameraRigConf, GarageConf, LightConf, MaterialsConf
+
+    built = []
+    monkeypatch.setattr(spec_mod, "scene_spec", lambda cfg, made=spec_mod.scene_spec: built.append(1) or made(cfg))
+    prepared = preflight(compose_cfg("plan=small", "case=stepout", "ego.speed=7", "light.temperature=3000"),
+                         check_space=False, load=False)
+    scene = prepared.spec.scene
+    assert len(built) == 1  # the preflight checks the groups it hands the builder: one conversion, not two
+    parts = (scene.garage, scene.light, scene.camera, scene.case, scene.materials)
+    assert [type(p) for p in parts] == [GarageConf, LightConf, CameraRigConf, CaseConf, MaterialsConf]
+    assert isinstance(scene.case.motion, MotionConf) and isinstance(scene.camera.cameras[0], CameraConf)
+    assert all(isinstance(a, ActorConf) for a in scene.case.actors.values())
+    assert scene.light.temperature == 3000.0 and scene.ego_speed == 7.0
+    assert not hasattr(scene, "get") and not hasattr(scene.garage, "get")
+    with pytest.raises(AttributeError):
+        scene.garage.ceiling_heigth  # noqa: B018 - the misspelling is the test
+
+
 def test_a_job_converts_its_config_once(tmp_path, mlflow_uri, monkeypatch):
     """The job's levels are named (run.job.name_levels) before the preflight converts the config, so the whole
     config becomes plain data once and the spec says the names the run logs; before, the job converted it a

@@ -22,6 +22,7 @@ from optuna.trial import TrialState
 from garage_exp.core.errors import GarageError
 from garage_exp.perception.detect.kinds import KINDS as ENTRY_KINDS
 from garage_exp.perception.sensor import KINDS, TONES, make_sensor
+from garage_exp.run.spec import scene_spec
 from garage_exp.slots.detector import KINDS as SLOT_KINDS
 from garage_exp.scene.lenses import LENSES
 from garage_exp.scene.views import VIEWS
@@ -204,7 +205,7 @@ def test_a_lens_from_a_module_of_its_own(plugin):
         check_camera(bad.camera)
 
     # the job's scene description: its camera is of the new model, drawn from a cube map through the lens
-    scene, setup = build_scene(cfg, classified_plan(resolve_plan_path(cfg.plan)), VehicleLibrary(),
+    scene, setup = build_scene(scene_spec(cfg), classified_plan(resolve_plan_path(cfg.plan)), VehicleLibrary(),
                                np.random.default_rng(cfg.seed))
     (spec,) = scene.cameras
     lens = lens_of(spec)
@@ -337,14 +338,16 @@ def test_one_module_of_the_users_adds_an_entry_kind_an_objective_a_lens_a_sensor
     from garage_exp.perception.detect.worker import DetectorProcess
     from garage_exp.slots.detector import load
     from garage_exp.slots.schema import SlotDetectorConf
+    from garage_exp.core.plain import typed
     from garage_exp.scene.camera import check_camera, rig_specs
     from garage_exp.scene.lenses import lens_of
+    from garage_exp.scene.schema import CameraRigConf
     from garage_exp.search import objectives
     from garage_exp.search.loop import outcome
 
-    rig = OmegaConf.create({"name": "test", "roof": True, "view": "raw", "cameras": [
+    rig = typed(CameraRigConf, {"name": "test", "roof": True, "view": "raw", "cameras": [
         {"name": "front", "x": 0.0, "y": 0.0, "z": 0.3, "yaw": 0.0, "pitch": 0.0, "fovy": 60.0, "width": 64,
-         "height": 48, "model": "equidistant", "fov": 180.0, "k": [0.0, 0.0, 0.0, 0.0]}]})
+         "height": 48, "model": "equidistant", "fov": 180.0, "k": [0.0, 0.0, 0.0, 0.0]}]})  # as a job's is typed
     with pytest.raises(GarageError, match="unknown camera model 'equidistant'"):
         check_camera(rig)
     with pytest.raises(GarageError, match="model not found"):

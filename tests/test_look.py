@@ -13,6 +13,7 @@ from conftest import compose_cfg, run_app
 from garage_exp.perception.sensor import make_sensor
 from garage_exp.scene.description import Box, Decal, Material, Texture
 from garage_exp.scene.textures import image
+from garage_exp.run.spec import scene_spec
 
 
 def built(*overrides: str):
@@ -23,7 +24,7 @@ def built(*overrides: str):
 
     cfg = compose_cfg(*overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     return cfg, classified, scene, setup
 
 

@@ -12,6 +12,7 @@ from garage_exp.plan import classify, load_plan
 from garage_exp.run.preflight import resolve_plan_path
 from garage_exp.scenario.assemble import build_scene
 from garage_exp.scenario.build import one_shot
+from garage_exp.run.spec import scene_spec
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +25,7 @@ def library():
 def shots(library, *overrides: str):
     cfg = compose_cfg(*overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    return build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))[1].shots
+    return build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))[1].shots
 
 
 def test_one_shot_picks_evenly_spaced_frames_ends_included():
@@ -86,7 +87,7 @@ def test_a_kept_garage_taken_back_renders_what_a_fresh_load_renders(library):
     def built(*more):
         cfg = compose_cfg(*base, *more)
         classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-        return cfg, *build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+        return cfg, *build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
 
     first, again, other = built("plan=small"), built("plan=small", "case.actors.target.distance=6.5",
                                                     "light.intensity=0.4"), built("plan=obstacles")
@@ -130,7 +131,7 @@ def test_a_garage_loaded_with_its_kept_textures_renders_what_fresh_textures_rend
     cfg = compose_cfg("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]", "camera.width=96",
                       "camera.height=72", "plan=small", "materials.wetness=0.6")
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    scene, setup = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
     assert any(s.material.texture is not None for e in scene.entities for s in e.shapes if hasattr(s, "material"))
     frames = []
     for fresh_textures in (True, False):
@@ -164,7 +165,7 @@ def test_a_garage_with_another_floor_wetness_and_grime_is_restyled_in_place_as_a
     def built(*more):
         cfg = compose_cfg(*base, *more)
         classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-        return cfg, *build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+        return cfg, *build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
 
     dry = built("materials.wetness=0.0", "materials.grime=0.2")
     wet = built("materials.wetness=0.9", "materials.grime=0.8", "case.actors.target.distance=6.5")

@@ -12,6 +12,7 @@ from garage_exp.plan import classify, load_plan
 from garage_exp.scene.bays import bays, overlap
 from garage_exp.scene.parking import car_footprint, park_vehicles, pillar_footprints
 from garage_exp.scene.structure import build_garage
+from garage_exp.run.spec import scene_spec
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +94,7 @@ def test_case_3_cars_stand_in_the_bays_beside_the_lane(library):
     classified = classify(load_plan(PLANS_DIR / "research.yaml"))
     cfg = compose_cfg("case=3", "case.variants=[{show: [far_small], target: far_small},"
                       "{show: [close_large, far_medium], target: far_medium}]")
-    setup = make_case(cfg, classified, library, np.random.default_rng(0))
+    setup = make_case(scene_spec(cfg), classified, library, np.random.default_rng(0))
     parked = [v for v in setup.vehicles if v.role == "parked"]
     assert {v.name for v in parked} == {"far_small", "close_large", "far_medium"}
     all_bays = bays(classified, GarageConf())

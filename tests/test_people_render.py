@@ -12,6 +12,7 @@ import pytest
 from test_experiment import _skip_without_backends, compose_cfg
 
 from conftest import ROOT
+from garage_exp.run.spec import scene_spec
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
 
@@ -33,7 +34,7 @@ def street(tmp_path_factory):
 
     cfg = compose_cfg("case=light", "light=bright", "case.motion.values=[6.0]")
     classified = classify(load_plan(ROOT / "plans" / f"{cfg.plan.name}.yaml"))
-    scene, setup = build_scene(cfg, classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
+    scene, setup = build_scene(scene_spec(cfg), classified, VehicleLibrary(), np.random.default_rng(cfg.seed))
     library = PeopleLibrary(tmp_path_factory.mktemp("people"))
     bodies = {"adult": library.body("adult", height=1.75), "child": library.body("child", height=1.2)}
     for name, body in bodies.items():

@@ -21,6 +21,7 @@ from omegaconf import OmegaConf
 from optuna.trial import TrialState
 
 from garage_exp.core.errors import GarageError, Infeasible
+from garage_exp.run.spec import scene_spec
 
 OVERLAP = ["case=stepout", "case.actors.child.offset=0.25", "case.motion.end=19", "case.motion.along.child.at=19.5"]
 EPISODES = 40
@@ -63,7 +64,7 @@ def rerun(env, record: dict):
 
     cfg = OmegaConf.merge(env.job, scenario_values(env.job, record, env.movers))
     classified = classified_plan(resolve_plan_path(cfg.plan))
-    return make_case(cfg, classified, _library(), np.random.default_rng(int(cfg.seed))).shots
+    return make_case(scene_spec(cfg), classified, _library(), np.random.default_rng(int(cfg.seed))).shots
 
 
 def test_the_adversarys_offset_stops_where_a_job_refuses(env):

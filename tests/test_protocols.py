@@ -13,6 +13,7 @@ from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
 from garage_exp.scenario import timing
+from garage_exp.scenario.schema import AlongConf
 
 V_CHILD = 5 / 3.6  # the protocols' pedestrian speed, m/s
 
@@ -54,7 +55,7 @@ def test_a_walk_reaches_its_speed_after_its_acceleration_distance_and_keeps_it()
     steady = OmegaConf.create({"speed": 1.4, "accelerate": 0.0})
     assert timing.travelled(steady, 2.0) == pytest.approx(2.8) and timing.travelled(steady, -1.0) == 0.0
     # met at the ego's 2.5 m, reached 10 m before (4 s at 2.5 m/s): it sets off 3.6 s before the ego gets there
-    met = OmegaConf.create({"speed": V_CHILD, "accelerate": 1.0, "start": -5.0, "end": -1.0, "meet": 2.5, "at": None})
+    met = AlongConf(speed=V_CHILD, accelerate=1.0, start=-5.0, end=-1.0, meet=2.5)  # as the scene builder has it
     assert timing.start_time(met, lambda x: (12.5 - x) / 2.5) == pytest.approx(4.0 - (ramp + 3.0 / V_CHILD))
 
 

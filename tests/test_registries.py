@@ -14,8 +14,10 @@ from omegaconf import OmegaConf
 from optuna.trial import TrialState
 
 from garage_exp.core.errors import GarageError
+from garage_exp.core.plain import typed
 from garage_exp.scene import lenses
 from garage_exp.scene.camera import check_camera, rig_specs
+from garage_exp.scene.schema import CameraRigConf
 from garage_exp.search import objectives
 from garage_exp.search.loop import line, outcome
 
@@ -83,7 +85,8 @@ def test_the_report_ranks_by_the_direction_the_study_was_made_with(recall_object
 
 
 def fisheye_rig(model: str):
-    return OmegaConf.create({"name": "test", "roof": True, "view": "raw", "cameras": [
+    """A one-camera rig, typed as the scene builder is handed it (run.spec.scene_spec)."""
+    return typed(CameraRigConf, {"name": "test", "roof": True, "view": "raw", "cameras": [
         {"name": "front", "x": 0.0, "y": 0.0, "z": 0.3, "yaw": 0.0, "pitch": 0.0, "fovy": 60.0, "width": 64,
          "height": 48, "model": model, "fov": 190.0, "k": [-0.0417, 0.0005, 0.0, 0.0]}]})
 

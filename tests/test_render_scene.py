@@ -12,6 +12,7 @@ import pytest
 from conftest import compose_cfg, require, run_app
 
 from garage_exp.core.errors import GarageError
+from garage_exp.run.spec import scene_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 # Two frames of case 1 on the tiny plan, at a tiny size.
@@ -32,7 +33,7 @@ def test_a_batch_of_two_sub_scenes_renders_what_two_separate_jobs_render():
     from garage_exp.scenario.assemble import HIDDEN, build_scene
 
     cfg = compose_cfg(*SMALL)
-    scene, setup = build_scene(cfg, classify(load_plan(ROOT / "plans" / "tiny.yaml")), VehicleLibrary(),
+    scene, setup = build_scene(scene_spec(cfg), classify(load_plan(ROOT / "plans" / "tiny.yaml")), VehicleLibrary(),
                                np.random.default_rng(cfg.seed))
     shots = setup.shots[:2]
     assert len(shots) == 2 and shots[0].ego != shots[1].ego

@@ -16,6 +16,7 @@ from garage_exp.plan import classify, load_plan
 from garage_exp.run.preflight import resolve_plan_path
 from garage_exp.scenario.place import footprint, overlap
 from garage_exp.scene.description import Pose
+from garage_exp.run.spec import scene_spec
 
 CASES = sorted(p.stem for p in (PROJECT_ROOT / "conf" / "case").glob("*.yaml"))
 ARRANGEMENTS = sorted(p.stem for p in (PROJECT_ROOT / "conf" / "occluder").glob("*.yaml"))
@@ -31,7 +32,7 @@ def library():
 def build(library, *overrides: str, config_dir=None):
     cfg = compose_cfg(*overrides, config_dir=config_dir)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    return build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    return build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
 
 
 def by_name(scene, name):
@@ -54,7 +55,7 @@ def test_every_shipped_scenario_composes_with_every_arrangement(library, arrange
 
     cfg = compose_cfg(f"case={case}", f"occluder={arrangement}")
     classified = classified_plan(resolve_plan_path(cfg.plan))
-    setup = make_case(cfg, classified, library, np.random.default_rng(cfg.seed))
+    setup = make_case(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
     assert setup.shots
     extra = arrangement_actors[arrangement]
     own = {n for n, a in cfg.case.actors.items() if a.role == "occluder"}  # the case's own (oneshot's)
@@ -63,7 +64,7 @@ def test_every_shipped_scenario_composes_with_every_arrangement(library, arrange
         for name in extra:
             assert shot.poses[name] is not None and shot.poses[name] == setup.shots[0].poses[name]
     if setup.occluder:
-        scene, built = build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+        scene, built = build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
         assert built.shots == setup.shots
         assert {e.name for e in scene.entities if e.role == "occluder"} == extra | own
         if case in ("1", "2") and arrangement in ("none", "vans", "barrier"):

@@ -19,6 +19,7 @@ from garage_exp.core.errors import GarageError, did_you_mean
 from garage_exp.core.exits import input_error, unknown_key_line
 from garage_exp.core.schema_check import check_schema, override_of, unknown_keys
 from garage_exp.scenario.schema import ActorConf, CaseConf
+from garage_exp.run.spec import scene_spec
 
 
 
@@ -147,7 +148,7 @@ def build(library, *overrides: str, config_dir=None):
     extra = [f"hydra.searchpath=[file://{config_dir}]"] if config_dir else []
     cfg = compose_cfg(*extra, *overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    return build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    return build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
 
 
 SHORT_STEM = ROOT / "tests" / "bad_inputs" / "plans" / "short_stem.yaml"  # a T-junction's 9.2 m stem

@@ -193,7 +193,7 @@ def test_every_site_of_a_case_builds_and_stands_the_case_there(plan_name, case, 
     hosts, starts = {}, {}
     for k in range(len(every)):
         cfg.case.site_index = k
-        setup = make_case(cfg, c, library, np.random.default_rng(cfg.seed))
+        setup = make_case(scene_spec(cfg), c, library, np.random.default_rng(cfg.seed))
         hosts[k] = setup.site_index
         ego = setup.shots[0].ego
         assert ego_at_site(every[setup.site_index], where, ego), (k, setup.site_index)
@@ -212,7 +212,7 @@ def test_a_site_passed_on_or_drawn_builds_as_the_site_picked_directly(library):
 
     def built(*overrides):
         cfg = compose_cfg(*overrides, "case.motion.step=2.0")
-        setup = make_case(cfg, c, library, np.random.default_rng(cfg.seed))
+        setup = make_case(scene_spec(cfg), c, library, np.random.default_rng(cfg.seed))
         return setup.site_index, [(s.ego, s.poses) for s in setup.shots], [e.model for e in setup.vehicles]
 
     assert built("case=pedestrian", "case.site_index=3") == built("case=pedestrian", "case.site_index=0")
@@ -275,8 +275,8 @@ def test_the_gyms_live_scenario_stands_where_the_job_built_the_case(library):
     c = plan("research")
     for overrides, site in ((["case=stepout", "case.site_index=2"], 2), (["case=pedestrian", "case.site_index=3"], 0)):
         cfg = compose_cfg(*overrides, "case.motion.step=4.0")
-        setup = make_case(cfg, c, library, np.random.default_rng(cfg.seed))
-        live = LiveScenario(cfg, c, setup)
+        setup = make_case(scene_spec(cfg), c, library, np.random.default_rng(cfg.seed))
+        live = LiveScenario(scene_spec(cfg), c, setup)
         assert setup.site_index == live.site.index == site
         first = setup.shots[0]
         ego, _ = live.poses({"ego": {"distance": first.position}} if cfg.case.motion.actor == "ego" else {})

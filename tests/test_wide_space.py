@@ -12,6 +12,7 @@ from conftest import compose_cfg
 from omegaconf import OmegaConf
 
 from garage_exp.core.errors import GarageError
+from garage_exp.run.spec import scene_spec
 
 BASE = ("case=oneshot", "plan=small")
 
@@ -26,7 +27,7 @@ def built(*overrides):
     cfg = compose_cfg(*BASE, *overrides)
     check_config(cfg)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    return build_scene(cfg, classified, shared_library(), np.random.default_rng(cfg.seed))
+    return build_scene(scene_spec(cfg), classified, shared_library(), np.random.default_rng(cfg.seed))
 
 
 def shot(*overrides):

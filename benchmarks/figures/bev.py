@@ -35,8 +35,9 @@ def main() -> None:
     from garage_exp.plan import classify, load_plan
     from garage_exp.render.bev import bev_maps
     from garage_exp.run.preflight import resolve_plan_path
-    from garage_exp.slots.frames import bev_spec, finder
+    from garage_exp.run.spec import scene_spec
     from garage_exp.scenario.assemble import marking_wear
+    from garage_exp.slots.frames import bev_spec, finder
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--plan", default="tiny")
@@ -56,7 +57,8 @@ def main() -> None:
     maps = bev_maps(scene.cameras, spec, ego.extent)
     bev = maps.stitch(pictures)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    truth = slot_truth(world_bays(classified, cfg.garage, marking_wear(cfg)), spec, shot.ego, scene.cameras, maps,
+    wear = marking_wear(scene_spec(cfg))
+    truth = slot_truth(world_bays(classified, cfg.garage, wear), spec, shot.ego, scene.cameras, maps,
                        obstacles(scene, shot.poses))
     seamed = bev.copy()
     seamed[maps.seams] = (255, 0, 255)

@@ -6,7 +6,10 @@ adversary's episode for a node among the arguments."""
 
 from __future__ import annotations
 
+import types
+import typing
 from dataclasses import is_dataclass
+from functools import lru_cache
 from typing import Any
 
 
@@ -107,3 +110,45 @@ def structured(schema: type, *nodes: Any):
 
     return OmegaConf.merge(OmegaConf.structured(schema),
                            *(OmegaConf.load(n) if isinstance(n, Path) else n for n in nodes))
+
+
+def typed(schema: type, values: Any, where: str = "") -> Any:
+    """A group's values (`Settings` or a dict, as `settings` makes them) as the dataclass its schema is, nested
+    groups as theirs (a field's dataclass, list, tuple, dict or Optional of them): what a layer below the job is
+    handed, so that a misspelt key is an AttributeError, not a dict's silent None. Values the schema types `Any`
+    (a `_target_` spec) stay `Settings`. A key the schema lacks (forced past it: `+case.actors.x.bumper=1`) is a
+    GarageError at `where.key`, as the schema check (core/schema_check.py) words it."""
+    if values is None or isinstance(values, schema):
+        return values
+    from garage_exp.core.errors import GarageError
+
+    hints = _hints(schema)
+    for key in values:
+        if key not in hints:
+            raise GarageError(f"unknown key {key!r} (not in {schema.__name__})", f"{where}.{key}".lstrip("."))
+    return schema(**{key: _typed(hints[key], value, f"{where}.{key}") for key, value in values.items()})
+
+
+@lru_cache(maxsize=None)
+def _hints(schema: type) -> dict:
+    return typing.get_type_hints(schema)
+
+
+def _typed(hint: Any, value: Any, where: str) -> Any:
+    """One value as its field's type hint says (typed's doc)."""
+    if value is None:
+        return None
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):  # Optional[X]: X
+        hint = next(a for a in args if a is not type(None))
+        origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if is_dataclass(hint):
+        return typed(hint, value, where)
+    if origin is list:
+        return [_typed(args[0] if args else Any, v, f"{where}.{k}") for k, v in enumerate(value)]
+    if origin is tuple:  # tuple[X, Y] or tuple[X, ...]
+        inner = args if args and Ellipsis not in args else (args[:1] or (Any,)) * len(value)
+        return tuple(_typed(a, v, f"{where}.{k}") for k, (a, v) in enumerate(zip(inner, value)))
+    if origin is dict:
+        return {k: _typed(args[1] if args else Any, v, f"{where}.{k}") for k, v in value.items()}
+    return value

@@ -1,6 +1,7 @@
 """A job's case as an export's tracks: each variant's shots (replicate 0) become its actors' tracks (where each
 starts, where it ends, how fast, from when), from the case setup the job's preflight built (run/openscenario.py
-hands it over; export.py writes the files). Handed plain data (Settings), never a config node."""
+hands it over; export.py writes the files). Handed the scene builder's typed settings (SceneSpec), never a
+config node."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ def export_info(job, version: str, plan: str) -> ExportInfo:
     """The job's names and values the files carry; `job`: the scene builder's settings (SceneSpec)."""
     garage = job.garage
     return ExportInfo(version, str(job.case.name), str(job.case.site),
-                      float(job.case.motion.step), plan, str(job.light.name), float(job.ego.speed),
+                      float(job.case.motion.step), plan, str(job.light.name), float(job.ego_speed),
                       float(garage.pillar_size), float(garage.ceiling_height), float(garage.wall_thickness))
 
 
@@ -59,14 +60,14 @@ def _extended(first: Pose, last: Pose, v0: float, v1: float, end: float) -> Pose
 def tracks(cfg, setup: CaseSetup, shots: list[Shot]) -> tuple[list[Track], list[str]]:
     """Every actor of the variant as a Track; and notes on what the file cannot say (for its description)."""
     entities = {e.name: e for e in setup.vehicles}
-    ego_speed = float(cfg.ego.speed) / 3.6
+    ego_speed = float(cfg.ego_speed) / 3.6
     driving = moves_ego(cfg.case)
     times = [s.time for s in shots]
     notes: list[str] = []
     out = [Track("ego", entities["ego"], shots[0].ego)]
     if driving and not _same(shots[0].ego, shots[-1].ego):
         out[0].end, out[0].speed = shots[-1].ego, ego_speed
-    alongs = dict(cfg.case.motion.get("along") or {}) if driving else {}
+    alongs = dict(cfg.case.motion.along or {}) if driving else {}
     values = [s.position for s in shots]
     for name, entity in entities.items():
         poses = [s.poses.get(name) for s in shots]
@@ -78,17 +79,17 @@ def tracks(cfg, setup: CaseSetup, shots: list[Shot]) -> tuple[list[Track], list[
         if not moved:
             continue
         along = alongs.get(name)
-        if along is not None and not along.get("values"):
+        if along is not None and not along.values:
             # when it sets off: at the ego's `at`, or timed to `meet` it (scenario/timing.py); as the ego's travel
-            t_at = start_time(along, lambda x: frame_times([values[0], x], float(cfg.ego.speed))[1])
+            t_at = start_time(along, lambda x: frame_times([values[0], x], float(cfg.ego_speed))[1])
             reached = [along_value(along, t, t_at) for t in times]
             track.end = _extended(poses[0], poses[moved[-1]], reached[0], reached[moved[-1]], float(along.end))
             track.speed = float(along.speed)
-            track.accelerate = float(along.get("accelerate") or 0.0)
+            track.accelerate = float(along.accelerate or 0.0)
             track.trigger = ("ego_travel", round(t_at * ego_speed, 6)) if t_at > 0 else ("time", 0.0)
             if t_at < 0:  # already on its way at the first frame: it starts there at the speed it has then
                 track.initial = speed_at(along, -t_at)
-            if along.get("meet") is not None:  # timed to meet the ego: where the ego is then
+            if along.meet is not None:  # timed to meet the ego: where the ego is then
                 track.meet = _extended(shots[0].ego, shots[-1].ego, values[0], values[-1], float(along.meet))
             continue
         first, last = moved[0] - 1, moved[-1]

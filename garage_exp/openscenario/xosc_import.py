@@ -227,12 +227,12 @@ def to_case(r: Read, classified, site, name: str, margin: float, target: str | N
 def check_runs(case: dict, r: Read) -> None:
     """What a job asks of the case before it has a plan (the scenario's own checks: its schema, its motion, each
     variant's target), so that a case that would fail as a job is refused here, naming the file."""
-    from garage_exp.core.plain import structured
+    from garage_exp.core.plain import as_object, structured
     from garage_exp.scenario.schema import CaseConf
     from garage_exp.scenario.build import _check_motion, variants
 
     try:
-        conf = structured(CaseConf, case)
+        conf = as_object(structured(CaseConf, case))  # typed as a job's scene builder is handed it
         _check_motion(conf)
         variants(conf, dict(conf.actors), [])
     except GarageError as exc:

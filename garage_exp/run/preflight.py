@@ -18,6 +18,7 @@ from garage_exp.core.plain import settings
 from garage_exp.core.paths import PLANS_DIR
 from garage_exp.core.state import STATE
 from garage_exp.scenario.fits import hint
+from garage_exp.scenario.spec import SceneSpec
 
 
 @dataclass
@@ -108,9 +109,11 @@ def _library():
     return shared_library(vehicles_dir())  # missing assets fail in vehicles_dir, saying what to set or run
 
 
-def check_config(cfg) -> None:
+def check_config(cfg) -> SceneSpec:
     """Every group's values, by its owner's check (the schema already checked the types); no plan or assets
-    needed. `cfg`: the composed config, or it as `Settings` (what the checks are handed: plain data)."""
+    needed. `cfg`: the composed config, or it as `Settings` (what the checks are handed: plain data). Returns
+    the scene builder's settings (run.spec.SceneSpec), converted once here: the scene's groups are checked as
+    the builder will be handed them."""
     from garage_exp.perception.detect.detector import check_detector
     from garage_exp.slots.detector import check_slot_detector
     from garage_exp.render.open import check_renderer
@@ -135,41 +138,43 @@ def check_config(cfg) -> None:
         value = (cfg.get(group) or {}).get(name) if group else cfg.get(name)
         if value is not None and int(value) < 0:
             raise GarageError(f"{value} is negative (seeds are >= 0)", key)
-    check_garage(cfg.garage)
-    check_light(cfg.light)
-    check_palette(cfg.palette)
-    check_camera(cfg.camera, dataset=bool(cfg.dataset))
-    check_case(scene_spec(cfg))
-    check_ego(cfg.ego, moving=moves_ego(cfg.case))
+    job = scene_spec(cfg)
+    check_garage(job.garage)
+    check_light(job.light)
+    check_palette(job.palette)
+    check_camera(job.camera, dataset=bool(cfg.dataset))
+    check_case(job)
+    check_ego(cfg.ego, moving=moves_ego(job.case))
     check_detector(cfg.detector)
     check_slot_detector(cfg.slot_detector)
     check_renderer(cfg.renderer)
     build(cfg.sensor, "a sensor model", "sensor._target_")  # the sensor model checks its own parameters
-    check_modifiers(cfg.get("modifiers") or {})
-    check_look(cfg.look)
-    check_materials(cfg.materials)
-    check_clutter(cfg.clutter)
-    check_slots(cfg)
+    check_modifiers(job.modifiers)
+    check_look(job.look)
+    check_materials(job.materials)
+    check_clutter(job.clutter)
+    check_slots(job)
     check_export(cfg.export, bool(cfg.dry_run))
+    return job
 
 
-def check_slots(cfg) -> None:
+def check_slots(job) -> None:
     """A bird's-eye view (`camera.bev.enabled`, or a case with `slots: true` on a fisheye rig) is stitched from
     raw fisheye pictures over a sane extent. A slot case on a rig without fisheyes runs as an object case
     (slots/frames.py)."""
     from garage_exp.render.bev import check_bev
     from garage_exp.scene.lenses import rig_has
 
-    enabled = bool(cfg.camera.bev.enabled)
-    bev = rig_has(cfg.camera, "bev")
-    if not enabled and not (cfg.case.get("slots", False) and bev):
+    enabled = bool(job.camera.bev.enabled)
+    bev = rig_has(job.camera, "bev")
+    if not enabled and not (job.case.slots and bev):
         return
-    check_bev(cfg.camera.bev)
+    check_bev(job.camera.bev)
     if not bev:
-        raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {cfg.camera.name} has none "
+        raise GarageError(f"a bird's-eye view is stitched from fisheye cameras; rig {job.camera.name} has none "
                           "(camera=fisheye4)", "camera.bev.enabled")
-    if cfg.camera.get("view", "raw") != "raw":
-        raise GarageError(f"a bird's-eye view is stitched from the raw fisheye pictures, not {cfg.camera.view} views "
+    if job.camera.view != "raw":
+        raise GarageError(f"a bird's-eye view is stitched from the raw fisheye pictures, not {job.camera.view} views "
                           "(camera.view=raw)", "camera.view")
 
 
@@ -195,10 +200,8 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
     if name is not None:
         name(cfg, prepared.classified.plan.name)
     config = settings(cfg)  # the layers below are handed plain data, never the config node
-    check_config(config)
-    from garage_exp.run.spec import job_spec, scene_spec
-
-    job = scene_spec(config)
+    job = check_config(config)  # the scene builder's settings, built once
+    from garage_exp.run.spec import job_spec
 
     detector = None
     if not cfg.dry_run:

@@ -10,11 +10,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from garage_exp.core.plain import Settings, plain, settings
+from garage_exp.core.plain import Settings, plain, settings, typed
 from garage_exp.perception.detect.matching import Scoring
 from garage_exp.results.late import EgoConf
 from garage_exp.results.table import FairRule, JobNames
+from garage_exp.scenario.schema import CaseConf, OccluderConf, ReplicateConf
 from garage_exp.scenario.spec import SceneSpec
+from garage_exp.scene.schema import (CameraRigConf, ClutterConf, GarageConf, LightConf, LookConf, MaterialsConf,
+                                     PaletteConf)
 
 
 @dataclass(frozen=True)
@@ -38,7 +41,7 @@ class FrameConf:
     config."""
 
     look: str  # look.name: the flat look keeps its published order of the blank control's compositing
-    materials: Settings  # the materials group: each replicate's own draw (scene.look.dress_for)
+    materials: MaterialsConf  # the materials group: each replicate's own draw (scene.look.dress_for)
     seed: int
     wear: float  # the line paint's wear (scenario.assemble.marking_wear): a replicate's draw wears with it
     dataset: bool  # the frames are labelled in 3D (each frame's geometry is kept)
@@ -97,13 +100,18 @@ def config_sources() -> tuple[tuple[str, ...], dict[str, Any]]:
 
 
 def scene_spec(cfg) -> SceneSpec:
-    """The scene builder's settings from the job's composed config (a job's, a search trial's, the adversary's)."""
-    group = lambda key: settings(cfg.get(key)) or Settings()  # noqa: E731 - a config without the group: none set
+    """The scene builder's settings from the job's composed config (a job's, a search trial's, the adversary's):
+    each group as its schema's dataclass, converted here once (a config without a group: its defaults)."""
+    cfg = settings(cfg)
+    part = lambda schema, key: typed(schema, cfg.get(key) or {}, key)  # noqa: E731
     dirs, choices = config_sources()
-    return SceneSpec(garage=group("garage"), light=group("light"), palette=group("palette"), camera=group("camera"),
-                     case=group("case"), occluder=group("occluder"), replicate=group("replicate"), look=group("look"),
-                     materials=group("materials"), clutter=group("clutter"), modifiers=group("modifiers"),
-                     ego=group("ego"), seed=int(cfg.get("seed") or 0), replicates=int(cfg.get("replicates", 1)),
+    return SceneSpec(garage=part(GarageConf, "garage"), light=part(LightConf, "light"),
+                     palette=part(PaletteConf, "palette"), camera=part(CameraRigConf, "camera"),
+                     case=part(CaseConf, "case"), occluder=part(OccluderConf, "occluder"),
+                     replicate=part(ReplicateConf, "replicate"), look=part(LookConf, "look"),
+                     materials=part(MaterialsConf, "materials"), clutter=part(ClutterConf, "clutter"),
+                     modifiers=cfg.get("modifiers") or Settings(), ego_speed=float(part(EgoConf, "ego").speed),
+                     seed=int(cfg.get("seed") or 0), replicates=int(cfg.get("replicates", 1)),
                      blank=bool(cfg.get("blank")), config_dirs=dirs, choices=choices)
 
 
@@ -123,6 +131,6 @@ def job_spec(config, detector=None, scene: SceneSpec | None = None) -> JobSpec:
         ego=EgoConf(**plain(config.ego)), moving=bool(moves_ego(scene.case)), sensor=plain(config.sensor),
         renderer=plain(config.renderer), detector=detector, outputs=outputs,
         seed=int(config.seed), replicates=int(config.replicates),
-        primary=scored_camera(scene.camera, str(scene.case.get("camera") or "")), scene=scene,
+        primary=scored_camera(scene.camera, str(scene.case.camera or "")), scene=scene,
         frames=FrameConf.of(scene, outputs.dataset), slot_detector=config.get("slot_detector"),
         plan_file=None if not config.plan.get("file") else str(config.plan.file))

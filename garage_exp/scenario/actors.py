@@ -114,7 +114,7 @@ def vehicle_model(where: str, actor, job, library, rng, bay=None, narrow: bool =
                 raise
             raise GarageError(str(exc)[len(exc.where or "") + 2:] if exc.where else str(exc), f"{where}.type") from None
     if actor.role == "target" and actor.colour in palette.target_colours:
-        pinned = dict(palette.get("target_models") or {})
+        pinned = dict(palette.target_models or {})
         if palette.target:
             return library.get(palette.target)
         if actor.colour in pinned:

@@ -20,7 +20,7 @@ EGO = "ego"
 def arrange(job, classified, library, site: Site, bays: dict, rng, made: dict, shots: list[Shot],
             taken: set) -> None:
     """The occluder arrangement's own actors, static, around the site's focus, added to every shot."""
-    extra = actor_confs(job.occluder.get("actors"), "occluder.actors")
+    extra = actor_confs(job.occluder.actors, "occluder.actors")
     if not extra:
         return
     for name in extra:

@@ -24,7 +24,7 @@ def build_scene(job: SceneSpec, classified: Classified, library, rng) -> tuple[S
     scene = build_garage(classified, job.garage, job.light)
     if job.blank:
         studio_light(scene, classified, job)
-    apply_modifiers(scene, classified, job.garage, job.get("modifiers") or {})
+    apply_modifiers(scene, classified, job.garage, job.modifiers)
     setup = make_case(job, classified, library, rng)
     if setup.occluder:
         if job.occluder.kind == "none":
@@ -48,7 +48,7 @@ def studio_light(scene: Scene, classified: Classified, job: SceneSpec) -> None:
     blank is a clean, evenly lit render of the car that hardly moves with the light); none: the job's preset."""
     from garage_exp.scene.lamps import build_lamps
 
-    light = job.look.get("blank_light")
+    light = job.look.blank_light
     if light is not None:
         _, scene.lights = build_lamps(classified, job.garage, light)
         scene.ambient = (float(light.ambient),) * 3
@@ -56,7 +56,7 @@ def studio_light(scene: Scene, classified: Classified, job: SceneSpec) -> None:
 
 def marking_wear(job: SceneSpec) -> float:
     """How worn the line paint is by the `wear` factor (its modifier's value, else the garage's)."""
-    wear = (job.get("modifiers") or {}).get("wear") or {}
+    wear = job.modifiers.get("wear") or {}  # a modifier's spec: plain data
     return float(wear.get("wear", job.garage.marking_wear))
 
 

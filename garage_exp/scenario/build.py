@@ -21,8 +21,8 @@ from garage_exp.plan.classify import Classified
 from garage_exp.scenario import actors as kinds
 from garage_exp.scenario.arrange import arrange
 from garage_exp.scenario.replicate import build_replicate, merge
-from garage_exp.scenario.schema import MotionConf
-from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs, typed
+from garage_exp.scenario.schema import VariantConf
+from garage_exp.scenario.shots import CaseSetup, Shot, Variant, actor_confs
 from garage_exp.scenario.place import (check_overlaps, farthest, no_room, pose_between, pose_in_bay,
                                        pose_on_path, pose_relative, room, site_bay, site_path, sweep_clash)
 from garage_exp.scenario.sites import Site, find_site, pick, site_count
@@ -41,15 +41,15 @@ GAP_SEARCH = 3.0  # m each side of a gap's middle that an overlap message looks 
 
 def check_case(job: SceneSpec) -> None:
     """What a scenario's values say before the plan is known (the rest needs the site: `make_case`)."""
-    if int(job.get("replicates", 1)) < 1:
+    if int(job.replicates) < 1:
         raise GarageError(f"replicates must be >= 1, got {job.replicates}", "replicates")
     for key in ("offset", "yaw", "ego_offset"):
-        if float(job.replicate[key]) < 0:
-            raise GarageError(f"a range is >= 0, got {job.replicate[key]}", f"replicate.{key}")
+        if float(getattr(job.replicate, key)) < 0:
+            raise GarageError(f"a range is >= 0, got {getattr(job.replicate, key)}", f"replicate.{key}")
     try:
         _check_site_pick(job.case)
         _check_motion(job.case)
-        scored_camera(job.camera, str(job.case.get("camera") or ""))
+        scored_camera(job.camera, str(job.case.camera or ""))
     except GarageError as exc:
         raise exc.again(str(exc), level_file(job, "case")) from None
 
@@ -57,7 +57,7 @@ def check_case(job: SceneSpec) -> None:
 def _check_site_pick(case) -> None:
     """`case.site_index` (>= 0) or `case.site_draw` (in [0, 1]: 1.0, a search interval's closed end, is the last
     site), not both; the count is the plan's (make_case)."""
-    index, draw = case.get("site_index"), case.get("site_draw")
+    index, draw = case.site_index, case.site_draw
     if index is not None and draw is not None:
         raise GarageError(f"give site_index or site_draw, not both (have {index} and {draw})", "case.site_draw")
     if index is not None and int(index) < 0:
@@ -67,7 +67,7 @@ def _check_site_pick(case) -> None:
 
 
 def _check_motion(case) -> None:
-    frames = case.get("frames")
+    frames = case.frames
     if frames is not None and not (isinstance(frames, int) and not isinstance(frames, bool) and frames >= 1):
         raise GarageError(f"frames must be a whole number >= 1 (or null: every frame), got {frames!r}",
                           "case.frames")
@@ -76,7 +76,7 @@ def _check_motion(case) -> None:
     if case.motion.key not in MOVABLE:
         raise GarageError(f"motion key {case.motion.key!r} is not a placement value ({' | '.join(MOVABLE)})",
                           "case.motion.key")
-    for name, along in (case.motion.get("along") or {}).items():
+    for name, along in (case.motion.along or {}).items():
         where = f"case.motion.along.{name}"
         if not moves_ego(case):
             raise GarageError("an actor moves along with the ego's motion (a frame's time is the ego's travel "
@@ -85,18 +85,18 @@ def _check_motion(case) -> None:
             raise GarageError(f"key {along.key!r} is not a placement value ({' | '.join(MOVABLE)})", where + ".key")
         if float(along.speed) < 0:
             raise GarageError(f"{along.speed} m/s is negative", where + ".speed")
-        if float(along.get("accelerate") or 0.0) < 0:
+        if float(along.accelerate or 0.0) < 0:
             raise GarageError(f"{along.accelerate} m is negative", where + ".accelerate")
-        path = along.get("path") or []
+        path = along.path or []
         if path and (len(path) < 2 or any(len(p) != 2 for p in path)):
             raise GarageError("a path is two or more [distance, offset] points, the first where it stands",
                               where + ".path")
         if path and along.key not in ("distance", "offset"):
             raise GarageError(f"an actor on a path moves its distance and offset, not {along.key!r}", where + ".key")
-        if along.get("meet") is not None and along.at is not None:
+        if along.meet is not None and along.at is not None:
             raise GarageError("give `at` (when it sets off) or `meet` (when it arrives), not both", where + ".meet")
         # (`meet` may lie past the motion's end: the last frames come before the arrival the walk is timed for)
-        if along.at is not None and not along.get("values") and case.motion.start is not None \
+        if along.at is not None and not along.values and case.motion.start is not None \
                 and case.motion.end is not None:
             lo, hi = sorted((float(case.motion.start), float(case.motion.end)))
             if not lo <= float(along.at) <= hi:
@@ -117,10 +117,10 @@ def frame_times(values: list[float], speed_kmh: float) -> list[float]:
 def along_value(along, t: float, t_at: float, frame: int = 0) -> float:
     """An along-moving actor's value of its `key` at time t (frame `frame`): its listed values, else from start
     towards end (or along its `path`) at its speed, from t_at on."""
-    listed = along.get("values")  # (a DictConfig's `.values` is its method, not the key)
+    listed = along.values
     if listed:
         return float(listed[min(frame, len(listed) - 1)])
-    if along.get("path"):
+    if along.path:
         return along_placement(along, 0.0, t, t_at)[along.key]
     start, end = float(along.start), float(along.end)
     moved = travelled(along, t - t_at)
@@ -130,7 +130,7 @@ def along_value(along, t: float, t_at: float, frame: int = 0) -> float:
 def along_placement(along, yaw: float, t: float, t_at: float, frame: int = 0) -> dict:
     """The placement values an along-moving actor (placed with yaw `yaw`) takes at time t: its `key`'s value; or,
     with a `path` of [distance, offset] points, both, and its yaw turned as each leg turns from the first."""
-    if not along.get("path") or along.get("values"):
+    if not along.path or along.values:
         return {along.key: along_value(along, t, t_at, frame)}
     points = [(float(d), float(o)) for d, o in along.path]
     moved = travelled(along, t - t_at)
@@ -189,11 +189,11 @@ def variants(case, actors: dict, colours: list[str]) -> tuple[list[Variant], dic
         kept = {n: a for n, a in actors.items() if n != name}
         return out, {**kept, **copies}
     default_target = case.target or next((n for n, a in actors.items() if a.role == "target"), "")
-    listed = case.variants or [{}]
+    listed = case.variants or [VariantConf()]
     out = []
     for k, v in enumerate(listed):
-        show = list(v.get("show") or [n for n in actors if n != EGO])
-        target = v.get("target") or default_target
+        show = list(v.show or [n for n in actors if n != EGO])
+        target = v.target or default_target
         if not target:
             raise GarageError("no target: give one actor role target, or name it in `target`", f"case.variants.{k}")
         for name in [*show, target]:
@@ -201,15 +201,15 @@ def variants(case, actors: dict, colours: list[str]) -> tuple[list[Variant], dic
                 raise GarageError(f"no actor {name!r} (have {', '.join(actors)})", f"case.variants.{k}")
         if target not in show:
             raise GarageError(f"the target {target!r} is not among the shown actors", f"case.variants.{k}.target")
-        label = v.get("label") or ",".join(show)
-        out.append(Variant(label, show, target, dict(v.get("set") or {})))
+        label = v.label or ",".join(show)
+        out.append(Variant(label, show, target, dict(v.set or {})))
     return out, actors
 
 
 def frame_values(case, actor, site: Site, length: float, bays: dict) -> list[float]:
     """The motion's values: listed, or start..end by step; a distance the actor's path has no room for is an
     error, or trimmed to the room with the actor's `clip: true`."""
-    m = typed(case.motion, MotionConf)  # a mapping's `.values` is its method, not the key
+    m = case.motion
     on_path = m.key == "distance" and actor.path and not actor.before and not actor.relative \
         and actor.align == "centre"
     if m.values or m.start is None or m.end is None:
@@ -245,13 +245,13 @@ def level_file(job: SceneSpec, group: str) -> str:
     from garage_exp.core.paths import PROJECT_ROOT
 
     # the command's config sources as the job read them (SceneSpec: the scene builder reads no Hydra state)
-    dirs, choices = list(getattr(job, "config_dirs", ())), dict(getattr(job, "choices", {}))
+    dirs, choices = list(job.config_dirs), dict(job.choices)
     folders = [*dirs, str(PROJECT_ROOT / "conf")]
     setting = [path for other, level in choices.items() if other != group and level
                for path in [_file_of(folders, other, str(level))] if path and _sets(path, group)]
     if setting:  # the last one in the defaults list wins, as its values do
         return str(setting[-1])
-    return str(_file_of(folders, group, str(job[group].name)) or f"{group}={job[group].name}")
+    return str(_file_of(folders, group, str(getattr(job, group).name)) or f"{group}={getattr(job, group).name}")
 
 
 def _file_of(folders: list[str], group: str, level: str):
@@ -278,7 +278,7 @@ def make_case(job: SceneSpec, classified: Classified, library, rng: np.random.Ge
     try:
         setup = build_hosted(job, classified, library, rng)
         chosen = partial(build_case, site_index=setup.site_index)  # every replicate at replicate 0's site
-        for k in range(1, int(job.get("replicates", 1))):
+        for k in range(1, int(job.replicates)):
             setup = merge(setup, build_replicate(chosen, job, classified, library, k), k)
         return setup
     except GarageError as exc:
@@ -294,7 +294,7 @@ def site_order(job: SceneSpec, classified: Classified) -> list[int | None]:
     the kind in order, wrapping round to the first, so that any index or draw gives a scenario when any site of
     the plan hosts it."""
     case = job.case
-    index, draw = case.get("site_index"), case.get("site_draw")
+    index, draw = case.site_index, case.site_draw
     if index is None and draw is None:
         return [None]
     count = site_count(case.site, classified, job.garage)
@@ -362,12 +362,12 @@ def build_case(job: SceneSpec, classified: Classified, library, rng: np.random.G
             mover = variant.target
         values = (frame_values(case, actors[mover], site, _longest(made, made[mover].source), bays) if mover
                   else [float("nan")])
-        times = frame_times(values, float(job.ego.speed)) if mover == EGO else [0.0] * len(values)
+        times = frame_times(values, float(job.ego_speed)) if mover == EGO else [0.0] * len(values)
         def time_at(x: float) -> float:
-            return frame_times([values[0], x], float(job.ego.speed))[1]
+            return frame_times([values[0], x], float(job.ego_speed))[1]
 
-        alongs = [(n, a, start_time(a, time_at)) for n, a in (case.motion.get("along") or {}).items() if n in actors]
-        kept = one_shot(len(values), case.get("frames"))
+        alongs = [(n, a, start_time(a, time_at)) for n, a in (case.motion.along or {}).items() if n in actors]
+        kept = one_shot(len(values), case.frames)
         for frame, (value, time) in enumerate(zip(values, times)):
             if frame not in kept:  # a one-shot scenario: the trajectory's frames, K of them
                 continue
@@ -401,11 +401,11 @@ def along_error(exc: GarageError, alongs: list, placed: dict, made: dict, frame:
     named by the co-motion's key that asked for it (its `start` when the first frame fails, else its `end`, or
     its `values`); any other refusal as it was."""
     for name, along, _ in alongs:
-        keys = ("distance", "offset") if along.get("path") else (along.key,)
+        keys = ("distance", "offset") if along.path else (along.key,)
         for key in keys:
             if exc.where == f"{made[name].source}.{key}":
                 value = float(getattr(placed[name], key))
-                which = "values" if along.get("values") else "path" if along.get("path") else \
+                which = "values" if along.values else "path" if along.path else \
                     "start" if frame == 0 else "end"
                 reason = str(exc)[len(exc.where) + 2:]
                 return GarageError(f"{name}'s {key} reaches {value:g} (frame {frame}): {reason}",

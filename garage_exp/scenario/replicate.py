@@ -65,7 +65,7 @@ def pinned(actor, palette) -> bool:
     if actor.kind != "vehicle" or actor.model or actor.role != "target":
         return False
     return actor.colour in palette.target_colours and bool(
-        palette.target or actor.colour in (palette.get("target_models") or {}))
+        palette.target or actor.colour in (palette.target_models or {}))
 
 
 def build_replicate(build, job, classified, library, k: int) -> CaseSetup:

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 
 from garage_exp.scenario.schema import ActorConf
 from garage_exp.core.errors import GarageError
-from garage_exp.core.plain import as_object, thawed
+from garage_exp.core.plain import typed
 from garage_exp.scene.description import Entity, Pose
 
 
@@ -44,21 +44,9 @@ class Variant:
 
 
 def actor_confs(nodes, prefix: str) -> dict:
-    """Actor nodes as ActorConf objects; a key forced past the schema (`+case.actors.x.key=...`) is refused."""
-    known = {f.name for f in fields(ActorConf)}
-    for name, node in (nodes or {}).items():
-        extra = sorted(set(node.keys()) - known)
-        if extra:
-            raise GarageError(f"unknown key {extra[0]!r} (an actor has {', '.join(sorted(known))})",
-                              f"{prefix}.{name}.{extra[0]}")
+    """Actors (ActorConf, or their values) as ActorConf objects with their `type` resolved; a key forced past the
+    schema (`+case.actors.x.key=...`) is refused (core.plain.typed)."""
     from garage_exp.scenario.actors import resolve_type
 
-    return {str(n): resolve_type(typed(a, ActorConf), f"{prefix}.{n}") for n, a in (nodes or {}).items()}
-
-
-def typed(node, schema: type):
-    """A group's values as the dataclass of its schema: a config node's own (as_object), or plain settings'
-    (`Settings`, whose keys are the schema's fields). Needed where fields are replaced (dataclasses.replace) or
-    a key shadows a dict's method (the motion's `values`)."""
-    obj = as_object(node)
-    return schema(**thawed(obj)) if isinstance(obj, dict) else obj
+    return {str(n): resolve_type(typed(ActorConf, a, f"{prefix}.{n}"), f"{prefix}.{n}")
+            for n, a in (nodes or {}).items()}

@@ -1,6 +1,8 @@
-"""What the scene builder is told about a job: its config groups as read-only plain data (`core.plain.Settings`),
-never the job's config node. `run.spec.scene_spec` builds it from the composed config; the scenario's builders
-(assemble, build, actors, arrange, replicate, live) read it by attribute (`job.garage`, `job.get("modifiers")`)."""
+"""What the scene builder is told about a job: each config group it reads as the typed dataclass that owns it
+(scene/schema.py, scenario/schema.py: the registered nodes), converted once by `run.spec.scene_spec` from the
+composed config (core.plain.typed), never the job's config node. A misspelt key is an AttributeError at the line
+that reads it, not a dict's silent None; the scenario's builders (assemble, build, actors, arrange, replicate,
+live) read it by attribute (`job.garage.ceiling_height`, `job.case.motion.step`)."""
 
 from __future__ import annotations
 
@@ -8,23 +10,27 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from garage_exp.core.plain import Settings
+from garage_exp.scenario.schema import CaseConf, OccluderConf, ReplicateConf
+from garage_exp.scene.schema import (CameraRigConf, ClutterConf, GarageConf, LightConf, LookConf, MaterialsConf,
+                                     PaletteConf)
 
 
 @dataclass(frozen=True)
 class SceneSpec:
-    garage: Settings
-    light: Settings
-    palette: Settings
-    camera: Settings
-    case: Settings
-    occluder: Settings
-    replicate: Settings  # the replicates' jitter ranges
-    look: Settings
-    materials: Settings
-    clutter: Settings
+    garage: GarageConf
+    light: LightConf
+    palette: PaletteConf
+    camera: CameraRigConf
+    case: CaseConf
+    occluder: OccluderConf
+    replicate: ReplicateConf  # the replicates' jitter ranges
+    look: LookConf
+    materials: MaterialsConf
+    clutter: ClutterConf
+    # the extra factors: group -> its scene modifier's spec (`_target_` and its keyword arguments, as each modifier
+    # declares them: scene/modifiers.py), plain read-only data
     modifiers: Mapping[str, Any]
-    ego: Settings
+    ego_speed: float  # km/h (ego.speed): the time of a frame when the case drives the ego
     seed: int
     replicates: int = 1
     blank: bool = False
@@ -32,10 +38,3 @@ class SceneSpec:
     # for errors that name the YAML file a value came from (build.level_file); none outside a Hydra app
     config_dirs: tuple[str, ...] = ()
     choices: Mapping[str, Any] = field(default_factory=dict)
-
-    def get(self, key: str, default: Any = None) -> Any:
-        """A setting by name, `default` when the job has none (as a config node's `get` reads)."""
-        return getattr(self, key, default)
-
-    def __getitem__(self, key: str) -> Any:
-        return getattr(self, key)

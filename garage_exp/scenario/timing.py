@@ -51,8 +51,8 @@ def start_time(along, time_at) -> float:
     """Seconds after the first frame when the actor sets off: at the ego's `at`, or so as to reach `end` at the
     ego's `meet` (negative: it was already on its way at the first frame). `time_at(value)`: the ego's time at a
     motion value."""
-    if along.get("meet") is not None:
-        metres = path_length(along) if along.get("path") else abs(float(along.end) - float(along.start))
+    if along.meet is not None:
+        metres = path_length(along) if along.path else abs(float(along.end) - float(along.start))
         return time_at(float(along.meet)) - travel_time(along, metres)
     return time_at(float(along.at)) if along.at is not None else 0.0
 

@@ -14,8 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from garage_exp.core.errors import GarageError, check_range
+from garage_exp.core.plain import typed
 from garage_exp.scene.description import CameraSpec, Pose
 from garage_exp.scene.lenses import DEFAULT, LENSES, check_model, model_of
+from garage_exp.scene.schema import CameraConf
 from garage_exp.scene.views import VIEWS  # the registered views: raw, perspective, cylindrical, ...
 
 RESOLUTION_RANGE = (16, 4096)  # pixels per side
@@ -55,26 +57,26 @@ def check_camera(rig, dataset: bool = False) -> None:
     fisheye's) then have to be its perspective view."""
     if not rig.cameras:
         raise GarageError("the rig has no camera", "camera.cameras")
-    if dataset and rig.get("view", "raw") != "perspective" and any(
-            not model_of(cam).pinhole_frames for cam in rig.cameras if cam.get("model", DEFAULT) in LENSES):
+    if dataset and rig.view != "perspective" and any(
+            not model_of(cam).pinhole_frames for cam in rig.cameras if (cam.model or DEFAULT) in LENSES):
         raise GarageError(f"dataset=true writes KITTI's pinhole calibration, which {rig.view} fisheye frames do"
                           " not have: use camera.view=perspective", "camera.view")
-    for key in ("mount", "fovy", "pitch", "z"):
-        if rig.get(key) is not None and len(rig.cameras) != 1:
+    for key, value in (("mount", rig.mount), ("fovy", rig.fovy), ("pitch", rig.pitch), ("z", rig.z)):
+        if value is not None and len(rig.cameras) != 1:
             raise GarageError(f"camera.{key} applies to a one-camera rig; rig {rig.name} has {len(rig.cameras)}"
                               " (set it per camera in camera.cameras)", f"camera.{key}")
-    if rig.get("view", "raw") not in VIEWS:
+    if rig.view not in VIEWS:
         raise GarageError(f"unknown view {rig.view!r} ({' | '.join(VIEWS)})", "camera.view")
     for k, cam in enumerate(_effective(rig)):
         where = f"camera.cameras.{k}"
-        mount = cam.get("mount")
+        mount = cam.mount
         if mount is not None and mount not in MOUNTS:
-            key = "camera.mount" if rig.get("mount") is not None else f"{where}.mount"
+            key = "camera.mount" if rig.mount is not None else f"{where}.mount"
             raise GarageError(f"unknown mount {mount!r} ({' | '.join(MOUNTS)})", key)
         check_model(cam, where).check(cam, rig, where)
-        for side in ("width", "height"):
-            key = f"camera.{side}" if rig.get(side) is not None else f"{where}.{side}"
-            check_range(cam[side], *RESOLUTION_RANGE, key, f"{side} {cam[side]} px")
+        for side, rig_value, value in (("width", rig.width, cam.width), ("height", rig.height, cam.height)):
+            key = f"camera.{side}" if rig_value is not None else f"{where}.{side}"
+            check_range(value, *RESOLUTION_RANGE, key, f"{side} {value} px")
 
 
 def scored_camera(rig, wanted: str = "") -> str:
@@ -89,28 +91,20 @@ def scored_camera(rig, wanted: str = "") -> str:
     return wanted
 
 
-def _effective(rig) -> list[dict]:
-    """Each camera's values with the rig's top-level overrides applied (see CameraRigConf)."""
-    out = []
-    for cam in rig.cameras:
-        values = dict(cam)
-        for key in ("mount", "fovy", "pitch", "width", "height"):
-            if rig.get(key) is not None:
-                values[key] = rig[key]
-        if rig.get("z") is not None:
-            values["z_offset"] = rig.z
-        out.append(_Values(values))
-    return out
+@dataclass
+class Effective(CameraConf):
+    """A camera as the rig makes it: its values with the rig's top-level overrides applied (see CameraRigConf),
+    and the rig's `z` as metres added to its height (None: none)."""
+
+    z_offset: float | None = None
 
 
-class _Values(dict):
-    """A camera's values read like its config node (cam.fovy, cam.get("mount"))."""
-
-    def __getattr__(self, key):
-        try:
-            return self[key]
-        except KeyError as exc:
-            raise AttributeError(key) from exc
+def _effective(rig) -> list[Effective]:
+    """Each camera of the rig (CameraRigConf, or a node of it) as the rig makes it (Effective)."""
+    top = {key: value for key, value in (("mount", rig.mount), ("fovy", rig.fovy), ("pitch", rig.pitch),
+                                         ("width", rig.width), ("height", rig.height)) if value is not None}
+    return [Effective(**{**vars(typed(CameraConf, cam, f"camera.cameras.{k}")), **top, "z_offset": rig.z})
+            for k, cam in enumerate(rig.cameras)]
 
 
 def mount_pose(name: str, extent) -> Pose:
@@ -124,12 +118,12 @@ def rig_specs(rig, ego_extent) -> list[CameraSpec]:
     """The rig's cameras, mounted on an ego of this extent (length, width, height): a named mount's pose, or
     the list's x, y, z (`rig.roof`: z counts from the ego's roof); the rig's top-level keys override."""
     roof = float(ego_extent[2]) if rig.roof else 0.0
-    view = rig.get("view", "raw")
+    view = rig.view
     out = []
     for cam in _effective(rig):
-        mount = cam.get("mount")
+        mount = cam.mount
         pose = mount_pose(mount, ego_extent) if mount else Pose(cam.x, cam.y, roof + cam.z, cam.yaw)
-        if cam.get("z_offset") is not None:
+        if cam.z_offset is not None:
             pose = Pose(pose.x, pose.y, pose.z + float(cam.z_offset), pose.yaw)
         model = model_of(cam)
         out.append(CameraSpec(cam.name, pose, pitch=cam.pitch, fovy=cam.fovy, width=cam.width, height=cam.height,

@@ -65,8 +65,7 @@ def dress_of(level: str, seed: int, grime: float | None = None, wetness: float |
 def check_materials(conf) -> None:
     if str(conf.level) not in LEVELS:
         raise GarageError(f"unknown materials level {conf.level!r} ({' | '.join(LEVELS)})", "materials.level")
-    for key in ("grime", "wetness"):
-        value = conf.get(key)
+    for key, value in (("grime", conf.grime), ("wetness", conf.wetness)):
         if value is not None:
             check_range(float(value), 0.0, 1.0, f"materials.{key}", f"{key} = {value}")
 
@@ -218,8 +217,8 @@ def _wall_shadows(entity: Entity, bounds, sx: float, sy: float) -> list[Entity]:
 def dress_for(materials, seed: int, marking_wear: float = 0.0) -> Dress:
     """The `materials` group's draw for a seed (the job's seed plus the replicate), with the line paint worn
     as much again as the `wear` factor says: 1 - (1 - level's wear) x (1 - the factor's)."""
-    out = dress_of(str(materials.level), int(seed) + int(materials.seed), materials.get("grime"),
-                   materials.get("wetness"))
+    out = dress_of(str(materials.level), int(seed) + int(materials.seed), materials.grime,
+                   materials.wetness)
     return replace(out, paint_wear=1.0 - (1.0 - out.paint_wear) * (1.0 - float(marking_wear)))
 
 
@@ -234,7 +233,7 @@ def dress(scene: Scene, classified, garage, look, materials, clutter, seed: int,
     if bool(look.contact_shadows):
         add_structure_shadows(scene)
         add_actor_shadows(scene)
-    drop = float(look.get("fixture_drop", 0.0))
+    drop = float(look.fixture_drop)
     if drop:
         scene.lights = [replace(light, position=(light.position[0], light.position[1], light.position[2] - drop))
                         for light in scene.lights]
@@ -242,5 +241,5 @@ def dress(scene: Scene, classified, garage, look, materials, clutter, seed: int,
 
 def check_look(look) -> None:
     check_range(float(look.fixture_drop), 0.0, 1.5, "look.fixture_drop", f"fixture_drop = {look.fixture_drop}")
-    if look.get("blank_light") is not None:
+    if look.blank_light is not None:
         check_light(look.blank_light, "look.blank_light")

@@ -33,7 +33,7 @@ def wanted(job) -> bool:
     config's."""
     if job.camera.bev.enabled:
         return True
-    if not job.case.get("slots", False):
+    if not job.case.slots:
         return False
     if rig_has(job.camera, "bev"):
         return True

@@ -128,12 +128,12 @@ def camera_model(name: str) -> type[Lens]:
 
 def model_of(cam) -> type[Lens]:
     """A camera config node's lens class (its `model`, pinhole when unset)."""
-    return LENSES[str(cam.get("model", DEFAULT))]
+    return LENSES[str(cam.model or DEFAULT)]
 
 
 def check_model(cam, where: str) -> type[Lens]:
     """The camera's lens class by name, or a GarageError at `where.model`."""
-    name = str(cam.get("model", DEFAULT))
+    name = str(cam.model or DEFAULT)
     models = [n for n, cls in LENSES.items() if cls.camera_model]
     if name not in models:
         raise GarageError(f"unknown camera model {name!r} ({' | '.join(models)})", f"{where}.model")
@@ -142,7 +142,7 @@ def check_model(cam, where: str) -> type[Lens]:
 
 def rig_has(rig, what: str) -> bool:
     """Whether any camera of the rig (its config node) has the lens property `what` (bev, ...)."""
-    return any(getattr(LENSES.get(str(cam.get("model", DEFAULT))), what, False) for cam in rig.cameras)
+    return any(getattr(LENSES.get(str(cam.model or DEFAULT)), what, False) for cam in rig.cameras)
 
 
 def lens_of(spec) -> Lens:

@@ -26,7 +26,7 @@ class Pinhole(Lens):
 
     @classmethod
     def check(cls, cam, rig, where: str) -> None:
-        key = "camera.fovy" if rig.get("fovy") is not None else f"{where}.fovy"
+        key = "camera.fovy" if rig.fovy is not None else f"{where}.fovy"
         check_range(cam.fovy, *FOVY_RANGE, key, f"fovy {cam.fovy} degrees")
 
     @classmethod
