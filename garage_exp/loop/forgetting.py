@@ -17,26 +17,26 @@ import pandas as pd
 def recall_checks(scores: pd.DataFrame, photos: pd.DataFrame, arms: list[str], k: int,
                   protocol_tolerance: float, photo_tolerance: float) -> pd.DataFrame:
     """The recall checks after round k (columns: arm, seed, suite, d0, recall, drop, tolerance, holds)."""
-    rows = []
     proto = scores[scores.suite.astype(str).str.startswith("protocol")] if len(scores) else scores
-    for suite, group in proto.groupby("suite", sort=True):
+    rows = _against_d0(proto, "suite", "fair_recall", "", arms, k, protocol_tolerance)
+    if len(photos):
+        rows += _against_d0(photos, "set", "recall", "real:", arms, k, photo_tolerance)
+    return pd.DataFrame(rows, columns=["arm", "seed", "suite", "d0", "recall", "drop", "tolerance", "holds"])
+
+
+def _against_d0(table: pd.DataFrame, by: str, column: str, prefix: str, arms: list[str], k: int,
+                tolerance: float) -> list[dict]:
+    """Per group of `by` (a suite, a photo set) that D0 was scored on: each arm's round-k `column` against D0's."""
+    rows = []
+    for suite, group in table.groupby(by, sort=True):
         base = group[group.arm == "D0"]
         if not len(base):
             continue
-        d0 = float(base.fair_recall.iloc[0])
+        d0 = float(base[column].iloc[0])
         for arm in arms:
             for _, r in group[(group.arm == arm) & (group["round"] == k)].iterrows():
-                rows.append(_row(arm, int(r.seed), str(suite), d0, float(r.fair_recall), protocol_tolerance))
-    if len(photos):
-        for label, group in photos.groupby("set", sort=True):
-            base = group[group.arm == "D0"]
-            if not len(base):
-                continue
-            d0 = float(base.recall.iloc[0])
-            for arm in arms:
-                for _, r in group[(group.arm == arm) & (group["round"] == k)].iterrows():
-                    rows.append(_row(arm, int(r.seed), f"real:{label}", d0, float(r.recall), photo_tolerance))
-    return pd.DataFrame(rows, columns=["arm", "seed", "suite", "d0", "recall", "drop", "tolerance", "holds"])
+                rows.append(_row(arm, int(r.seed), f"{prefix}{suite}", d0, float(r[column]), tolerance))
+    return rows
 
 
 def tolerances(cfg) -> tuple[float, float]:
