@@ -270,3 +270,17 @@ def test_a_jobs_overlap_is_an_infeasible_error_naming_the_two_actors():
     with pytest.raises(Infeasible) as refused:
         preflight(compose_cfg(*OVERLAP), check_space=False)
     assert refused.value.actors == ("child", "car_right")
+
+
+def test_an_overlap_in_a_one_shot_frame_names_no_position(monkeypatch):
+    """A one-shot scenario's frame has no position along a motion (nan): the refusal names the variant alone,
+    never 'position nan' (the wide space's infeasible draws said it in every line)."""
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.scenario import place
+
+    monkeypatch.setattr(place, "clash", lambda poses, made, only: ("ego", "target"))
+    with pytest.raises(Infeasible) as shot:
+        place.check_overlaps({}, {}, "oneshot", float("nan"))
+    assert "actors ego and target overlap (variant 'oneshot')" in str(shot.value) and "nan" not in str(shot.value)
+    with pytest.raises(Infeasible, match=r"\(variant 'v', position 14\)"):
+        place.check_overlaps({}, {}, "v", 14.0)

@@ -271,4 +271,6 @@ def check_overlaps(poses: dict[str, Pose], made: dict, label: str, value: float,
     if pair is not None:
         a, b = pair
         hint = room(pair) if room is not None else ""
-        raise Infeasible(f"actors {a} and {b} overlap (variant {label!r}, position {value:g}){hint}", where, pair)
+        # a one-shot scenario's one frame has no position along a motion (nan): only its variant is named
+        at = f", position {value:g}" if value == value else ""
+        raise Infeasible(f"actors {a} and {b} overlap (variant {label!r}{at}){hint}", where, pair)
