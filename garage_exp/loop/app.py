@@ -63,6 +63,8 @@ def check_loop(cfg: DictConfig) -> None:
         raise GarageError("give distinct training seeds", "seeds")
     if cfg.heldout_method not in ("sobol", "halton"):
         raise GarageError(f"{cfg.heldout_method!r}: sobol | halton", "heldout_method")
+    if not 0 <= int(cfg.freeze) <= 1000:
+        raise GarageError(f"{cfg.freeze} layers: 0 (none frozen) to 1000", "freeze")
     if int(cfg.imgsz) % 32:
         raise GarageError(f"{cfg.imgsz} is not a multiple of 32", "imgsz")
     garages.check(cfg)  # the held-out garages share no plan, generator seed or layout family with training's
@@ -236,7 +238,7 @@ def run_loop(cfg: DictConfig) -> dict:
                                          listing=listing, arm=arm: loop.train(
                     name, data=[listing], val=[base_val], base=p["weights"], epochs=int(b["epochs"]), seed=seed,
                     lr0=float(cfg.lr0), replay=[base_train], study=f"gen_{name}", imgsz=int(b["imgsz"]),
-                    replay_fraction=float(b["replay_fraction"]), calibrate=bool(base_pt)))
+                    replay_fraction=float(b["replay_fraction"]), calibrate=bool(base_pt), freeze=int(cfg.freeze)))
                 detectors[name] = {"arm": arm, "round": k, "seed": seed, **trained[arm]}
                 book.append({"arm": arm, "round": k, "seed": seed, "sampler": cfg.arms[arm].sampler,
                              "trials": sum(t.ran for t in found), "rejected": sum(t.rejected for t in found),

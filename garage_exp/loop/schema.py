@@ -117,6 +117,9 @@ class LoopConf:
     base_trials: int = 16  # QMC scenarios on the training plans: the replay pool and the validation scenarios
     optimizer: str = "AdamW"
     lr0: float = 0.0005  # the arms' fine-tuning
+    # The first N layers of every arm's fine-tuning kept frozen (ultralytics' `freeze`; yolo11n: 0-9 its backbone,
+    # 23 its Detect head): what a fine-tuning may forget of D0's COCO training (docs/loop.md, "Not forgetting").
+    freeze: int = 0
     warmup_bias_lr: float = 0.0  # the fine-tunings' bias warm-up start (ultralytics' 0.1 shakes a pretrained head)
     batch: int = 16
     rounds: int = 2

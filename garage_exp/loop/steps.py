@@ -68,7 +68,7 @@ def search_command(cfg: DictConfig, study: str, garage: list[str], trials: int, 
 
 def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: list[Path], base: str, epochs: int,
                   seed: int, lr0: float, replay: list[Path] = (), study: str = "", imgsz: int | None = None,
-                  replay_fraction: float | None = None, calibrate: bool = False) -> list[str]:
+                  replay_fraction: float | None = None, calibrate: bool = False, freeze: int = 0) -> list[str]:
     cmd = [sys.executable, "-m", "garage_exp.train", f"data=[{','.join(map(str, data))}]",
            f"val=[{','.join(map(str, val))}]", f"base={base}", f"epochs={epochs}", f"imgsz={imgsz or cfg.imgsz}",
            f"batch={cfg.batch}", f"seed={seed}", f"optimizer={cfg.optimizer}", f"lr0={lr0}", f"name={name}",
@@ -82,6 +82,8 @@ def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: 
         cmd.append(f"bn_calibrate={int(cfg.bn_calibrate)}")
     if calibrate:  # fine-tuning the pretrained D0 and its descendants: the biases warm up from 0, not 0.1
         cmd.append(f"warmup_bias_lr={cfg.warmup_bias_lr}")
+    if freeze:  # only when set: a loop of before (freeze 0) resumes with the same commands
+        cmd.append(f"freeze={int(freeze)}")
     return cmd
 
 
