@@ -42,12 +42,14 @@ def test_the_recall_checks_hold_each_arm_within_its_tolerance_of_d0():
     assert "T forgets on 1 of 3 (worst real:photos: 0.80 vs D0 0.90" in said and "Q forgets on 1 of 3" in said
 
 
-def test_a_suite_without_fair_frames_is_not_counted_as_kept():
+def test_a_suite_without_fair_frames_has_no_check_and_an_arm_without_recall_has_not_kept_it():
     from garage_exp.loop import forgetting
 
-    scores = with_protocol(one_seed_scores(), {"protocol:crouch": {"D0": 0.5, "R": float("nan")}})
+    nan = float("nan")
+    scores = with_protocol(one_seed_scores(), {"protocol:crouch": {"D0": nan, "R": nan},
+                                               "protocol:cpra": {"D0": 0.5, "R": nan}})
     checks = forgetting.recall_checks(scores, pd.DataFrame(), ["R"], 1, 0.02, 0.05)
-    assert checks.holds.tolist() == [False]
+    assert checks.suite.tolist() == ["protocol:cpra"] and checks.holds.tolist() == [False]
 
 
 def test_the_report_writes_the_recall_checks_and_says_them(tmp_path):

@@ -33,6 +33,8 @@ def _against_d0(table: pd.DataFrame, by: str, column: str, prefix: str, arms: li
         if not len(base):
             continue
         d0 = float(base[column].iloc[0])
+        if d0 != d0:  # no fair frame in the suite (its frames are every detector's): no recall to keep
+            continue
         for arm in arms:
             for _, r in group[(group.arm == arm) & (group["round"] == k)].iterrows():
                 rows.append(_row(arm, int(r.seed), f"{prefix}{suite}", d0, float(r[column]), tolerance))
@@ -53,8 +55,7 @@ def tolerances(cfg) -> tuple[float, float]:
 
 def _row(arm: str, seed: int, suite: str, d0: float, recall: float, tolerance: float) -> dict:
     drop = d0 - recall
-    # a suite with no fair frame has no recall (nan): nothing to forget, and nothing shown to be kept either
-    holds = bool(drop <= tolerance + 1e-12) if drop == drop else False
+    holds = bool(drop <= tolerance + 1e-12) if drop == drop else False  # an arm with no recall has not kept it
     return {"arm": arm, "seed": seed, "suite": suite, "d0": d0, "recall": recall, "drop": drop,
             "tolerance": tolerance, "holds": holds}
 
