@@ -138,4 +138,8 @@ def test_the_estimate_adds_the_paired_power_when_a_pilot_measured_disagreement()
     assert "paired by scenario" not in cost.power_line(cfg)  # no pilot has measured a discordant share
     cfg.power.pilot_discordant = 0.1
     n = stats.scenarios_for_paired(float(cfg.power.pilot_rate), 0.1, 0.2, cost.comparisons(cfg))
-    assert cost.power_line(cfg).endswith(f"paired by scenario (McNemar, a pilot's discordant share 0.10): {n}")
+    line = cost.power_line(cfg)
+    assert f"paired by scenario (McNemar, a pilot's discordant share 0.10): {n};" in line
+    # the verdict with one seed uses the paired test: whether the sample is enough is said of that test
+    assert line.endswith("enough for the paired test" if cfg.heldout_trials * cfg.power.scenario_share >= n
+                         else "too few for the paired test")

@@ -197,3 +197,15 @@ def test_a_base_data_too_small_for_the_replay_stops_before_the_fine_tuning(tmp_p
     with pytest.raises(JobFault, match="the base data holds 3 replay frames outside its validation scenarios, "
                                        "fewer than the 6 a fine-tuning replays"):
         budget.check_replay(cfg, pool, "its dir")
+
+
+def test_a_held_out_trial_may_have_its_own_measured_rate():
+    from garage_exp.loop import cost
+
+    rates = ["cost.search_s=20", "cost.render_s_per_frame=1", "cost.trial_overhead_s=2", "cost.frames_per_trial=1"]
+    cfg = small(["rounds=1", "seeds=[0]", "base_trials=4", "heldout_trials=10", "trials=3", "frames=0", *rates])
+    assert cost.estimate(cfg)["held-out sample"] == pytest.approx(20 + 10 * 3)  # a search's trial
+    cfg = small(["rounds=1", "seeds=[0]", "base_trials=4", "heldout_trials=10", "trials=3", "frames=0", *rates,
+                 "cost.heldout_trial_s=5"])
+    assert cost.estimate(cfg)["held-out sample"] == pytest.approx(20 + 10 * 5)
+    assert cost.estimate(cfg)["base data"] == pytest.approx(20 + 4 * 3)  # the searches keep theirs

@@ -51,7 +51,8 @@ def estimate(cfg) -> dict[str, float]:
     last = 1 + len(cfg.arms) * len(cfg.seeds)  # D0 and the last round's detectors: every suite
     held_frames = int(cfg.heldout_trials) * c.frames_per_trial
     out = {"base data": study(int(cfg.base_trials)),
-           "held-out sample": study(int(cfg.heldout_trials)),
+           "held-out sample": study(int(cfg.heldout_trials)) if c.get("heldout_trial_s") is None
+           else c.search_s + int(cfg.heldout_trials) * float(c.heldout_trial_s),
            "protocol suite": len(cfg.protocol) * c.command_s + protocol_jobs * job_s,
            "generators": runs * generator,
            "fine-tunings": runs * training,
@@ -99,22 +100,26 @@ def power_line(cfg) -> str:
     p, m = cfg.power, comparisons(cfg)
     n = scenarios_for(float(p.pilot_rate), float(p.relative), m, float(p.alpha), float(p.power))
     scenarios = int(int(cfg.heldout_trials) * float(p.scenario_share))  # less the infeasible draws
-    enough = "enough" if scenarios >= n else "too few"
+    paired = paired_power(cfg, m)
+    # the verdict uses the paired test when the loop has one seed: a measured discordant share sizes it
+    need = paired[1] if paired else n
+    enough = "enough" if scenarios >= need else "too few"
+    test = " for the paired test" if paired else ""
     return (f"power: at a pilot failure rate of {float(p.pilot_rate):.2f}, {n} held-out scenarios per detector "
             f"detect {100 * float(p.relative):.0f} % fewer failures ({float(p.pilot_rate):.3f} -> "
             f"{float(p.pilot_rate) * (1 - float(p.relative)):.3f}) at alpha {float(p.alpha):g} (Holm over {m} "
-            f"comparisons), power {float(p.power):g}; this config's heldout_trials={int(cfg.heldout_trials)} hold about "
-            f"{scenarios} scenarios: {enough}" + paired_power(cfg, m))
+            f"comparisons), power {float(p.power):g}" + (paired[0] if paired else "") + f"; this config's "
+            f"heldout_trials={int(cfg.heldout_trials)} hold about {scenarios} scenarios: {enough}{test}")
 
 
-def paired_power(cfg, m: int) -> str:
+def paired_power(cfg, m: int) -> tuple[str, int] | None:
     """McNemar's scenarios for the same difference when every detector scores the same scenarios, from the
-    pilot's discordant share (power.pilot_discordant; empty when none was measured)."""
+    pilot's discordant share (power.pilot_discordant), in words and as a number; None when none was measured."""
     from garage_exp.loop.stats import scenarios_for_paired
 
     p = cfg.power
     if p.get("pilot_discordant") is None:
-        return ""
+        return None
     share = max(float(p.pilot_discordant), float(p.pilot_rate) * float(p.relative))  # below the difference: impossible
     n = scenarios_for_paired(float(p.pilot_rate), share, float(p.relative), m, float(p.alpha), float(p.power))
-    return f"; paired by scenario (McNemar, a pilot's discordant share {share:.2f}): {n}"
+    return f"; paired by scenario (McNemar, a pilot's discordant share {share:.2f}): {n}", n
