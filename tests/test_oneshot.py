@@ -183,6 +183,57 @@ def test_a_garage_with_another_floor_wetness_and_grime_is_restyled_in_place_as_a
     assert restyled.std() > 0
 
 
+@pytest.mark.render
+def test_a_garage_with_other_line_wear_rebuilds_only_its_paint_as_a_fresh_load_renders_it(library):
+    """A wide space draws the lines' wear per scenario: worn paint loses pieces (scene/markings.py), so the
+    garage's static geometry changes. The same garage with other wear (and another floor, another target
+    distance) keeps its SAPIEN scene: only the line paint's bodies are rebuilt (the rest recoloured, the actors
+    replaced), and its frame is pixel-equal to the same scene loaded into a fresh renderer."""
+    from conftest import require
+
+    require("vulkan", "vehicles")
+    from garage_exp.core.state import STATE
+    from garage_exp.render.sapien_backend import get_renderer
+
+    base = ("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]", "camera.width=96",
+            "camera.height=72", "plan=small", "materials=worn", "camera.pitch=8.0")
+
+    def built(*more):
+        cfg = compose_cfg(*base, *more)
+        classified = classify(load_plan(resolve_plan_path(cfg.plan)))
+        return cfg, *build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+
+    def paint(scene):
+        return sorted((e.name, len(e.shapes)) for e in scene.entities if e.role == "marking" and e.name.startswith(
+            "marking_"))
+
+    fresh_lines = built("modifiers.wear.wear=0.0", "materials.wetness=0.0")
+    worn = built("modifiers.wear.wear=0.8", "materials.wetness=0.7", "case.actors.target.distance=6.5")
+    assert paint(fresh_lines[1]) != paint(worn[1])  # pieces worn away: other geometry, not only other colours
+    STATE.renderer = None
+    renderer = get_renderer()
+    renderer.load(fresh_lines[1])
+    loaded = renderer.sapien_scene
+    kept = [body for body in renderer._built.merged if body not in getattr(renderer._built, "paint", [])]
+    rendered(fresh_lines[1], fresh_lines[2], renderer, fresh_lines[0])
+    renderer.load(worn[1])
+    assert renderer.sapien_scene is loaded  # the garage kept loaded, not rebuilt
+    assert all(body in renderer._built.merged for body in kept)  # its other bodies untouched
+    rewound = rendered(worn[1], worn[2], renderer, worn[0])
+    STATE.renderer = None  # a fresh renderer, as a new process has
+    fresh = get_renderer()
+    fresh.load(worn[1])
+    assert np.array_equal(rewound, rendered(worn[1], worn[2], fresh, worn[0]))
+    assert rewound.std() > 0
+    # and back: the fresh paint again on the same loaded garage, as a fresh load draws it
+    fresh.load(fresh_lines[1])
+    again = rendered(fresh_lines[1], fresh_lines[2], fresh, fresh_lines[0])
+    STATE.renderer = None
+    other = get_renderer()
+    other.load(fresh_lines[1])
+    assert np.array_equal(again, rendered(fresh_lines[1], fresh_lines[2], other, fresh_lines[0]))
+
+
 # A one-shot search: one frame a scenario (the lighting case at one distance), the archive's sampler over two
 # garages kept loaded, one detector, one MLflow run for the search.
 ONESHOT = ["-m", "hydra/sweeper=search", "search.sampler=archive", "search.trials=6", "search.startup=3",

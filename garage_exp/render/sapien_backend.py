@@ -41,7 +41,7 @@ from garage_exp.render.fisheye import lookup, remap_bilinear
 from garage_exp.render.icd import check_available
 from garage_exp.render.light_pool import LightPool
 from garage_exp.render.registry import register_backend
-from garage_exp.render.sapien_builder import DECALS, SceneBuilder, merges, static_key
+from garage_exp.render.sapien_builder import DECALS, SceneBuilder, is_paint, merges, static_key
 from garage_exp.render.sapien_batch import open_scene
 from garage_exp.render.sapien_cameras import SapienCamera, add_camera, take, take_ids
 from garage_exp.render.silhouettes import disjoint_groups, image_rect
@@ -103,6 +103,8 @@ class SapienRenderer:
         if recolour is not None:
             try:
                 self._built.recolour(recolour)
+                if static[2] != self._static[2]:  # the lines' wear: their bodies alone are rebuilt
+                    self._built.replace_paint(e for e in scene.entities if merges(e, self.batch_static) and is_paint(e))
                 self._replace_actors(scene)
             except BaseException:
                 self._reset()
@@ -132,7 +134,7 @@ class SapienRenderer:
         the load, as with a garage never left); else start empty for a full load. The least recently used
         garage beyond the limit is dropped (its SAPIEN scene freed)."""
         def garage(key: tuple) -> tuple:
-            return (key[0], *key[2:])  # the geometry and settings: materials are recoloured in place
+            return (key[0], *key[3:])  # the geometry and settings: materials recoloured, line paint rebuilt
 
         if not self._restyled:
             self._kept.append((garage(self._static), {name: getattr(self, name) for name in self.LOADED}))
@@ -145,18 +147,25 @@ class SapienRenderer:
             setattr(self, name, value)
 
     def _static_key(self, scene: Scene) -> tuple:
-        """What the merged static bodies are made of (sapien_builder.static_key) and the settings. Lamps and
-        ambient light are set on every load."""
-        geometry, materials = static_key(e for e in scene.entities if merges(e, self.batch_static))
-        return (geometry, materials, scene.background, self.max_lights, self.shadows, self.batch_static)
+        """What the merged static bodies are made of (sapien_builder.static_key): all but the line paint, the
+        line paint's (geometry, materials) apart, and the settings. Lamps and ambient light are set on every
+        load."""
+        merged = [e for e in scene.entities if merges(e, self.batch_static)]
+        geometry, materials = static_key(e for e in merged if not is_paint(e))
+        paint = static_key(e for e in merged if is_paint(e))
+        return (geometry, materials, paint, scene.background, self.max_lights, self.shadows, self.batch_static)
 
     def _recolouring(self, static: tuple) -> dict[Material, Material] | None:
         """When the new statics are the loaded ones with other materials (a search's light intensity changes
-        the lamp panels' glow; a wide space's draw the floor's wetness and the lines' wear: their pictures), the
-        old -> new material map that turns one into the other; None when they differ otherwise (a full load), or
-        when one old material would need two new ones (lamps switched on or off: the merge groups shapes by
-        material) or two old ones one new (a full load would merge their bodies)."""
-        if self._static is None or static[0] != self._static[0] or static[2:] != self._static[2:]:
+        the lamp panels' glow; a wide space's draw the floor's wetness and grime: their pictures), the old -> new
+        material map that turns one into the other; None when they differ otherwise (a full load), or when one
+        old material would need two new ones (lamps switched on or off: the merge groups shapes by material) or
+        two old ones one new (a full load would merge their bodies). The line paint is left out: its pieces
+        and colour change with the lines' wear, and its bodies are rebuilt alone (`load`), provided no other
+        static shape shares a material with it, in the loaded scene or the new one."""
+        if self._static is None or static[0] != self._static[0] or static[3:] != self._static[3:]:
+            return None
+        if not (_paint_apart(static) and _paint_apart(self._static)):
             return None
         change: dict[Material, Material] = {}
         for old, new in zip(self._static[1], static[1]):
@@ -223,7 +232,7 @@ class SapienRenderer:
         # The blank control: everything but the vehicles is hidden (also from the silhouette renders).
         base = ([scene.background or name in built.vehicles for name in built.bodies]
                 + [scene.background] * len(built.merged))
-        self.bodies = Bodies(built.bodies, built.merged, base)
+        self.bodies = Bodies(built.bodies, built.merged, base, built.merged_boxes())
 
     # ---- per frame ------------------------------------------------------------------------------------------
 
@@ -413,6 +422,11 @@ class SapienRenderer:
     def _vehicle_poses(self) -> dict[str, Pose]:
         poses = self._built.poses
         return {name: poses[name] for name in poses if name in self._built.vehicles}
+
+
+def _paint_apart(key: tuple) -> bool:
+    """Whether a static key's line paint (`_static_key`) has materials of its own: no other merged shape's."""
+    return not set(key[2][1]) & set(key[1])
 
 
 def get_renderer(max_lights: int = 8, shadows: bool = False, device: str = "auto") -> SapienRenderer:
