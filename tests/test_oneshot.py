@@ -184,11 +184,13 @@ def test_a_garage_with_another_floor_wetness_and_grime_is_restyled_in_place_as_a
 
 
 @pytest.mark.render
-def test_a_garage_with_other_line_wear_rebuilds_only_its_paint_as_a_fresh_load_renders_it(library):
-    """A wide space draws the lines' wear per scenario: worn paint loses pieces (scene/markings.py), so the
-    garage's static geometry changes. The same garage with other wear (and another floor, another target
-    distance) keeps its SAPIEN scene: only the line paint's bodies are rebuilt (the rest recoloured, the actors
-    replaced), and its frame is pixel-equal to the same scene loaded into a fresh renderer."""
+def test_a_garage_with_other_line_wear_and_failed_lamps_rebuilds_only_those_as_a_fresh_load_renders_it(library):
+    """A wide space draws the lines' wear and the failed lamps per scenario: worn paint loses pieces
+    (scene/markings.py) and another set of failed lamps groups the panels by other materials, so the garage's
+    statics change beyond their colours. The same garage with other wear and lamps (and another floor, another
+    target distance) keeps its SAPIEN scene: only the bodies of line paint and lamps are rebuilt (the rest
+    recoloured, the actors replaced), and its frame is pixel-equal to the same scene loaded into a fresh
+    renderer; and back again."""
     from conftest import require
 
     require("vulkan", "vehicles")
@@ -204,34 +206,39 @@ def test_a_garage_with_other_line_wear_rebuilds_only_its_paint_as_a_fresh_load_r
         return cfg, *build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
 
     def paint(scene):
-        return sorted((e.name, len(e.shapes)) for e in scene.entities if e.role == "marking" and e.name.startswith(
-            "marking_"))
+        return sorted((e.name, len(e.shapes)) for e in scene.entities if e.name.startswith("marking_"))
 
-    fresh_lines = built("modifiers.wear.wear=0.0", "materials.wetness=0.0")
-    worn = built("modifiers.wear.wear=0.8", "materials.wetness=0.7", "case.actors.target.distance=6.5")
+    def lamps_on(scene):
+        return [s.material.emission for e in scene.entities if e.role == "lamp" for s in e.shapes[:1]]
+
+    fresh_lines = built("modifiers.wear.wear=0.0", "materials.wetness=0.0", "light.coverage=1.0")
+    worn = built("modifiers.wear.wear=0.8", "materials.wetness=0.7", "case.actors.target.distance=6.5",
+                 "light.coverage=0.5", "light.seed=3")
     assert paint(fresh_lines[1]) != paint(worn[1])  # pieces worn away: other geometry, not only other colours
+    assert len(set(lamps_on(worn[1]))) == 2 and len(set(lamps_on(fresh_lines[1]))) == 1  # some lamps failed
     STATE.renderer = None
     renderer = get_renderer()
     renderer.load(fresh_lines[1])
     loaded = renderer.sapien_scene
-    kept = [body for body in renderer._built.merged if body not in getattr(renderer._built, "paint", [])]
+    before = list(renderer._built.merged)
+    redrawn = getattr(renderer._built, "redrawn", [])
     rendered(fresh_lines[1], fresh_lines[2], renderer, fresh_lines[0])
     renderer.load(worn[1])
     assert renderer.sapien_scene is loaded  # the garage kept loaded, not rebuilt
-    assert all(body in renderer._built.merged for body in kept)  # its other bodies untouched
-    rewound = rendered(worn[1], worn[2], renderer, worn[0])
+    after = renderer._built.merged
+    assert all((body in after) != (body in redrawn) for body in before)  # only paint and lamps rebuilt
+    again = rendered(worn[1], worn[2], renderer, worn[0])
     STATE.renderer = None  # a fresh renderer, as a new process has
     fresh = get_renderer()
     fresh.load(worn[1])
-    assert np.array_equal(rewound, rendered(worn[1], worn[2], fresh, worn[0]))
-    assert rewound.std() > 0
-    # and back: the fresh paint again on the same loaded garage, as a fresh load draws it
-    fresh.load(fresh_lines[1])
-    again = rendered(fresh_lines[1], fresh_lines[2], fresh, fresh_lines[0])
+    assert np.array_equal(again, rendered(worn[1], worn[2], fresh, worn[0]))
+    assert again.std() > 0
+    fresh.load(fresh_lines[1])  # back: fresh paint, every lamp on, on the garage loaded with the worn ones
+    back = rendered(fresh_lines[1], fresh_lines[2], fresh, fresh_lines[0])
     STATE.renderer = None
     other = get_renderer()
     other.load(fresh_lines[1])
-    assert np.array_equal(again, rendered(fresh_lines[1], fresh_lines[2], other, fresh_lines[0]))
+    assert np.array_equal(back, rendered(fresh_lines[1], fresh_lines[2], other, fresh_lines[0]))
 
 
 # A one-shot search: one frame a scenario (the lighting case at one distance), the archive's sampler over two
