@@ -185,9 +185,11 @@ def test_a_garage_with_another_floor_wetness_and_grime_is_restyled_in_place_as_a
 
 def scene_of(library, *overrides: str) -> tuple:
     """(config, scene, setup) of the overrides."""
+    from garage_exp.run.spec import scene_spec
+
     cfg = compose_cfg(*overrides)
     classified = classify(load_plan(resolve_plan_path(cfg.plan)))
-    return cfg, *build_scene(cfg, classified, library, np.random.default_rng(cfg.seed))
+    return cfg, *build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
 
 
 def fresh_frame(job: tuple) -> np.ndarray:
