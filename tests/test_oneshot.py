@@ -184,6 +184,70 @@ def test_a_garage_with_another_floor_wetness_and_grime_is_restyled_in_place_as_a
     assert restyled.std() > 0
 
 
+def scene_of(library, *overrides: str) -> tuple:
+    """(config, scene, setup) of the overrides."""
+    from garage_exp.run.spec import scene_spec
+
+    cfg = compose_cfg(*overrides)
+    classified = classify(load_plan(resolve_plan_path(cfg.plan)))
+    return cfg, *build_scene(scene_spec(cfg), classified, library, np.random.default_rng(cfg.seed))
+
+
+def fresh_frame(job: tuple) -> np.ndarray:
+    """The first frame of a (config, scene, setup) loaded into a fresh renderer, as a new process has it."""
+    from garage_exp.core.state import STATE
+    from garage_exp.render.sapien_backend import get_renderer
+
+    cfg, scene, setup = job
+    STATE.renderer = None
+    renderer = get_renderer()
+    renderer.load(scene)
+    return rendered(scene, setup, renderer, cfg)
+
+
+@pytest.mark.render
+def test_a_garage_with_other_line_wear_and_failed_lamps_rebuilds_only_those_as_a_fresh_load_renders_it(library):
+    """A wide space draws the lines' wear and the failed lamps per scenario: worn paint loses pieces
+    (scene/markings.py) and another set of failed lamps groups the panels by other materials, so the garage's
+    statics change beyond their colours. The same garage with other wear and lamps (and another floor, another
+    target distance) keeps its SAPIEN scene: only the bodies of line paint and lamps are rebuilt (the rest
+    recoloured, the actors replaced), and its frame is pixel-equal to the same scene loaded into a fresh
+    renderer; and back again."""
+    from conftest import require
+
+    require("vulkan", "vehicles")
+    from garage_exp.core.state import STATE
+
+    base = ("case=light", "case.motion.values=[8.0]", "palette.target_colours=[black]", "camera.width=96",
+            "camera.height=72", "plan=small", "materials=worn", "camera.pitch=8.0")
+
+    def paint(scene):
+        return sorted((e.name, len(e.shapes)) for e in scene.entities if e.name.startswith("marking_"))
+
+    def lamps_on(scene):
+        return [s.material.emission for e in scene.entities if e.role == "lamp" for s in e.shapes[:1]]
+
+    fresh_lines = scene_of(library, *base, "modifiers.wear.wear=0.0", "materials.wetness=0.0", "light.coverage=1.0")
+    worn = scene_of(library, *base, "modifiers.wear.wear=0.8", "materials.wetness=0.7",
+                    "case.actors.target.distance=6.5", "light.coverage=0.5", "light.seed=3")
+    assert paint(fresh_lines[1]) != paint(worn[1])  # pieces worn away: other geometry, not only other colours
+    assert len(set(lamps_on(worn[1]))) == 2 and len(set(lamps_on(fresh_lines[1]))) == 1  # some lamps failed
+    fresh_frame(fresh_lines)
+    renderer = STATE.renderer
+    loaded, before = renderer.sapien_scene, list(renderer._built.merged)
+    redrawn = getattr(renderer._built, "redrawn", [])
+    renderer.load(worn[1])
+    assert renderer.sapien_scene is loaded  # the garage kept loaded, not rebuilt
+    after = renderer._built.merged
+    assert all((body in after) != (body in redrawn) for body in before)  # only paint and lamps rebuilt
+    again = rendered(worn[1], worn[2], renderer, worn[0])
+    assert np.array_equal(again, fresh_frame(worn)) and again.std() > 0
+    renderer = STATE.renderer  # back: fresh paint, every lamp on, on the garage loaded with the worn ones
+    renderer.load(fresh_lines[1])
+    back = rendered(fresh_lines[1], fresh_lines[2], renderer, fresh_lines[0])
+    assert np.array_equal(back, fresh_frame(fresh_lines))
+
+
 # A one-shot search: one frame a scenario (the lighting case at one distance), the archive's sampler over two
 # garages kept loaded, one detector, one MLflow run for the search.
 ONESHOT = ["-m", "hydra/sweeper=search", "search.sampler=archive", "search.trials=6", "search.startup=3",

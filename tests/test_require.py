@@ -272,6 +272,45 @@ def test_an_accepted_draw_hands_its_checked_scene_to_its_job_which_builds_none(t
     assert all(scene is not None and scene.entities for _, scene in handed)
 
 
+def test_a_job_inside_its_own_hydra_runtime_takes_the_scene_its_draw_was_checked_on(monkeypatch):
+    """The check runs in the sweep's Hydra runtime, the trial's job in its own: their scene settings differ in where
+    the config came from (`config_dirs`, `choices`, read only to name a file in an error) and in nothing the build
+    reads. The job takes the checked scene; a refusal is handed on only to the very same settings (its words may
+    name a file); settings that differ otherwise are built afresh."""
+    from dataclasses import replace
+
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.run import preflight as pf
+    from garage_exp.run.spec import scene_spec
+    from garage_exp.scenario import assemble
+
+    builds = []
+
+    def build(job, *args, **kwargs):
+        builds.append(job)
+        if job.seed == 5:
+            raise Infeasible("the target stands in the occluder", "case.actors.target.distance")
+        return f"scene of seed {job.seed}", None
+
+    monkeypatch.setattr(assemble, "build_scene", build)
+    monkeypatch.setattr(pf, "_library", lambda: None)
+    plan = object()
+    checked = scene_spec(compose_cfg("plan=tiny"))
+    trial = replace(checked, config_dirs=("/conf",), choices={"plan": "tiny", "case": "1"})  # the job's runtime
+    assert trial != checked
+    built = pf.scene_of(checked, plan, hand=True)
+    assert pf.scene_of(trial, plan) is built and len(builds) == 1  # taken, not built again
+    pf.scene_of(checked, plan, hand=True)
+    pf.scene_of(replace(trial, seed=checked.seed + 1), plan)  # other settings: built
+    assert len(builds) == 3
+    refused = replace(checked, seed=5)
+    with pytest.raises(Infeasible):
+        pf.scene_of(refused, plan, hand=True)
+    with pytest.raises(Infeasible):
+        pf.scene_of(replace(refused, choices={"case": "other"}), plan)  # another file may be named: refused afresh
+    assert len(builds) == 5
+
+
 def test_a_checked_draw_whose_actors_collide_is_refused_by_its_job_without_a_second_build(monkeypatch):
     """The check's refusal (Infeasible: two actors in one another) is handed on as a scene is: the job's preflight
     of the same settings raises it again, in the same words, and builds nothing; other settings are built."""

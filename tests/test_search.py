@@ -316,6 +316,37 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
         assert len(launch.compositions.cache) == 2  # light=dim twice: one composition
 
 
+def test_the_launch_of_a_draw_just_checked_takes_the_checks_composition_once():
+    """A space with requirements composes each draw to check it (search/loop.py rejects); its launch takes that
+    composition, not another copy (0.05 s a scenario), and only for the same overrides and once: a second launch,
+    or a launch of other overrides, composes its own, which still equals Hydra's."""
+    from types import SimpleNamespace
+
+    from conftest import hydra_loader
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+
+    from garage_exp.search.launch import CachedLaunch
+
+    with hydra_loader() as loader:
+        master = loader.load_configuration("config", ["hydra/sweeper=search", "plan=tiny"], RunMode.MULTIRUN)
+        launch = CachedLaunch(SimpleNamespace(config_loader=loader), None, master, set(levels()))
+        draw = ["plan=tiny", "light.intensity=0.3", "search.trial=0"]
+        checked = launch.compose(draw)
+        assert launch.take(list(draw)) is checked
+        again = launch.take(draw)
+        assert again is not checked and launch.last is None  # taken once: the next launch composes its own
+        other = ["plan=tiny", "light.intensity=0.9", "search.trial=1"]
+        launch.compose(draw)
+        took = launch.take(other)
+        hydras = loader.load_sweep_config(master, other)
+        assert OmegaConf.to_container(took) == OmegaConf.to_container(hydras)
+        # a copy of the cached composition (unpickled) keeps Hydra's node types and flags, not only its values
+        for key in hydras:
+            assert OmegaConf.get_type(took, key) == OmegaConf.get_type(hydras, key), key
+        assert OmegaConf.is_struct(took) and OmegaConf.is_struct(took.camera) == OmegaConf.is_struct(hydras.camera)
+
+
 def test_a_suite_scenario_of_a_late_search_says_lateness():
     """A scenario file's header names the objective's value (issue 31, item 5): lateness, not difficulty."""
     from optuna.trial import create_trial

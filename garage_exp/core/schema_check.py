@@ -102,11 +102,25 @@ def level_file(cfg: DictConfig, group: str) -> str:
     return f"{group}={level}" if level else "the composed config"
 
 
+def _task_values(cfg: DictConfig) -> dict:
+    """The config as plain data, but Hydra's own node (a sweep job's config carries it; a fifth of the config),
+    which unknown_keys skips: not converted."""
+    if not (isinstance(cfg, DictConfig) and any(k in cfg for k in NOT_IN_SCHEMA)):
+        return OmegaConf.to_container(cfg, resolve=False)
+    out = {}
+    for key in cfg:
+        if key not in NOT_IN_SCHEMA:
+            node = cfg._get_node(key)
+            plain = OmegaConf.is_config(node) and not node._is_none() and not node._is_missing()
+            out[key] = OmegaConf.to_container(node, resolve=False) if plain else node._value()
+    return out
+
+
 def check_schema(cfg: DictConfig, overrides: list[str] | None = None) -> None:
     """Every key of the composed config is in the schema; else GarageError naming the override (or the file),
     the key and the nearest valid key: `+case.bumper_gapp=1: case has no key 'bumper_gapp' (did you mean
     'bumper_gap'?)`."""
-    values = OmegaConf.to_container(cfg, resolve=False)
+    values = _task_values(cfg)
     for parent, key, schema in unknown_keys(values, config_schema()):
         full = ".".join((*parent, key))
         given = override_of(full, task_overrides(cfg) if overrides is None else overrides)

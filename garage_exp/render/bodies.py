@@ -21,9 +21,10 @@ class Bodies:
     (`shown`) and its world AABB (`lo`, `hi`; a moved entity's is refreshed before the next use)."""
 
     def __init__(self, bodies: dict[str, object] | None = None, merged: list[object] | None = None,
-                 base: list[bool] | None = None) -> None:
+                 base: list[bool] | None = None, merged_boxes: np.ndarray | None = None) -> None:
         """bodies: entity name -> RenderBodyComponent of the entities with their own id; merged: the merged
-        static bodies after them; base: each body's visibility without culling (None: none loaded)."""
+        static bodies after them; base: each body's visibility without culling (None: none loaded);
+        merged_boxes: the merged bodies' AABBs (n, 2, 3) when known (they never move), else read here."""
         self.all: list[object] = [*(bodies or {}).values(), *(merged or [])]
         self.index: dict[str, int] = {name: k for k, name in enumerate(bodies or {})}  # name -> position in all
         self.base = np.array(base if base is not None else [], dtype=bool)
@@ -34,7 +35,10 @@ class Bodies:
         if self.all:
             self.shown = np.ones(len(self.all), dtype=bool)
             self.show_only(self.base)
-            boxes = np.array([body.get_global_aabb_fast() for body in self.all], dtype=float).reshape(-1, 2, 3)
+            own = list((bodies or {}).values()) if merged_boxes is not None else self.all
+            boxes = np.array([body.get_global_aabb_fast() for body in own], dtype=float).reshape(-1, 2, 3)
+            if merged_boxes is not None:
+                boxes = np.concatenate([boxes, np.asarray(merged_boxes, dtype=float).reshape(-1, 2, 3)])
             self.lo, self.hi = boxes[:, 0].copy(), boxes[:, 1].copy()
 
     def in_view(self, spec: CameraSpec, pose: np.ndarray, cull: bool) -> np.ndarray:

@@ -41,7 +41,7 @@ from garage_exp.render.fisheye import lookup, remap_bilinear
 from garage_exp.render.icd import check_available
 from garage_exp.render.light_pool import LightPool
 from garage_exp.render.registry import register_backend
-from garage_exp.render.sapien_builder import DECALS, SceneBuilder, merges, static_key
+from garage_exp.render.sapien_builder import DECALS, SceneBuilder, is_redrawn, merges, static_key
 from garage_exp.render.sapien_batch import open_scene
 from garage_exp.render.sapien_cameras import SapienCamera, add_camera, take, take_ids
 from garage_exp.render.silhouettes import disjoint_groups, image_rect
@@ -101,8 +101,12 @@ class SapienRenderer:
         # A restyled scene (a replicate's pictures) no longer shows its description's materials: rebuild it.
         recolour = self._recolouring(static) if self._built is not None and not self._restyled else None
         if recolour is not None:
+            change, redraw = recolour
             try:
-                self._built.recolour(recolour)
+                self._built.recolour(change)
+                if redraw:  # the lines' wear, the failed lamps: those bodies alone are rebuilt
+                    self._built.replace_redrawn(e for e in scene.entities
+                                                if merges(e, self.batch_static) and is_redrawn(e))
                 self._replace_actors(scene)
             except BaseException:
                 self._reset()
@@ -132,7 +136,7 @@ class SapienRenderer:
         the load, as with a garage never left); else start empty for a full load. The least recently used
         garage beyond the limit is dropped (its SAPIEN scene freed)."""
         def garage(key: tuple) -> tuple:
-            return (key[0], *key[2:])  # the geometry and settings: materials are recoloured in place
+            return (key[0], *key[3:])  # the geometry and settings: materials recoloured, line paint rebuilt
 
         if not self._restyled:
             self._kept.append((garage(self._static), {name: getattr(self, name) for name in self.LOADED}))
@@ -145,26 +149,34 @@ class SapienRenderer:
             setattr(self, name, value)
 
     def _static_key(self, scene: Scene) -> tuple:
-        """What the merged static bodies are made of (sapien_builder.static_key) and the settings. Lamps and
-        ambient light are set on every load."""
-        geometry, materials = static_key(e for e in scene.entities if merges(e, self.batch_static))
-        return (geometry, materials, scene.background, self.max_lights, self.shadows, self.batch_static)
+        """What the merged static bodies are made of (sapien_builder.static_key): all but line paint and lamps,
+        their (geometry, materials) apart (sapien_builder.is_redrawn), and the settings. Lamps and ambient light
+        are set on every load."""
+        merged = [e for e in scene.entities if merges(e, self.batch_static)]
+        geometry, materials = static_key(e for e in merged if not is_redrawn(e))
+        redrawn = static_key(e for e in merged if is_redrawn(e))
+        return (geometry, materials, redrawn, scene.background, self.max_lights, self.shadows, self.batch_static)
 
-    def _recolouring(self, static: tuple) -> dict[Material, Material] | None:
-        """When the new statics are the loaded ones with other materials (a search's light intensity changes
-        the lamp panels' glow; a wide space's draw the floor's wetness and the lines' wear: their pictures), the
-        old -> new material map that turns one into the other; None when they differ otherwise (a full load), or
-        when one old material would need two new ones (lamps switched on or off: the merge groups shapes by
-        material) or two old ones one new (a full load would merge their bodies)."""
-        if self._static is None or static[0] != self._static[0] or static[2:] != self._static[2:]:
+    def _recolouring(self, static: tuple) -> tuple[dict[Material, Material], bool] | None:
+        """How the loaded statics become the new ones without a full load: (the old -> new material map, whether
+        line paint and lamps are rebuilt), or None (a full load). When all the statics are the loaded ones with
+        other materials (a search's light intensity changes the lamp panels' glow; a wide space's draw the
+        floor's wetness and grime: their pictures), all are recoloured. A map fails when one old material would
+        need two new ones (lamps switched on or off: the merge groups shapes by material) or two old ones one new
+        (a full load would merge their bodies). Else, when only line paint and lamps differ beyond their colours
+        (a wide space's wear and failed lamps), the rest is recoloured and they are rebuilt, provided no other
+        static shape shares a material with them, in the loaded scene or the new one."""
+        old = self._static
+        if old is None or static[0] != old[0] or static[3:] != old[3:]:
             return None
-        change: dict[Material, Material] = {}
-        for old, new in zip(self._static[1], static[1]):
-            if change.setdefault(old, new) != new:
-                return None
-        if len(set(change.values())) != len(change):
+        if static[2][0] == old[2][0]:
+            change = _material_map([*old[1], *old[2][1]], [*static[1], *static[2][1]])
+            if change is not None:
+                return change, False
+        if not (_redrawn_apart(static) and _redrawn_apart(old)):
             return None
-        return change
+        change = _material_map(old[1], static[1])
+        return None if change is None else (change, True)
 
     def restyle(self, change: dict[Material, Material]) -> None:
         """Give loaded textured materials other pictures (a replicate's stains and wetness): the shapes keep
@@ -223,7 +235,7 @@ class SapienRenderer:
         # The blank control: everything but the vehicles is hidden (also from the silhouette renders).
         base = ([scene.background or name in built.vehicles for name in built.bodies]
                 + [scene.background] * len(built.merged))
-        self.bodies = Bodies(built.bodies, built.merged, base)
+        self.bodies = Bodies(built.bodies, built.merged, base, built.merged_boxes())
 
     # ---- per frame ------------------------------------------------------------------------------------------
 
@@ -413,6 +425,22 @@ class SapienRenderer:
     def _vehicle_poses(self) -> dict[str, Pose]:
         poses = self._built.poses
         return {name: poses[name] for name in poses if name in self._built.vehicles}
+
+
+def _redrawn_apart(key: tuple) -> bool:
+    """Whether a static key's line paint and lamps (`_static_key`) have materials of their own: no other merged
+    shape's."""
+    return not set(key[2][1]) & set(key[1])
+
+
+def _material_map(old: list[Material], new: list[Material]) -> dict[Material, Material] | None:
+    """The old -> new map that turns each old material into the new one in its place; None when one old material
+    would need two new ones, or two old ones one new."""
+    change: dict[Material, Material] = {}
+    for before, after in zip(old, new):
+        if change.setdefault(before, after) != after:
+            return None
+    return change if len(set(change.values())) == len(change) else None
 
 
 def get_renderer(max_lights: int = 8, shadows: bool = False, device: str = "auto") -> SapienRenderer:

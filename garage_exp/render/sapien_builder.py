@@ -47,6 +47,17 @@ def merges(entity: Entity, batch_static: bool) -> bool:
     return batch_static and entity.static and entity.role in STATIC_ROLES
 
 
+def is_redrawn(entity: Entity) -> bool:
+    """The statics a wide space's draw changes beyond their colours, whose merged bodies are rebuilt alone
+    (`SceneBuilder.replace_redrawn`) while the rest of the garage stays loaded: line paint (markings of boxes,
+    scene/markings.py: its pieces wear away with the lines' wear) and lamp fixtures (scene/lamps.py: which lamps
+    have failed changes which panels share a material, and the merge groups shapes by material). Both are opaque
+    boxes, so the order their bodies are drawn in changes no pixel."""
+    if entity.role not in ("marking", "lamp"):
+        return False
+    return bool(entity.shapes) and all(isinstance(s, Box) for s in entity.shapes)
+
+
 def static_key(merged: Iterable[Entity]) -> tuple[list, list]:
     """What merged static bodies are made of: their geometry (with each box's and decal's material left out, but
     for what its mesh is built from) and the materials of their boxes and decals in order."""
@@ -87,12 +98,18 @@ class SceneBuilder:
         self.decal_ids: set[int] = set()  # bodies that are only decals (Frame.see_through)
         self.pillar_ids: set[int] = set()  # bodies that are only pillars (Frame.pillars)
         self.clamped: set[Material] = set()  # materials made for a decal (alpha below 1: SAPIEN's blended pass)
+        self.redrawn: list[object] = []  # the merged bodies of line paint and lamps (is_redrawn): replace_redrawn
+        self.redrawn_materials: set[Material] = set()  # their materials
+        self._boxes: np.ndarray | None = None  # the merged bodies' world AABBs (merged_boxes)
 
     # ---- statics --------------------------------------------------------------------------------------------
 
     def add_statics(self, entities: Iterable[Entity]) -> None:
         """Merge static shapes per material and per STATIC_TILE square (by the shape's centre), so that a frame
-        can hide the tiles outside its view; materials keep their order, meshes come last."""
+        can hide the tiles outside its view; materials keep their order, meshes come last. The bodies of line
+        paint and lamps are noted (`redrawn`): a load that changes only them rebuilds only them."""
+        entities = list(entities)
+        redrawn = {id(e) for e in entities if is_redrawn(e)}
         merged: dict[Material | None, dict[tuple[int, int], list[tuple[Pose, Box | Mesh, Entity]]]] = {}
         for entity in entities:
             for shape in entity.shapes:
@@ -102,9 +119,35 @@ class SceneBuilder:
                 merged.setdefault(key, {}).setdefault(tile, []).append((world, shape, entity))
         for material in [m for m in merged if m is not None] + ([None] if None in merged else []):
             for (a, b), shapes in merged[material].items():
-                self._add_merged(f"static:{material.name if material else 'meshes'}:{a}:{b}", shapes)
+                body = self._add_merged(f"static:{material.name if material else 'meshes'}:{a}:{b}", shapes)
+                if all(id(entity) in redrawn for _, _, entity in shapes):
+                    self.redrawn.append(body)
+                    self.redrawn_materials.add(material)
+        self._boxes = None
 
-    def _add_merged(self, name: str, shapes: Sequence[tuple[Pose, Box | Mesh, Entity]]) -> None:
+    def replace_redrawn(self, entities: Iterable[Entity]) -> None:
+        """Remove the merged bodies of line paint and lamps (and their materials) and merge the new ones: the
+        garage's other bodies, the actors and the cameras stay. The caller replaces the actors afterwards, so that
+        they come after the statics in SAPIEN's order as in a fresh build (`SapienRenderer._build`). Only when no
+        other static shape has their materials (the renderer's key says so): then no body mixes the two."""
+        gone = {id(body) for body in self.redrawn}
+        for body in self.redrawn:
+            self.scene.remove_entity(body.entity)
+        self.merged = [body for body in self.merged if id(body) not in gone]
+        for material in self.redrawn_materials:
+            self.materials.pop(material, None)
+        self.redrawn, self.redrawn_materials = [], set()
+        self.add_statics(entities)
+
+    def merged_boxes(self) -> np.ndarray:
+        """The merged static bodies' world AABBs (n, 2, 3), in `merged` order: they never move, so they are read
+        from SAPIEN once per build (about 700 bodies: 0.04 s a load) rather than on every actors' replacement."""
+        if self._boxes is None:
+            self._boxes = np.array([body.get_global_aabb_fast() for body in self.merged],
+                                   dtype=float).reshape(-1, 2, 3)
+        return self._boxes
+
+    def _add_merged(self, name: str, shapes: Sequence[tuple[Pose, Box | Mesh, Entity]]):
         import sapien
         import sapien.render as sr
 
@@ -121,6 +164,7 @@ class SceneBuilder:
         # Pillars have materials of their own (pillar_paint, pillar_band), so a body holds pillars only or none.
         if all(entity.is_pillar for _, _, entity in shapes):
             self.pillar_ids.add(int(node.per_scene_id))
+        return body
 
     def recolour(self, change: dict[Material, Material]) -> None:
         """Give each loaded RenderMaterial its new values and picture, as `material` would make it for the new
@@ -143,6 +187,7 @@ class SceneBuilder:
                         rm.roughness_texture = None  # a fresh material of a picture without one has none
             moved[new] = rm
         self.clamped = (self.clamped - change.keys()) | {new for old, new in change.items() if old in self.clamped}
+        self.redrawn_materials = {change.get(m, m) for m in self.redrawn_materials}
         # rebuilt at once: a swap (A -> B, B -> A) must not read a value written in this loop
         self.materials = {**{m: rm for m, rm in self.materials.items() if m not in change}, **moved}
 

@@ -91,9 +91,49 @@ def _rgba(colour: np.ndarray, shade: np.ndarray, alpha: np.ndarray | None = None
     return np.concatenate([rgb, a[..., None]], axis=2).astype(np.float32)
 
 
+def _rng(kind: str, seed: int) -> np.random.Generator:
+    """A picture's random numbers: by its kind and seed (str hash() varies by process)."""
+    return np.random.default_rng([zlib.crc32(kind.encode()), seed])
+
+
+# A wide space draws the floor's grime and wetness per scenario, and every dressed surface's picture carries the
+# grime: each scenario made its garage's floors, walls and ceilings again (~0.1 s a scenario), though their noise
+# fields, drawn first from the picture's own random numbers, depend only on its kind, seed and size. Those fields
+# are kept (`_start`), with the random numbers' state after them, so that the rest of the picture draws exactly
+# the numbers it drew before: the same pixels.
+@STATE.memo("process", maxsize=64)
+def _start(kind: str, seed: int, size: int, draw) -> tuple[tuple[np.ndarray, ...], dict]:
+    """`draw(rng, size)`'s fields (read-only) for a picture of this kind, seed and size, and its rng's state
+    after them."""
+    rng = _rng(kind, seed)
+    fields = tuple(draw(rng, size))
+    for field in fields:
+        field.setflags(write=False)
+    return fields, rng.bit_generator.state
+
+
+def _started(tex: Texture, rng: np.random.Generator, size: int, draw) -> tuple[np.ndarray, ...]:
+    """The picture's first fields (`_start`), its `rng` moved on past them."""
+    fields, state = _start(tex.kind, tex.seed, size, draw)
+    rng.bit_generator.state = state
+    return fields
+
+
+def _floor_fields(rng, size: int):
+    return (1.0 + 0.18 * fbm(size, rng) + 0.05 * fbm(size, rng, octaves=3, base=32),)
+
+
+def _wall_fields(rng, size: int):
+    return fbm(size, rng), fbm(size, rng, octaves=3, base=16)
+
+
+def _ceiling_fields(rng, size: int):
+    return fbm(size, rng), _blobs(size, rng, 3, (0.05, 0.12))
+
+
 def _floor(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, np.ndarray]:
     grime, wet = float(tex.param("grime", 0.5)), float(tex.param("wetness", 0.0))
-    shade = 1.0 + 0.18 * fbm(size, rng) + 0.05 * fbm(size, rng, octaves=3, base=32)
+    shade = _started(tex, rng, size, _floor_fields)[0].copy()
     rough = np.full((size, size), mat.roughness, np.float32)
     if grime > 0:
         stains = _blobs(size, rng, int(3 + 7 * grime), (0.03, 0.09))
@@ -113,9 +153,10 @@ def _wall(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None
     """Paint with dirt: streaks running down from the slab, scuffs near the floor. v is height (world z).
     `tint` shifts the paint's brightness (the random level's other garages)."""
     grime = float(tex.param("grime", 0.5))
-    shade = (1.0 + float(tex.param("tint", 0.0))) * (1.0 + 0.06 * fbm(size, rng))
+    noise, streaks = _started(tex, rng, size, _wall_fields)
+    shade = (1.0 + float(tex.param("tint", 0.0))) * (1.0 + 0.06 * noise)
     z = (np.arange(size, dtype=np.float32) / size * tex.tile)[:, None]  # rows are world z, 0 at the floor
-    streaks = np.clip(fbm(size, rng, octaves=3, base=16), 0, 1)
+    streaks = np.clip(streaks, 0, 1)
     streaks = np.repeat(streaks.mean(axis=0, keepdims=True), size, axis=0)
     shade *= 1.0 - grime * (0.25 * streaks * np.clip((z - 1.0) / 1.8, 0, 1) + 0.3 * np.exp(-z / 0.35))
     return _rgba(np.asarray(mat.color), np.clip(shade, 0.2, 1.3)), None
@@ -144,7 +185,8 @@ def _paint(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, Non
 
 def _ceiling(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
     """Cast concrete with formwork joints every 1.2 m and damp patches."""
-    shade = 1.0 + 0.12 * fbm(size, rng) - 0.2 * _blobs(size, rng, 3, (0.05, 0.12))
+    noise, damp = _started(tex, rng, size, _ceiling_fields)
+    shade = 1.0 + 0.12 * noise - 0.2 * damp
     joints = (np.arange(size) / size * tex.tile) % 1.2 < 0.02
     shade[joints, :] *= 0.7
     shade[:, joints] *= 0.7
@@ -228,8 +270,7 @@ def image(material: Material) -> tuple[np.ndarray, np.ndarray | None]:
     maker = _MAKERS.get(tex.kind)
     if maker is None:
         raise GarageError(f"unknown texture kind {tex.kind!r} ({' | '.join(KINDS)})", material.name)
-    rng = np.random.default_rng([zlib.crc32(tex.kind.encode()), tex.seed])  # str hash() varies by process
-    rgba, rough = maker(material, tex, rng, _size(tex))
+    rgba, rough = maker(material, tex, _rng(tex.kind, tex.seed), _size(tex))
     return rgba, rough
 
 
