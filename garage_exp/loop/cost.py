@@ -2,18 +2,18 @@
 docs/loop.md says how they were measured). `python -m garage_exp.loop estimate=true` prints it and stops; the
 loop prints it before it starts. Steps already done cost nothing when a loop resumes (not counted here).
 
-The wide space's rates (conf/loop_wide.yaml's `cost`) were fitted on a pilot of one-shot scenarios, 2026-12-06,
-commit de8f920 (branch loopwide), the shared 2-core CPU (AMD EPYC, 2 vCPUs, load average 2-10):
-  python -m garage_exp -m hydra/sweeper=search space=wide search.trials=12 search.sampler=random search.seed=7 \
-      dataset=true 'plan.seed=int(interval(0,499999))' detector.models=[<yolo11n_fp32_from_int8.pt>] detector.imgsz=320
-  and the same with search.trials=40 search.seed=11 plan=generated 'plan.seed=int(interval(500000,999999))'
-      'plan.generator.family=choice(loop,comb,grid,spine)' (the held-out sample's garages).
-63 draws over 220 s of trials: 34 rendered (4.96 s each, mean), 18 infeasible (1.09 s: actors overlap, nothing
-rendered), 11 rejected by the requirements (0.76 s). Fitted: trial_overhead_s 0.7, render_s_per_frame 4.3 (a
-rendered scenario 0.7 + 4.3 = 5.0 s), frames_per_trial 0.65 (34 of 52 accepted draws render), acceptance 0.83
-(52 of 63), reject_s 0.76; search_s 160 (the two commands' start, check and analysis after their trials: 90 s
-and 250 s; the smoke loop's base data and held-out searches, 8 trials each: 222 s and 175 s); check_s 300 (`python -m garage_exp.loop space=wide estimate=true`: 5.2 min of wall time at load 9,
-1.4 min of CPU). D0 failed 19 of the 34 scenarios: power.pilot_rate 0.56.
+The wide space's rates (conf/loop_wide.yaml's `cost`) were refitted on the measured run of 2026-12-06 (docs/loop.md,
+"The measured run on the wide space"; commits 489c8de and f2d8a00, the shared 2-core CPU at load 2-5), from its
+steps' times (times.json) and its studies' trials (Optuna's start and end of each):
+  generators: 48 rendered scenarios in 51-73 trials, 62-80 s a search of which 22-23 s its start, check and
+  analysis (search_s 30); a trial 0.74 s rendered or not (trial_overhead_s 0.45 + frames_per_trial 0.62 x
+  render_s_per_frame 0.5); a rejected draw 0.16 s (reject_s), 1,024 of 1,353 held-out draws accepted (acceptance 0.76);
+  the held-out study: 1,024 trials in 2,172 s, with its start (about 60 s) and analysis (150 s, fANOVA on a sample of
+  300) 2,380 s: heldout_trial_s 2.33;
+  fine-tunings of 96 images x 10 epochs with 22 validation scenarios: 61-65 s (train_s_per_image_epoch 0.05,
+  val_s_per_image 0.05); the protocol's 14 jobs 113 s (protocol_job_s 5.2 with command_s 10); evaluation 102 s;
+  the loop's check of its steps 35 s (check_s).
+The estimate: 1.06 h; the run's steps: 1.0 h. D0 failed 313 of the 631 held-out scenarios: power.pilot_rate 0.50.
 """
 
 from __future__ import annotations
