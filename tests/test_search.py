@@ -341,7 +341,7 @@ def test_the_launch_of_a_draw_just_checked_takes_the_checks_composition_once():
         took = launch.take(other)
         hydras = loader.load_sweep_config(master, other)
         assert OmegaConf.to_container(took) == OmegaConf.to_container(hydras)
-        # a copy of the cached composition (unpickled) keeps Hydra's node types and flags, not only its values
+        # a copy of the cached composition keeps Hydra's node types and flags, not only its values
         for key in hydras:
             assert OmegaConf.get_type(took, key) == OmegaConf.get_type(hydras, key), key
         assert OmegaConf.is_struct(took) and OmegaConf.is_struct(took.camera) == OmegaConf.is_struct(hydras.camera)

@@ -9,8 +9,9 @@ from __future__ import annotations
 import types
 import typing
 from dataclasses import is_dataclass
-from functools import lru_cache
 from typing import Any
+
+from garage_exp.core.state import STATE
 
 
 class Settings(dict):
@@ -129,7 +130,7 @@ def typed(schema: type, values: Any, where: str = "") -> Any:
     return schema(**{key: _typed(hints[key], value, f"{where}.{key}") for key, value in values.items()})
 
 
-@lru_cache(maxsize=None)
+@STATE.memo("process", maxsize=256)  # a schema's hints: the same for the process's life
 def _hints(schema: type) -> dict:
     return typing.get_type_hints(schema)
 
