@@ -32,7 +32,8 @@ def draw(rounds: pd.DataFrame, scores: pd.DataFrame, photos: pd.DataFrame, path:
     ax.set_ylim(0, 100)
     ax.set_xlabel("round (0: D0)")
     ax.set_ylabel("hard-and-fair failures per 100 held-out scenarios")
-    ax.set_title("Failure rate on the held-out sample (95 % CI over seeds)")
+    one_seed = bool(len(rounds)) and int(rounds.seeds.max()) == 1  # report.round_table: one seed's own Wilson
+    ax.set_title("Failure rate on the held-out sample (95 % " + ("Wilson, one seed)" if one_seed else "CI over seeds)"))
     ax.legend(fontsize=8)
 
     last = scores["round"].max()
