@@ -84,7 +84,9 @@ def main() -> None:
         tiles.append(tile(frame, label(values)))
         print(f"draw {tried}: {label(values)}  visible {getattr(frame.target, 'visible_fraction', float('nan')):.2f}")
     out = Path(args.out) / f"space_{args.space}.png"
-    cv2.imwrite(str(out), grid(tiles, 6))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), grid(tiles, 6)):  # OpenCV says a failed write only by its return value
+        raise SystemExit(f"{out}: not written")
     print(f"{out}: {len(tiles)} draws of {tried}: {feasible} feasible ({feasible / tried:.0%}), "
           f"{len(tiles)} of those accepted by the requirements ({len(tiles) / max(feasible, 1):.0%}); "
           f"{time.perf_counter() - t0:.0f} s, {jobkit.machine()}")
