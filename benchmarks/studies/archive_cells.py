@@ -10,11 +10,15 @@ cells are counted the same way: cells of the shipped descriptors (81) whose hard
 
 Run: .venv/bin/python -m benchmarks.studies.archive_cells [--trials 30] [--seeds 0,1,2] [--workers 2]
      [--samplers archive,tpe,random] [--out outputs/benchmarks/archive_cells]
-     [--space wide] [--extra 'key=value ...'] [--page archive_cells]
+     [--space wide] [--extra 'key=value ...'] [--page archive_cells] [--recount] [--figure PATH]
 `--space NAME` searches a shipped space (conf/space/NAME.yaml: one-shot scenarios, `search.trials` of them, its
 requirements redrawing what could not be fair) instead of the loop's; `--extra` adds overrides to every search
 (the descriptors, a detector); each search's own cells are counted with the descriptors it measured.
-Writes benchmarks/results/<page>.md (the table, the command, commit, date and machine).
+Writes benchmarks/results/<page>.md (the table, the command, commit, date and machine), with each search's curve:
+its failure cells after its first 30, 60, 125, 250, 500, 1000 ... scenarios (the order it rendered them), so that
+one run shows whether a sampler overtakes another and where. `--recount` writes the page from the studies already in
+`--out` (a finished or interrupted run) without running a search; `--figure PATH` draws the curves (one line a
+search, the samplers' means bold).
 """
 
 from __future__ import annotations
@@ -50,6 +54,9 @@ def arm(out: Path, sampler: str, seed: int, trials: int, space: str = "", extra:
             **count(out, f"cells-{name}")}
 
 
+CHECKPOINTS = (30, 60, 125, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 5000)
+
+
 def count(out: Path, study_name: str) -> dict:
     import optuna
     from omegaconf import OmegaConf
@@ -68,10 +75,68 @@ def count(out: Path, study_name: str) -> dict:
     numbers = archive.summary(done, search)
     failing = sum(1 for t in done if t.values[0] >= float(search.archive.failure))
     rejected = sum(1 for t in study.trials if "rejected" in t.user_attrs)
-    return {"trials": len(study.trials) - rejected, "rejected": rejected, "complete": len(done),
+    scenarios = len(study.trials) - rejected
+    return {"trials": scenarios, "rejected": rejected, "complete": len(done),
             "failing_trials": failing,
             "failure_cells": numbers["archive_failure_cells"], "filled": numbers["archive_filled"],
-            "qd_score": round(numbers["archive_qd_score"], 3)}
+            "qd_score": round(numbers["archive_qd_score"], 3), "curve": curve(study.trials, search, scenarios)}
+
+
+def curve(trials: list, search, scenarios: int) -> dict[int, int]:
+    """Failure cells after the first n scenarios a search told (a rejected draw is no scenario), at each of
+    CHECKPOINTS up to its last, and at its last."""
+    from optuna.trial import TrialState
+
+    from garage_exp.search import archive
+
+    told = [t for t in sorted(trials, key=lambda t: t.number) if "rejected" not in t.user_attrs]
+    points = [n for n in CHECKPOINTS if n < scenarios] + [scenarios]
+    return {n: archive.summary([t for t in told[:n] if t.state == TrialState.COMPLETE], search)
+            ["archive_failure_cells"] for n in points}
+
+
+def curve_lines(rows: list[dict], samplers: list[str]) -> list[str]:
+    """The samplers' mean failure cells at each checkpoint every search reached (markdown)."""
+    points = sorted(set.intersection(*[set(map(int, r["curve"])) for r in rows])) if rows else []
+    lines = ["| sampler | " + " | ".join(f"{n} scenarios" for n in points) + " |",
+             "|---|" + "---|" * len(points)]
+    for sampler in samplers:
+        mine = [r for r in rows if r["sampler"] == sampler]
+        if mine:
+            means = [sum(r["curve"][n] if n in r["curve"] else r["curve"][str(n)] for r in mine) / len(mine)
+                     for n in points]
+            lines.append(f"| {sampler} | " + " | ".join(f"{m:.1f}" for m in means) + " |")
+    return lines
+
+
+def draw(rows: list[dict], samplers: list[str], path: Path, title: str) -> None:
+    """Failure cells against scenarios told: a thin line per search, the sampler's mean bold."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for k, sampler in enumerate(samplers):
+        mine = [r for r in rows if r["sampler"] == sampler]
+        colour = f"C{k}"
+        for r in mine:
+            xs = sorted(int(n) for n in r["curve"])
+            ax.plot(xs, [r["curve"].get(n, r["curve"].get(str(n))) for n in xs], color=colour, lw=0.8, alpha=0.5)
+        common = sorted(set.intersection(*[set(int(n) for n in r["curve"]) for r in mine])) if mine else []
+        if common:
+            ax.plot(common, [sum(r["curve"].get(n, r["curve"].get(str(n))) for r in mine) / len(mine) for n in common],
+                    color=colour, lw=2.2, marker="o", ms=3, label=f"{sampler} (mean of {len(mine)})")
+    ax.set_xscale("log")
+    ax.set_xlabel("scenarios told (rendered, or refused as infeasible)")
+    ax.set_ylabel("failure cells (elite difficulty >= failure)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -84,12 +149,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--space", default="", help="a shipped space (conf/space/NAME.yaml); default: the loop's")
     parser.add_argument("--extra", default="", help="overrides added to every search, space-separated")
     parser.add_argument("--page", default="archive_cells", help="the results page's name")
+    parser.add_argument("--recount", action="store_true", help="count the studies already in --out, run nothing")
+    parser.add_argument("--figure", default="", help="draw the failure cells' curves to this PNG")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [(s, int(k)) for k in args.seeds.split(",") for s in args.samplers.split(",")]
-    with ThreadPoolExecutor(args.workers) as pool:
-        rows = list(pool.map(lambda job: arm(out, job[0], job[1], args.trials, args.space, args.extra.split()), jobs))
+    if args.recount:
+        rows = [{"sampler": s, "seed": k, "rc": 0, **count(out, f"cells-{s}-{k}")} for s, k in jobs]
+    else:
+        with ThreadPoolExecutor(args.workers) as pool:
+            rows = list(pool.map(lambda job: arm(out, job[0], job[1], args.trials, args.space, args.extra.split()),
+                                 jobs))
     lines = ["| sampler | seed | trials | complete | failing trials | failure cells | cells filled | QD score |",
              "|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (r["sampler"], r["seed"])):
@@ -100,7 +171,12 @@ def main(argv: list[str] | None = None) -> int:
         mine = [r for r in rows if r["sampler"] == sampler]
         means[sampler] = sum(r["failure_cells"] for r in mine) / len(mine)
     lines += ["", "Mean failure cells per search: " + ", ".join(f"{s} {m:.2f}" for s, m in means.items())]
+    lines += ["", "Mean failure cells after the first n scenarios of each search:", "",
+              *curve_lines(rows, args.samplers.split(","))]
     print("\n".join(lines))
+    if args.figure:
+        draw(rows, args.samplers.split(","), Path(args.figure),
+             f"Failure cells by sampler ({args.space or 'the loop'}'s space, seeds {args.seeds})")
     from benchmarks.jobkit import load, machine
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout

@@ -164,6 +164,46 @@ class _Grid(optuna.samplers.GridSampler):
         pass
 
 
+def trial_seed(seed: int, number: int) -> int:
+    """The random state of trial `number` of a study seeded `seed` (the archive's emitters use the same)."""
+    import numpy as np
+
+    return int(np.random.SeedSequence([int(seed), int(number)]).generate_state(1)[0])
+
+
+class NumberedRandom(optuna.samplers.RandomSampler):
+    """Optuna's random sampler with each trial's draws a function of the seed and the trial's number.
+
+    Optuna's own keeps one stream per process from its seed, so every process that opens a seeded study starts it
+    again: a second worker on the same storage drew the first worker's scenarios, and a resumed search drew its
+    first trials again. Seeded by the trial's number, workers and resumes draw what one uninterrupted search draws.
+    """
+
+    def __init__(self, seed: int | None = None) -> None:
+        super().__init__(seed=seed)
+        self._seed = seed
+
+    def before_trial(self, study, trial) -> None:
+        if self._seed is not None:  # unseeded: Optuna's fresh stream, as before
+            self._rng.rng.seed(trial_seed(self._seed, trial.number))
+
+
+class NumberedTPE(optuna.samplers.TPESampler):
+    """TPE whose random state is set from the seed and the trial's number before each trial (see NumberedRandom):
+    its first `n_startup_trials` are NumberedRandom's, and two workers that see the same history still draw
+    different candidates."""
+
+    def __init__(self, seed: int | None = None, **kwargs) -> None:
+        super().__init__(seed=seed, **kwargs)
+        self._seed = seed
+        self._random_sampler = NumberedRandom(seed)  # the startup trials' sampler (Optuna's attribute)
+
+    def before_trial(self, study, trial) -> None:
+        if self._seed is not None:
+            self._rng.rng.seed(trial_seed(self._seed, trial.number) ^ 0x5A5A5A5A)  # not the startup's stream
+        super().before_trial(study, trial)
+
+
 def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.BaseSampler:
     name = search.sampler
     if name == "grid":
@@ -172,8 +212,8 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
         # multivariate: factors of a scenario interact (a dark garage and a far target), as TPE's docs advise
         # constant_liar: trials asked before the running ones are told (search.batch > 1, or several workers)
         # are kept away from those, as Optuna advises for batch and distributed optimisation
-        return optuna.samplers.TPESampler(seed=seed, multivariate=True, n_startup_trials=int(search.startup),
-                                          constant_liar=int(search.get("batch", 1)) > 1)
+        return NumberedTPE(seed=seed, multivariate=True, n_startup_trials=int(search.startup),
+                           constant_liar=int(search.get("batch", 1)) > 1)
     if name == "cmaes":
         # CMA-ES samples the continuous factors; categorical ones fall back to TPE (warn_independent off: said here)
         return optuna.samplers.CmaEsSampler(seed=seed, warn_independent_sampling=False,
@@ -181,7 +221,7 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
                                             independent_sampler=optuna.samplers.TPESampler(seed=seed))
     if name == "gp":  # Optuna's Gaussian-process Bayesian optimisation (torch on the CPU)
         return optuna.samplers.GPSampler(seed=seed, n_startup_trials=int(search.startup),
-                                         independent_sampler=optuna.samplers.RandomSampler(seed=seed))
+                                         independent_sampler=NumberedRandom(seed=seed))
     if name == "nsga2":
         return optuna.samplers.NSGAIISampler(seed=seed)
     if name == "archive":  # quality diversity: ribs' MAP-Elites over the descriptors' cells (search/archive.py)
@@ -191,7 +231,7 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
                               str(search.archive.emitter), float(search.archive.sigma))
     if name == "qmc":
         return optuna.samplers.QMCSampler(qmc_type="sobol", scramble=True, seed=seed, warn_independent_sampling=False)
-    return optuna.samplers.RandomSampler(seed=seed)  # random; saltelli enqueues its design, random fills the rest
+    return NumberedRandom(seed=seed)  # random; saltelli enqueues its design, random fills the rest
 
 
 def _write_ahead(storage) -> None:
