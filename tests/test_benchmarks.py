@@ -58,3 +58,20 @@ def test_make_runs_the_quick_benchmarks_and_names_the_others():
     assert set(named) == measured and all(len(v) == 1 for v in named.values())
     assert named["benchmarks.performance.ray_nodes"] == ["BENCH_CLUSTER"]
     assert named["benchmarks.performance.gpu"] == ["BENCH_GPU"]
+
+
+def test_several_workers_are_counted_while_all_are_warm():
+    """oneshot's `--workers`: the scenarios told after every worker's warm-up and before any stopped, in the order
+    they ended, and the CPU of all of them per scenario each told after its warm-up."""
+    from benchmarks.performance.oneshot import merge, rate
+
+    one = {"code": 0, "epoch": 100.0, "ends": [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], "told": ["COMPLETE"] * 6,
+           "cpu": [(1.0, 0.1), (3.0, 0.2)], "total": 7.0, "plans": [0, 1], "complete": 9, "trials": 12, "rejected": 3}
+    two = {"code": 0, "epoch": 102.5, "ends": [0.5, 1.5, 2.0, 2.5, 4.5], "told": ["COMPLETE", "PRUNED"] * 2 + ["COMPLETE"],
+           "cpu": [(1.0, 0.0), (2.0, 0.1)], "total": 5.0, "plans": [0, 1], "complete": 9, "trials": 12, "rejected": 3}
+    both = merge([one, two], warmup=2)
+    # warm from max(102, 104) = 104 to min(106, 107) = 106: one's 104, 105, 106 and two's 104, 104.5, 105
+    assert both["ends"] == [104.0, 104.0, 104.5, 105.0, 105.0, 106.0]
+    assert both["told"] == ["COMPLETE", "PRUNED", "COMPLETE", "COMPLETE", "PRUNED", "COMPLETE"]
+    assert rate(both["ends"], both["window_warmup"]) == (2.5, 5)  # 5 told after the window's first, in 2 s
+    assert both["cpu_per_scenario"] == pytest.approx(((2.0 + 1.0) / 7, (0.1 + 0.1) / 7))

@@ -20,7 +20,10 @@ the detector's start are paid once per process), from the study's own clock (eac
 the arms alternate (today, oneshot, today, oneshot) so that another process's load falls on both. `--before DIR`
 runs today's arm on another checkout (e.g. the commit before this benchmark) instead of this one's per_trial path;
 with `--before-oneshot` that checkout's oneshot arm runs too (`oneshot@before`), so that one invocation gives both
-the ratio to today's search and this checkout's gain on the one-shot path itself.
+the ratio to today's search and this checkout's gain on the one-shot path itself. `--workers N` adds the
+oneshot arm as N workers of one search (N children on one study's storage, as the search runs on several
+machines; each draws other scenarios: the samplers seed each trial by its number): its rate counts the scenarios
+told while every worker was past its warm-up and none had stopped.
 The page: benchmarks/results/oneshot.md.
 
 `--space wide` measures the wide space instead (conf/space/wide.yaml: one-shot scenarios over 31 factors, each
@@ -35,6 +38,7 @@ benchmarks/results/oneshot_wide.md.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -83,9 +87,10 @@ def cpu_seconds() -> tuple[float, float]:
     return own, kids
 
 
-def child(arm: str, trials: int, out: str, warmup: int, extra: list[str]) -> int:
+def child(arm: str, trials: int, out: str, warmup: int, extra: list[str], shared: str = "") -> int:
     """One arm's search in this process; each trial's end time (and plan), and the CPU seconds at the end of the
-    warm-up and of the last trial, to `out` as JSON."""
+    warm-up and of the last trial, to `out` as JSON. With `shared` (a folder), the study's storage is there, so
+    that several children are several workers of one search."""
     os.environ.setdefault("YOLO_OFFLINE", "1")
     from garage_exp.cli import app
     from garage_exp.search import loop
@@ -101,17 +106,19 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str]) -> int
         real_tell(self, trial, outcome)
         ends.append(time.perf_counter())
         told.append(outcome.state.name)
-        if len(ends) in (warmup, trials):
-            cpu.append(cpu_seconds())
+        if len(ends) == warmup:
+            cpu[:] = [cpu_seconds()]
+        elif len(ends) > warmup:  # the last tell's, not the process's end (a search's end writes its report)
+            cpu[1:] = [cpu_seconds()]
 
     loop.SearchLoop.tell = tell
     arm_overrides = ARMS[arm] if arm in ARMS else []  # a --before checkout's today knows no new keys
-    with tempfile.TemporaryDirectory() as tmp:
+    with (contextlib.nullcontext(shared) if shared else tempfile.TemporaryDirectory()) as tmp:
         argv = ["-m", "hydra/sweeper=search", *SCENARIO, *SPACE, *arm_overrides, f"search.trials={trials}",
                 "search.sampler=random", "search.seed=0", f"search.study=oneshot-{arm}",
                 f"search.storage=sqlite:///{tmp}/optuna.db", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
                 f"hydra.sweep.dir={tmp}/sweep", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled", *extra]
-        start = time.perf_counter()
+        start, epoch = time.perf_counter(), time.time()
         code = 0
         try:
             app.cli(argv)
@@ -126,7 +133,7 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str]) -> int
         states = [t.state.name for t in kept]
         rejected = len(study.trials) - len(kept)
     Path(out).write_text(json.dumps({"arm": arm, "code": code, "ends": [e - start for e in ends], "told": told,
-                                     "total": total,
+                                     "total": total, "epoch": epoch,
                                      "plans": plans, "complete": states.count("COMPLETE"), "cpu": cpu,
                                      "trials": len(states), "rejected": rejected}))
     return code
@@ -160,25 +167,59 @@ def longest_run(plans: list) -> int:
     return best
 
 
-def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[str], name: str | None = None) -> dict:
-    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
-        out = fh.name
+def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[str], name: str | None = None,
+            workers: int = 1) -> dict:
+    """One arm: its child's search, or `workers` children sharing one study (the search's workers on one
+    storage, as on a cluster), combined by `merge`."""
     name = name or ("before" if code is not None else arm)
-    # the file, not `-m`, from the code's own checkout: `python -m` would put the working dir first on sys.path
-    # and import this checkout's garage_exp for --before's arm (as performance/before.py runs its children)
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name, "--trials", str(trials),
-           "--warmup", str(warmup), "--out", out, *CHILD_FLAGS, *extra]
+    outs, shared = [], tempfile.mkdtemp(prefix="oneshot-shared-") if workers > 1 else ""
+    procs = []
     load = os.getloadavg()[0]
     started = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=code or ROOT, env=child_env(code, GARAGE_EXP_PROVISIONED="1"),
-                          capture_output=True, text=True)
+    for _ in range(workers):
+        with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
+            outs.append(fh.name)
+        # the file, not `-m`, from the code's own checkout: `python -m` would put the working dir first on sys.path
+        # and import this checkout's garage_exp for --before's arm (as performance/before.py runs its children)
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name, "--trials", str(trials),
+               "--warmup", str(warmup), "--out", outs[-1], *(["--shared", shared] if shared else []),
+               *CHILD_FLAGS, *extra]
+        procs.append(subprocess.Popen(cmd, cwd=code or ROOT, env=child_env(code, GARAGE_EXP_PROVISIONED="1"),
+                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
+    logs = [proc.communicate()[0] for proc in procs]
     wall = time.perf_counter() - started
-    if proc.returncode != 0:
-        sys.stderr.write(proc.stdout[-3000:] + proc.stderr[-3000:])
-        raise SystemExit(f"the {arm} arm failed (exit {proc.returncode})")
-    result = json.loads(Path(out).read_text())
-    os.unlink(out)
-    return {**result, "arm": arm, "wall": wall, "load_before": load, "load_after": os.getloadavg()[0]}
+    for proc, log in zip(procs, logs):
+        if proc.returncode != 0:
+            sys.stderr.write(log[-6000:])
+            raise SystemExit(f"the {arm} arm failed (exit {proc.returncode})")
+    results = [json.loads(Path(out).read_text()) for out in outs]
+    for out in outs:
+        os.unlink(out)
+    if shared:
+        import shutil
+
+        shutil.rmtree(shared, ignore_errors=True)
+    result = results[0] if workers == 1 else merge(results, warmup)
+    return {**result, "arm": arm, "wall": wall, "load_before": load, "load_after": os.getloadavg()[0],
+            "workers": workers}
+
+
+def merge(results: list[dict], warmup: int) -> dict:
+    """Several workers' records as one arm's: the scenarios told while every worker was warm (after each one's
+    first `warmup`) and none had stopped, in the order they ended (their `rate` then counts from the window's
+    first), with the CPU seconds of all of them over that span, per scenario they told after their warm-up."""
+    lo = max(r["epoch"] + r["ends"][warmup - 1] for r in results)
+    hi = min(r["epoch"] + r["ends"][-1] for r in results)
+    told = sorted((r["epoch"] + e, state) for r in results for e, state in zip(r["ends"], r["told"])
+                  if lo <= r["epoch"] + e <= hi)
+    own = sum(r["cpu"][1][0] - r["cpu"][0][0] for r in results)
+    kids = sum(r["cpu"][1][1] - r["cpu"][0][1] for r in results)
+    after = sum(len(r["ends"]) - warmup for r in results)
+    last = results[-1]  # each worker loaded the same shared study at its end: its counts are the study's
+    return {"code": max(r["code"] for r in results), "ends": [t for t, _ in told], "told": [s for _, s in told],
+            "window_warmup": 1, "cpu_per_scenario": (own / max(after, 1), kids / max(after, 1)),
+            "total": max(r["total"] for r in results), "plans": last["plans"], "complete": last["complete"],
+            "trials": last["trials"], "rejected": last["rejected"], "cpu": []}
 
 
 def main() -> int:
@@ -193,8 +234,11 @@ def main() -> int:
     parser.add_argument("--page", type=Path, default=None, help="default: results/oneshot.md (oneshot_<space>.md)")
     parser.add_argument("--space", default="", help="a shipped space (wide) on generated garages instead")
     parser.add_argument("--garages", type=int, default=16, help="with --space: generated garages drawn among")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="also the oneshot arm as this many workers sharing one study (oneshot x N)")
     parser.add_argument("--child", choices=[*ARMS, "before"], help=argparse.SUPPRESS)
     parser.add_argument("--out", help=argparse.SUPPRESS)
+    parser.add_argument("--shared", default="", help=argparse.SUPPRESS)
     parser.add_argument("overrides", nargs="*", help="more Hydra overrides for both arms")
     opts = parser.parse_args()
     if opts.space:
@@ -202,7 +246,7 @@ def main() -> int:
         CHILD_FLAGS[:] = [f"--space={opts.space}", f"--garages={opts.garages}"]  # the children measure it too
     page = opts.page or RESULTS / (f"oneshot_{opts.space}.md" if opts.space else "oneshot.md")
     if opts.child:
-        return child(opts.child, opts.trials, opts.out, opts.warmup, opts.overrides)
+        return child(opts.child, opts.trials, opts.out, opts.warmup, opts.overrides, opts.shared)
 
     from benchmarks.jobkit import machine
 
@@ -220,15 +264,22 @@ def main() -> int:
         if opts.before is not None and opts.before_oneshot:
             runs.append(run_arm("oneshot@before", opts.trials, opts.warmup, opts.before, opts.overrides, "oneshot"))
         runs.append(run_arm("oneshot", opts.trials, opts.warmup, None, opts.overrides))
+        if opts.workers > 1:
+            runs.append(run_arm(f"oneshot x {opts.workers}", opts.trials, opts.warmup, None, opts.overrides,
+                                "oneshot", workers=opts.workers))
     rows = []
     for r in runs:
-        per_s, counted = rate(r["ends"], opts.warmup)
-        (own0, kids0), (own1, kids1) = r["cpu"] if len(r["cpu"]) == 2 else [(float("nan"),) * 2] * 2
+        warm = r.get("window_warmup", opts.warmup)
+        per_s, counted = rate(r["ends"], warm)
+        if "cpu_per_scenario" in r:  # several workers: their CPU over what each told after its warm-up
+            cpu_main, cpu_detector = r["cpu_per_scenario"]
+        else:
+            (own0, kids0), (own1, kids1) = r["cpu"] if len(r["cpu"]) == 2 else [(float("nan"),) * 2] * 2
+            cpu_main, cpu_detector = (own1 - own0) / max(counted, 1), (kids1 - kids0) / max(counted, 1)
         rows.append({"arm": r["arm"], "scenarios": r["trials"], "complete": r["complete"], "counted": counted,
-                     "cpu_main": round((own1 - own0) / max(counted, 1), 3),
-                     "cpu_detector": round((kids1 - kids0) / max(counted, 1), 3),
+                     "cpu_main": round(cpu_main, 3), "cpu_detector": round(cpu_detector, 3),
                      "per_s": round(per_s, 3), "s_each": round(1 / per_s, 3), "garages": len(set(r["plans"])),
-                     "rendered_per_s": round(rendered_rate(r, opts.warmup), 3),
+                     "rendered_per_s": round(rendered_rate(r, warm), 3),
                      "rejected": r.get("rejected", 0),
                      "longest_on_one": longest_run(r["plans"]), "wall_s": round(r["wall"], 1),
                      "load": f"{r['load_before']:.2f} -> {r['load_after']:.2f}"})
@@ -256,6 +307,13 @@ def main() -> int:
               f"scenarios/s (goal >= 5: {verdict}). It used {cpu[0]:.3f} CPU s a scenario in all ({cpu[1]:.3f} in "
               f"the search's process, its render threads included): on two idle cores at most {2 / cpu[0]:.1f} "
               "scenarios/s."]
+    many = [row for row in rows if row["arm"].startswith("oneshot x ")]
+    if many:
+        best = max(row["per_s"] for row in many)
+        lines += ["", f"{many[0]['arm']} (workers sharing one study, each its own renderer and detector): "
+                  f"**{best:.2f}** scenarios/s sustained while all were warm, {best / (sum(today) / len(today)):.2f}x "
+                  f"today, {best / (sum(new) / len(new)):.2f}x one worker (goal >= 5: "
+                  f"{'met' if best >= 5.0 else 'NOT met'})."]
     if gain is not None:
         lines += ["", f"oneshot / oneshot@before (the same one-shot path on the checkout at {before_commit}): **{gain:.2f}x**."]
     lines += ["", "```json", json.dumps({"rows": rows, "ratio": ratio, "gain": gain}), "```"]
