@@ -88,6 +88,21 @@ def test_fresh_draws_are_near_their_level_never_its_own_trials_and_seeded():
     assert draws != grade_mod.fresh_draws(study, 5, 6, 0.05, seed=4)
 
 
+def test_a_fresh_draw_keeps_its_parents_searched_seeds():
+    """A seed names one garage (one set of parked cars, one set of failed lamps): 5 % of its range away is another
+    garage, not a near one, so a fresh draw keeps it and moves only the quantities."""
+    dists = {"plan.seed": od.IntDistribution(0, 999999), "light.seed": od.IntDistribution(0, 999),
+             "light.intensity": od.FloatDistribution(0.1, 1.0)}
+    study = optuna.create_study(direction="maximize")
+    for k in range(10):
+        study.add_trial(create_trial(values=[k / 10], params={"plan.seed": 1000 * k + 7, "light.seed": k,
+                                                              "light.intensity": 0.5}, distributions=dists))
+    draws = grade_mod.fresh_draws(study, levels=5, per_level=8, sigma=0.05, seed=0)
+    parents = {(t.params["plan.seed"], t.params["light.seed"]) for t in study.trials}
+    assert all((p["plan.seed"], p["light.seed"]) in parents for _, p in draws)
+    assert any(p["light.intensity"] != 0.5 for _, p in draws)  # the quantities still move
+
+
 def grade_study(rates: dict[int, tuple[int, int, int]]):
     """A grade study: per level (failed, passed, not fair) finished trials."""
     study = optuna.create_study(direction="maximize")

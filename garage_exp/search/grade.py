@@ -8,9 +8,10 @@ near them should fail about as often, and more often at a higher level.
 `python -m garage_exp.search.grade --storage URL --study SUITE` measures that claim on a finished suite's study:
 1. **Fresh draws.** For each level, `fresh` new scenarios: a trial of the level picked at random, each of its
    continuous searched values moved by a Gaussian of `sigma` of its range (on a log axis for a log range) and
-   reflected off the range's ends, its choices kept, and a new `seed` (the seeded variation a replicate draws: the
-   target's model, offset and yaw, which lamps are off, the materials' stains). Never one of the suite's own
-   scenarios.
+   reflected off the range's ends, its choices and its searched seeds kept (`plan.seed`, `palette.seed`,
+   `light.seed`: a seed names a garage, a set of parked cars, the failed lamps; 5 % of its range is another one,
+   not a near one), and a new `seed` (the seeded variation a replicate draws: the target's model, offset and yaw,
+   the materials' stains). Never one of the suite's own scenarios.
 2. **Rendered as the suite was.** They are enqueued, each with its level, in a study of their own beside the suite's
    (`<suite>-grade-<seed>`), which the suite's own command runs (its space and fixed values, `seed` searched), with
    the random sampler filling nothing: the study holds exactly the fresh draws.
@@ -66,6 +67,11 @@ def nudged(value, dist: od.BaseDistribution, sigma: float, rng: np.random.Genera
     return float(min(max(moved, float(dist.low)), float(dist.high)))
 
 
+def is_seed(key: str) -> bool:
+    """A searched seed (`plan.seed`, `light.seed` ...): a name for one generated thing, with no near values."""
+    return key == "seed" or key.endswith(".seed")
+
+
 def level_members(study, levels: int) -> dict[int, list]:
     """Each level's complete trials (every one, not only those the suite kept: the level is their region)."""
     from optuna.trial import TrialState
@@ -81,14 +87,15 @@ def level_members(study, levels: int) -> dict[int, list]:
 
 def fresh_draws(study, levels: int, per_level: int, sigma: float, seed: int) -> list[tuple[int, dict]]:
     """(level, params) for `per_level` fresh draws of each level that has trials, deterministic for the seed; each
-    params holds the suite's searched keys, nudged, and a new `seed`."""
+    params holds the suite's searched keys, nudged (its seeds kept), and a new `seed`."""
     rng = np.random.default_rng(seed)
     out = []
     for level, trials in level_members(study, levels).items():
         trials = sorted(trials, key=lambda t: t.number)
         for _ in range(per_level if trials else 0):
             member = trials[int(rng.integers(len(trials)))]
-            params = {k: nudged(v, member.distributions[k], sigma, rng) for k, v in member.params.items()}
+            params = {k: v if is_seed(k) else nudged(v, member.distributions[k], sigma, rng)
+                      for k, v in member.params.items()}
             params["seed"] = int(rng.integers(1_000_000))
             out.append((level, params))
     return out
