@@ -378,8 +378,8 @@ def test_a_frame_budget_stops_the_study_once_its_trials_rendered_that_many(tmp_p
     `trials` staying the cap; a resumed study spent already counts."""
     from garage_exp.search.loop import rendered_frames
 
-    def launch(batch, idx):  # each job renders 3 frames
-        return [Ret({**fake_job(list(job)), "frames": 3.0}) for job in batch]
+    def launch(batch, idx):  # each job renders 3 frames (and none crashes, whatever the draws)
+        return [Ret({**fake_job([*job, "light.intensity=0.5"]), "frames": 3.0}) for job in batch]
 
     study = run_loop(tmp_path, 20, launch=launch, frames=7)
     assert len(study.trials) == 3 and rendered_frames(study) == 9  # 3 + 3 < 7 <= 3 + 3 + 3
