@@ -18,8 +18,10 @@ def draw(tables: dict[str, Path], out: Path) -> Path:
     from scipy.stats import spearmanr
 
     fig, ax = plt.subplots(figsize=(6.0, 3.8))
+    drawn = set()
     for k, (name, path) in enumerate(tables.items()):
         g = pd.read_csv(path)
+        drawn |= set(int(n) for n in g.drawn)
         rho = spearmanr(g.level, g.failure_rate).statistic
         ax.errorbar(g.level + (k - (len(tables) - 1) / 2) * 0.06, g.failure_rate,
                     yerr=[g.failure_rate - g.low, g.high - g.failure_rate], fmt="o-", capsize=3,
@@ -30,7 +32,8 @@ def draw(tables: dict[str, Path], out: Path) -> Path:
     ax.set_xticks([1, 2, 3, 4, 5])
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
-    ax.set_title("space=wide: 30 fresh draws a level, sigma 0.05 (95 % Wilson intervals)", fontsize=9)
+    per_level = "/".join(str(n) for n in sorted(drawn))  # from the tables: the figure says what it shows
+    ax.set_title(f"space=wide: {per_level} fresh draws a level, sigma 0.05 (95 % Wilson intervals)", fontsize=9)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
