@@ -42,6 +42,9 @@ COVERED = {
     "python -m garage_exp.search.grade --storage sqlite:///DIR/optuna.db --study suite-NAME":
         "not run: DIR and NAME are the measured suite's (the command above); the same command on a suite study of "
         "its own is tests/test_grade.py (test_the_fresh_draws_run_through_the_real_search_as_enqueued)",
+    "python -m benchmarks.studies.archive_cells --space wide --trials 1500":
+        "not run: a benchmark of about 75 minutes of both cores that rewrites benchmarks/results/archive_cells_wide.md; "
+        "its arguments parse in tests/test_benchmarks.py, its searches are the wide space's search above",
     "python -m benchmarks.studies.archive_cells --space wide --trials 60":
         "not run: a benchmark of minutes that rewrites benchmarks/results/archive_cells_wide_pilot.md; its arguments "
         "parse in tests/test_benchmarks.py, its searches are the wide space's search above",

@@ -176,14 +176,16 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     if args.figure:
         draw(rows, args.samplers.split(","), Path(args.figure),
-             f"Failure cells by sampler ({args.space or 'the loop'}'s space, seeds {args.seeds})")
+             f"Failure cells by sampler ({'space=' + args.space if args.space else 'the loop space'}, seeds {args.seeds})")
     from benchmarks.jobkit import load, machine
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     write_json_page(RESULTS / f"{args.page}.md", "Failure cells by sampler" + (f" on the {args.space} space"
                                                                            if args.space else " (issue 39, goal 1)"),
-                    {"command": "python -m benchmarks.studies.archive_cells " + " ".join(argv or sys.argv[1:]),
+                    {"command": "python -m benchmarks.studies.archive_cells " + " ".join(
+                        "DIR" if a == args.out else a for a in (argv or sys.argv[1:])),  # no machine path
                      "machine": machine(), "load_after": load(), "commit": commit.strip(), "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                     "recounted": args.recount,  # true: counted later from the studies that command's run left
                      "rows": rows, "mean_failure_cells": means, "table": lines})
     return 0 if all(r["rc"] == 0 for r in rows) else 1
 
