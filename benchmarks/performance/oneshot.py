@@ -108,10 +108,17 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str], shared
         told.append(outcome.state.name)
         if len(ends) == warmup:
             cpu[:] = [cpu_seconds()]
-        elif len(ends) > warmup:  # the last tell's, not the process's end (a search's end writes its report)
+
+    real_run = loop.SearchLoop.run
+
+    def run(self):  # the trial loop's end, after its last tell: not the process's (a search's end writes its report)
+        ran = real_run(self)
+        if len(ends) > warmup:
             cpu[1:] = [cpu_seconds()]
+        return ran
 
     loop.SearchLoop.tell = tell
+    loop.SearchLoop.run = run
     arm_overrides = ARMS[arm] if arm in ARMS else []  # a --before checkout's today knows no new keys
     with (contextlib.nullcontext(shared) if shared else tempfile.TemporaryDirectory()) as tmp:
         argv = ["-m", "hydra/sweeper=search", *SCENARIO, *SPACE, *arm_overrides, f"search.trials={trials}",

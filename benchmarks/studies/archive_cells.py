@@ -97,14 +97,13 @@ def curve(trials: list, search, scenarios: int) -> dict[int, int]:
 
 def curve_lines(rows: list[dict], samplers: list[str]) -> list[str]:
     """The samplers' mean failure cells at each checkpoint every search reached (markdown)."""
-    points = sorted(set.intersection(*[set(map(int, r["curve"])) for r in rows])) if rows else []
+    points = sorted(set.intersection(*[set(r["curve"]) for r in rows])) if rows else []
     lines = ["| sampler | " + " | ".join(f"{n} scenarios" for n in points) + " |",
              "|---|" + "---|" * len(points)]
     for sampler in samplers:
         mine = [r for r in rows if r["sampler"] == sampler]
         if mine:
-            means = [sum(r["curve"][n] if n in r["curve"] else r["curve"][str(n)] for r in mine) / len(mine)
-                     for n in points]
+            means = [sum(r["curve"][n] for r in mine) / len(mine) for n in points]
             lines.append(f"| {sampler} | " + " | ".join(f"{m:.1f}" for m in means) + " |")
     return lines
 
@@ -121,11 +120,11 @@ def draw(rows: list[dict], samplers: list[str], path: Path, title: str) -> None:
         mine = [r for r in rows if r["sampler"] == sampler]
         colour = f"C{k}"
         for r in mine:
-            xs = sorted(int(n) for n in r["curve"])
-            ax.plot(xs, [r["curve"].get(n, r["curve"].get(str(n))) for n in xs], color=colour, lw=0.8, alpha=0.5)
-        common = sorted(set.intersection(*[set(int(n) for n in r["curve"]) for r in mine])) if mine else []
+            xs = sorted(r["curve"])
+            ax.plot(xs, [r["curve"][n] for n in xs], color=colour, lw=0.8, alpha=0.5)
+        common = sorted(set.intersection(*[set(r["curve"]) for r in mine])) if mine else []
         if common:
-            ax.plot(common, [sum(r["curve"].get(n, r["curve"].get(str(n))) for r in mine) / len(mine) for n in common],
+            ax.plot(common, [sum(r["curve"][n] for r in mine) / len(mine) for n in common],
                     color=colour, lw=2.2, marker="o", ms=3, label=f"{sampler} (mean of {len(mine)})")
     ax.set_xscale("log")
     ax.set_xlabel("scenarios told (rendered, or refused as infeasible)")

@@ -165,7 +165,8 @@ class _Grid(optuna.samplers.GridSampler):
 
 
 def trial_seed(seed: int, number: int) -> int:
-    """The random state of trial `number` of a study seeded `seed` (the archive's emitters use the same)."""
+    """The random state of trial `number` of a study seeded `seed` (as search/archive.py seeds its emitters: by the
+    study's seed and the trial's number)."""
     import numpy as np
 
     return int(np.random.SeedSequence([int(seed), int(number)]).generate_state(1)[0])
