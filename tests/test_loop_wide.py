@@ -8,6 +8,7 @@ estimate carries the power of the held-out sample. The steps themselves are fake
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -209,3 +210,47 @@ def test_a_held_out_trial_may_have_its_own_measured_rate():
                  "cost.heldout_trial_s=5"])
     assert cost.estimate(cfg)["held-out sample"] == pytest.approx(20 + 10 * 5)
     assert cost.estimate(cfg)["base data"] == pytest.approx(20 + 4 * 3)  # the searches keep theirs
+
+
+def test_a_replay_pool_of_people_joins_every_fine_tunings_replay_and_never_its_validation(tmp_path, monkeypatch):
+    """`replay_pool`: a QMC study on the training garages, its params winning over the space's (here: people as
+    every target), at a seed of its own; its scenarios join the replay of every fine-tuning and count towards what
+    the replay needs, the validation split stays the base data's; the cost model counts its trials."""
+    from garage_exp.loop import cost, replay
+    from garage_exp.loop.app import run_loop
+
+    people = "case.actors.target.type=choice(child,adult,crouching)"
+    ran = fake_steps(monkeypatch, tmp_path)
+    args = [f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0]", "trials=4",
+            "frames=0", "train_frames=8", "base_trials=4", "heldout_trials=3", "photos=false", "arms.Q.sampler=tpe",
+            "fixed=[]", "replay_fraction=4.0", f'++replay_pool={{people: {{trials: 5, params: ["{people}"]}}}}']
+    # 32 replay frames asked: the base data's 3 training scenarios hold 12, the pool's 5 another 20
+    run_loop(wide(*args))
+    searches = {arg(c, "search.study"): c for c in ran if "hydra/sweeper=search" in c}
+    pool = searches["replay_people"]
+    assert arg(pool, "case.actors.target.type") == "choice(child,adult,crouching)"  # the pool's, not the space's
+    assert pool.index(people) < pool.index("space=wide")  # given before the space: the command's own key wins
+    assert arg(pool, "search.sampler") == "qmc" and arg(pool, "search.seed") == str(replay.seed("people")) != "0"
+    assert arg(pool, "plan") == "generated" and arg(pool, "search.trials") == "5"
+    for cmd in (c for c in ran if "garage_exp.train" in c):
+        lists = arg(cmd, "replay").strip("[]").split(",")
+        assert [Path(p).name for p in lists] == ["base_train.yaml", "replay_people.yaml"]
+        assert Path(arg(cmd, "val").strip("[]")).name == "base_val.yaml"
+    import yaml
+
+    listed = yaml.safe_load((tmp_path / "loop" / "data" / "replay_people.yaml").read_text())["train"]
+    assert len(listed) == 5 and all("/replay_people/" in p for p in listed)
+    cfg = wide(*args)
+    assert cost.estimate(cfg)["replay pools"] == pytest.approx(cost.estimate(cfg)["base data"] / 4 * 5
+                                                                - cfg.cost.search_s / 4)
+
+
+def test_a_replay_pool_too_small_is_refused_before_the_fine_tuning(tmp_path, monkeypatch):
+    from garage_exp.core.errors import JobFault
+    from garage_exp.loop.app import run_loop
+
+    fake_steps(monkeypatch, tmp_path)
+    with pytest.raises(JobFault, match="the base data and its replay pools hold 16 replay frames"):
+        run_loop(wide(f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0]", "trials=4",
+                      "frames=0", "train_frames=8", "base_trials=4", "heldout_trials=3", "photos=false",
+                      "arms.Q.sampler=tpe", "fixed=[]", "replay_fraction=4.0", "++replay_pool={few: {trials: 1}}"))

@@ -15,7 +15,7 @@ from omegaconf import DictConfig, open_dict
 
 from garage_exp.core import shell
 from garage_exp.core.errors import GarageError, JobFault, check_range
-from garage_exp.loop import budget, garages, schema, steps
+from garage_exp.loop import budget, garages, replay, schema, steps
 from garage_exp.loop.budget import arm_budget
 
 COMMAND = shell.Command("garage_exp.loop", "loop", (schema.register,),
@@ -99,6 +99,7 @@ class Loop:
         known = self.commands.get(name)
         if known is not None and known != key:
             hint = ("give this run another dir" if name in SHARED_STEPS else
+                    "give this run another dir or the pool another name" if name.startswith("replay_") else
                     "give this run its own variant=NAME (its rounds and results apart) or another dir")
             raise GarageError(f"{self.dir} holds step {name!r} made from other inputs ({steps.changes(known, key)}); "
                               f"{hint}", "dir")
@@ -185,6 +186,14 @@ def run_loop(cfg: DictConfig) -> dict:
     train_s, val_s = split_scenarios([str(d) for d in base_sets], float(cfg.val_fraction), 0)
     base_train = budget.write_dirs(data / "base_train.yaml", [Path(d) for d in train_s], names)
     base_val = budget.write_dirs(data / "base_val.yaml", [Path(d) for d in val_s], names)
+    # 1b. Replay pools beyond the base data (replay_pool): their scenarios join every fine-tuning's replay alone.
+    replay_dirs, replay_lists = [Path(d) for d in train_s], [base_train]
+    for pool in replay.pools(cfg, plans):
+        drawn = loop.step(pool.step, lambda p=pool: loop.study(p.study, p.overrides, p.trials, "qmc", p.seed,
+                                                                 [base_pt] if base_pt else None))
+        dirs = [Path(t.dataset) for t in drawn if t.dataset is not None]
+        replay_dirs += dirs
+        replay_lists.append(budget.write_dirs(data / f"{pool.study}.yaml", dirs, names))
     # 2. D0: the COCO-pretrained detector as given (its BatchNorms are calibrated by each fine-tuning), or trained
     # from scratch on the base data.
     if base_pt:
@@ -225,7 +234,7 @@ def run_loop(cfg: DictConfig) -> dict:
                 generated[arm] = found
                 # Short of its frame budget at its cap of trials: stop before its fine-tuning (exit 1, kept).
                 budget.check_spent(arm, found, int(b["frames"]), f"round {k}, seed {seed}{suffix}", str(loop.dir))
-                budget.check_replay(cfg, [Path(d) for d in train_s], str(loop.dir))  # before its fine-tuning
+                budget.check_replay(cfg, replay_dirs, str(loop.dir))  # before its fine-tuning
                 new = budget.joining(found, cfg.arms[arm].keep, float(cfg.hard_below))
                 suites[(arm, seed)] = suite = suites.get((arm, seed), []) + new
                 try:
@@ -237,7 +246,7 @@ def run_loop(cfg: DictConfig) -> dict:
                 trained[arm] = loop.step(f"{label}: fine-tune", lambda name=name, b=b, p=prev,
                                          listing=listing, arm=arm: loop.train(
                     name, data=[listing], val=[base_val], base=p["weights"], epochs=int(b["epochs"]), seed=seed,
-                    lr0=float(cfg.lr0), replay=[base_train], study=f"gen_{name}", imgsz=int(b["imgsz"]),
+                    lr0=float(cfg.lr0), replay=replay_lists, study=f"gen_{name}", imgsz=int(b["imgsz"]),
                     replay_fraction=float(b["replay_fraction"]), calibrate=bool(base_pt), freeze=int(cfg.freeze)))
                 detectors[name] = {"arm": arm, "round": k, "seed": seed, **trained[arm]}
                 book.append({"arm": arm, "round": k, "seed": seed, "sampler": cfg.arms[arm].sampler,

@@ -115,9 +115,10 @@ def check_replay(cfg, pool: list[Path], kept: str) -> None:
                for arm in cfg.arms)
     have = len(images(pool))
     if have < need:
-        raise JobFault(f"the base data holds {have} replay frames outside its validation scenarios, fewer than the "
+        holder = "the base data and its replay pools hold" if cfg.get("replay_pool") else "the base data holds"
+        raise JobFault(f"{holder} {have} replay frames outside its validation scenarios, fewer than the "
                        f"{need} a fine-tuning replays (train_frames x replay_fraction): raise base_trials (in another "
-                       f"dir) or lower replay_fraction; the steps done so far are kept under {kept}")
+                       f"dir), add a replay_pool or lower replay_fraction; the steps done so far are kept under {kept}")
 
 
 def check_spent(arm: str, found: list[Trial], frames: int, where: str, kept: str) -> None:

@@ -34,6 +34,9 @@ def check_steps(cfg: DictConfig) -> None:
     studies = [("base data", "base", plans, int(cfg.base_trials), "qmc", 0, models, None, 0),
                ("held-out sample", "heldout", garages.heldout(cfg), int(cfg.heldout_trials), "random", 0, models,
                 None, 0)]
+    from garage_exp.loop import replay
+
+    studies += [(p.step, p.study, p.overrides, p.trials, "qmc", p.seed, models, None, 0) for p in replay.pools(cfg, plans)]
     for arm in cfg.arms:  # round 1's generators: the later rounds differ only in their detector and search seed
         b = arm_budget(cfg, arm)
         studies.append((f"arm {arm}'s generator", f"gen_{arm}", plans, int(b["trials"]), cfg.arms[arm].sampler,

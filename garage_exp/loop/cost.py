@@ -59,6 +59,9 @@ def estimate(cfg) -> dict[str, float]:
            "evaluation": detectors(cfg) * (c.load_s + held_frames * c.detect_s_per_frame)
            + last * protocol_jobs * job_frames * c.detect_s_per_frame,
            "real photos": (int(bool(cfg.photos)) + len(cfg.real_sets)) * (c.command_s + last * c.verify_s)}
+    pools = [int(p.trials) for p in (cfg.get("replay_pool") or {}).values() if int(p.trials) > 0]
+    if pools:
+        out["replay pools"] = sum(study(n) for n in pools)
     if float(c.get("check_s") or 0) > 0:
         out["checks"] = float(c.check_s)
     if not str(cfg.base).endswith(".pt"):

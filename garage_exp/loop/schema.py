@@ -96,6 +96,16 @@ class ForgettingConf:
 
 
 @dataclass
+class ReplayPoolConf:
+    """One more source of replay frames (never validation): a QMC study on the training garages, its space the
+    loop's with `params` (the search's override grammar) overriding the space's entries of the same key, e.g. a
+    pool whose targets are all people (`case.actors.target.type=choice(child,adult,crouching)`)."""
+
+    trials: int = 0
+    params: list[str] = field(default_factory=list)
+
+
+@dataclass
 class LoopConf:
     dir: str = "outputs/loop/default"  # every study, dataset, training and result of the loop
     # A name for another run of the arms (other replay, epochs ...) in the same dir, sharing its base data, D0 and
@@ -118,6 +128,9 @@ class LoopConf:
     base_lr0: float = 0.002
     bn_calibrate: int = 64  # each fine-tuning calibrates its base's BatchNorms on this many of its frames (0: not)
     base_trials: int = 16  # QMC scenarios on the training plans: the replay pool and the validation scenarios
+    # More replay than the base data's training scenarios hold (docs/loop.md, "Not forgetting"): each entry a study
+    # on the training garages (`replay_<name>`) whose scenarios join every fine-tuning's replay pool.
+    replay_pool: dict[str, ReplayPoolConf] = field(default_factory=dict)
     optimizer: str = "AdamW"
     lr0: float = 0.0005  # the arms' fine-tuning
     # The first N layers of every arm's fine-tuning kept frozen (ultralytics' `freeze`; yolo11n: 0-9 its backbone,
