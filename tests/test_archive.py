@@ -188,6 +188,23 @@ def test_the_sampler_mutates_elites_after_startup_seeded_by_the_trial_number():
     assert min(stats.kstest(first[:, k], "uniform").pvalue for k in range(2)) > 0.01
 
 
+def test_the_sparse_emitter_redraws_one_to_three_factors_of_an_elite_and_keeps_the_rest():
+    params = {k: FloatDistribution(0.0, 1.0) for k in "abcdefgh"}
+    search = search_conf()
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, emitter="sparse")
+    parents = [[0.1] * 8, [0.9] * 8]
+    elites = numbered([trial(0, 0.8, cell("adult"), x=parents[0]), trial(1, 0.8, cell("car"), x=parents[1])])
+    asked = np.array([sampler.ask_point(elites, n) for n in range(2, 402)])
+    parent = [int(np.sum(p == 0.9) > np.sum(p == 0.1)) for p in asked]  # the one it keeps most factors of
+    moved = [int(np.sum(p != parents[k])) for p, k in zip(asked, parent)]
+    assert set(moved) == {1, 2, 3}  # never 0 (a copy) nor more than 3: every other factor is its parent's
+    assert 0.4 < np.mean(parent) < 0.6  # either elite, uniformly
+    changed = asked[(asked != 0.1) & (asked != 0.9)]  # the redrawn factors: anywhere in the space
+    assert stats.kstest(changed, "uniform").pvalue > 0.01
+    again = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, emitter="sparse")
+    assert np.array_equal(again.ask_point(elites, 7), asked[5])  # seeded by the trial's number
+
+
 def test_an_elite_at_an_end_of_the_space_sends_its_offspring_elsewhere_too():
     """Offspring past an end wrap round a choice's values and reflect off a number's ends: an elite at the last
     case and the first light (x = 1, 0) keeps about a fifth of its offspring in its own case and light, where

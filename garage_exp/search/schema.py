@@ -110,7 +110,9 @@ DESCRIPTOR_SETS = {"default": default_descriptors, "wide": wide_descriptors}
 class ArchiveConf:
     """The quality-diversity search (`search.sampler=archive`, garage_exp/search/archive.py)."""
 
-    emitter: str = "gaussian"  # gaussian (MAP-Elites) | iso_line (MAP-Elites with the Iso+LineDD operator)
+    # gaussian (MAP-Elites) | iso_line (MAP-Elites with the Iso+LineDD operator) | sparse (an elite with 1-3 of
+    # its factors redrawn, the rest kept)
+    emitter: str = "gaussian"
     sigma: float = 0.15  # the mutation's spread in the space normalised to [0, 1] per parameter
     failure: float = 0.6  # a cell holds a hard-and-fair failure when its elite's difficulty is at least this
     # (the gym's HARD and the loop's hard_below 0.4 on the confidence)
