@@ -205,6 +205,51 @@ def test_the_sparse_emitter_redraws_one_to_three_factors_of_an_elite_and_keeps_t
     assert np.array_equal(again.ask_point(elites, 7), asked[5])  # seeded by the trial's number
 
 
+def offspring(number: int, parent: int, difficulty: float | None, descriptors: dict | None = None, x=None):
+    """A finished trial mutated from trial `parent`: complete with `difficulty`, or pruned (None: infeasible)."""
+    if difficulty is None:
+        return create_trial(state=TrialState.PRUNED, params={"a": 0.5},
+                            distributions={"a": FloatDistribution(0.0, 1.0)},
+                            system_attrs={archive.PARENT_ATTR: parent})
+    made = trial(number, difficulty, descriptors, x=x)
+    made.system_attrs[archive.PARENT_ATTR] = parent
+    return made
+
+
+def test_curiosity_scores_a_parent_by_the_offspring_that_entered_the_archive():
+    search = search_conf()
+    grid = archive.Grid(search.descriptors)
+    trials = numbered([trial(0, 0.5, cell("car"), x=[0.1]), trial(1, 0.5, cell("adult"), x=[0.9]),
+                       offspring(2, 0, 0.7, cell("child")),  # a new cell: +1 to 0
+                       offspring(3, 0, 0.8, cell("car")),  # harder than car's elite: +1
+                       offspring(4, 1, 0.2, cell("car")),  # easier than car's elite: -0.5 to 1
+                       offspring(5, 1, None),  # infeasible: -0.5
+                       offspring(6, 2, 0.9, cell("child"))])  # an offspring's offspring: +1 to 2
+    assert archive.curiosity(trials, grid) == {0: 2.0, 1: -1.0, 2: 1.0}
+
+
+def test_curiosity_draws_the_productive_elite_more_often_and_records_each_offspring_s_parent():
+    params = {"a": FloatDistribution(0.0, 1.0)}
+    search = search_conf()
+    made = [trial(0, 0.5, cell("car"), x=[0.1]), trial(1, 0.5, cell("adult"), x=[0.9])]
+    made += [offspring(k, 0, 0.6 + k / 100, cell("child")) for k in range(2, 6)]  # 0's: each enters the archive
+    made += [offspring(k, 1, None) for k in range(6, 10)]  # 1's: infeasible
+    trials = numbered(made)
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, parents="curiosity",
+                                     sigma=0.01)
+    asked = [sampler.ask(trials, n) for n in range(10, 410)]
+    parents = [p for _, p in asked]
+    # the elites 0 (score 4: weight 5), 1 (-2: weight 0.1) and 5 (the child cell's, 0: weight 1): 5 / 6.1 for 0
+    assert 0.75 < parents.count(0) / 400 < 0.89 and parents.count(1) / 400 < 0.04 and 5 in parents
+    assert all(abs(x[0] - 0.1) < 0.05 for x, p in asked if p == 0)  # a Gaussian step (sigma 0.01) from its point
+    assert sampler.ask(trials, 17)[1] == parents[7]  # seeded by the trial's number
+    study = optuna.create_study(direction="maximize", sampler=archive.ArchiveSampler(
+        params, search.descriptors, seed=0, startup=0, parents="curiosity"))
+    study.add_trials(made[:2])
+    child = study.ask(fixed_distributions=params)
+    assert study._storage.get_trial(child._trial_id).system_attrs[archive.PARENT_ATTR] in (0, 1)
+
+
 def test_an_elite_at_an_end_of_the_space_sends_its_offspring_elsewhere_too():
     """Offspring past an end wrap round a choice's values and reflect off a number's ends: an elite at the last
     case and the first light (x = 1, 0) keeps about a fifth of its offspring in its own case and light, where

@@ -232,6 +232,7 @@ def test_a_replay_pool_of_people_joins_every_fine_tunings_replay_and_never_its_v
     assert pool.index(people) < pool.index("space=wide")  # given before the space: the command's own key wins
     assert arg(pool, "search.sampler") == "qmc" and arg(pool, "search.seed") == str(replay.seed("people")) != "0"
     assert arg(pool, "plan") == "generated" and arg(pool, "search.trials") == "5"
+    assert arg(pool, "plan.seed") == arg(searches["base"], "plan.seed") == f"int(interval({TRAIN[0]},{TRAIN[1]}))"
     for cmd in (c for c in ran if "garage_exp.train" in c):
         lists = arg(cmd, "replay").strip("[]").split(",")
         assert [Path(p).name for p in lists] == ["base_train.yaml", "replay_people.yaml"]

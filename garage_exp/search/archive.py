@@ -38,7 +38,13 @@ from garage_exp.report.archive_cells import Grid, draw_cells, elite_trials  # no
 
 log = logging.getLogger("garage_exp")
 X_ATTR = "archive:x"  # the normalised point the archive sampler asked (system attr of the trial)
+PARENT_ATTR = "archive:parent"  # the elite (trial number) an offspring was mutated from (system attr, curiosity)
 EMITTERS = ("gaussian", "iso_line", "sparse")
+PARENTS = ("uniform", "curiosity")
+# Curiosity (Cully & Demiris 2018, "Quality and diversity optimization: a unifying modular framework"): an elite
+# gains for each offspring that entered the archive and loses for each that did not; parents are drawn in
+# proportion to 1 + that score, never under CURIOUS_FLOOR.
+CURIOUS_GAIN, CURIOUS_LOSS, CURIOUS_FLOOR = 1.0, 0.5, 0.1
 SPARSE_MOST = 3  # the sparse emitter redraws 1 to this many of an elite's factors, keeping every other
 
 
@@ -159,9 +165,9 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
     """Optuna's sampler interface around ribs' MAP-Elites emitters (see the module's doc)."""
 
     def __init__(self, params: dict, descriptors, seed: int, startup: int, emitter: str = "gaussian",
-                 sigma: float = 0.15):
+                 sigma: float = 0.15, parents: str = "uniform"):
         self.params, self.grid, self.seed = dict(params), Grid(descriptors), int(seed)
-        self.startup, self.emitter, self.sigma = int(startup), emitter, float(sigma)
+        self.startup, self.emitter, self.sigma, self.parents = int(startup), emitter, float(sigma), parents
         self._random = optuna.samplers.RandomSampler(seed=seed)
 
     def infer_relative_search_space(self, study, trial) -> dict:
@@ -170,47 +176,93 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
     def ask_point(self, trials: list[FrozenTrial], number: int) -> np.ndarray:
         """The normalised point of trial `number`, from the archive of `trials`: uniform for the first
         `startup` trials and while the archive is empty, else the emitter's (seeded by the trial's number)."""
+        return self.ask(trials, number)[0]
+
+    def ask(self, trials: list[FrozenTrial], number: int) -> tuple[np.ndarray, int | None]:
+        """ask_point's point and the elite it was mutated from (None: uniform, or chosen by ribs). `trials`: the
+        study's finished trials (the archive is built from the complete ones; curiosity scores them all)."""
         from ribs.emitters import GaussianEmitter, IsoLineEmitter
 
         seeds = np.random.SeedSequence([self.seed, number]).generate_state(3)
         d = len(self.params)
-        archive = ribs_archive(trials, self.grid, self.params, int(seeds[0]))
+        complete = [t for t in trials if t.state == TrialState.COMPLETE]
+        if self.parents == "curiosity":
+            elites = elite_trials(complete, self.grid)
+            if number < self.startup or not elites:
+                return np.random.default_rng(int(seeds[1])).uniform(size=d), None
+            return self.curious(trials, list(elites.values()), np.random.default_rng(int(seeds[2])))
+        archive = ribs_archive(complete, self.grid, self.params, int(seeds[0]))
         if number < self.startup or archive.empty:
-            return np.random.default_rng(int(seeds[1])).uniform(size=d)
+            return np.random.default_rng(int(seeds[1])).uniform(size=d), None
         # Unbounded, then folded into the cube (fold): ribs' bounds clip, which piles every step past an end onto
         # the end, so an elite at an end of the space (the last case, the first light) kept most of its offspring
         # in its own cell (the first loop run's Q arm: 6 trials of one cell).
         if self.emitter == "sparse":
-            return self.sparse(archive, np.random.default_rng(int(seeds[2])))
+            rng = np.random.default_rng(int(seeds[2]))
+            return self.sparse(np.array(archive.data("solution")[rng.integers(len(archive))], float), rng), None
         if self.emitter == "iso_line":
             emitter = IsoLineEmitter(archive, iso_sigma=self.sigma, line_sigma=0.2, x0=np.full(d, 0.5),
                                      bounds=None, batch_size=1, seed=int(seeds[2]))
         else:
             emitter = GaussianEmitter(archive, sigma=self.sigma, x0=np.full(d, 0.5), bounds=None, batch_size=1,
                                       seed=int(seeds[2]))
-        return fold(emitter.ask()[0], self.params)
+        return fold(emitter.ask()[0], self.params), None
 
     @staticmethod
-    def sparse(archive, rng: np.random.Generator) -> np.ndarray:
-        """An elite drawn uniformly with 1 to SPARSE_MOST of its factors redrawn uniformly, the rest kept. On the
-        wide space (34 factors) a Gaussian step moves every factor at once, and its offspring found a new failure
-        cell no more often than a random draw (docs/search.md, "Measured at 1,500 scenarios a search"): a failure
-        with one or two factors changed stays a failure more often, in a cell its parent's neighbours may not hold."""
-        x = np.array(archive.data("solution")[rng.integers(len(archive))], float)
+    def sparse(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The elite `x` with 1 to SPARSE_MOST of its factors redrawn uniformly, the rest kept. On the wide space
+        (34 factors) a Gaussian step moves every factor at once, and its offspring found a new failure cell no more
+        often than a random draw (docs/search.md, "Measured at 1,500 scenarios a search"): a failure with one or
+        two factors changed stays a failure more often, in a cell its parent's neighbours may not hold."""
+        x = np.array(x, float)
         moved = rng.choice(len(x), size=min(len(x), int(rng.integers(1, SPARSE_MOST + 1))), replace=False)
         x[moved] = rng.uniform(size=len(moved))
         return x
 
+    def curious(self, trials: list[FrozenTrial], elites: list[FrozenTrial], rng) -> tuple[np.ndarray, int]:
+        """An elite drawn by its curiosity score (curiosity()), mutated by the emitter (gaussian or sparse)."""
+        score = curiosity(trials, self.grid)
+        weights = np.array([max(CURIOUS_FLOOR, 1.0 + score.get(e.number, 0.0)) for e in elites])
+        parent = elites[int(rng.choice(len(elites), p=weights / weights.sum()))]
+        x = parent.system_attrs.get(X_ATTR)
+        x = np.asarray(x, float) if x is not None else encode(parent.params, self.params)
+        if self.emitter == "sparse":
+            return self.sparse(x, rng), parent.number
+        return fold(x + rng.normal(0.0, self.sigma, size=len(x)), self.params), parent.number
+
     def sample_relative(self, study, trial, search_space) -> dict:
         if not search_space:
             return {}
-        trials = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-        x = self.ask_point(trials, trial.number)
+        finished = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL) if self.parents == "curiosity" else \
+            (TrialState.COMPLETE,)
+        x, parent = self.ask(study.get_trials(deepcopy=False, states=finished), trial.number)
         study._storage.set_trial_system_attr(trial._trial_id, X_ATTR, [float(v) for v in x])
+        if parent is not None:
+            study._storage.set_trial_system_attr(trial._trial_id, PARENT_ATTR, int(parent))
         return decode(x, self.params)
 
     def sample_independent(self, study, trial, param_name, param_distribution):
         return self._random.sample_independent(study, trial, param_name, param_distribution)
+
+
+def curiosity(trials: list[FrozenTrial], grid: Grid) -> dict[int, float]:
+    """Each parent's curiosity score, replayed from the study in trial order: CURIOUS_GAIN for each offspring that
+    entered the archive (a cell of its own, or harder than the cell's elite), -CURIOUS_LOSS for each that did not
+    (easier, without a cell, infeasible or rejected by the space's requirements). Stateless, as the archive is:
+    a resume or another worker computes the same scores from the same storage."""
+    best: dict[tuple[int, ...], float] = {}
+    score: dict[int, float] = {}
+    for trial in sorted(trials, key=lambda t: t.number):
+        cell = None
+        if trial.state == TrialState.COMPLETE and trial.values:
+            cell = grid.index(trial.user_attrs.get("descriptors") or {})
+        added = cell is not None and (cell not in best or trial.values[0] > best[cell])
+        if added:
+            best[cell] = trial.values[0]
+        parent = trial.system_attrs.get(PARENT_ATTR)
+        if parent is not None:
+            score[int(parent)] = score.get(int(parent), 0.0) + (CURIOUS_GAIN if added else -CURIOUS_LOSS)
+    return score
 
 
 # --- what a study leaves: archive.csv, the heatmap, coverage and QD score (report/archive_cells.py) -------------

@@ -113,6 +113,9 @@ class ArchiveConf:
     # gaussian (MAP-Elites) | iso_line (MAP-Elites with the Iso+LineDD operator) | sparse (an elite with 1-3 of
     # its factors redrawn, the rest kept)
     emitter: str = "gaussian"
+    # which elite is mutated: uniform (MAP-Elites) | curiosity (in proportion to how often its offspring entered the
+    # archive: Cully & Demiris 2018); curiosity takes the gaussian or the sparse emitter
+    parents: str = "uniform"
     sigma: float = 0.15  # the mutation's spread in the space normalised to [0, 1] per parameter
     failure: float = 0.6  # a cell holds a hard-and-fair failure when its elite's difficulty is at least this
     # (the gym's HARD and the loop's hard_below 0.4 on the confidence)

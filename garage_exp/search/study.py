@@ -116,7 +116,7 @@ def check_search(search) -> None:
 
 def _check_archive(search, goal) -> None:
     """The descriptors (garage_exp/search/archive.py) and the archive sampler's settings."""
-    from garage_exp.search.archive import EMITTERS, check_descriptors
+    from garage_exp.search.archive import EMITTERS, PARENTS, check_descriptors
 
     check_descriptors(search.descriptors)
     if search.sampler == "archive":
@@ -128,6 +128,12 @@ def _check_archive(search, goal) -> None:
     if search.archive.emitter not in EMITTERS:
         raise GarageError(f"unknown emitter {search.archive.emitter!r} ({' | '.join(EMITTERS)})",
                           "search.archive.emitter")
+    parents = str(search.archive.get("parents", "uniform"))
+    if parents not in PARENTS:
+        raise GarageError(f"unknown choice of parents {parents!r} ({' | '.join(PARENTS)})", "search.archive.parents")
+    if parents == "curiosity" and search.archive.emitter == "iso_line":
+        raise GarageError("curiosity chooses the parent the emitter mutates: the gaussian or the sparse emitter, not "
+                          "iso_line (ribs picks its own)", "search.archive.parents")
     if not float(search.archive.sigma) > 0:
         raise GarageError(f"{search.archive.sigma}: the mutation's spread must be positive", "search.archive.sigma")
     if not 0.0 <= float(search.archive.failure) <= 1.0:
@@ -229,7 +235,8 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
         from garage_exp.search.archive import ArchiveSampler
 
         return ArchiveSampler(params or {}, search.descriptors, seed, int(search.startup),
-                              str(search.archive.emitter), float(search.archive.sigma))
+                              str(search.archive.emitter), float(search.archive.sigma),
+                              str(search.archive.get("parents", "uniform")))
     if name == "qmc":
         return optuna.samplers.QMCSampler(qmc_type="sobol", scramble=True, seed=seed, warn_independent_sampling=False)
     return NumberedRandom(seed=seed)  # random; saltelli enqueues its design, random fills the rest
