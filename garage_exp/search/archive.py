@@ -187,10 +187,10 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         d = len(self.params)
         complete = [t for t in trials if t.state == TrialState.COMPLETE]
         if self.parents == "curiosity":
-            elites = elite_trials(complete, self.grid)
+            score, elites = replay_archive(trials, self.grid)  # one pass: the elites and their scores
             if number < self.startup or not elites:
                 return np.random.default_rng(int(seeds[1])).uniform(size=d), None
-            return self.curious(trials, list(elites.values()), np.random.default_rng(int(seeds[2])))
+            return self.curious(score, list(elites.values()), np.random.default_rng(int(seeds[2])))
         archive = ribs_archive(complete, self.grid, self.params, int(seeds[0]))
         if number < self.startup or archive.empty:
             return np.random.default_rng(int(seeds[1])).uniform(size=d), None
@@ -219,9 +219,8 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         x[moved] = rng.uniform(size=len(moved))
         return x
 
-    def curious(self, trials: list[FrozenTrial], elites: list[FrozenTrial], rng) -> tuple[np.ndarray, int]:
+    def curious(self, score: dict[int, float], elites: list[FrozenTrial], rng) -> tuple[np.ndarray, int]:
         """An elite drawn by its curiosity score (curiosity()), mutated by the emitter (gaussian or sparse)."""
-        score = curiosity(trials, self.grid)
         weights = np.array([max(CURIOUS_FLOOR, 1.0 + score.get(e.number, 0.0)) for e in elites])
         parent = elites[int(rng.choice(len(elites), p=weights / weights.sum()))]
         x = parent.system_attrs.get(X_ATTR)
@@ -250,19 +249,25 @@ def curiosity(trials: list[FrozenTrial], grid: Grid) -> dict[int, float]:
     entered the archive (a cell of its own, or harder than the cell's elite), -CURIOUS_LOSS for each that did not
     (easier, without a cell, infeasible or rejected by the space's requirements). Stateless, as the archive is:
     a resume or another worker computes the same scores from the same storage."""
-    best: dict[tuple[int, ...], float] = {}
+    return replay_archive(trials, grid)[0]
+
+
+def replay_archive(trials: list[FrozenTrial], grid: Grid) -> tuple[dict[int, float], dict]:
+    """The study replayed in trial order: each parent's curiosity score and each cell's elite (the same elites as
+    elite_trials: a trial replaces one only when strictly harder)."""
+    best: dict[tuple[int, ...], FrozenTrial] = {}
     score: dict[int, float] = {}
     for trial in sorted(trials, key=lambda t: t.number):
         cell = None
         if trial.state == TrialState.COMPLETE and trial.values:
             cell = grid.index(trial.user_attrs.get("descriptors") or {})
-        added = cell is not None and (cell not in best or trial.values[0] > best[cell])
+        added = cell is not None and (cell not in best or trial.values[0] > best[cell].values[0])
         if added:
-            best[cell] = trial.values[0]
+            best[cell] = trial
         parent = trial.system_attrs.get(PARENT_ATTR)
         if parent is not None:
             score[int(parent)] = score.get(int(parent), 0.0) + (CURIOUS_GAIN if added else -CURIOUS_LOSS)
-    return score
+    return score, best
 
 
 # --- what a study leaves: archive.csv, the heatmap, coverage and QD score (report/archive_cells.py) -------------
