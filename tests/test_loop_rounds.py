@@ -444,3 +444,69 @@ def test_the_held_out_cells_say_which_failure_kinds_training_removed(tmp_path):
     assert cells.resisted(table, "D0", 0) == ["car | 0-0.9", "adult | 0-0.9", "child | 0.9-1"]
     paths = cells.draw(table, grid, tmp_path, 2)
     assert [p.name for p in paths] == ["cells_D0.png", "cells_Q.png"] and all(p.stat().st_size > 0 for p in paths)
+
+
+def test_wise_mixes_weights_in_the_tuned_models_batchnorm_statistics():
+    """WiSE-FT (train/wise.py): alpha 0 computes what the base computes though the tuned model's BatchNorms hold
+    other statistics; alpha 1 is the tuned model; alpha 0.5 averages the convolutions; another architecture is
+    refused."""
+    import torch
+
+    from garage_exp.train.wise import mix_models
+
+    torch.manual_seed(0)
+
+    def net():
+        return torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4), torch.nn.ReLU(),
+                                   torch.nn.Conv2d(4, 2, 1))
+
+    base, tuned = net().eval(), net().eval()
+    with torch.no_grad():  # the tuned model's statistics and affine far from the base's identity BatchNorm
+        tuned[1].running_mean.uniform_(-1, 1), tuned[1].running_var.uniform_(0.5, 2)
+        tuned[1].weight.uniform_(0.5, 2), tuned[1].bias.uniform_(-1, 1)
+    x = torch.rand(2, 3, 8, 8)
+
+    def mixed(alpha):
+        return mix_models(copy.deepcopy(base), copy.deepcopy(tuned), alpha)
+
+    with torch.no_grad():
+        assert torch.allclose(mixed(0.0)(x), base(x), atol=1e-5)
+        assert not torch.allclose(tuned(x), base(x), atol=1e-2)
+        one = mixed(1.0)
+        assert all(torch.equal(a, b) for a, b in zip(one.state_dict().values(), tuned.state_dict().values()))
+        half = mixed(0.5)
+    assert torch.allclose(half[0].weight, (base[0].weight + tuned[0].weight) / 2)
+    assert torch.equal(half[1].running_var, tuned[1].running_var)
+    with pytest.raises(ValueError, match="differ in architecture"):
+        mix_models(torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3)), net(), 0.5)
+
+
+def test_wise_scores_a_variants_training_again_without_training(tmp_path, monkeypatch):
+    """`wise=0.5` on a finished loop: nothing searched or trained again; every round's detector is scored as its
+    mix with D0 (made once), D0 as it is, under the mix's own results dir; a share outside 0-1 is one line."""
+    from garage_exp.loop import app, report
+    from garage_exp.train import wise
+
+    ran = fake_steps(monkeypatch, tmp_path)
+    mixes, written = [], {}
+    monkeypatch.setattr(wise, "interpolate", lambda base, tuned, alpha, out: mixes.append((base, tuned, alpha))
+                        or out.write_text("mix") or out)
+    monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times, **kw:
+                        written.update(out=out, detectors=detectors))
+    args = [f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0]", "trials=6",
+            "frames=14", "train_frames=8", "base_trials=4", "heldout_trials=3", "photos=false"]
+    app.run_loop(small(args))
+    ran.clear()
+    app.run_loop(small([*args, "wise=0.5"]))
+    assert ran == [] and written["out"] == tmp_path / "loop" / "results_wise50"
+    d0 = str(Path(compose_cfg(*args, config="loop").base).absolute())
+    assert sorted(m[1].parts[-3] for m in mixes) == ["Q_r1_s0", "R_r1_s0", "T_r1_s0"]
+    assert all(str(m[0]) == d0 and m[2] == 0.5 for m in mixes)
+    weights = {n: Path(d["weights"]).name for n, d in written["detectors"].items()}
+    assert weights == {"D0": Path(d0).name, "R_r1_s0": "wise50.pt", "T_r1_s0": "wise50.pt", "Q_r1_s0": "wise50.pt"}
+    app.run_loop(small([*args, "wise=0.5"]))
+    assert len(mixes) == 3  # made once
+    r = run_in_process([f"dir={tmp_path}/other", "wise=1.5"], tmp_path, entry=app.cli)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "garage_exp.loop: wise: 1.5 (the fine-tuned weights' share: 0 D0, 1 as trained) is outside 0-1"]
+    assert not (tmp_path / "other").exists()

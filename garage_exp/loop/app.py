@@ -65,6 +65,7 @@ def check_loop(cfg: DictConfig) -> None:
         raise GarageError(f"{cfg.heldout_method!r}: sobol | halton", "heldout_method")
     if not 0 <= int(cfg.freeze) <= 1000:
         raise GarageError(f"{cfg.freeze} layers: 0 (none frozen) to 1000", "freeze")
+    check_range(cfg.wise, 0.0, 1.0, "wise", f"{cfg.wise} (the fine-tuned weights' share: 0 D0, 1 as trained)")
     if int(cfg.imgsz) % 32:
         raise GarageError(f"{cfg.imgsz} is not a multiple of 32", "imgsz")
     garages.check(cfg)  # the held-out garages share no plan, generator seed or layout family with training's
@@ -157,6 +158,17 @@ class Loop:
         if not self.reuse(name, cmd, (out / "result.json").is_file(), inputs):
             self._run(cmd)
         return json.loads((out / "result.json").read_text())
+
+    def wise(self, name: str, base: str, tuned: str) -> str:
+        """The fine-tuning `name`'s weights mixed with the base's (train/wise.py), made once: again only when
+        either input is newer than the mix."""
+        from garage_exp.train.wise import interpolate
+
+        out = self.dir / "train" / name / f"wise{round(100 * float(self.cfg.wise)):02d}.pt"
+        if not out.is_file() or out.stat().st_mtime < max(Path(p).stat().st_mtime for p in (base, tuned)):
+            self.ran = True
+            interpolate(Path(base), Path(tuned), float(self.cfg.wise), out)
+        return str(out)
 
     def verify(self, name: str, data: str, weights: list[str]) -> dict:
         out = self.dir / "verify" / name
@@ -259,6 +271,14 @@ def run_loop(cfg: DictConfig) -> dict:
                              "imgsz": trained[arm]["imgsz"]})
             budget.assert_equal_budget(trained)
             budget.assert_equal_frames(generated, int(b["frames"]), f"round {k}, seed {seed}{suffix}", str(loop.dir))
+    # 4b. WiSE-FT (`wise` < 1): each round's detector delivered as its weights mixed with D0's; the evaluation, its
+    # results and report take the mix's name (results_VARIANT_wise50), so they sit beside the variant's own.
+    if float(cfg.wise) < 1.0:
+        suffix = f"{suffix}_wise{round(100 * float(cfg.wise)):02d}"
+        for name, d in detectors.items():
+            if d["round"] >= 1:
+                d.update(weights=loop.step(f"wise {name}", lambda d=d, name=name: loop.wise(name, d0["weights"],
+                                                                                           d["weights"])))
     # 5. Evaluation: every detector on the failure-rate sample (and its easy third), D0 and the last round on the
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}

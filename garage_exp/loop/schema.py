@@ -136,6 +136,10 @@ class LoopConf:
     # The first N layers of every arm's fine-tuning kept frozen (ultralytics' `freeze`; yolo11n: 0-9 its backbone,
     # 23 its Detect head): what a fine-tuning may forget of D0's COCO training (docs/loop.md, "Not forgetting").
     freeze: int = 0
+    # The detectors the loop delivers (each round's, scored on every suite) as their weights interpolated toward
+    # D0's: this share the fine-tuned weights', the rest D0's (WiSE-FT, train/wise.py); 1: as trained. The rounds
+    # train and search as without it, so `variant=NAME wise=A` scores NAME's training again at once.
+    wise: float = 1.0
     warmup_bias_lr: float = 0.0  # the fine-tunings' bias warm-up start (ultralytics' 0.1 shakes a pretrained head)
     batch: int = 16
     rounds: int = 2

@@ -1,0 +1,66 @@
+"""Weight-space ensembling of a fine-tuned detector with its base (WiSE-FT: Wortsman et al., "Robust fine-tuning of
+zero-shot models", CVPR 2022): theta = alpha * theta_tuned + (1 - alpha) * theta_base, every weight interpolated.
+Fine-tuned from the base with a small learning rate, the two sit in one basin, and the mix keeps most of what the
+fine-tuning learned while giving back what it forgot of the base's world (the paper's "alpha = 0.5" mixes lose
+little in distribution and regain the base's robustness). The loop uses it for the detectors it delivers
+(`wise`, docs/loop.md "Not forgetting").
+
+BatchNorms need one step first. The base and the tuned model normalise by different running statistics (the loop's
+base has identity BatchNorms folded into its convolutions; each fine-tuning calibrates and then moves them), so
+their weight and bias do not mean the same thing and averaging them would mix two scales. The base's BatchNorm is
+first written in the tuned one's statistics without changing what it computes in eval mode (calibrate.py's rule:
+the per-channel affine a = w / sqrt(v + eps), c = b - a m stays, the statistics become the tuned ones), then weight
+and bias are interpolated and the tuned statistics kept. With alpha = 0 the result computes what the base does;
+with alpha = 1 it is the tuned model.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def mix_models(base, tuned, alpha: float):
+    """`tuned` (a torch module, float) with its weights interpolated toward `base`'s (the same architecture), in
+    place; returns it."""
+    import torch
+
+    if [n for n, _ in base.named_modules()] != [n for n, _ in tuned.named_modules()]:
+        raise ValueError("the base and the tuned model differ in architecture")
+    own = dict(base.named_modules())
+    stats = set()  # running statistics: the tuned model's, as they are
+    with torch.no_grad():
+        for name, bn in tuned.named_modules():
+            if not isinstance(bn, torch.nn.BatchNorm2d):
+                continue
+            ref = own[name]
+            a = ref.weight.double() / torch.sqrt(ref.running_var.double() + ref.eps)
+            c = ref.bias.double() - a * ref.running_mean.double()
+            ref.weight.copy_((a * torch.sqrt(bn.running_var.double() + bn.eps)).to(ref.weight.dtype))
+            ref.bias.copy_((c + a * bn.running_mean.double()).to(ref.bias.dtype))
+            stats.update(f"{name}.{key}" for key in ("running_mean", "running_var", "num_batches_tracked"))
+        theirs = base.state_dict()
+        for key, value in tuned.state_dict().items():
+            if key in stats or not value.is_floating_point():
+                continue
+            value.copy_(alpha * value + (1.0 - alpha) * theirs[key].to(value.dtype))
+    return tuned
+
+
+def interpolate(base: Path, tuned: Path, alpha: float, out: Path) -> Path:
+    """The ultralytics checkpoint `tuned` with its model's weights interpolated toward `base`'s, in float32, at
+    `out` (the checkpoint's other entries, its training arguments among them, as `tuned` has them)."""
+    import torch
+    from ultralytics.nn.tasks import torch_safe_load
+
+    from garage_exp.core.errors import check_range
+
+    check_range(alpha, 0.0, 1.0, "wise", f"{alpha} (the fine-tuned weights' share: 0 the base, 1 as trained)")
+    # Loaded as ultralytics loads every `.pt` the project runs (its own loader; calibrate.py says why).
+    ours, _ = torch_safe_load(str(tuned))
+    theirs, _ = torch_safe_load(str(base))
+    model = (ours.get("ema") or ours["model"]).float()
+    mix_models((theirs.get("ema") or theirs["model"]).float(), model, alpha)
+    ours.update(model=model, ema=None, wise={"alpha": alpha, "base": str(base), "tuned": str(tuned)})
+    out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(ours, str(out))
+    return out
