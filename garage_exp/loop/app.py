@@ -164,7 +164,7 @@ class Loop:
         either input is newer than the mix."""
         from garage_exp.train.wise import interpolate
 
-        out = self.dir / "train" / name / f"wise{round(100 * float(self.cfg.wise)):02d}.pt"
+        out = self.dir / "train" / name / f"{wise_suffix(self.cfg).lstrip('_')}.pt"
         if not out.is_file() or out.stat().st_mtime < max(Path(p).stat().st_mtime for p in (base, tuned)):
             self.ran = True
             interpolate(Path(base), Path(tuned), float(self.cfg.wise), out)
@@ -274,7 +274,7 @@ def run_loop(cfg: DictConfig) -> dict:
     # 4b. WiSE-FT (`wise` < 1): each round's detector delivered as its weights mixed with D0's; the evaluation, its
     # results and report take the mix's name (results_VARIANT_wise50), so they sit beside the variant's own.
     if float(cfg.wise) < 1.0:
-        suffix = f"{suffix}_wise{round(100 * float(cfg.wise)):02d}"
+        suffix += wise_suffix(cfg)
         for name, d in detectors.items():
             if d["round"] >= 1:
                 d.update(weights=loop.step(f"wise {name}", lambda d=d, name=name: loop.wise(name, d0["weights"],
@@ -304,6 +304,11 @@ def run_loop(cfg: DictConfig) -> dict:
                         curves=curves.read(loop.dir / "train", detectors))
 
 
+def wise_suffix(cfg) -> str:
+    """What names the steps and results of detectors mixed with D0 (`wise` < 1): '_wise50' for 0.5; '' for none."""
+    return f"_wise{round(100 * float(cfg.wise)):02d}" if float(cfg.wise) < 1.0 else ""
+
+
 def real_photos(loop: Loop, detectors: dict) -> list[dict]:
     """The detectors through one `python -m garage_exp.verify` per real-photo set (every detector one of its
     models, linked under its loop name, so each gets its own recall and mAP50): D0 and the last round's."""
@@ -331,7 +336,7 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
     rows = []
     # One verify per set and last round (and variant): `rounds=K+1` scores its own last round, not refused as a
     # step made from other inputs.
-    suffix = f"_r{loop.cfg.rounds}" + (f"_{loop.cfg.variant}" if loop.cfg.variant else "")
+    suffix = f"_r{loop.cfg.rounds}" + (f"_{loop.cfg.variant}" if loop.cfg.variant else "") + wise_suffix(loop.cfg)
     for label, data in sets:
         m = loop.verify(f"{label}{suffix}", data, [str(p) for p in linked.values()])["metrics"]
         for name, d in detectors.items():
