@@ -316,7 +316,7 @@ def test_the_cost_model_adds_up():
     assert cost.estimate(cfg)["generators"] == pytest.approx(20 + 12.5 * 1 + 2.5 * 2)
     assert parts["fine-tunings"] == pytest.approx(10 + 2 * 20 * 0.5 + 3 * 10 * 0.1)  # 10 val frames: half of 4 x 5
     assert parts["evaluation"] == pytest.approx(2 * (3 + 2 * 5 * 0.1) + 2 * 2 * 5 * 0.1)  # D0 and R's: both suites
-    assert parts["real photos"] == 10 + 2 * 4  # one command, D0 and R's detector
+    assert parts["real photos"] == 2 * (10 + 2 * 4)  # two sets (ultralytics' photos, the street set): D0 and R
     assert parts["total"] == pytest.approx(sum(v for k, v in parts.items() if k != "total"))
 
 
@@ -491,6 +491,7 @@ def test_wise_scores_a_variants_training_again_without_training(tmp_path, monkey
     mixes, written = [], {}
     monkeypatch.setattr(wise, "interpolate", lambda base, tuned, alpha, out: mixes.append((base, tuned, alpha))
                         or out.write_text("mix") or out)
+    monkeypatch.setattr(wise, "validate", lambda weights, data, imgsz: {"map50": 0.5, "recall": 0.4, "precision": 0.6})
     monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times, **kw:
                         written.update(out=out, detectors=detectors))
     args = [f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0]", "trials=6",
@@ -504,6 +505,8 @@ def test_wise_scores_a_variants_training_again_without_training(tmp_path, monkey
     assert all(str(m[0]) == d0 and m[2] == 0.5 for m in mixes)
     weights = {n: Path(d["weights"]).name for n, d in written["detectors"].items()}
     assert weights == {"D0": Path(d0).name, "R_r1_s0": "wise50.pt", "T_r1_s0": "wise50.pt", "Q_r1_s0": "wise50.pt"}
+    assert {n: d.get("mixed_validation") for n, d in written["detectors"].items()} == {
+        "D0": None, **{f"{a}_r1_s0": {"alpha": 0.5, "map50": 0.5, "recall": 0.4} for a in "RTQ"}}
     app.run_loop(small([*args, "wise=0.5"]))
     assert len(mixes) == 3  # made once
     r = run_in_process([f"dir={tmp_path}/other", "wise=1.5"], tmp_path, entry=app.cli)

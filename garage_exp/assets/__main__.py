@@ -1,8 +1,8 @@
 """`python -m garage_exp.assets where|ensure|fetch|convert|people`.
 
 where:   print the vehicles and models folders in use (or what is missing).
-ensure:  like where, but fetch whatever is missing and build the people library (used by `make data`; a no-op
-         when ../shared has both and the bodies are in the cache).
+ensure:  like where, but fetch whatever is missing, build the people library and fetch the loop's street photos
+         (used by `make data`; a no-op when ../shared has both and the bodies and photos are in the cache).
 fetch:   download the FlightGear vehicles and the official Ultralytics weights into the cache.
 convert: convert every vehicle to GLB now instead of on first use, and list the library.
 people:  build the prebuilt people (anny bodies) if missing, and list them.
@@ -44,7 +44,22 @@ def _ensure() -> int:
     found = _where()
     _excluded()
     _people(verbose=False)
+    _street_photos()
     return found
+
+
+def _street_photos() -> None:
+    """The loop's street photos (assets/photos.py), fetched once; without apt, one line says what is missing."""
+    from garage_exp.assets import photos
+
+    try:
+        photos.street_photos()
+    except GarageError:
+        try:
+            print("fetching the street photos (opencv-doc, node-opencv) ...", flush=True)
+            photos.fetch_street_photos()
+        except GarageError as exc:
+            print(f"street photos: missing ({exc})")
 
 
 def _excluded() -> None:

@@ -80,15 +80,17 @@ def models_dir() -> Path:
                       "`python -m garage_exp.assets fetch`", "models")
 
 
-def download_deb(workdir: Path) -> Path:
-    """`apt-get download` the FlightGear data package into workdir (needs apt lists, not root)."""
+def download_deb(workdir: Path, package: str = DEB_PACKAGE) -> Path:
+    """`apt-get download` a Debian package (the FlightGear data's by default) into workdir (needs apt lists, not
+    root)."""
     if shutil.which("apt-get") is None:
-        raise GarageError(f"apt-get is missing: get {DEB_PACKAGE} by hand and set {ASSETS_ENV}", "fetch")
-    proc = subprocess.run(["apt-get", "download", DEB_PACKAGE], cwd=workdir, capture_output=True, text=True)
-    debs = sorted(workdir.glob(f"{DEB_PACKAGE}_*.deb"))
+        raise GarageError(f"apt-get is missing: get {package} by hand"
+                          + (f" and set {ASSETS_ENV}" if package == DEB_PACKAGE else ""), "fetch")
+    proc = subprocess.run(["apt-get", "download", package], cwd=workdir, capture_output=True, text=True)
+    debs = sorted(workdir.glob(f"{package}_*.deb"))
     if proc.returncode != 0 or not debs:
         last = (proc.stderr.strip().splitlines() or ["no .deb written"])[-1]
-        raise GarageError(f"apt-get download {DEB_PACKAGE} failed ({last}); run `apt-get update` first", "fetch")
+        raise GarageError(f"apt-get download {package} failed ({last}); run `apt-get update` first", "fetch")
     return debs[0]
 
 

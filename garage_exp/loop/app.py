@@ -71,6 +71,10 @@ def check_loop(cfg: DictConfig) -> None:
     garages.check(cfg)  # the held-out garages share no plan, generator seed or layout family with training's
     if str(cfg.base).endswith(".pt") and not Path(str(cfg.base)).expanduser().is_file():
         raise GarageError("base .pt not found", str(cfg.base))
+    if cfg.photos:  # the street photos are fetched at set-up (`make data`): missing, say so before any step
+        from garage_exp.assets.photos import street_photos
+
+        street_photos()
 
 
 # Steps every variant shares: a change to them needs another dir, not a variant.
@@ -159,16 +163,20 @@ class Loop:
             self._run(cmd)
         return json.loads((out / "result.json").read_text())
 
-    def wise(self, name: str, base: str, tuned: str) -> str:
-        """The fine-tuning `name`'s weights mixed with the base's (train/wise.py), made once: again only when
-        either input is newer than the mix."""
-        from garage_exp.train.wise import interpolate
+    def wise(self, name: str, base: str, tuned: str) -> dict:
+        """The fine-tuning `name`'s weights mixed with the base's (train/wise.py) and the mix's validation on the
+        fine-tuning's own validation split (its curves describe the tuned weights, not the mix): made once, again
+        only when either input is newer than the mix."""
+        from garage_exp.train import wise
 
         out = self.dir / "train" / name / f"{wise_suffix(self.cfg).lstrip('_')}.pt"
-        if not out.is_file() or out.stat().st_mtime < max(Path(p).stat().st_mtime for p in (base, tuned)):
+        scored = out.with_suffix(".json")
+        if not scored.is_file() or scored.stat().st_mtime < max(Path(p).stat().st_mtime for p in (base, tuned)):
             self.ran = True
-            interpolate(Path(base), Path(tuned), float(self.cfg.wise), out)
-        return str(out)
+            wise.interpolate(Path(base), Path(tuned), float(self.cfg.wise), out)
+            metrics = wise.validate(out, self.dir / "train" / name / "data" / "data.yaml", int(self.cfg.imgsz))
+            scored.write_text(json.dumps({"weights": str(out), "alpha": float(self.cfg.wise), **metrics}))
+        return json.loads(scored.read_text())
 
     def verify(self, name: str, data: str, weights: list[str]) -> dict:
         out = self.dir / "verify" / name
@@ -277,8 +285,8 @@ def run_loop(cfg: DictConfig) -> dict:
         suffix += wise_suffix(cfg)
         for name, d in detectors.items():
             if d["round"] >= 1:
-                d.update(weights=loop.step(f"wise {name}", lambda d=d, name=name: loop.wise(name, d0["weights"],
-                                                                                           d["weights"])))
+                mixed = loop.step(f"wise {name}", lambda d=d, name=name: loop.wise(name, d0["weights"], d["weights"]))
+                d.update(weights=mixed["weights"], mixed_validation={k: mixed[k] for k in ("alpha", "map50", "recall")})
     # 5. Evaluation: every detector on the failure-rate sample (and its easy third), D0 and the last round on the
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
@@ -314,14 +322,15 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
     models, linked under its loop name, so each gets its own recall and mAP50): D0 and the last round's."""
     import os
 
-    from garage_exp.results.photos import write_photos
+    from garage_exp.results.photos import write_photos, write_street_photos
 
     sets = []
-    if loop.cfg.photos:
-        root = loop.dir / "photos"
-        if not (root / "coco.json").is_file():
-            write_photos(root)
-        sets.append(("photos", str(root / "coco.json")))
+    if loop.cfg.photos:  # the two photos ultralytics ships, and the street set fetched at set-up
+        for label, write in (("photos", write_photos), ("street", write_street_photos)):
+            root = loop.dir / label
+            if not (root / "coco.json").is_file():
+                write(root)
+            sets.append((label, str(root / "coco.json")))
     sets += [(f"real{k}", str(p)) for k, p in enumerate(loop.cfg.real_sets)]
     models = loop.dir / "verify" / "models"
     models.mkdir(parents=True, exist_ok=True)

@@ -58,7 +58,7 @@ def estimate(cfg) -> dict[str, float]:
            "fine-tunings": runs * training,
            "evaluation": detectors(cfg) * (c.load_s + held_frames * c.detect_s_per_frame)
            + last * protocol_jobs * job_frames * c.detect_s_per_frame,
-           "real photos": (int(bool(cfg.photos)) + len(cfg.real_sets)) * (c.command_s + last * c.verify_s)}
+           "real photos": (2 * int(bool(cfg.photos)) + len(cfg.real_sets)) * (c.command_s + last * c.verify_s)}
     pools = [int(p.trials) for p in (cfg.get("replay_pool") or {}).values() if int(p.trials) > 0]
     if pools:
         out["replay pools"] = sum(study(n) for n in pools)

@@ -267,6 +267,11 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     if len(curves):
         curves.to_csv(out / "validation.csv", index=False)
         curves_mod.draw(curves, out / "validation.png")
+    # Detectors mixed with D0 (the loop's `wise`): each one's validation, measured on its fine-tuning's split.
+    mixed = {n: d["mixed_validation"] for n, d in detectors.items() if d.get("mixed_validation")}
+    if mixed:
+        pd.DataFrame([{"detector": n, **v} for n, v in mixed.items()]).to_csv(out / "validation_mixed.csv",
+                                                                             index=False)
     (out / "report.md").write_text(markdown(by_scenario, sentence, checks, kept))
     draw(rounds, scores, photo_table, out / "loop.png")
     resisting, reach = {}, {}
@@ -287,7 +292,8 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
                "detectors": {n: d.get("weights") for n, d in detectors.items()}, "power": estimate,
                "times_s": times, "cells_resisting": resisting, "cells_reached": reach, "sample": sample or {},
                "verdict": sentence, "not_forgetting": kept,
-               "recall_checks_hold": bool(len(checks)) and bool(checks.holds.all()), "validation": flat}
+               "recall_checks_hold": bool(len(checks)) and bool(checks.holds.all()), "validation": flat,
+               "mixed_validation": mixed}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"garage_exp.loop: results in {out} (failure_rate.csv, comparisons.csv, scores.csv, photos.csv, "
           "rounds_bookkeeping.csv, power.json, report.md, loop.png"
@@ -315,6 +321,9 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
     if flat:
         print(f"garage_exp.loop: validation curves of {len(flat)} fine-tunings: "
               + (f"still rising at their last epoch: {', '.join(still)}" if still else "every one flattened"))
+    if mixed:
+        print("garage_exp.loop: validation mAP50 of the detectors mixed with D0 (wise): "
+              + ", ".join(f"{n} {v['map50']:.3f}" for n, v in mixed.items()))
     print(f"garage_exp.loop: {kept}")
     print(f"garage_exp.loop: {sentence}")
     return summary

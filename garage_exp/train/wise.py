@@ -64,3 +64,15 @@ def interpolate(base: Path, tuned: Path, alpha: float, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.save(ours, str(out))
     return out
+
+
+def validate(weights: Path, data: Path, imgsz: int) -> dict:
+    """The mix's mAP50, recall and precision on a fine-tuning's validation split (`data`: its data.yaml), as the
+    fine-tuning's own validation measured the tuned model (ultralytics' val, the same image size)."""
+    from ultralytics import YOLO
+
+    metrics = YOLO(str(weights)).val(data=str(data), imgsz=imgsz, batch=16, device="cpu", plots=False,
+                                     verbose=False, save_json=False, project=str(weights.parent / "val"),
+                                     name=weights.stem, exist_ok=True).results_dict
+    return {"map50": float(metrics["metrics/mAP50(B)"]), "recall": float(metrics["metrics/recall(B)"]),
+            "precision": float(metrics["metrics/precision(B)"])}
