@@ -63,6 +63,10 @@ def missing(capability: str) -> str | None:
                 from garage_exp.assets.locate import vehicles_dir
 
                 vehicles_dir()
+            elif capability == "street-photos":
+                from garage_exp.assets.photos import street_photos
+
+                street_photos()
             else:
                 from garage_exp.perception.detect.entries import resolve
 
@@ -94,6 +98,7 @@ def browser_problem() -> str | None:
 
 def require(*capabilities: str) -> None:
     """Skip, with the reason, when the machine lacks one of "vulkan", "vehicles", "models", "browser", "cluster",
+    "street-photos" (the loop's second real-photo set, fetched by `make data`),
     "esmini" (the OpenSCENARIO player in ../shared/tools), "asam-qc" (ASAM's checker bundles in .venv-qc); under CI=true or
     `make test` (STRICT_CI) fail instead, whatever the test's markers."""
     for capability in capabilities:

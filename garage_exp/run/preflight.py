@@ -187,10 +187,10 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
     all its jobs' estimates and checks them once). Last, the one check that needs the models (seconds): every
     detector entry loads and answers a probe frame - unless load is false (a sweep loads them after its disk
     check: load_models). Checks that need no model come first, so that their refusal costs no model loading. With
-    `hand` (a search's requirement check) the scene built, or its refusal, is handed on to the next preflight
-    (scene_of). `name(cfg, plan_name)`: the job's naming of its levels (run.job.name_levels), called once the
-    plan is read and before the config is converted, so that the spec and the logged config say the same names
-    and the config is converted once."""
+    `hand` (a search's requirement check, which builds no detector: its job's preflight does) the scene built, or
+    its refusal, is handed on to the next preflight (scene_of). `name(cfg, plan_name)`: the job's naming of its
+    levels (run.job.name_levels), called once the plan is read and before the config is converted, so that the
+    spec and the logged config say the same names and the config is converted once."""
     from garage_exp.core.schema_check import check_schema
 
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
@@ -204,7 +204,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
     from garage_exp.run.spec import job_spec
 
     detector = None
-    if not cfg.dry_run:
+    if not cfg.dry_run and not hand:  # a search's check judges the scene alone: its job's preflight builds this
         from garage_exp.perception.detect import build_detector
         from garage_exp.slots.detector import check_slot_weights
 

@@ -21,11 +21,13 @@ def build_scene(job: SceneSpec, classified: Classified, library, rng) -> tuple[S
     from garage_exp.scene.parking import park_vehicles
     from garage_exp.scene.structure import build_garage
 
+    # The case first: it reads the plan, never the built garage, and refuses actors that overlap (Infeasible) -
+    # a third of a wide search's draws, each then spared building the garage it would not use.
+    setup = make_case(job, classified, library, rng)
     scene = build_garage(classified, job.garage, job.light)
     if job.blank:
         studio_light(scene, classified, job)
     apply_modifiers(scene, classified, job.garage, job.modifiers)
-    setup = make_case(job, classified, library, rng)
     if setup.occluder:
         if job.occluder.kind == "none":
             remove_entity(scene, setup.occluder)
