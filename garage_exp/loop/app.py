@@ -285,7 +285,7 @@ def run_loop(cfg: DictConfig) -> dict:
         suffix += wise_suffix(cfg)
         for name, d in detectors.items():
             if d["round"] >= 1:
-                mixed = loop.step(f"wise {name}", lambda d=d, name=name: loop.wise(name, d0["weights"], d["weights"]))
+                mixed = loop.step(f"{wise_suffix(cfg).lstrip('_')} {name}", lambda d=d, name=name: loop.wise(name, d0["weights"], d["weights"]))
                 d.update(weights=mixed["weights"], mixed_validation={k: mixed[k] for k in ("alpha", "map50", "recall")})
     # 5. Evaluation: every detector on the failure-rate sample (and its easy third), D0 and the last round on the
     # protocol suite and the real photos.
