@@ -461,9 +461,10 @@ def test_wise_mixes_weights_in_the_tuned_models_batchnorm_statistics():
                                    torch.nn.Conv2d(4, 2, 1))
 
     base, tuned = net().eval(), net().eval()
-    with torch.no_grad():  # the tuned model's statistics and affine far from the base's identity BatchNorm
-        tuned[1].running_mean.uniform_(-1, 1), tuned[1].running_var.uniform_(0.5, 2)
-        tuned[1].weight.uniform_(0.5, 2), tuned[1].bias.uniform_(-1, 1)
+    with torch.no_grad():  # each model's statistics and affine its own (the base's not the identity either)
+        for bn in (base[1], tuned[1]):
+            bn.running_mean.uniform_(-1, 1), bn.running_var.uniform_(0.5, 2)
+            bn.weight.uniform_(0.5, 2), bn.bias.uniform_(-1, 1)
     x = torch.rand(2, 3, 8, 8)
 
     def mixed(alpha):
@@ -491,7 +492,8 @@ def test_wise_scores_a_variants_training_again_without_training(tmp_path, monkey
     mixes, written = [], {}
     monkeypatch.setattr(wise, "interpolate", lambda base, tuned, alpha, out: mixes.append((base, tuned, alpha))
                         or out.write_text("mix") or out)
-    monkeypatch.setattr(wise, "validate", lambda weights, data, imgsz: {"map50": 0.5, "recall": 0.4, "precision": 0.6})
+    monkeypatch.setattr(wise, "validate", lambda weights, data, imgsz: mixes.append(imgsz) or {
+        "map50": 0.5, "recall": 0.4, "precision": 0.6})
     monkeypatch.setattr(report, "write", lambda cfg, out, scores, photos, book, detectors, times, **kw:
                         written.update(out=out, detectors=detectors))
     args = [f"dir={tmp_path / 'loop'}", "tracking.uri=sqlite:///x.db", "rounds=1", "seeds=[0]", "trials=6",
@@ -501,15 +503,19 @@ def test_wise_scores_a_variants_training_again_without_training(tmp_path, monkey
     app.run_loop(small([*args, "wise=0.5"]))
     assert ran == [] and written["out"] == tmp_path / "loop" / "results_wise50"
     d0 = str(Path(compose_cfg(*args, config="loop").base).absolute())
+    assert mixes[1::2] == [320] * 3  # validated at the fine-tuning's image size
+    mixes = mixes[::2]
     assert sorted(m[1].parts[-3] for m in mixes) == ["Q_r1_s0", "R_r1_s0", "T_r1_s0"]
     assert all(str(m[0]) == d0 and m[2] == 0.5 for m in mixes)
     weights = {n: Path(d["weights"]).name for n, d in written["detectors"].items()}
     assert weights == {"D0": Path(d0).name, "R_r1_s0": "wise50.pt", "T_r1_s0": "wise50.pt", "Q_r1_s0": "wise50.pt"}
     assert {n: d.get("mixed_validation") for n, d in written["detectors"].items()} == {
         "D0": None, **{f"{a}_r1_s0": {"alpha": 0.5, "map50": 0.5, "recall": 0.4} for a in "RTQ"}}
+    made = len(mixes)
     app.run_loop(small([*args, "wise=0.5"]))
-    assert len(mixes) == 3  # made once
-    r = run_in_process([f"dir={tmp_path}/other", "wise=1.5"], tmp_path, entry=app.cli)
-    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
-        "garage_exp.loop: wise: 1.5 (the fine-tuned weights' share: 0 D0, 1 as trained) is outside 0-1"]
+    assert len(mixes) == made  # made once
+    for value, line in (("1.5", "wise: 1.5 (the fine-tuned weights' share: 0 D0, 1 as trained) is outside 0-1"),
+                        ("0.504", "wise: 0.504: a whole percentage (0.5, 0.25, ...)")):
+        r = run_in_process([f"dir={tmp_path}/other", f"wise={value}"], tmp_path, entry=app.cli)
+        assert r.returncode == 2 and r.stderr.strip().splitlines() == [f"garage_exp.loop: {line}"]
     assert not (tmp_path / "other").exists()

@@ -89,7 +89,7 @@ def test_every_label_lies_in_its_photo_and_the_coco_file_counts_them(tmp_path):
 @pytest.mark.detect
 def test_yolo11n_finds_most_of_the_street_set(tmp_path):
     """The labels line up with what a COCO detector sees: the INT8 yolo11n finds 29 of the 32 objects (measured
-    2026-12-06) at a high mAP50; the crowd regions count neither way."""
+    2026-12-06) at a high mAP50; the crowd regions are not required."""
     require("street-photos", "models")
     from garage_exp.verify.app import cli
 
@@ -101,3 +101,36 @@ def test_yolo11n_finds_most_of_the_street_set(tmp_path):
     m = json.loads((tmp_path / "run" / "result.json").read_text())["metrics"]
     assert m["targets"] == 32 and m["targets/person"] == 19 and m["targets/vehicle"] == 13
     assert m["recall"] >= 0.85 and m["map50"] >= 0.9
+
+
+def test_a_loop_without_the_street_photos_says_so_before_any_step_and_its_estimate_runs(tmp_path, monkeypatch):
+    from conftest import compose_cfg
+
+    from garage_exp.loop.app import check_loop
+
+    monkeypatch.setenv("GARAGE_EXP_CACHE", str(tmp_path / "empty"))
+    check_loop(compose_cfg("estimate=true", config="loop"))  # the estimate needs no photo
+    check_loop(compose_cfg("photos=false", config="loop"))
+    with pytest.raises(GarageError, match="street photos missing .*`python -m garage_exp.assets ensure`"):
+        check_loop(compose_cfg(config="loop"))
+
+
+def test_an_empty_apt_list_is_updated_once_as_root(tmp_path, monkeypatch):
+    """`apt-get download` fails on a fresh machine's empty lists: as root, one `apt-get update`, then again."""
+    tries, ran = [], []
+
+    def download(workdir, package):
+        tries.append(package)
+        if len(tries) == 1:
+            raise GarageError("apt-get download opencv-doc failed (E: Unable to locate package)", "fetch")
+        return workdir / f"{package}_1_all.deb"
+
+    monkeypatch.setattr("garage_exp.assets.locate.download_deb", download)
+    monkeypatch.setattr(photos.subprocess, "run", lambda cmd, **kw: ran.append(cmd))
+    monkeypatch.setattr("os.geteuid", lambda: 0)
+    assert photos.downloaded(tmp_path, "opencv-doc") == tmp_path / "opencv-doc_1_all.deb"
+    assert tries == ["opencv-doc", "opencv-doc"] and ran == [["apt-get", "update", "-qq"]]
+    monkeypatch.setattr("os.geteuid", lambda: 1000)
+    tries.clear()
+    with pytest.raises(GarageError, match="Unable to locate package"):
+        photos.downloaded(tmp_path, "opencv-doc")

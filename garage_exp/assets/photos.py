@@ -55,19 +55,33 @@ def street_photos() -> Path:
 
 def fetch_street_photos() -> Path:
     """Download the two packages, keep only the photos (and the video's frames) and the copyrights; the folder."""
-    from garage_exp.assets.locate import download_deb
-
     folder = street_dir()
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder.parent) as tmp:
         for package, files in PACKAGES.items():
-            extract(download_deb(Path(tmp), package), files, Path(tmp))
+            extract(downloaded(Path(tmp), package), files, Path(tmp))
             for name in files.values():
                 if name in FRAMES:
                     video_frames(Path(tmp) / name, FRAMES[name], Path(tmp))
         for name in [*PHOTOS, *(n for f in PACKAGES.values() for n in f.values() if n.startswith("COPYRIGHT"))]:
             shutil.move(str(Path(tmp) / name), folder / name)
     return street_photos()
+
+
+def downloaded(workdir: Path, package: str) -> Path:
+    """The package's .deb in workdir; on a machine whose apt lists are empty (a fresh one), as root, after
+    `apt-get update` (the set-up's other apt steps may all have been skipped as done)."""
+    import os
+
+    from garage_exp.assets.locate import download_deb
+
+    try:
+        return download_deb(workdir, package)
+    except GarageError:
+        if os.geteuid() != 0 or shutil.which("apt-get") is None:
+            raise
+        subprocess.run(["apt-get", "update", "-qq"], capture_output=True, timeout=600)
+        return download_deb(workdir, package)
 
 
 def extract(deb: Path, files: dict[str, str], dest: Path) -> None:
@@ -87,7 +101,10 @@ def extract(deb: Path, files: dict[str, str], dest: Path) -> None:
         raise GarageError(f"cannot read the package: {exc}", str(deb)) from None
     finally:
         proc.stdout.close()
+        stderr = proc.stderr.read().decode(errors="replace")  # a few lines at most: read once the tar is done
         proc.wait()
+    if proc.returncode != 0:
+        raise GarageError(f"dpkg-deb failed: {(stderr.strip().splitlines() or ['?'])[-1]}", str(deb))
     missing = sorted(set(files) - found)
     if missing:
         raise GarageError(f"the package has no {missing[0]} (another version?)", str(deb))

@@ -66,12 +66,14 @@ def check_loop(cfg: DictConfig) -> None:
     if not 0 <= int(cfg.freeze) <= 1000:
         raise GarageError(f"{cfg.freeze} layers: 0 (none frozen) to 1000", "freeze")
     check_range(cfg.wise, 0.0, 1.0, "wise", f"{cfg.wise} (the fine-tuned weights' share: 0 D0, 1 as trained)")
+    if abs(100 * float(cfg.wise) - round(100 * float(cfg.wise))) > 1e-9:  # it names the mix's files and results
+        raise GarageError(f"{cfg.wise}: a whole percentage (0.5, 0.25, ...)", "wise")
     if int(cfg.imgsz) % 32:
         raise GarageError(f"{cfg.imgsz} is not a multiple of 32", "imgsz")
     garages.check(cfg)  # the held-out garages share no plan, generator seed or layout family with training's
     if str(cfg.base).endswith(".pt") and not Path(str(cfg.base)).expanduser().is_file():
         raise GarageError("base .pt not found", str(cfg.base))
-    if cfg.photos:  # the street photos are fetched at set-up (`make data`): missing, say so before any step
+    if cfg.photos and not cfg.estimate:  # fetched at set-up (`make data`): missing, said before any step
         from garage_exp.assets.photos import street_photos
 
         street_photos()
@@ -163,7 +165,7 @@ class Loop:
             self._run(cmd)
         return json.loads((out / "result.json").read_text())
 
-    def wise(self, name: str, base: str, tuned: str) -> dict:
+    def wise(self, name: str, base: str, tuned: str, imgsz: int) -> dict:
         """The fine-tuning `name`'s weights mixed with the base's (train/wise.py) and the mix's validation on the
         fine-tuning's own validation split (its curves describe the tuned weights, not the mix): made once, again
         only when either input is newer than the mix."""
@@ -174,7 +176,7 @@ class Loop:
         if not scored.is_file() or scored.stat().st_mtime < max(Path(p).stat().st_mtime for p in (base, tuned)):
             self.ran = True
             wise.interpolate(Path(base), Path(tuned), float(self.cfg.wise), out)
-            metrics = wise.validate(out, self.dir / "train" / name / "data" / "data.yaml", int(self.cfg.imgsz))
+            metrics = wise.validate(out, self.dir / "train" / name / "data" / "data.yaml", imgsz)
             scored.write_text(json.dumps({"weights": str(out), "alpha": float(self.cfg.wise), **metrics}))
         return json.loads(scored.read_text())
 
@@ -285,14 +287,17 @@ def run_loop(cfg: DictConfig) -> dict:
         suffix += wise_suffix(cfg)
         for name, d in detectors.items():
             if d["round"] >= 1:
-                mixed = loop.step(f"{wise_suffix(cfg).lstrip('_')} {name}", lambda d=d, name=name: loop.wise(name, d0["weights"], d["weights"]))
+                mixed = loop.step(f"{wise_suffix(cfg).lstrip('_')} {name}", lambda d=d, name=name: loop.wise(
+                    name, d0["weights"], d["weights"], int(d.get("imgsz", cfg.imgsz))))
                 d.update(weights=mixed["weights"], mixed_validation={k: mixed[k] for k in ("alpha", "map50", "recall")})
     # 5. Evaluation: every detector on the failure-rate sample (and its easy third), D0 and the last round on the
     # protocol suite and the real photos.
     last = {n: d for n, d in detectors.items() if d["round"] in (0, int(cfg.rounds))}
     easy = loop.step("easy suite", lambda: evaluate.easy_suite(loop.dir / "eval", held, d0, cfg))
     parts = heldout.parts(held, list(cfg.garages.heldout_families))  # new seeds / new family, on generated garages
-    scores = loop.step(f"evaluation{suffix}", lambda: evaluate.score_all(loop.dir / "eval", cfg, detectors, held, easy,
+    # The mixes' scores apart from the tuned weights' (kept per detector name): switching `wise` re-scores neither.
+    scores = loop.step(f"evaluation{suffix}", lambda: evaluate.score_all(loop.dir / f"eval{wise_suffix(cfg)}", cfg,
+                                                                         detectors, held, easy,
                                                                protocol, last, parts), always=True)
     photos = loop.step(f"real photos{suffix}", lambda: real_photos(loop, last), always=True)
     loop.times["total"] = sum(v for k, v in loop.times.items() if k != "total")

@@ -71,7 +71,7 @@ def validate(weights: Path, data: Path, imgsz: int) -> dict:
     fine-tuning's own validation measured the tuned model (ultralytics' val, the same image size)."""
     from ultralytics import YOLO
 
-    metrics = YOLO(str(weights)).val(data=str(data), imgsz=imgsz, batch=16, device="cpu", plots=False,
+    metrics = YOLO(str(weights)).val(data=str(data), imgsz=imgsz, batch=16, plots=False,
                                      verbose=False, save_json=False, project=str(weights.parent / "val"),
                                      name=weights.stem, exist_ok=True).results_dict
     return {"map50": float(metrics["metrics/mAP50(B)"]), "recall": float(metrics["metrics/recall(B)"]),
