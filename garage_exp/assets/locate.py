@@ -95,40 +95,43 @@ def download_deb(workdir: Path, package: str = DEB_PACKAGE) -> Path:
 
 
 def extract_transport(deb: Path, dest: Path) -> int:
-    """Copy the package's Transport models (.ac and .png only) and its copyright into dest; the file count.
-
-    Streams the data tarball out of `dpkg-deb --fsys-tarfile` so the rest of the (large) package never
-    touches the disk.
-    """
+    """Copy the package's Transport models (.ac and .png only) and its copyright into dest; the file count."""
     dest.mkdir(parents=True, exist_ok=True)
-    count = 0
+
+    def target(name: str) -> Path | None:
+        if name.startswith(TRANSPORT_DIR) and "/" not in name[len(TRANSPORT_DIR):] \
+                and name.lower().endswith((".ac", ".png")):
+            return dest / Path(name).name
+        return dest / "COPYRIGHT.debian" if name == COPYRIGHT_FILE else None
+
+    return sum(p.suffix.lower() in (".ac", ".png") for p in unpack(deb, target))
+
+
+def unpack(deb: Path, target) -> list[Path]:
+    """Each regular file of the package that `target(path in the package)` names a destination for (None: left
+    out), copied there; the destinations written. Streams the data tarball out of `dpkg-deb --fsys-tarfile`, so
+    the rest of a large package never touches the disk."""
+    written = []
     proc = subprocess.Popen(["dpkg-deb", "--fsys-tarfile", str(deb)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
     try:
         with tarfile.open(fileobj=proc.stdout, mode="r|*") as tar:
             for member in tar:
-                name = member.name.removeprefix("./")
-                if not member.isfile():
+                path = target(member.name.removeprefix("./")) if member.isfile() else None
+                if path is None:
                     continue
-                if name.startswith(TRANSPORT_DIR) and "/" not in name[len(TRANSPORT_DIR):] \
-                        and name.lower().endswith((".ac", ".png")):
-                    target = dest / Path(name).name
-                elif name == COPYRIGHT_FILE:
-                    target = dest / "COPYRIGHT.debian"
-                else:
-                    continue
-                source = tar.extractfile(member)
-                with open(target, "wb") as out:
-                    shutil.copyfileobj(source, out)
-                count += target.suffix.lower() in (".ac", ".png")
+                with open(path, "wb") as out:
+                    shutil.copyfileobj(tar.extractfile(member), out)
+                written.append(path)
     except tarfile.TarError as exc:
         raise GarageError(f"cannot read the package: {exc}", str(deb)) from None
     finally:
-        stderr = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+        proc.stdout.close()
+        stderr = proc.stderr.read().decode(errors="replace")  # a few lines at most: read once the tar is done
         proc.wait()
     if proc.returncode != 0:
         raise GarageError(f"dpkg-deb failed: {(stderr.strip().splitlines() or ['?'])[-1]}", str(deb))
-    return count
+    return written
 
 
 def fetch_vehicles(force: bool = False) -> Path:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-import tarfile
 import tempfile
 from pathlib import Path
 
@@ -85,27 +84,12 @@ def downloaded(workdir: Path, package: str) -> Path:
 
 
 def extract(deb: Path, files: dict[str, str], dest: Path) -> None:
-    """The package's members named in `files` (path in the package -> file name) into dest, streamed out of
-    `dpkg-deb --fsys-tarfile` (opencv-doc is ~100 MB; only a few of its files touch the disk)."""
-    proc = subprocess.Popen(["dpkg-deb", "--fsys-tarfile", str(deb)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    found = set()
-    try:
-        with tarfile.open(fileobj=proc.stdout, mode="r|*") as tar:
-            for member in tar:
-                name = member.name.removeprefix("./")
-                if member.isfile() and name in files:
-                    with open(dest / files[name], "wb") as out:
-                        shutil.copyfileobj(tar.extractfile(member), out)
-                    found.add(name)
-    except tarfile.TarError as exc:
-        raise GarageError(f"cannot read the package: {exc}", str(deb)) from None
-    finally:
-        proc.stdout.close()
-        stderr = proc.stderr.read().decode(errors="replace")  # a few lines at most: read once the tar is done
-        proc.wait()
-    if proc.returncode != 0:
-        raise GarageError(f"dpkg-deb failed: {(stderr.strip().splitlines() or ['?'])[-1]}", str(deb))
-    missing = sorted(set(files) - found)
+    """The package's members named in `files` (path in the package -> file name) into dest (locate.unpack: only
+    these few files of opencv-doc's ~100 MB touch the disk)."""
+    from garage_exp.assets.locate import unpack
+
+    written = {p.name for p in unpack(deb, lambda name: dest / files[name] if name in files else None)}
+    missing = sorted(member for member, name in files.items() if name not in written)
     if missing:
         raise GarageError(f"the package has no {missing[0]} (another version?)", str(deb))
 

@@ -185,12 +185,12 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
 
         seeds = np.random.SeedSequence([self.seed, number]).generate_state(3)
         d = len(self.params)
-        complete = [t for t in trials if t.state == TrialState.COMPLETE]
         if self.parents == "curiosity":
             score, elites = replay_archive(trials, self.grid)  # one pass: the elites and their scores
             if number < self.startup or not elites:
                 return np.random.default_rng(int(seeds[1])).uniform(size=d), None
             return self.curious(score, list(elites.values()), np.random.default_rng(int(seeds[2])))
+        complete = [t for t in trials if t.state == TrialState.COMPLETE]
         archive = ribs_archive(complete, self.grid, self.params, int(seeds[0]))
         if number < self.startup or archive.empty:
             return np.random.default_rng(int(seeds[1])).uniform(size=d), None
