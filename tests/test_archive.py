@@ -205,6 +205,47 @@ def test_the_sparse_emitter_redraws_one_to_three_factors_of_an_elite_and_keeps_t
     assert np.array_equal(again.ask_point(elites, 7), asked[5])  # seeded by the trial's number
 
 
+def driven_study(n: int = 60) -> list:
+    """Trials whose cells follow their factors as a wide space's do: the distance bin from factor b, the luminance
+    bin from factor d (with a little of e), the kind and the visible bin from nothing (every trial a car, whole)."""
+    rng = np.random.default_rng(0)
+    made = []
+    for k in range(n):
+        x = rng.uniform(size=6)
+        made.append(trial(k, float(x[0]), cell("car", distance=4.0 + 16.0 * x[1], luminance=0.9 * x[3] + 0.1 * x[4]),
+                          x=list(x)))
+    return numbered(made)
+
+
+def test_the_directed_emitter_learns_each_descriptors_drivers_and_moves_an_elite_along_one():
+    params = {k: FloatDistribution(0.0, 1.0) for k in "abcdef"}
+    search = search_conf()
+    grid = archive.Grid(search.descriptors)
+    trials = driven_study()
+    # luminance: d (and e, its lesser driver, only when within half of d's share), distance: b; kind and visible,
+    # which every trial shares a bin of, have none
+    assert [sorted(map(int, a)) for a in archive.drivers(trials, grid, params)] == [[3], [1]]
+    assert archive.drivers(trials[:archive.DIRECTED_MIN - 1], grid, params) is None  # too few to learn from
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, emitter="directed")
+    elites = {tuple(t.system_attrs[archive.X_ATTR]) for t in archive.elite_trials(trials, grid).values()}
+    asked = np.array([sampler.ask_point(trials, n) for n in range(60, 460)])
+    moved = []
+    for x in asked:  # each offspring is an elite with exactly one axis' drivers redrawn
+        parent = min(elites, key=lambda e: int(np.sum(np.asarray(e) != x)))
+        moved.append(tuple(np.flatnonzero(np.asarray(parent) != x)))
+    assert set(moved) == {(1,), (3,)} and 0.4 < moved.count((1,)) / len(moved) < 0.6
+    assert stats.kstest(asked[[m == (1,) for m in moved], 1], "uniform").pvalue > 0.01  # redrawn anywhere
+    assert np.array_equal(sampler.ask_point(trials, 67), asked[7])  # seeded by the trial's number
+    # with curiosity choosing the parent, the same move; before the drivers are learnt, a Gaussian step
+    curious = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, emitter="directed",
+                                     parents="curiosity", sigma=0.01)
+    x, parent = curious.ask(trials, 70)
+    assert int(np.sum(x != np.asarray(trials[parent].system_attrs[archive.X_ATTR]))) == 1
+    x, parent = curious.ask(trials[:5], 70)
+    assert np.all(np.abs(x - np.asarray(trials[parent].system_attrs[archive.X_ATTR])) < 0.06)
+    assert int(np.sum(x != np.asarray(trials[parent].system_attrs[archive.X_ATTR]))) == 6
+
+
 def offspring(number: int, parent: int, difficulty: float | None, descriptors: dict | None = None, x=None):
     """A finished trial mutated from trial `parent`: complete with `difficulty`, or pruned (None: infeasible)."""
     if difficulty is None:

@@ -39,13 +39,17 @@ from garage_exp.report.archive_cells import Grid, draw_cells, elite_trials  # no
 log = logging.getLogger("garage_exp")
 X_ATTR = "archive:x"  # the normalised point the archive sampler asked (system attr of the trial)
 PARENT_ATTR = "archive:parent"  # the elite (trial number) an offspring was mutated from (system attr, curiosity)
-EMITTERS = ("gaussian", "iso_line", "sparse")
+EMITTERS = ("gaussian", "iso_line", "sparse", "directed")
 PARENTS = ("uniform", "curiosity")
 # Curiosity (Cully & Demiris 2018, "Quality and diversity optimization: a unifying modular framework"): an elite
 # gains for each offspring that entered the archive and loses for each that did not; parents are drawn in
 # proportion to 1 + that score, never under CURIOUS_FLOOR.
 CURIOUS_GAIN, CURIOUS_LOSS, CURIOUS_FLOOR = 1.0, 0.5, 0.1
 SPARSE_MOST = 3  # the sparse emitter redraws 1 to this many of an elite's factors, keeping every other
+# The directed emitter (ArchiveSampler.directed): a descriptor's drivers are the factors whose values its bins
+# explain best (eta squared), those within DRIVER_SHARE of the best, at most DRIVERS_MOST; learnt once the study
+# holds DIRECTED_MIN trials with a cell (before that, a Gaussian step).
+DRIVER_SHARE, DRIVERS_MOST, DIRECTED_MIN = 0.5, 3, 30
 
 
 # --- descriptors: measured from a trial's outputs (each registered in search/descriptors.py) --------------------
@@ -189,7 +193,8 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
             score, elites = replay_archive(trials, self.grid)  # one pass: the elites and their scores
             if number < self.startup or not elites:
                 return np.random.default_rng(int(seeds[1])).uniform(size=d), None
-            return self.curious(score, list(elites.values()), np.random.default_rng(int(seeds[2])))
+            driven = drivers(trials, self.grid, self.params) if self.emitter == "directed" else None
+            return self.curious(score, list(elites.values()), np.random.default_rng(int(seeds[2])), driven)
         complete = [t for t in trials if t.state == TrialState.COMPLETE]
         archive = ribs_archive(complete, self.grid, self.params, int(seeds[0]))
         if number < self.startup or archive.empty:
@@ -197,9 +202,12 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         # Unbounded, then folded into the cube (fold): ribs' bounds clip, which piles every step past an end onto
         # the end, so an elite at an end of the space (the last case, the first light) kept most of its offspring
         # in its own cell (the first loop run's Q arm: 6 trials of one cell).
-        if self.emitter == "sparse":
+        if self.emitter in ("sparse", "directed"):
             rng = np.random.default_rng(int(seeds[2]))
-            return self.sparse(np.array(archive.data("solution")[rng.integers(len(archive))], float), rng), None
+            x = np.array(archive.data("solution")[rng.integers(len(archive))], float)
+            if self.emitter == "sparse":
+                return self.sparse(x, rng), None
+            return self.directed(x, drivers(complete, self.grid, self.params), rng), None
         if self.emitter == "iso_line":
             emitter = IsoLineEmitter(archive, iso_sigma=self.sigma, line_sigma=0.2, x0=np.full(d, 0.5),
                                      bounds=None, batch_size=1, seed=int(seeds[2]))
@@ -219,14 +227,31 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         x[moved] = rng.uniform(size=len(moved))
         return x
 
-    def curious(self, score: dict[int, float], elites: list[FrozenTrial], rng) -> tuple[np.ndarray, int]:
-        """An elite drawn by its curiosity score (curiosity()), mutated by the emitter (gaussian or sparse)."""
+    def directed(self, x: np.ndarray, driven: list[np.ndarray] | None, rng: np.random.Generator) -> np.ndarray:
+        """The elite `x` moved along one descriptor: one axis drawn uniformly, its drivers (drivers()) redrawn
+        uniformly, every other factor kept. The sparse emitter's one to three factors drawn blind rarely touched
+        what a cell is made of (most of the wide space's 33 factors move no descriptor), so its offspring stayed in
+        their parent's cell; a driver's redraw moves the offspring to another bin of that axis while the rest of
+        what made the parent hard stays. Before the drivers can be learnt (None), a Gaussian step."""
+        if driven is None:
+            return fold(x + rng.normal(0.0, self.sigma, size=len(x)), self.params)
+        x = np.array(x, float)
+        moved = driven[int(rng.integers(len(driven)))]
+        x[moved] = rng.uniform(size=len(moved))
+        return x
+
+    def curious(self, score: dict[int, float], elites: list[FrozenTrial], rng,
+                driven: list[np.ndarray] | None = None) -> tuple[np.ndarray, int]:
+        """An elite drawn by its curiosity score (curiosity()), mutated by the emitter (gaussian, sparse or
+        directed; `driven`: the directed emitter's drivers)."""
         weights = np.array([max(CURIOUS_FLOOR, 1.0 + score.get(e.number, 0.0)) for e in elites])
         parent = elites[int(rng.choice(len(elites), p=weights / weights.sum()))]
         x = parent.system_attrs.get(X_ATTR)
         x = np.asarray(x, float) if x is not None else encode(parent.params, self.params)
         if self.emitter == "sparse":
             return self.sparse(x, rng), parent.number
+        if self.emitter == "directed":
+            return self.directed(x, driven, rng), parent.number
         return fold(x + rng.normal(0.0, self.sigma, size=len(x)), self.params), parent.number
 
     def sample_relative(self, study, trial, search_space) -> dict:
@@ -242,6 +267,40 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
 
     def sample_independent(self, study, trial, param_name, param_distribution):
         return self._random.sample_independent(study, trial, param_name, param_distribution)
+
+
+def drivers(trials: list[FrozenTrial], grid: Grid, params: dict) -> list[np.ndarray] | None:
+    """Each descriptor's drivers, learnt from the study's complete trials with a cell: the factors whose
+    normalised values its bins explain best, by the correlation ratio (eta squared: the share of a factor's
+    variance between the axis' bins), those within DRIVER_SHARE of the axis' best, at most DRIVERS_MOST. On the
+    wide space the learnt drivers are the ones a person would name (distance: the target's distance; light: the
+    lamps' intensity; camera height: the camera's z; what hides the target: the occluder's type, offset and the
+    target's distance). None until DIRECTED_MIN trials have a cell. Stateless, as the archive is."""
+    rows = []
+    for t in trials:
+        if t.state != TrialState.COMPLETE or not t.values:
+            continue
+        cell = grid.index(t.user_attrs.get("descriptors") or {})
+        if cell is not None:
+            x = t.system_attrs.get(X_ATTR)
+            rows.append((np.asarray(x, float) if x is not None else encode(t.params, params), cell))
+    if len(rows) < DIRECTED_MIN:
+        return None
+    x = np.array([r[0] for r in rows])
+    cells = np.array([r[1] for r in rows])
+    out = []
+    for axis in range(cells.shape[1]):
+        eta = np.zeros(x.shape[1])
+        total = x.var(axis=0)
+        for b in np.unique(cells[:, axis]):
+            inside = cells[:, axis] == b
+            eta += inside.mean() * (x[inside].mean(axis=0) - x.mean(axis=0)) ** 2
+        eta = np.divide(eta, total, out=np.zeros_like(eta), where=total > 0)
+        if eta.max() <= 0:
+            continue  # an axis every trial shares a bin of: nothing to move it by
+        ranked = np.argsort(-eta, kind="stable")[:DRIVERS_MOST]
+        out.append(ranked[eta[ranked] >= DRIVER_SHARE * eta[ranked[0]]])
+    return out or None
 
 
 def curiosity(trials: list[FrozenTrial], grid: Grid) -> dict[int, float]:

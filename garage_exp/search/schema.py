@@ -111,10 +111,11 @@ class ArchiveConf:
     """The quality-diversity search (`search.sampler=archive`, garage_exp/search/archive.py)."""
 
     # gaussian (MAP-Elites) | iso_line (MAP-Elites with the Iso+LineDD operator) | sparse (an elite with 1-3 of
-    # its factors redrawn, the rest kept)
+    # its factors redrawn, the rest kept) | directed (an elite moved along one descriptor: the factors that drive
+    # it, learnt from the study, redrawn, the rest kept)
     emitter: str = "gaussian"
     # which elite is mutated: uniform (MAP-Elites) | curiosity (in proportion to how often its offspring entered the
-    # archive: Cully & Demiris 2018); curiosity takes the gaussian or the sparse emitter
+    # archive: Cully & Demiris 2018); curiosity takes the gaussian, sparse or directed emitter
     parents: str = "uniform"
     sigma: float = 0.15  # the mutation's spread in the space normalised to [0, 1] per parameter
     failure: float = 0.6  # a cell holds a hard-and-fair failure when its elite's difficulty is at least this
