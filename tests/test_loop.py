@@ -27,6 +27,20 @@ def test_the_arms_budgets_are_equal(tmp_path):
             budget.assert_equal_budget({"R": h, "T": dict(h), "Q": {**h, key: h[key] + 1}})
 
 
+def test_an_arms_own_overrides_reach_its_generator_alone_and_leave_every_other_command_as_it_was(tmp_path):
+    """arms.ARM.overrides (its sampler's method, e.g. curiosity's parents) end that arm's search command; an arm
+    without them, and every shared step, keeps the command it had before they existed (so a done step is reused)."""
+    from garage_exp.loop import steps
+
+    cfg = compose_cfg(f"dir={tmp_path}", "arms.Q.overrides=['search.archive.parents=curiosity']", config="loop")
+    assert list(cfg.arms.Q.overrides) == ["search.archive.parents=curiosity"] and not cfg.arms.R.overrides
+    plain = steps.search_command(cfg, "gen_Q_r1_s0", [], 40, "archive", 1000)
+    own = steps.search_command(cfg, "gen_Q_r1_s0", [], 40, "archive", 1000, extra=list(cfg.arms.Q.overrides))
+    assert own == plain + ["search.archive.parents=curiosity"]
+    assert steps.search_command(cfg, "gen_R_r1_s0", [], 40, "random", 1000, extra=[]) == \
+        steps.search_command(cfg, "gen_R_r1_s0", [], 40, "random", 1000)
+
+
 def test_failures_per_100_trials_count_only_hard_fair_trials():
     from garage_exp.loop import budget
     from garage_exp.loop.steps import Trial

@@ -8,6 +8,7 @@ step made or begun from other inputs (its command, the files it reads) is refuse
 from __future__ import annotations
 
 import json
+import re
 import time
 from pathlib import Path
 
@@ -58,6 +59,10 @@ def check_loop(cfg: DictConfig) -> None:
                               f"arms.{arm}.sampler")
         if conf.keep not in ("failures", "all"):
             raise GarageError(f"{conf.keep!r}: failures | all", f"arms.{arm}.keep")
+        for k, line in enumerate(conf.get("overrides") or []):
+            if not re.fullmatch(r"search\.archive\.[a-z_]+=[^\s=]+", str(line)):
+                raise GarageError(f"{line!r}: an arm sets only its sampler's method (search.archive.KEY=VALUE); the "
+                                  f"space and the budgets are every arm's", f"arms.{arm}.overrides[{k}]")
     check_budgets(cfg)
     if not cfg.seeds or len(set(cfg.seeds)) != len(cfg.seeds):
         raise GarageError("give distinct training seeds", "seeds")
@@ -137,10 +142,12 @@ class Loop:
         steps.run(cmd, self.log)
 
     def study(self, name: str, garage: list[str], trials: int, sampler: str, seed: int, models=None, before=None,
-              startup=None, frames: int = 0):
+              startup=None, frames: int = 0, extra=()):
         """A search on the garages `garage` says (loop/garages.py; `before`: called once its inputs passed the
-        check and before it runs, e.g. to enqueue); `frames`: its budget of rendered frames, `trials` then its cap."""
-        cmd = steps.search_command(self.cfg, name, list(garage), trials, sampler, seed, models, startup, frames)
+        check and before it runs, e.g. to enqueue); `frames`: its budget of rendered frames, `trials` then its cap;
+        `extra`: an arm's own overrides of its sampler's method."""
+        cmd = steps.search_command(self.cfg, name, list(garage), trials, sampler, seed, models, startup, frames,
+                                   list(extra))
         done = steps.study_done(self.cfg, name, trials, frames)
         if not self.reuse(name, cmd, done, [Path(m) for m in models or ()]):
             if before is not None:
@@ -252,7 +259,7 @@ def run_loop(cfg: DictConfig) -> dict:
                 found = loop.step(f"{label}: search", lambda name=name, arm=arm, b=b, p=prev:
                                   loop.study(f"gen_{name}", plans, int(b["trials"]), cfg.arms[arm].sampler,
                                              1000 * k + seed, [p["weights"]], startup=int(cfg.startup),
-                                             frames=int(b["frames"])))
+                                             frames=int(b["frames"]), extra=cfg.arms[arm].get("overrides") or ()))
                 generated[arm] = found
                 # Short of its frame budget at its cap of trials: stop before its fine-tuning (exit 1, kept).
                 budget.check_spent(arm, found, int(b["frames"]), f"round {k}, seed {seed}{suffix}", str(loop.dir))

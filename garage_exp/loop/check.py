@@ -30,17 +30,19 @@ def check_steps(cfg: DictConfig) -> None:
     from garage_exp.loop import garages
 
     plans = garages.train(cfg)
-    # (step, study, garage overrides, trials, sampler, seed, models, startup, frames): as run_loop asks for them
-    studies = [("base data", "base", plans, int(cfg.base_trials), "qmc", 0, models, None, 0),
+    # (step, study, garage overrides, trials, sampler, seed, models, startup, frames, extra): as run_loop asks
+    studies = [("base data", "base", plans, int(cfg.base_trials), "qmc", 0, models, None, 0, ()),
                ("held-out sample", "heldout", garages.heldout(cfg), int(cfg.heldout_trials), "random", 0, models,
-                None, 0)]
+                None, 0, ())]
     from garage_exp.loop import replay
 
-    studies += [(p.step, p.study, p.overrides, p.trials, "qmc", p.seed, models, None, 0) for p in replay.pools(cfg, plans)]
+    studies += [(p.step, p.study, p.overrides, p.trials, "qmc", p.seed, models, None, 0, ())
+                for p in replay.pools(cfg, plans)]
     for arm in cfg.arms:  # round 1's generators: the later rounds differ only in their detector and search seed
         b = arm_budget(cfg, arm)
         studies.append((f"arm {arm}'s generator", f"gen_{arm}", plans, int(b["trials"]), cfg.arms[arm].sampler,
-                        1000 + int(cfg.seeds[0]), models, int(cfg.startup), int(b["frames"])))
+                        1000 + int(cfg.seeds[0]), models, int(cfg.startup), int(b["frames"]),
+                        tuple(cfg.arms[arm].get("overrides") or ())))
     searches = [(s[0], steps.search_command(cfg, *s[1:])[4:], (tuple(s[2]), tuple(s[6] or ())), s[3], s[8])
                 for s in studies]
     protocols = [(f"protocol {name}", steps.sweep_command(

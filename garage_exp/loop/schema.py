@@ -22,6 +22,10 @@ class ArmConf:
 
     sampler: str = "random"  # the search's sampler that finds the arm's scenarios (random | tpe | archive | ...)
     keep: str = "failures"  # failures: the hard-and-fair failures join the suite | all: every scenario (arm R)
+    # The generator's own settings of its sampler's method (`search.archive.*` only, e.g.
+    # search.archive.parents=curiosity): what it draws from (the space) and what it may spend (the budget keys)
+    # stay every arm's.
+    overrides: list[str] = field(default_factory=list)
     frames: Optional[int] = None
     trials: Optional[int] = None
     train_frames: Optional[int] = None

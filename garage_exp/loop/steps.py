@@ -48,7 +48,8 @@ def storage(cfg: DictConfig) -> str:
 
 
 def search_command(cfg: DictConfig, study: str, garage: list[str], trials: int, sampler: str, seed: int,
-                   models: list[str] | None = None, startup: int | None = None, frames: int = 0) -> list[str]:
+                   models: list[str] | None = None, startup: int | None = None, frames: int = 0,
+                   extra: list[str] = ()) -> list[str]:
     """`python -m garage_exp -m hydra/sweeper=search ...` over the loop's space on the garages `garage` says
     (overrides: loop/garages.py's train() or heldout()), each trial with its dataset; scored by `models` (None:
     the shipped detectors)."""
@@ -63,7 +64,7 @@ def search_command(cfg: DictConfig, study: str, garage: list[str], trials: int, 
         cmd.append(f"search.startup={startup}")
     if frames:
         cmd.append(f"search.frames={frames}")  # the generator's budget of rendered frames; `trials` its cap
-    return cmd
+    return cmd + list(extra)  # an arm's own settings of its sampler (arms.ARM.overrides): none, before they existed
 
 
 def train_command(cfg: DictConfig, name: str, out: Path, data: list[Path], val: list[Path], base: str, epochs: int,
