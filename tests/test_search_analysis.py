@@ -315,3 +315,32 @@ def test_a_large_studys_importances_come_from_a_seeded_sample_and_say_so(monkeyp
     assert max(first, key=first.get) == "light.intensity"
     small, none = why_hard.importances(study_of(50))
     assert none == "" and max(small, key=small.get) == "light.intensity"
+
+
+def test_a_choice_of_many_values_goes_to_fanova_as_its_index_and_keeps_its_name():
+    """Optuna's fANOVA averages a one-hot choice's marginal over 2^k points for k split columns: an archive whose
+    offspring keep their parents' values (the directed emitter) made a study of the wide space's 43 target kinds run
+    for over 20 minutes. A choice of more than FANOVA_ONEHOT_MOST values is handed over as its index (an integer of
+    the same name); a smaller choice stays one-hot, and the kind that makes scenarios hard is still found."""
+    from garage_exp.report import why_hard
+
+    kinds = [f"car{k}" for k in range(43)]
+    dists = {"kind": CategoricalDistribution(kinds), "light": CategoricalDistribution(["bright", "dim"]),
+             "gap": FloatDistribution(0.0, 1.0)}
+    rng = np.random.default_rng(0)
+    study = optuna.create_study(direction="maximize")
+    for k in range(120):  # few kinds, each repeated (as a directed archive's offspring repeat theirs)
+        kind = kinds[int(rng.integers(0, 43)) if k < 20 else int(rng.integers(0, 20)) // 2 * 2]
+        params = {"kind": kind, "light": "dim" if k % 3 else "bright", "gap": float(rng.uniform())}
+        hard = 0.9 if kinds.index(kind) % 4 == 0 else 0.1
+        study.add_trial(create_trial(values=[hard + 0.05 * params["gap"]], params=params, distributions=dists))
+    handed = why_hard.indexed_choices(study).trials[0]
+    assert handed.distributions["kind"] == IntDistribution(0, 42) and handed.params["kind"] == kinds.index(
+        study.trials[0].params["kind"])
+    assert handed.distributions["light"] == dists["light"] and handed.params["gap"] == study.trials[0].params["gap"]
+    found, note = why_hard.importances(study)
+    assert note == "" and set(found) == {"kind", "light", "gap"} and max(found, key=found.get) == "kind"
+    small = optuna.create_study(direction="maximize")
+    small.add_trials([create_trial(values=t.values, params={"light": t.params["light"]},
+                                   distributions={"light": dists["light"]}) for t in study.trials])
+    assert why_hard.indexed_choices(small) is small  # nothing to index: the study itself, as before
