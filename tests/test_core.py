@@ -112,6 +112,23 @@ def test_a_stop_is_forgotten_when_the_command_ends(monkeypatch):
     assert "MLFLOW_HTTP_REQUEST_MAX_RETRIES" not in os.environ
 
 
+def test_a_stop_quiets_the_stores_connection_pool_until_the_command_ends(caplog):
+    """Ctrl-C inside an SQLite fetch: SQLAlchemy closes the connection and logged 'Error closing cursor' with a
+    traceback under the command's one line (a flaky test_ctrl_c_exits_130 under load). From the stop to the
+    command's end the pool logs nothing; after it, as before."""
+    import logging
+
+    from garage_exp.core.state import STATE
+
+    pool = logging.getLogger("sqlalchemy.pool.impl.QueuePool")  # the logger SQLAlchemy's message came from
+    STATE.begin().stop()
+    pool.error("Error closing cursor")
+    assert "Error closing cursor" not in caplog.text
+    STATE.end()
+    pool.error("after the command")
+    assert "after the command" in caplog.text and logging.getLogger("sqlalchemy.pool").level == logging.NOTSET
+
+
 FLAT_BACKEND = '''
 """A second backend, written by the test: every camera sees one flat colour and no entity; each call is logged."""
 import json

@@ -45,15 +45,28 @@ class ProcessState:
     # scope puts those back, so a command leaves the environment as it found it (setenv below).
     saved_env: dict[str, dict[str, str | None]] = field(default_factory=lambda: {scope: {} for scope in SCOPES})
     in_command: bool = False  # between begin() and end(): a command runs
+    pool_level: int | None = None  # the store pool logger's level before a stop quieted it (None: not quieted)
 
     # A request already on its way to a server that hangs must not hold a stopping command's exit either.
     STOP_ENV = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "3", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"}
 
+    # The interrupt raised inside an SQLite fetch (MLflow's or Optuna's store): SQLAlchemy then closes the connection
+    # and logs, at ERROR with a traceback, that it could not close the cursor of that closed connection. Noise of the
+    # stop itself, which buried the one line a stopped command says; quiet from the stop to the command's end.
+    QUIET_ON_STOP = "sqlalchemy.pool"
+
     def stop(self) -> None:
-        """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry)."""
+        """Ctrl-C or SIGTERM came: from now on nothing may wait on the network (tracking.retry), and a store's
+        connection pool does not log the teardown the interrupt caused."""
+        import logging
+
         self.stopping = True
         for name, value in self.STOP_ENV.items():
             self.setenv(name, value, "command")
+        pool = logging.getLogger(self.QUIET_ON_STOP)
+        if self.pool_level is None:
+            self.pool_level = pool.level
+        pool.setLevel(logging.CRITICAL + 1)
 
     def setenv(self, name: str, value: str, scope: str, *, default: bool = False) -> str:
         """Set $name for `scope` (one of SCOPES): clearing that scope puts back the value it had before (or unsets
@@ -118,6 +131,11 @@ class ProcessState:
             self.sweep = None
             self.finished_jobs = 0
             self.stopping = False
+            if self.pool_level is not None:
+                import logging
+
+                logging.getLogger(self.QUIET_ON_STOP).setLevel(self.pool_level)
+                self.pool_level = None
             self.tracking_down_since = None
             self.tracking_given_up = False
         self._restore_env(narrower)
