@@ -27,7 +27,8 @@ def test_the_arms_budgets_are_equal(tmp_path):
             budget.assert_equal_budget({"R": h, "T": dict(h), "Q": {**h, key: h[key] + 1}})
 
 
-def test_an_arms_own_overrides_reach_its_generator_alone_and_leave_every_other_command_as_it_was(tmp_path):
+def test_an_arms_own_overrides_reach_its_generator_alone_and_leave_every_other_command_as_it_was(tmp_path,
+                                                                                                   monkeypatch):
     """arms.ARM.overrides (its sampler's method, e.g. curiosity's parents) end that arm's search command; an arm
     without them, and every shared step, keeps the command it had before they existed (so a done step is reused)."""
     from garage_exp.loop import steps
@@ -39,6 +40,26 @@ def test_an_arms_own_overrides_reach_its_generator_alone_and_leave_every_other_c
     assert own == plain + ["search.archive.parents=curiosity"]
     assert steps.search_command(cfg, "gen_R_r1_s0", [], 40, "random", 1000, extra=[]) == \
         steps.search_command(cfg, "gen_R_r1_s0", [], 40, "random", 1000)
+    # the loop's check of its steps composes the Q generator's search with them, and no other step's
+    from types import SimpleNamespace
+
+    from garage_exp.loop import check
+
+    made = []
+    real = steps.search_command
+    monkeypatch.setattr(steps, "search_command", lambda *a, **k: made.append(real(*a, **k)) or made[-1])
+    monkeypatch.setattr(check, "_checked", lambda cfg, step, fn: SimpleNamespace(fewest_frames=10**6, most_frames=10**6))
+    check.check_steps(cfg)
+    studies = {next(w for w in c if w.startswith("search.study=")): c for c in made}
+    assert studies["search.study=gen_Q"][-1] == "search.archive.parents=curiosity"
+    assert [c for c in made if "search.archive.parents=curiosity" in c] == [studies["search.study=gen_Q"]]
+    # an arm whose sampler is not the archive has no method to set: refused, not ignored
+    from garage_exp.core.errors import GarageError
+    from garage_exp.loop.app import check_loop
+
+    with pytest.raises(GarageError, match="arm R's sampler is random"):
+        check_loop(compose_cfg(f"dir={tmp_path}", "arms.R.overrides=['search.archive.parents=curiosity']",
+                               config="loop"))
 
 
 def test_failures_per_100_trials_count_only_hard_fair_trials():

@@ -59,6 +59,9 @@ def check_loop(cfg: DictConfig) -> None:
                               f"arms.{arm}.sampler")
         if conf.keep not in ("failures", "all"):
             raise GarageError(f"{conf.keep!r}: failures | all", f"arms.{arm}.keep")
+        if conf.get("overrides") and conf.sampler != "archive":
+            raise GarageError(f"arm {arm}'s sampler is {conf.sampler}: its overrides (search.archive.*) would change "
+                              "nothing", f"arms.{arm}.overrides")
         for k, line in enumerate(conf.get("overrides") or []):
             if not re.fullmatch(r"search\.archive\.[a-z_]+=[^\s=]+", str(line)):
                 raise GarageError(f"{line!r}: an arm sets only its sampler's method (search.archive.KEY=VALUE); the "

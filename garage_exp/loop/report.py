@@ -288,7 +288,10 @@ def write(cfg, out: Path, scores: pd.DataFrame, photos: list[dict], book: list[d
         cells_mod.draw_marginals(marginals, out / "cells_marginals.png")
         resisting = {arm: cells_mod.resisted(table, arm, k) for arm in arms}
         reach = cells_mod.reach(cells, grid)
-    summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms}, "seeds": list(cfg.seeds),
+    summary = {"rounds": k, "arms": {a: cfg.arms[a].sampler for a in arms},
+               "arm_overrides": {a: list(cfg.arms[a].get("overrides") or []) for a in arms
+                                 if cfg.arms[a].get("overrides")},
+               "seeds": list(cfg.seeds),
                "detectors": {n: d.get("weights") for n, d in detectors.items()}, "power": estimate,
                "times_s": times, "cells_resisting": resisting, "cells_reached": reach, "sample": sample or {},
                "verdict": sentence, "not_forgetting": kept,

@@ -219,7 +219,7 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
     @staticmethod
     def sparse(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The elite `x` with 1 to SPARSE_MOST of its factors redrawn uniformly, the rest kept. On the wide space
-        (34 factors) a Gaussian step moves every factor at once, and its offspring found a new failure cell no more
+        (33 factors) a Gaussian step moves every factor at once, and its offspring found a new failure cell no more
         often than a random draw (docs/search.md, "Measured at 1,500 scenarios a search"): a failure with one or
         two factors changed stays a failure more often, in a cell its parent's neighbours may not hold."""
         x = np.array(x, float)
@@ -231,8 +231,9 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         """The elite `x` moved along one descriptor: one axis drawn uniformly, its drivers (drivers()) redrawn
         uniformly, every other factor kept. The sparse emitter's one to three factors drawn blind rarely touched
         what a cell is made of (most of the wide space's 33 factors move no descriptor), so its offspring stayed in
-        their parent's cell; a driver's redraw moves the offspring to another bin of that axis while the rest of
-        what made the parent hard stays. Before the drivers can be learnt (None), a Gaussian step."""
+        their parent's cell; a driver's redraw can move the offspring to another bin of that axis (or land in the same
+        one) while the rest of what made the parent hard stays. Before the drivers can be learnt (None), a Gaussian
+        step."""
         if driven is None:
             return fold(x + rng.normal(0.0, self.sigma, size=len(x)), self.params)
         x = np.array(x, float)
@@ -272,10 +273,12 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
 def drivers(trials: list[FrozenTrial], grid: Grid, params: dict) -> list[np.ndarray] | None:
     """Each descriptor's drivers, learnt from the study's complete trials with a cell: the factors whose
     normalised values its bins explain best, by the correlation ratio (eta squared: the share of a factor's
-    variance between the axis' bins), those within DRIVER_SHARE of the axis' best, at most DRIVERS_MOST. On the
-    wide space the learnt drivers are the ones a person would name (distance: the target's distance; light: the
-    lamps' intensity; camera height: the camera's z; what hides the target: the occluder's type, offset and the
-    target's distance). None until DIRECTED_MIN trials have a cell. Stateless, as the archive is."""
+    variance between the axis' bins), those within DRIVER_SHARE of the axis' best, at most DRIVERS_MOST. None until
+    DIRECTED_MIN trials have a cell. Stateless, as the archive is. Its weakness (docs/search.md): offspring copy
+    their parents' other factors, so a family's shared values line up with its bins and may be learnt as drivers,
+    and a choice's index is ordered as its values are listed. On the wide space at 1,500 trials the distance,
+    light and camera drivers were the ones a person would name; at a loop generator's 200 the target class was
+    once driven by the person's pose and the target's colour."""
     rows = []
     for t in trials:
         if t.state != TrialState.COMPLETE or not t.values:
