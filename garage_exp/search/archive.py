@@ -190,10 +190,11 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         seeds = np.random.SeedSequence([self.seed, number]).generate_state(3)
         d = len(self.params)
         if self.parents == "curiosity":
-            score, elites = replay_archive(trials, self.grid)  # one pass: the elites and their scores
+            cells: dict[int, tuple | None] = {}
+            score, elites = replay_archive(trials, self.grid, cells)  # one pass: the elites, scores and cells
             if number < self.startup or not elites:
                 return np.random.default_rng(int(seeds[1])).uniform(size=d), None
-            driven = drivers(trials, self.grid, self.params) if self.emitter == "directed" else None
+            driven = drivers(trials, self.grid, self.params, cells) if self.emitter == "directed" else None
             return self.curious(score, list(elites.values()), np.random.default_rng(int(seeds[2])), driven)
         complete = [t for t in trials if t.state == TrialState.COMPLETE]
         archive = ribs_archive(complete, self.grid, self.params, int(seeds[0]))
@@ -235,7 +236,7 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         one) while the rest of what made the parent hard stays. Before the drivers can be learnt (None), a Gaussian
         step."""
         if driven is None:
-            return fold(x + rng.normal(0.0, self.sigma, size=len(x)), self.params)
+            return self.gaussian(x, rng)
         x = np.array(x, float)
         moved = driven[int(rng.integers(len(driven)))]
         x[moved] = rng.uniform(size=len(moved))
@@ -253,7 +254,11 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
             return self.sparse(x, rng), parent.number
         if self.emitter == "directed":
             return self.directed(x, driven, rng), parent.number
-        return fold(x + rng.normal(0.0, self.sigma, size=len(x)), self.params), parent.number
+        return self.gaussian(x, rng), parent.number
+
+    def gaussian(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """MAP-Elites' step: `x` plus Gaussian noise of spread sigma, folded into the cube (fold)."""
+        return fold(x + rng.normal(0.0, self.sigma, size=len(x)), self.params)
 
     def sample_relative(self, study, trial, search_space) -> dict:
         if not search_space:
@@ -270,7 +275,8 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
         return self._random.sample_independent(study, trial, param_name, param_distribution)
 
 
-def drivers(trials: list[FrozenTrial], grid: Grid, params: dict) -> list[np.ndarray] | None:
+def drivers(trials: list[FrozenTrial], grid: Grid, params: dict,
+            cells: dict[int, tuple | None] | None = None) -> list[np.ndarray] | None:
     """Each descriptor's drivers, learnt from the study's complete trials with a cell: the factors whose
     normalised values its bins explain best, by the correlation ratio (eta squared: the share of a factor's
     variance between the axis' bins), those within DRIVER_SHARE of the axis' best, at most DRIVERS_MOST. None until
@@ -278,12 +284,14 @@ def drivers(trials: list[FrozenTrial], grid: Grid, params: dict) -> list[np.ndar
     their parents' other factors, so a family's shared values line up with its bins and may be learnt as drivers,
     and a choice's index is ordered as its values are listed. On the wide space at 1,500 trials the distance,
     light and camera drivers were the ones a person would name; at a loop generator's 200 the target class was
-    once driven by the person's pose and the target's colour."""
+    once driven by the person's pose and the target's colour. `cells`: the trials' cells by number, as
+    replay_archive placed them (those missing are placed here)."""
     rows = []
     for t in trials:
         if t.state != TrialState.COMPLETE or not t.values:
             continue
-        cell = grid.index(t.user_attrs.get("descriptors") or {})
+        cell = cells[t.number] if cells is not None and t.number in cells else \
+            grid.index(t.user_attrs.get("descriptors") or {})
         if cell is not None:
             x = t.system_attrs.get(X_ATTR)
             rows.append((np.asarray(x, float) if x is not None else encode(t.params, params), cell))
@@ -314,15 +322,19 @@ def curiosity(trials: list[FrozenTrial], grid: Grid) -> dict[int, float]:
     return replay_archive(trials, grid)[0]
 
 
-def replay_archive(trials: list[FrozenTrial], grid: Grid) -> tuple[dict[int, float], dict]:
+def replay_archive(trials: list[FrozenTrial], grid: Grid,
+                   cells: dict[int, tuple | None] | None = None) -> tuple[dict[int, float], dict]:
     """The study replayed in trial order: each parent's curiosity score and each cell's elite (the same elites as
-    elite_trials: a trial replaces one only when strictly harder)."""
+    elite_trials: a trial replaces one only when strictly harder). `cells`, when given, gets each complete trial's
+    cell by number (None: it has none), so that drivers() need not place them again."""
     best: dict[tuple[int, ...], FrozenTrial] = {}
     score: dict[int, float] = {}
     for trial in sorted(trials, key=lambda t: t.number):
         cell = None
         if trial.state == TrialState.COMPLETE and trial.values:
             cell = grid.index(trial.user_attrs.get("descriptors") or {})
+            if cells is not None:
+                cells[trial.number] = cell
         added = cell is not None and (cell not in best or trial.values[0] > best[cell].values[0])
         if added:
             best[cell] = trial

@@ -71,14 +71,23 @@ def calibrate_model(model, images: list[Path], imgsz: int) -> int:
     stats = batchnorm_stats(model, images, imgsz)
     with torch.no_grad():
         for bn, (m, v) in stats.items():
-            rm, rv = bn.running_mean.double(), bn.running_var.double()
-            w, b = bn.weight.double(), bn.bias.double()
-            old = torch.sqrt(rv + bn.eps)
-            bn.weight.copy_((w * torch.sqrt(v + bn.eps) / old).to(bn.weight.dtype))
-            bn.bias.copy_((b + w * (m - rm) / old).to(bn.bias.dtype))
-            bn.running_mean.copy_(m.to(bn.running_mean.dtype))
-            bn.running_var.copy_(v.to(bn.running_var.dtype))
+            restat(bn, m, v)
     return len(stats)
+
+
+def restat(bn, mean, var) -> None:
+    """A BatchNorm written in the running statistics (mean, var) without changing what it computes in eval mode
+    (the rule above), in place; the caller holds torch.no_grad(). Also how train/wise.py aligns two models'."""
+    import torch
+
+    m, v = mean.double(), var.double()
+    rm, rv = bn.running_mean.double(), bn.running_var.double()
+    w, b = bn.weight.double(), bn.bias.double()
+    old = torch.sqrt(rv + bn.eps)
+    bn.weight.copy_((w * torch.sqrt(v + bn.eps) / old).to(bn.weight.dtype))
+    bn.bias.copy_((b + w * (m - rm) / old).to(bn.bias.dtype))
+    bn.running_mean.copy_(m.to(bn.running_mean.dtype))
+    bn.running_var.copy_(v.to(bn.running_var.dtype))
 
 
 def calibrate(base: Path, images: list[Path], imgsz: int, out: Path) -> Path:

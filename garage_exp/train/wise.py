@@ -24,6 +24,8 @@ def mix_models(base, tuned, alpha: float):
     place; returns it."""
     import torch
 
+    from garage_exp.train.calibrate import restat
+
     if [n for n, _ in base.named_modules()] != [n for n, _ in tuned.named_modules()]:
         raise ValueError("the base and the tuned model differ in architecture")
     own = dict(base.named_modules())
@@ -32,11 +34,7 @@ def mix_models(base, tuned, alpha: float):
         for name, bn in tuned.named_modules():
             if not isinstance(bn, torch.nn.BatchNorm2d):
                 continue
-            ref = own[name]
-            a = ref.weight.double() / torch.sqrt(ref.running_var.double() + ref.eps)
-            c = ref.bias.double() - a * ref.running_mean.double()
-            ref.weight.copy_((a * torch.sqrt(bn.running_var.double() + bn.eps)).to(ref.weight.dtype))
-            ref.bias.copy_((c + a * bn.running_mean.double()).to(ref.bias.dtype))
+            restat(own[name], bn.running_mean, bn.running_var)  # the base's, in the tuned model's statistics
             stats.update(f"{name}.{key}" for key in ("running_mean", "running_var", "num_batches_tracked"))
         theirs = base.state_dict()
         for key, value in tuned.state_dict().items():
