@@ -364,3 +364,76 @@ def test_a_draw_whose_actors_collide_is_told_infeasible_in_the_check_and_never_l
     assert all(float(dict(o.split("=", 1) for o in job)["case.actors.target.distance"]) <= 6.0 for job in launched)
     assert sorted(ran) == [t.number for t in trials]
     assert "stands in the occluder: infeasible" in capsys.readouterr().out
+
+
+# Draws of the one-shot case on the small plan, each meant to meet or miss the wide space's requirements one way
+# (the occluder, an actor of the case, set aside but where the draw is about it).
+ASIDE = ["case.actors.occluder.offset=2.5", "case.actors.occluder.length=0.3"]
+FIRST_LOOK_DRAWS = {
+    "near and clear": ["case.actors.target.distance=8.0", *ASIDE],
+    "far and small": ["case.actors.target.distance=28.0", "camera.fovy=90.0", *ASIDE],
+    "cut by the edge": ["case.actors.target.distance=5.0", "case.actors.target.offset=2.0", "camera.fovy=30.0",
+                        "case.actors.ego.yaw=8.0", *ASIDE],
+    "behind the occluder": ["case.actors.target.distance=12.0", "case.actors.occluder.gap=0.6",
+                            "case.actors.occluder.offset=0.0", "case.actors.occluder.length=1.0",
+                            "case.actors.target.offset=0.0", "case.actors.target.type=child"],
+}
+WIDE_RULE = require_mod.Require(min_visible=0.3, min_box=25, max_distance=30.0, max_truncation=0.5)
+
+
+def test_the_first_look_rejects_what_the_built_scene_rejects_with_the_same_estimate():
+    """`first_look` judges the case's placed actors before their garage exists: a draw it rejects, the built
+    scene's judge rejects too, with the same box, distance and truncation and a visible fraction no lower (the
+    garage can only hide more); a draw the judge accepts, it leaves to the judge."""
+    from garage_exp.run.preflight import preflight
+    from garage_exp.scenario.assemble import cameras
+
+    decided, judged = {}, {}
+    for name, draw in FIRST_LOOK_DRAWS.items():
+        p = preflight(compose_cfg("case=oneshot", "plan=small", "camera.width=320", "camera.height=240", *draw),
+                      check_space=False, load=False)
+        full = require_mod.judge(WIDE_RULE, p.scene, p.setup, p.spec.primary)
+        first = require_mod.first_look(WIDE_RULE, p.setup, cameras(p.spec.scene, p.setup), p.spec.primary)
+        judged[name], decided[name] = full, first
+        if first is not None:
+            assert not full.ok, name
+            assert (first.best.box_height, first.best.distance, first.best.truncation) == \
+                (full.best.box_height, full.best.distance, full.best.truncation), name
+            assert first.best.visible >= full.best.visible, name
+    assert judged["near and clear"].ok and decided["near and clear"] is None
+    assert decided["far and small"].why.startswith("box") and "truncation" in decided["cut by the edge"].why
+    assert "visible 0.00" in decided["behind the occluder"].why  # the occluder is one of the case's actors
+
+
+def test_the_first_look_leaves_a_target_only_the_garage_hides_to_the_judge():
+    """A wall of the built garage across the view: the judge rejects the draw (nothing visible), the first look,
+    which sees no garage, cannot and does not."""
+    from types import SimpleNamespace
+
+    target = car("target", 12.0)
+    ego = Entity("ego", "ego", Pose(), extent=CAR, kind="vehicle")
+    setup = SimpleNamespace(vehicles=[target, ego], shots=[SimpleNamespace(
+        target="target", poses={"target": target.pose, "ego": Pose()}, ego=Pose())])
+    scene = Scene("s", entities=[wall("w", 6.0, -5.0, 5.0), target, ego], cameras=[CAMERA])
+    full = require_mod.judge(WIDE_RULE, scene, setup, "front")
+    assert not full.ok and full.why.startswith("visible 0.00")
+    assert require_mod.first_look(WIDE_RULE, setup, [CAMERA], "front") is None
+    assert require_mod.judge(WIDE_RULE, Scene("s", entities=[target, ego], cameras=[CAMERA]), setup,
+                             "front").ok  # without the wall, accepted
+
+
+def test_a_draw_the_first_look_rejects_builds_no_garage_and_is_told_as_the_judge_would(tmp_path, monkeypatch):
+    """In the search, a draw whose actors alone miss the requirements is rejected before its garage is built:
+    told PRUNED with `rejected`, never launched, and no garage built for it."""
+    from garage_exp.scene import structure
+
+    garages = []
+    real = structure.build_garage
+    monkeypatch.setattr(structure, "build_garage", lambda *a, **k: garages.append(1) or real(*a, **k))
+    study, launched, _ = stubbed_search(tmp_path, "first", 4, max_distance=9)
+    trials = study.get_trials()
+    rejected = [t for t in trials if "rejected" in t.user_attrs]
+    assert rejected and all("distance" in t.user_attrs["rejected"] for t in rejected)
+    assert len(launched) == 4
+    infeasible = [t for t in trials if t.user_attrs.get("infeasible")]  # refused before any garage, as ever
+    assert len(garages) == len(trials) - len(rejected) - len(infeasible)  # only the accepted draws' garages

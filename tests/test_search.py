@@ -316,6 +316,30 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
         assert len(launch.compositions.cache) == 2  # light=dim twice: one composition
 
 
+def test_a_drawn_number_is_the_override_hydras_parser_makes_of_it():
+    """The cached composition makes a `key=number` line's Override itself (search/compose.py number_override);
+    on drawn values and on the grammar's edge cases it is Hydra's own, value type included, and any line that
+    is not a plain decimal number is left to the grammar."""
+    import random
+
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    from garage_exp.search.compose import number_override
+    from garage_exp.search.space import format_value
+
+    parser = OverridesParser.create()
+    rng = random.Random(0)
+    drawn = [f"case.actors.target.hue={format_value(rng.uniform(-400.0, 400.0))}" for _ in range(300)]
+    drawn += [f"plan.seed={format_value(rng.randint(-10 ** 6, 10 ** 6))}" for _ in range(100)]
+    edges = ["case=1", "a=0", "a=-0", "a=-0.0", "a=0.5", "a=-12.000", "a_b.c_d=3"]
+    grammar = ["a=007", "a=00.5", "a=1_000", "a=1.", "a=.5", "a=+3", "a=inf", "a=1e-06", "a=1.5e3", "1a=3",
+               "a.1=3", "a/b=1", "+a=1", "~a", "a=abc", "a='1'", "a=[1,2]", "a=null"]
+    for line in drawn + edges:
+        ours, hydras = number_override(line), parser.parse_overrides([line])[0]
+        assert ours == hydras and repr(ours.value()) == repr(hydras.value()), line
+    assert all(number_override(line) is None for line in grammar)
+
+
 def test_the_launch_of_a_draw_just_checked_takes_the_checks_composition_once():
     """A space with requirements composes each draw to check it (search/loop.py rejects); its launch takes that
     composition, not another copy (0.05 s a scenario), and only for the same overrides and once: a second launch,

@@ -19,6 +19,16 @@ class JobFault(RuntimeError):
     and exits 1 (docs/reliability.md). Unlike a GarageError nothing was wrong with the input."""
 
 
+class Screened(Exception):
+    """A draw that its caller's screen turned down once the case's actors were placed, before the garage around
+    them was built (a search's requirements, search/require.py `first_look`): not an error, a verdict, which it
+    carries for the caller that set the screen."""
+
+    def __init__(self, verdict):
+        super().__init__(getattr(verdict, "why", ""))
+        self.verdict = verdict
+
+
 def check_range(value, lo: float, hi: float, where: str, what: str = "") -> None:
     """GarageError naming `where` unless lo <= value <= hi (a non-number is out of range too)."""
     try:

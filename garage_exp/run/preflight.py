@@ -179,7 +179,7 @@ def check_slots(job) -> None:
 
 
 def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand: bool = False,
-              name=None) -> PreparedJob:
+              name=None, screen=None) -> PreparedJob:
     """Check one job's inputs before anything is written; GarageError (one line, naming the file or key)
     on the first problem: the config, the plan, the vehicle assets, and the scene description (garage, case,
     palette, modifiers, cameras) - all but rendering, in ~0.1 s; a real job also that the detector's files exist.
@@ -190,7 +190,8 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
     `hand` (a search's requirement check, which builds no detector: its job's preflight does) the scene built, or
     its refusal, is handed on to the next preflight (scene_of). `name(cfg, plan_name)`: the job's naming of its
     levels (run.job.name_levels), called once the plan is read and before the config is converted, so that the
-    spec and the logged config say the same names and the config is converted once."""
+    spec and the logged config say the same names and the config is converted once. `screen`: the scene
+    build's (scenario/assemble.py `build_scene`), a search's first look at the placed actors."""
     from garage_exp.core.schema_check import check_schema
 
     check_schema(cfg)  # a key forced past the schema (`+case.bumper_gapp=1`) fails first
@@ -213,7 +214,7 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
     # A dry run builds the scene description too (~0.1 s, no rendering): it refuses every job the real run would
     # refuse at scene build (placements, overlaps, reach), in the same words. It keeps none of it.
     try:
-        scene, setup = scene_of(job, prepared.classified, hand)
+        scene, setup = scene_of(job, prepared.classified, hand, screen)
     except GarageError as exc:  # a shipped case on a shipped plan it does not fit: say where it fits
         where = hint(cfg.case.name, cfg.plan.name, cfg.plan.file, refused=True)
         if not where:
@@ -245,9 +246,9 @@ def preflight(cfg: DictConfig, check_space: bool = True, load: bool = True, hand
 _HANDED: dict = STATE.cache("run.preflight.handed", "command")
 
 
-def scene_of(job, classified, hand: bool = False) -> tuple:
+def scene_of(job, classified, hand: bool = False, screen=None) -> tuple:
     """(scene, setup) of the scene settings `job` on the classified plan: the one handed on for them, else built
-    (and handed on itself with `hand`)."""
+    (and handed on itself with `hand`; a build its `screen` stopped hands nothing on)."""
     import numpy as np
 
     from garage_exp.core.errors import Infeasible
@@ -261,7 +262,7 @@ def scene_of(job, classified, hand: bool = False) -> tuple:
         elif _same_scene(held[1], job):
             return held[2]
     try:
-        built = build_scene(job, classified, _library(), np.random.default_rng(job.seed))
+        built = build_scene(job, classified, _library(), np.random.default_rng(job.seed), screen)
     except Infeasible as exc:
         if hand:
             _HANDED["checked"] = (classified, job, exc)

@@ -14,8 +14,11 @@ from garage_exp.scene.description import CameraSpec, Pose, Scene
 HIDDEN = Pose(0.0, 0.0, -500.0, 0.0)  # vehicles a shot does not use wait far below the floor
 
 
-def build_scene(job: SceneSpec, classified: Classified, library, rng) -> tuple[Scene, CaseSetup]:
-    """The garage from the plan, the case's vehicles, parked cars by occupancy, cameras and modifiers."""
+def build_scene(job: SceneSpec, classified: Classified, library, rng, screen=None) -> tuple[Scene, CaseSetup]:
+    """The garage from the plan, the case's vehicles, parked cars by occupancy, cameras and modifiers.
+    `screen(job, setup, cameras)`, when given, sees the placed actors and their cameras before the garage is
+    built, and may stop the build by raising `Screened` (a search's requirements: most rejections need no
+    garage)."""
     from garage_exp.scene.look import dress
     from garage_exp.scene.modifiers import apply_modifiers, remove_entity, resize_pillar
     from garage_exp.scene.parking import park_vehicles
@@ -24,6 +27,8 @@ def build_scene(job: SceneSpec, classified: Classified, library, rng) -> tuple[S
     # The case first: it reads the plan, never the built garage, and refuses actors that overlap (Infeasible) -
     # a third of a wide search's draws, each then spared building the garage it would not use.
     setup = make_case(job, classified, library, rng)
+    if screen is not None:
+        screen(job, setup, cameras(job, setup))  # reads the set-up, draws no random number: the build is unchanged
     scene = build_garage(classified, job.garage, job.light)
     if job.blank:
         studio_light(scene, classified, job)

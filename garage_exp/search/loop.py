@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import optuna
 from optuna.trial import TrialState
 
-from garage_exp.core.errors import GarageError, Infeasible
+from garage_exp.core.errors import GarageError, Infeasible, Screened
 from garage_exp.core.exits import SweepStopped
 from garage_exp.results.summary import JobSummary
 from garage_exp.search import objectives
@@ -32,6 +32,7 @@ from garage_exp.search.objectives import num
 from garage_exp.search import space as space_mod
 from garage_exp.search import storage as storage_mod
 from garage_exp.search import study as study_mod
+from garage_exp.search import writes
 
 log = logging.getLogger("garage_exp")
 WORKER = f"{socket.gethostname()}:{os.getpid()}"
@@ -127,7 +128,8 @@ class SearchLoop:
             if self.require is not None:  # a rejected draw is redrawn: it takes no place in the budget
                 held -= storage_mod.count_trials(self.study, (TrialState.PRUNED,), attr="rejected")
             wanted = min(int(self.search.get("batch", 1)), self.budget - held)
-            return [self.study.ask(fixed_distributions=self.space.params) for _ in range(max(wanted, 0))]
+            with writes.params_at_once(self.study):  # a draw's 33 parameters: one transaction, not 33
+                return [self.study.ask(fixed_distributions=self.space.params) for _ in range(max(wanted, 0))]
 
     def run(self) -> list[int]:
         """Ask a batch, pre-screen each trial, launch the rest as one batch, tell each its outcome; until the
@@ -139,10 +141,11 @@ class SearchLoop:
             batch = []
             for trial in trials:
                 overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
-                trial.set_user_attr("overrides", overrides)
-                trial.set_user_attr("worker", WORKER)  # which process (which node) ran it: a cluster's trials spread
-                for key, value in self.attrs.items():
-                    trial.set_user_attr(key, value)
+                with writes.attrs_at_once(self.study):  # one transaction
+                    trial.set_user_attr("overrides", overrides)
+                    trial.set_user_attr("worker", WORKER)  # which process (node) ran it: a cluster's trials spread
+                    for key, value in self.attrs.items():
+                        trial.set_user_attr(key, value)
                 if not self.rejects(trial, overrides) and not self.screened(trial, overrides):
                     batch.append((trial, overrides))
             if batch:
@@ -208,8 +211,9 @@ class SearchLoop:
             measured = describe(out.attrs, self.search)
             if measured is not None:
                 out.attrs["descriptors"] = measured
-        for key, value in out.attrs.items():
-            trial.set_user_attr(key, value)
+        with writes.attrs_at_once(self.study):  # a dozen: one transaction
+            for key, value in out.attrs.items():
+                trial.set_user_attr(key, value)
         if out.state == TrialState.FAIL:
             log.error("trial %d failed: %s", trial.number, out.attrs["error"])
         self.study.tell(trial, out.values, state=out.state)
@@ -226,9 +230,13 @@ class SearchLoop:
 
         try:
             with heartbeat(self.study, trial):
-                # hand: the job of an accepted (or colliding) draw takes this scene (or refusal), not building it again
-                prepared = preflight(self.compose(overrides), check_space=False, load=False, hand=True)
+                # hand: the job of an accepted (or colliding) draw takes this scene (or refusal), not building it
+                # again; screen: most rejections are decided on the placed actors, before their garage is built
+                prepared = preflight(self.compose(overrides), check_space=False, load=False, hand=True,
+                                     screen=self.first_look)
                 verdict = require_mod.judge(self.require, prepared.scene, prepared.setup, prepared.spec.primary)
+        except Screened as exc:
+            verdict = exc.verdict
         except (KeyboardInterrupt, SystemExit):
             self.study.tell(trial, state=TrialState.FAIL)
             raise
@@ -242,22 +250,34 @@ class SearchLoop:
         except Exception as exc:  # noqa: BLE001 - broken: the job itself says so, in its own words
             log.debug("trial %d: requirements not checked (%s)", trial.number, exc)
             return False
-        if verdict.best is not None:
-            trial.set_user_attr("require_estimate", {"visible": round(verdict.best.visible, 3),
-                                                     "box": round(verdict.best.box_height, 1),
-                                                     "distance": round(verdict.best.distance, 2),
-                                                     "truncation": round(verdict.best.truncation, 3)})
+        with writes.attrs_at_once(self.study):
+            if verdict.best is not None:  # a first look's visible is an upper bound (require.first_look)
+                trial.set_user_attr("require_estimate", {"visible": round(verdict.best.visible, 3),
+                                                         "box": round(verdict.best.box_height, 1),
+                                                         "distance": round(verdict.best.distance, 2),
+                                                         "truncation": round(verdict.best.truncation, 3)})
+            if not verdict.ok:
+                trial.set_user_attr("rejected", verdict.why)
         if verdict.ok:
             self.in_a_row = 0
             return False
         self.in_a_row += 1
-        trial.set_user_attr("rejected", verdict.why)
         self.study.tell(trial, state=TrialState.PRUNED)
         print(f"garage_exp: draw {trial.number + 1}: rejected by the space's requirements ({verdict.why}); redrawn")
         if self.in_a_row >= self.require.max_draws:
             raise GarageError(f"the space's requirements rejected {self.in_a_row} draws in a row (the last: "
                               f"{verdict.why}): loosen them or the space", "search.require")
         return True
+
+    def first_look(self, job, setup, cameras) -> None:
+        """The requirements on the placed actors alone (require.first_look): Screened with the rejection it
+        decides, the same as the built scene's judge would give."""
+        from garage_exp.scene.camera import scored_camera
+
+        verdict = require_mod.first_look(self.require, setup, cameras,
+                                         scored_camera(job.camera, str(job.case.camera or "")))
+        if verdict is not None:
+            raise Screened(verdict)
 
     def screened(self, trial: optuna.Trial, overrides: list[str]) -> bool:
         """The pre-screen's cheap look (search.prescreen): True when it pruned the trial."""

@@ -8,6 +8,10 @@ A draw is accepted when at least one of its shots, seen by the case's scored cam
 distance and the share of its box outside the image (perception/sightlines.py). A rejected draw is told to Optuna as PRUNED with `rejected` (why) among its
 attributes: it counts neither in the study's budget nor among its scenarios, and the samplers learn to avoid its
 region as they avoid infeasible ones. The search reports how many draws its requirements accepted.
+
+The search looks first at the case's placed actors alone (`first_look`), before the garage around them is built:
+a draw whose target is too small, too far or cut by the image's edge is rejected there, as the built scene's
+`judge` would reject it; the rest are judged on the built scene.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import math
 from dataclasses import dataclass
 
 from garage_exp.core.errors import GarageError
-from garage_exp.perception.sightlines import Sight, sight, static_boxes
+from garage_exp.perception.sightlines import Boxes, Sight, sight, static_boxes
 from garage_exp.scene.description import Scene
 
 
@@ -83,9 +87,27 @@ class Verdict:
 
 def judge(rule: Require, scene: Scene, setup, camera: str) -> Verdict:
     """Whether any shot of the case set-up (`scenario.CaseSetup`) meets the rule in `camera` (the scored one)."""
-    spec = next(c for c in scene.cameras if c.name == camera)
     movers = {v.name: v for v in setup.vehicles}
-    static = static_boxes(scene, skip=tuple(movers))
+    return _judged(rule, static_boxes(scene, skip=tuple(movers)), setup, scene.cameras, camera)
+
+
+def first_look(rule: Require, setup, cameras, camera: str) -> Verdict | None:
+    """The rule on the case's actors alone, before the garage is built (its pillars, walls and parked cars):
+    the rejection the full `judge` would give, or None when only the built garage can decide.
+
+    Exact: the box's height, its truncation and the distance do not depend on the garage, and what the garage
+    hides can only lower the visible fraction, so a shot that fails here fails there, and a draw none of whose
+    shots passes here is rejected there too. Its `why` names what failed without the garage (a target the garage
+    also hides is not said to be), and its estimate's `visible` is an upper bound. Four in five of the wide
+    space's rejections are decided so (its box too small or cut by the image's edge), each sparing the build of a
+    garage, its parked cars and its dressing (~25 ms)."""
+    verdict = _judged(rule, Boxes.of([]), setup, cameras, camera)
+    return None if verdict.ok else verdict
+
+
+def _judged(rule: Require, static: Boxes, setup, cameras, camera: str) -> Verdict:
+    spec = next(c for c in cameras if c.name == camera)
+    movers = {v.name: v for v in setup.vehicles}
     best, best_unmet = None, None
     for shot in setup.shots:
         # The ego's own box is left out: it is fuller than its bonnet, which a roof camera looks over.

@@ -1,0 +1,89 @@
+"""A trial's parameters and attributes written in one transaction (garage_exp/search/writes.py): the database
+holds what Optuna's own writes leave, written when the block ends, and Optuna's checks still refuse a
+contradicting distribution."""
+
+from __future__ import annotations
+
+import contextlib
+
+import optuna
+import pytest
+from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
+
+from garage_exp.search import writes
+
+SPACE = {"x": FloatDistribution(0.0, 1.0), "n": IntDistribution(1, 9), "kind": CategoricalDistribution(["a", "b"]),
+         "log": FloatDistribution(0.1, 10.0, log=True)}
+
+
+def study(tmp_path, name: str) -> optuna.Study:
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna.create_study(study_name=name, storage=f"sqlite:///{tmp_path / name}.db",
+                               sampler=optuna.samplers.RandomSampler(seed=3))
+
+
+def stored(tmp_path, name: str) -> list[tuple]:
+    """What the database holds, read by a fresh storage (nothing cached)."""
+    trials = optuna.load_study(study_name=name, storage=f"sqlite:///{tmp_path / name}.db").trials
+    return [(t.number, t.state, t.params, t.distributions, t.user_attrs) for t in trials]
+
+
+def test_the_parameters_of_an_ask_are_written_as_optunas_own_writes_leave_them_when_the_block_ends(tmp_path):
+    plain, held = study(tmp_path, "plain"), study(tmp_path, "held")
+    for _ in range(4):
+        plain.ask(SPACE)
+    for _ in range(4):
+        with writes.params_at_once(held):
+            trial = held.ask(SPACE)
+            assert trial.params and stored(tmp_path, "held")[-1][2] == {}  # drawn, not yet in the database
+        assert stored(tmp_path, "held")[-1][2] == trial.params
+    assert stored(tmp_path, "plain") == stored(tmp_path, "held")
+    assert "_set_trial_param" not in vars(writes.backend(held))  # the storage's own method again
+
+
+def test_a_distribution_that_contradicts_the_studys_is_refused_as_optuna_refuses_it(tmp_path):
+    held = study(tmp_path, "held")
+    held.ask(SPACE)
+    with pytest.raises(ValueError, match="Cannot set different distribution kind"):
+        with writes.params_at_once(held):
+            held.ask({"x": CategoricalDistribution(["a", "b"])})
+    fresh = study(tmp_path, "fresh")  # the study's first trial: no distribution cached, read from the database
+    fresh.ask(SPACE)
+    other = optuna.load_study(study_name="fresh", storage=f"sqlite:///{tmp_path / 'fresh'}.db")
+    with pytest.raises(ValueError, match="Cannot set different distribution kind"):
+        with writes.params_at_once(other):
+            other.ask({"n": FloatDistribution(0.0, 1.0)})
+
+
+def test_a_block_that_raises_writes_nothing_and_gives_the_storage_its_method_back(tmp_path):
+    held = study(tmp_path, "held")
+    with pytest.raises(KeyboardInterrupt):
+        with writes.params_at_once(held):
+            held.ask(SPACE)
+            raise KeyboardInterrupt
+    assert stored(tmp_path, "held")[0][2] == {}
+    assert "_set_trial_param" not in vars(writes.backend(held))
+
+
+def test_attributes_set_together_are_written_together_the_last_value_of_a_key_kept(tmp_path):
+    plain, held = study(tmp_path, "plain"), study(tmp_path, "held")
+    for s in (plain, held):
+        trial = s.ask(SPACE)
+        with writes.attrs_at_once(s) if s is held else contextlib.nullcontext():
+            trial.set_user_attr("overrides", ["a=1", "b=2"])
+            trial.set_user_attr("worker", "w1")
+            trial.set_user_attr("worker", "w2")
+            trial.set_user_attr("estimate", {"visible": 0.5})
+            assert trial.user_attrs["worker"] == "w2"  # the trial's own copy has them at once
+        s.tell(trial, 1.0)
+    assert stored(tmp_path, "plain") == stored(tmp_path, "held")
+    assert stored(tmp_path, "held")[0][4] == {"overrides": ["a=1", "b=2"], "worker": "w2",
+                                             "estimate": {"visible": 0.5}}
+
+
+def test_a_study_in_memory_is_written_as_ever():
+    s = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=3))
+    with writes.params_at_once(s), writes.attrs_at_once(s):
+        trial = s.ask(SPACE)
+        trial.set_user_attr("k", 1)
+    assert s.trials[0].params == trial.params and s.trials[0].user_attrs == {"k": 1}
