@@ -99,6 +99,7 @@ def test_statistics_on_known_numbers():
     # the same difference at every seed: no spread, no test (not p = 1 for none, nor p = 0 for any)
     assert all(math.isnan(stats.paired({0: 0.5, 1: 0.5}, b)["p"]) for b in (0.5, 0.25))
     assert stats.seeds_needed(5.0, 5.0) == pytest.approx(9.94, abs=0.01)  # effect size 1: ten pairs
+    assert stats.seeds_needed(0.3, 5.0) == 2.0  # two seeds that nearly agree: past statsmodels' root finder
     assert stats.scenarios_needed(0.30, 0.25) == pytest.approx(1250.1, abs=1.0)
     table = stats.compare([{"a": "Q", "b": "R", "p": 0.01}, {"a": "T", "b": "R", "p": 0.04}])
     assert table.p_holm.tolist() == pytest.approx([0.02, 0.04]) and table.reject_holm.tolist() == [True, True]
