@@ -291,6 +291,26 @@ def test_curiosity_draws_the_productive_elite_more_often_and_records_each_offspr
     assert study._storage.get_trial(child._trial_id).system_attrs[archive.PARENT_ATTR] in (0, 1)
 
 
+def test_curiositys_parent_takes_an_iso_line_step_towards_another_elite():
+    """parents=curiosity with emitter=iso_line: the drawn parent plus Gaussian noise plus a step along the line to
+    another elite drawn uniformly. With the two elites at 0.3 and 0.7 and a tiny Gaussian spread, about half the
+    offspring of 0 stay at 0.3 (their other end was 0 itself) and the rest spread along the line by LINE_SIGMA of
+    the 0.4 between them, never by the Gaussian step's 0.001 alone."""
+    params = {"a": FloatDistribution(0.0, 1.0)}
+    search = search_conf()
+    made = [trial(0, 0.5, cell("car"), x=[0.3]), trial(1, 0.5, cell("adult"), x=[0.7])]
+    trials = numbered(made)
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, parents="curiosity",
+                                     sigma=0.001, emitter="iso_line")
+    asked = [sampler.ask(trials, n) for n in range(10, 810)]
+    from_0 = np.array([x[0] for x, p in asked if p == 0])
+    assert len(from_0) > 200 and {p for _, p in asked} == {0, 1}
+    moved = np.abs(from_0 - 0.3) > 0.01
+    assert 0.3 < moved.mean() < 0.6
+    assert np.std(from_0[moved] - 0.3) == pytest.approx(0.4 * archive.LINE_SIGMA, rel=0.25)
+    assert np.array_equal(sampler.ask(trials, 17)[0], asked[7][0])  # seeded by the trial's number
+
+
 def test_an_elite_at_an_end_of_the_space_sends_its_offspring_elsewhere_too():
     """Offspring past an end wrap round a choice's values and reflect off a number's ends: an elite at the last
     case and the first light (x = 1, 0) keeps about a fifth of its offspring in its own case and light, where

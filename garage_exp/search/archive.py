@@ -41,6 +41,7 @@ X_ATTR = "archive:x"  # the normalised point the archive sampler asked (system a
 PARENT_ATTR = "archive:parent"  # the elite (trial number) an offspring was mutated from (system attr, curiosity)
 EMITTERS = ("gaussian", "iso_line", "sparse", "directed")
 PARENTS = ("uniform", "curiosity")
+LINE_SIGMA = 0.2  # the iso-line emitter's spread along the line between two elites (ribs' default)
 # Curiosity (Cully & Demiris 2018, "Quality and diversity optimization: a unifying modular framework"): an elite
 # gains for each offspring that entered the archive and loses for each that did not; parents are drawn in
 # proportion to 1 + that score, never under CURIOUS_FLOOR.
@@ -210,7 +211,7 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
                 return self.sparse(x, rng), None
             return self.directed(x, drivers(complete, self.grid, self.params), rng), None
         if self.emitter == "iso_line":
-            emitter = IsoLineEmitter(archive, iso_sigma=self.sigma, line_sigma=0.2, x0=np.full(d, 0.5),
+            emitter = IsoLineEmitter(archive, iso_sigma=self.sigma, line_sigma=LINE_SIGMA, x0=np.full(d, 0.5),
                                      bounds=None, batch_size=1, seed=int(seeds[2]))
         else:
             emitter = GaussianEmitter(archive, sigma=self.sigma, x0=np.full(d, 0.5), bounds=None, batch_size=1,
@@ -244,17 +245,29 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
 
     def curious(self, score: dict[int, float], elites: list[FrozenTrial], rng,
                 driven: list[np.ndarray] | None = None) -> tuple[np.ndarray, int]:
-        """An elite drawn by its curiosity score (curiosity()), mutated by the emitter (gaussian, sparse or
-        directed; `driven`: the directed emitter's drivers)."""
+        """An elite drawn by its curiosity score (curiosity()), mutated by the emitter (gaussian, iso_line, sparse
+        or directed; `driven`: the directed emitter's drivers)."""
         weights = np.array([max(CURIOUS_FLOOR, 1.0 + score.get(e.number, 0.0)) for e in elites])
         parent = elites[int(rng.choice(len(elites), p=weights / weights.sum()))]
-        x = parent.system_attrs.get(X_ATTR)
-        x = np.asarray(x, float) if x is not None else encode(parent.params, self.params)
+        x = self.point(parent)
         if self.emitter == "sparse":
             return self.sparse(x, rng), parent.number
         if self.emitter == "directed":
             return self.directed(x, driven, rng), parent.number
+        if self.emitter == "iso_line":  # the line's other end: an elite drawn uniformly, as ribs' IsoLineEmitter
+            return self.iso_line(x, self.point(elites[int(rng.integers(len(elites)))]), rng), parent.number
         return self.gaussian(x, rng), parent.number
+
+    def point(self, elite: FrozenTrial) -> np.ndarray:
+        """The elite's normalised point: the one it was asked at, else its values encoded."""
+        x = elite.system_attrs.get(X_ATTR)
+        return np.asarray(x, float) if x is not None else encode(elite.params, self.params)
+
+    def iso_line(self, x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Iso+LineDD (Vassiliades & Mouret 2018), as ribs' IsoLineEmitter steps: `x` plus Gaussian noise of spread
+        sigma plus a step of spread LINE_SIGMA along the line to another elite `y`, folded into the cube."""
+        return fold(x + rng.normal(0.0, self.sigma, size=len(x)) + rng.normal(0.0, LINE_SIGMA) * (y - x),
+                    self.params)
 
     def gaussian(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """MAP-Elites' step: `x` plus Gaussian noise of spread sigma, folded into the cube (fold)."""

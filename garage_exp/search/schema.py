@@ -115,7 +115,7 @@ class ArchiveConf:
     # it, learnt from the study, redrawn, the rest kept)
     emitter: str = "gaussian"
     # which elite is mutated: uniform (MAP-Elites) | curiosity (in proportion to how often its offspring entered the
-    # archive: Cully & Demiris 2018); curiosity takes the gaussian, sparse or directed emitter
+    # archive: Cully & Demiris 2018), mutated by any emitter (iso_line's other elite drawn uniformly)
     parents: str = "uniform"
     sigma: float = 0.15  # the mutation's spread in the space normalised to [0, 1] per parameter
     failure: float = 0.6  # a cell holds a hard-and-fair failure when its elite's difficulty is at least this

@@ -131,9 +131,6 @@ def _check_archive(search, goal) -> None:
     parents = str(search.archive.get("parents", "uniform"))
     if parents not in PARENTS:
         raise GarageError(f"unknown choice of parents {parents!r} ({' | '.join(PARENTS)})", "search.archive.parents")
-    if parents == "curiosity" and search.archive.emitter == "iso_line":
-        raise GarageError("curiosity chooses the parent the emitter mutates: the gaussian, sparse or directed "
-                          "emitter, not iso_line (ribs picks its own)", "search.archive.parents")
     if not float(search.archive.sigma) > 0:
         raise GarageError(f"{search.archive.sigma}: the mutation's spread must be positive", "search.archive.sigma")
     if not 0.0 <= float(search.archive.failure) <= 1.0:
