@@ -75,3 +75,15 @@ def test_several_workers_are_counted_while_all_are_warm():
     assert both["told"] == ["COMPLETE", "PRUNED", "COMPLETE", "COMPLETE", "PRUNED", "COMPLETE"]
     assert rate(both["ends"], both["window_warmup"]) == (2.5, 5)  # 5 told after the window's first, in 2 s
     assert both["cpu_per_scenario"] == pytest.approx(((2.0 + 1.0) / 7, (0.1 + 0.1) / 7))
+
+
+def test_each_archive_cells_page_keeps_its_searches_in_a_dir_of_its_own(tmp_path):
+    """archive_cells resumes a study of the same sampler and seed found in its dir (an interrupted run goes on):
+    by default that dir is the page's own, so a variant's run never continues another page's searches; `--out`
+    still names any dir."""
+    from benchmarks.common import ROOT
+    from benchmarks.studies.archive_cells import out_dir
+
+    assert out_dir("", "archive_cells_wide_iso") == ROOT / "outputs" / "benchmarks" / "archive_cells_wide_iso"
+    assert out_dir("", "archive_cells") != out_dir("", "archive_cells_wide")
+    assert out_dir(str(tmp_path), "archive_cells") == tmp_path

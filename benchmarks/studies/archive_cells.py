@@ -9,7 +9,7 @@ descriptors are measured by the search itself whatever its sampler (search/archi
 cells are counted the same way: cells of the shipped descriptors (81) whose hardest trial has difficulty >= 0.6.
 
 Run: .venv/bin/python -m benchmarks.studies.archive_cells [--trials 30] [--seeds 0,1,2] [--workers 2]
-     [--samplers archive,tpe,random] [--out outputs/benchmarks/archive_cells]
+     [--samplers archive,tpe,random] [--out outputs/benchmarks/<page>]
      [--space wide] [--extra 'key=value ...'] [--page archive_cells] [--recount] [--figure PATH]
 `--space NAME` searches a shipped space (conf/space/NAME.yaml: one-shot scenarios, `search.trials` of them, its
 requirements redrawing what could not be fair) instead of the loop's; `--extra` adds overrides to every search
@@ -138,20 +138,27 @@ def draw(rows: list[dict], samplers: list[str], path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def out_dir(out: str, page: str) -> Path:
+    """Where the searches' studies go: `--out`, else a dir of the page's own. One dir for every page made each
+    search resume the study of the same sampler and seed that another page's run had left there (a variant's
+    seed 0 continued from an old pilot's 1,138 trials), and counted both as one."""
+    return Path(out) if out else ROOT / "outputs" / "benchmarks" / page
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--trials", type=int, default=30)
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--samplers", default="archive,tpe,random")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", default=str(ROOT / "outputs" / "benchmarks" / "archive_cells"))
+    parser.add_argument("--out", default="", help="the studies' dir (default: outputs/benchmarks/<page>)")
     parser.add_argument("--space", default="", help="a shipped space (conf/space/NAME.yaml); default: the loop's")
     parser.add_argument("--extra", default="", help="overrides added to every search, space-separated")
     parser.add_argument("--page", default="archive_cells", help="the results page's name")
     parser.add_argument("--recount", action="store_true", help="count the studies already in --out, run nothing")
     parser.add_argument("--figure", default="", help="draw the failure cells' curves to this PNG")
     args = parser.parse_args(argv)
-    out = Path(args.out)
+    out = out_dir(args.out, args.page)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [(s, int(k)) for k in args.seeds.split(",") for s in args.samplers.split(",")]
     if args.recount:
@@ -182,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     write_json_page(RESULTS / f"{args.page}.md", "Failure cells by sampler" + (f" on the {args.space} space"
                                                                            if args.space else " (issue 39, goal 1)"),
                     {"command": "python -m benchmarks.studies.archive_cells " + " ".join(
-                        "DIR" if a == args.out else a for a in (argv or sys.argv[1:])),  # no machine path
+                        "DIR" if a == args.out and a else a for a in (argv or sys.argv[1:])),  # no machine path
                      "machine": machine(), "load_after": load(), "commit": commit.strip(), "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                      "recounted": args.recount,  # true: counted later from the studies that command's run left
                      "rows": rows, "mean_failure_cells": means, "table": lines})
