@@ -141,7 +141,7 @@ def draw(rows: list[dict], samplers: list[str], path: Path, title: str) -> None:
 def out_dir(out: str, page: str) -> Path:
     """Where the searches' studies go: `--out`, else a dir of the page's own. One dir for every page made each
     search resume the study of the same sampler and seed that another page's run had left there (a variant's
-    seed 0 continued from an old pilot's 1,138 trials), and counted both as one."""
+    seed 0 continued from the 73 trials of a pilot with other settings), and counted both as one."""
     return Path(out) if out else ROOT / "outputs" / "benchmarks" / page
 
 
