@@ -27,8 +27,9 @@ def build_scene(job: SceneSpec, classified: Classified, library, rng, screen=Non
     # The case first: it reads the plan, never the built garage, and refuses actors that overlap (Infeasible) -
     # a third of a wide search's draws, each then spared building the garage it would not use.
     setup = make_case(job, classified, library, rng)
+    rig = cameras(job, setup)  # the ego's, placed by the case: what the screen looks through, and the scene's
     if screen is not None:
-        screen(job, setup, cameras(job, setup))  # reads the set-up, draws no random number: the build is unchanged
+        screen(job, setup, rig)  # reads the set-up, draws no random number: the build is unchanged
     scene = build_garage(classified, job.garage, job.light)
     if job.blank:
         studio_light(scene, classified, job)
@@ -45,7 +46,7 @@ def build_scene(job: SceneSpec, classified: Classified, library, rng, screen=Non
         scene.entities.extend(park_vehicles(classified, job.garage, job.palette, library, rng, scene,
                                             exclude=setup.used_bays))
     dress(scene, classified, job.garage, job.look, job.materials, job.clutter, int(job.seed), marking_wear(job))
-    scene.cameras = cameras(job, setup)
+    scene.cameras = rig
     scene.background = not job.blank
     return scene, setup
 

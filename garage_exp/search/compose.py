@@ -13,6 +13,7 @@ import copy
 import re
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override, OverrideType, ValueType
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 
@@ -71,8 +72,6 @@ NUMBER = re.compile(r"([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*)=(-?(
 
 def number_override(line: str):
     """The Override Hydra's parser makes of a `key=number` line, or None for any other line."""
-    from hydra.core.override_parser.types import Override, OverrideType, ValueType
-
     match = NUMBER.fullmatch(line)
     if match is None:
         return None
