@@ -114,6 +114,52 @@ def test_wet_floors_shine_where_puddles_are():
     assert rough.min() < 0.15 < 0.3 < rough.max()  # puddles gloss, the damp film between them less
 
 
+def test_a_floors_and_lines_kept_layers_draw_the_pixels_drawn_without_them():
+    """A wide space draws grime, wetness and wear per scenario: a floor's noise, stains, cracks and puddles and the
+    line paint's noise are drawn once per kind, seed, size (and stain counts) and weighed per picture
+    (textures._start, _grime). Each picture equals the one drawn straight from its random numbers, as the
+    pictures were drawn before they were kept: cold, and warm after pictures that share its layers."""
+    from garage_exp.scene import textures
+    from garage_exp.scene.textures import _blobs, _cracks, _rgba, _rng, fbm
+
+    def floor_drawn(colour, roughness, seed, size, grime, wet):
+        rng = _rng("concrete", seed)
+        shade = 1.0 + 0.18 * fbm(size, rng) + 0.05 * fbm(size, rng, octaves=3, base=32)
+        rough = np.full((size, size), roughness, np.float32)
+        if grime > 0:
+            stains = _blobs(size, rng, int(3 + 7 * grime), (0.03, 0.09))
+            smears = _blobs(size, rng, int(4 + 10 * grime), (0.015, 0.03), stretch=7.0)
+            shade *= 1.0 - 0.6 * grime * stains - 0.35 * grime * smears
+            shade *= 1.0 - 0.5 * _cracks(size, rng, int(1 + 3 * grime))
+            rough -= 0.35 * stains * grime
+        if wet > 0:
+            rough *= 1.0 - 0.5 * wet
+            puddles = np.clip((fbm(size, rng, octaves=4, base=2) + 0.15) * 4.0, 0.0, 1.0) * wet
+            shade *= 1.0 - 0.3 * puddles
+            rough = rough * (1.0 - puddles) + 0.1 * puddles
+        return _rgba(np.asarray(colour), shade), np.clip(rough, 0.03, 1.0)
+
+    def paint_drawn(colour, seed, size, wear):
+        rng = _rng("paint", seed)
+        gone = np.clip((fbm(size, rng, octaves=5, base=8) + 1.2 * wear - 0.85) * 5.0, 0.0, 1.0)[..., None]
+        rgb = np.asarray(colour[:3], np.float32)[None, None] * (1 - gone) + np.float32(0.1) * gone
+        rgb *= (1.0 + 0.08 * fbm(size, rng, octaves=3, base=32))[..., None]
+        return np.concatenate([np.clip(rgb, 0, 1), np.ones((size, size, 1))], axis=2).astype(np.float32)
+
+    colour = (0.3, 0.29, 0.27, 1.0)
+    textures._grime.cache_clear()
+    # 0.37 and 0.38 share the stain counts (5, 7, 2): the second is weighed from the first's kept layers
+    for grime, wet in ((0.37, 0.0), (0.38, 0.9), (0.0, 0.6), (1.0, 1.0), (0.0, 0.0), (0.12, 0.3)):
+        floor = Material("f", colour, 0.8, texture=Texture("concrete", 11, 2.0, (("grime", grime), ("wetness", wet))))
+        rgba, rough = textures.image(floor)
+        want_rgba, want_rough = floor_drawn(colour, 0.8, 11, 192, grime, wet)
+        assert np.array_equal(rgba, want_rgba) and np.array_equal(rough, want_rough), (grime, wet)
+    assert textures._grime.cache_info().hits >= 1
+    for wear in (0.3, 0.31, 0.9):
+        paint = Material("p", (0.9, 0.8, 0.1, 1.0), texture=Texture("paint", 4, 1.0, (("wear", wear),)))
+        assert np.array_equal(textures.image(paint)[0], paint_drawn((0.9, 0.8, 0.1, 1.0), 4, 96, wear)), wear
+
+
 def test_camera_sensor_noise_vignetting_and_tone():
     params = {"full_well": 10000.0, "exposure": 1.0, "read_noise": 0.0, "target_brightness": 0.18,
               "max_gain": 1.0, "blur_sigma": 0.0, "vignetting": 0.0, "tone": "srgb", "quantize": False}

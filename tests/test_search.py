@@ -316,6 +316,63 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
         assert len(launch.compositions.cache) == 2  # light=dim twice: one composition
 
 
+def test_a_compositions_copy_is_deepcopys_node_for_node():
+    """Each point's config is a copy of its cached composition (search/compose.py copied), made directly rather
+    than by copy.deepcopy: the same nodes (types, metadata, values, flags), parented in the copy, nothing mutable
+    shared with the original; a value set in the copy leaves the original as it was."""
+    import copy
+
+    from conftest import hydra_loader
+    from hydra.types import RunMode
+    from omegaconf import Container, OmegaConf, open_dict
+
+    from garage_exp.search.compose import copied
+
+    with hydra_loader() as loader:
+        master = loader.load_configuration("config", ["hydra/sweeper=search", "space=wide"], RunMode.MULTIRUN)
+        cfg = loader.load_sweep_config(master, ["space=wide", "plan=generated"])
+    def resolved(config):  # the job's part (hydra's holds values the launch sets)
+        return {key: OmegaConf.to_container(config[key], resolve=True) if isinstance(config[key], Container)
+                else config[key] for key in config if key != "hydra"}
+
+    resolved(cfg)  # fills the flag caches
+    assert cfg._metadata.resolver_cache  # ${now:...} of hydra's dirs
+    ours, theirs = copied(cfg), copy.deepcopy(cfg)
+
+    def walk(a, b, original, parent_a, parent_b):
+        assert type(a) is type(b) and a is not original
+        assert set(a.__dict__) == set(b.__dict__)
+        assert a._metadata == b._metadata and a._metadata is not original._metadata
+        assert a._metadata.flags is not original._metadata.flags
+        assert a._metadata.resolver_cache is not original._metadata.resolver_cache
+        assert a.__dict__["_parent"] is parent_a and b.__dict__["_parent"] is parent_b
+        assert a.__dict__["_flags_cache"] == b.__dict__["_flags_cache"]
+        for key in set(a.__dict__) - {"_metadata", "_parent", "_flags_cache", "_content"}:
+            assert a.__dict__[key] == b.__dict__[key], key
+        if not isinstance(a, Container):
+            return 1
+        content = a.__dict__["_content"]
+        if not isinstance(content, (dict, list)):
+            assert content == b.__dict__["_content"]
+            return 1
+        keys = content.keys() if isinstance(content, dict) else range(len(content))
+        assert list(keys) == list(b.__dict__["_content"].keys() if isinstance(content, dict)
+                                  else range(len(b.__dict__["_content"])))
+        return 1 + sum(walk(content[k], b.__dict__["_content"][k], original.__dict__["_content"][k], a, b)
+                       for k in keys)
+
+    assert walk(ours, theirs, cfg, None, None) > 500  # the wide space: ~630 nodes
+    assert OmegaConf.to_container(ours) == OmegaConf.to_container(theirs) == OmegaConf.to_container(cfg)
+    assert resolved(ours) == resolved(cfg)
+    before = OmegaConf.to_container(cfg)
+    OmegaConf.update(ours, "light.intensity", 0.123, merge=True)
+    OmegaConf.update(ours, "case.actors.target.distance", 7, merge=True)
+    with open_dict(ours):
+        ours.hydra.overrides.task = ["x=1"]
+    assert OmegaConf.to_container(cfg) == before and ours.light.intensity == 0.123
+    assert OmegaConf.is_struct(ours) and OmegaConf.get_type(ours) is OmegaConf.get_type(cfg)
+
+
 def test_a_drawn_number_is_the_override_hydras_parser_makes_of_it():
     """The cached composition makes a `key=number` line's Override itself (search/compose.py number_override);
     on drawn values and on the grammar's edge cases it is Hydra's own, value type included, and any line that

@@ -131,22 +131,58 @@ def _ceiling_fields(rng, size: int):
     return fbm(size, rng), _blobs(size, rng, 3, (0.05, 0.12))
 
 
+def _stripes_fields(rng, size: int):
+    return fbm(size, rng), _blobs(size, rng, 3, (0.05, 0.1))
+
+
+def _paint_fields(rng, size: int):
+    return fbm(size, rng, octaves=5, base=8), fbm(size, rng, octaves=3, base=32)
+
+
+def _arrow_fields(rng, size: int):
+    return (fbm(size, rng, base=8),)
+
+
 def _floor(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, np.ndarray]:
     grime, wet = float(tex.param("grime", 0.5)), float(tex.param("wetness", 0.0))
     shade = _started(tex, rng, size, _floor_fields)[0].copy()
     rough = np.full((size, size), mat.roughness, np.float32)
+    counts = (int(3 + 7 * grime), int(4 + 10 * grime), int(1 + 3 * grime)) if grime > 0 else None
+    stains, smears, cracks, puddled = _grime(tex.kind, tex.seed, size, counts)
     if grime > 0:
-        stains = _blobs(size, rng, int(3 + 7 * grime), (0.03, 0.09))
-        smears = _blobs(size, rng, int(4 + 10 * grime), (0.015, 0.03), stretch=7.0)
         shade *= 1.0 - 0.6 * grime * stains - 0.35 * grime * smears
-        shade *= 1.0 - 0.5 * _cracks(size, rng, int(1 + 3 * grime))
+        shade *= 1.0 - 0.5 * cracks
         rough -= 0.35 * stains * grime  # oil shines
     if wet > 0:
         rough *= 1.0 - 0.5 * wet  # a damp film everywhere, puddles where the floor dips
-        puddles = np.clip((fbm(size, rng, octaves=4, base=2) + 0.15) * 4.0, 0.0, 1.0) * wet
+        puddles = puddled * wet
         shade *= 1.0 - 0.3 * puddles  # wet concrete darkens
         rough = rough * (1.0 - puddles) + 0.1 * puddles  # glossy, not a mirror: a lamp's reflection is a blob
     return _rgba(np.asarray(mat.color), shade), np.clip(rough, 0.03, 1.0)
+
+
+# A floor's stains, smears and cracks are drawn in numbers set by its grime (3-10, 4-14, 1-4: a dozen settings
+# over grime's range), then its puddles' noise: the same numbers for a kind, seed, size and those counts,
+# whatever the grime's exact value, which only weighs them. A wide space draws grime and wetness per scenario:
+# the layers are kept, so a floor is a few weighted sums (~2 ms), not their drawing again (~8 ms, ten floors a
+# scenario of five).
+@STATE.memo("process", maxsize=64)
+def _grime(kind: str, seed: int, size: int, counts: tuple[int, int, int] | None
+           ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """The floor's stains, smears and cracks (None without grime) and its puddles' mask before wetness weighs it,
+    drawn from the picture's random numbers after its first fields (`_start`), as `_floor` drew them; read-only."""
+    rng = _rng(kind, seed)
+    rng.bit_generator.state = _start(kind, seed, size, _floor_fields)[1]
+    layers: list = [None, None, None]
+    if counts is not None:
+        stains_n, smears_n, cracks_n = counts
+        layers = [_blobs(size, rng, stains_n, (0.03, 0.09)), _blobs(size, rng, smears_n, (0.015, 0.03), stretch=7.0),
+                  _cracks(size, rng, cracks_n)]
+    layers.append(np.clip((fbm(size, rng, octaves=4, base=2) + 0.15) * 4.0, 0.0, 1.0))
+    for layer in layers:
+        if layer is not None:
+            layer.setflags(write=False)
+    return tuple(layers)
 
 
 def _wall(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, None]:
@@ -167,7 +203,8 @@ def _stripes(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, N
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float32) / size * tex.tile
     band = ((xx + yy) / 0.2).astype(np.int32) % 2
     colour = np.where(band[..., None] == 0, np.asarray(mat.color[:3])[None, None], 0.02)
-    shade = 1.0 + 0.1 * fbm(size, rng) - 0.25 * float(tex.param("grime", 0.5)) * _blobs(size, rng, 3, (0.05, 0.1))
+    noise, blobs = _started(tex, rng, size, _stripes_fields)
+    shade = 1.0 + 0.1 * noise - 0.25 * float(tex.param("grime", 0.5)) * blobs
     rgb = np.clip(colour * shade[..., None], 0, 1)
     return np.concatenate([rgb, np.ones((size, size, 1))], axis=2).astype(np.float32), None
 
@@ -176,10 +213,10 @@ def _paint(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, Non
     """Line paint worn through to the floor colour in patches, more where `wear` is higher."""
     wear = float(tex.param("wear", 0.3))
     floor = np.array([float(tex.param(f"floor_{c}", 0.1)) for c in "rgb"], np.float32)
-    noise = fbm(size, rng, octaves=5, base=8)
+    noise, grain = _started(tex, rng, size, _paint_fields)
     gone = np.clip((noise + 1.2 * wear - 0.85) * 5.0, 0.0, 1.0)[..., None]
     rgb = np.asarray(mat.color[:3], np.float32)[None, None] * (1 - gone) + floor[None, None] * gone
-    rgb *= (1.0 + 0.08 * fbm(size, rng, octaves=3, base=32))[..., None]
+    rgb *= (1.0 + 0.08 * grain)[..., None]
     return np.concatenate([np.clip(rgb, 0, 1), np.ones((size, size, 1))], axis=2).astype(np.float32), None
 
 
@@ -222,7 +259,8 @@ def _arrow(mat: Material, tex: Texture, rng, size: int) -> tuple[np.ndarray, Non
     pts = np.array([[0.05, 0.42], [0.6, 0.42], [0.6, 0.25], [0.95, 0.5], [0.6, 0.75], [0.6, 0.58], [0.05, 0.58]])
     cv2.fillPoly(a, [(pts * s).astype(np.int32)], 255, cv2.LINE_AA)
     wear = float(tex.param("wear", 0.3))
-    alpha = a.astype(np.float32) / 255.0 * np.clip(1.0 - wear * (0.6 + 0.6 * fbm(s, rng, base=8)), 0, 1)
+    alpha = a.astype(np.float32) / 255.0 * np.clip(1.0 - wear * (0.6 + 0.6 * _started(tex, rng, s, _arrow_fields)[0]),
+                                                   0, 1)
     rgb = np.broadcast_to(np.asarray(mat.color[:3], np.float32), (s, s, 3))
     return np.concatenate([rgb, alpha[..., None] * 0.9], axis=2).astype(np.float32), None
 
