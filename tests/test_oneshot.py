@@ -318,10 +318,10 @@ def test_a_one_shot_trials_composition_keeps_hydras_types_and_flags():
         master = loader.load_configuration("config", ["hydra/sweeper=search"], RunMode.MULTIRUN)
         launch = CachedLaunch(SimpleNamespace(config_loader=loader), None, master, {"light", "case", "plan"})
         trial = ["light=dim", "light.intensity=0.3", "case.frames=1", "search.runs=per_search", "search.trial=0"]
-        ours, hydras = launch.compose(trial), loader.load_sweep_config(master, trial)
+        ours, hydras = launch.take(trial), loader.load_sweep_config(master, trial)
         assert OmegaConf.to_container(ours) == OmegaConf.to_container(hydras)
         assert OmegaConf.is_struct(ours) and OmegaConf.get_type(ours.case) is CaseConf
         with pytest.raises(Exception, match="frames"):
             ours.case.frames = "many"  # the schema's type still checks a value
-        other = launch.compose(["light=dim", "light.intensity=0.9", "search.trial=1"])
+        other = launch.take(["light=dim", "light.intensity=0.9", "search.trial=1"])
         assert (ours.light.intensity, other.light.intensity, other.case.frames) == (0.3, 0.9, None)

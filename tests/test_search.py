@@ -310,9 +310,10 @@ def test_a_trial_composed_from_the_cache_equals_hydras_own_composition():
                        "case.actors.target.distance=5.5", "search.trial=0"],
                       ["plan=tiny", "light=bright", "light.intensity=0.7", "case='3'", "search.trial=1"],
                       ["plan=tiny", "light=dim", "light.intensity=0.9", "search.trial=2"]):
-            ours = OmegaConf.to_container(launch.compose(trial))
             hydras = OmegaConf.to_container(loader.load_sweep_config(master, trial))
-            assert ours == hydras
+            assert OmegaConf.to_container(launch.take(trial)) == hydras  # launched as it comes
+            launch.compose(trial)  # checked first (search/loop.py rejects), Hydra's node not yet a job's
+            assert OmegaConf.to_container(launch.take(trial)) == hydras
         assert len(launch.compositions.cache) == 2  # light=dim twice: one composition
 
 
@@ -414,7 +415,9 @@ def test_the_launch_of_a_draw_just_checked_takes_the_checks_composition_once():
         launch = CachedLaunch(SimpleNamespace(config_loader=loader), None, master, set(levels()))
         draw = ["plan=tiny", "light.intensity=0.3", "search.trial=0"]
         checked = launch.compose(draw)
+        assert list(checked.hydra.overrides.task) != draw  # the check reads none of Hydra's node
         assert launch.take(list(draw)) is checked
+        assert list(checked.hydra.overrides.task) == draw  # the launch made it a job's (equal to Hydra's: above)
         again = launch.take(draw)
         assert again is not checked and launch.last is None  # taken once: the next launch composes its own
         other = ["plan=tiny", "light.intensity=0.9", "search.trial=1"]

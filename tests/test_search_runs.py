@@ -251,15 +251,17 @@ def test_a_study_continued_under_another_tracking_store_gets_a_parent_run_there(
 def test_a_one_shot_search_settles_the_collector(monkeypatch):
     """search.runs=per_search: the collector's youngest generation grows to loop.YOUNG objects before a pass (a
     trial's dropped configs and scenes die young instead of piling up into full passes) and what the process holds
-    is frozen after trials 1, 2, 4 ... 64; a search with a run per trial leaves the collector as it is."""
+    is collected and frozen before the first trial, then frozen after trials 1, 2, 4 ... 64; a search with a run per
+    trial leaves the collector as it is."""
     import gc
 
     from omegaconf import OmegaConf
 
     from garage_exp.search import loop as loop_mod
 
-    frozen = []
+    frozen, collected = [], []
     monkeypatch.setattr(loop_mod.gc, "freeze", lambda: frozen.append(len(searcher.ran)))
+    monkeypatch.setattr(loop_mod.gc, "collect", lambda: collected.append(len(searcher.ran)))
     before = gc.get_threshold()
     try:
         gc.set_threshold(700, 10, 10)
@@ -268,12 +270,13 @@ def test_a_one_shot_search_settles_the_collector(monkeypatch):
         for n in range(70):
             searcher.ran.append(n)
             searcher.settle()
-        assert gc.get_threshold() == (700, 10, 10) and frozen == []
+        assert gc.get_threshold() == (700, 10, 10) and frozen == collected == []
         searcher.search, searcher.ran = OmegaConf.create({"runs": "per_search"}), []
+        searcher.settle()  # before the first trial (SearchLoop.run)
         for n in range(70):
             searcher.ran.append(n)
             searcher.settle()
         assert gc.get_threshold() == (loop_mod.YOUNG, 10, 10)
-        assert frozen == [1, 2, 4, 8, 16, 32, 64]
+        assert collected == [0] and frozen == [0, 1, 2, 4, 8, 16, 32, 64]
     finally:
         gc.set_threshold(*before)

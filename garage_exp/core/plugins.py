@@ -98,15 +98,25 @@ def source_of(module) -> str:
 def build(node: Any, what: str, where: str, *args: Any, **kwargs: Any) -> Any:
     """The component the config node names: `hydra.utils.instantiate(node, *args, **kwargs)`, so `_target_` is
     called with args, then the node's other keys and kwargs as keyword arguments. Only allowed modules; a
-    target that cannot be imported or refuses its arguments is one GarageError naming `where`."""
+    target that cannot be imported or refuses its arguments is one GarageError naming `where`. The project's own
+    code named by plain settings is called directly, as instantiate calls it (`direct`)."""
     from hydra.errors import InstantiationException
     from hydra.utils import instantiate
-    from garage_exp.core.plain import plain
+    from garage_exp.core.plain import plain, thawed
 
     settings = plain(node)
     target = str(settings.get("_target_") or "")
-    resolve(target, what, where)  # checked and imported here, so that its errors name the config's place
+    made = resolve(target, what, where)  # checked and imported here, so that its errors name the config's place
     try:
+        if target.startswith(PROJECT_MODULES) and direct(settings, kwargs):
+            # instantiate's copy of the node into a config, its merge of kwargs and its checks cost ~2 ms a call: a
+            # draw of the wide space builds a dozen (the sensor, the detector's settings, the scene's modifiers)
+            fields = {key: thawed(value) for key, value in settings.items() if key != "_target_"}
+            try:
+                return made(*args, **{**fields, **kwargs})
+            except Exception as exc:  # noqa: BLE001 - in instantiate's words, as it would have raised it
+                name = f"{getattr(made, '__module__', '')}.{getattr(made, '__qualname__', target)}"
+                raise InstantiationException(f"Error in call to target '{name}':\n{exc!r}") from exc
         return instantiate(settings, *args, _convert_="all", **kwargs)
     except InstantiationException as exc:
         cause = exc.__cause__
@@ -115,3 +125,24 @@ def build(node: Any, what: str, where: str, *args: Any, **kwargs: Any) -> Any:
         if isinstance(cause, TypeError):  # wrong or missing settings for this target
             raise GarageError(f"{target}: {cause}", where) from None
         raise
+
+
+INSTANTIATE_KEYS = ("_target_", "_args_", "_recursive_", "_convert_", "_partial_")
+
+
+def direct(settings: dict, kwargs: dict) -> bool:
+    """Whether `instantiate(settings, _convert_="all", **kwargs)` would call the target with the settings as they
+    are (dicts and lists for tuples): no key of instantiate's but the top `_target_`, no text it would resolve
+    (`${...}`), no caller's dict or list for it to copy."""
+    def plain_value(value: Any) -> bool:
+        if isinstance(value, dict):
+            return all(isinstance(k, str) and k not in INSTANTIATE_KEYS and plain_value(v) for k, v in value.items())
+        if isinstance(value, (list, tuple)):
+            return all(plain_value(v) for v in value)
+        if isinstance(value, str):
+            return "${" not in value
+        return value is None or isinstance(value, (bool, int, float))
+
+    return (all(isinstance(k, str) and (k == "_target_" or (not k.startswith("_") and plain_value(v)))
+                for k, v in settings.items())
+            and not any(isinstance(v, (dict, list, tuple)) or k.startswith("_") for k, v in kwargs.items()))

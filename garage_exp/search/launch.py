@@ -38,19 +38,19 @@ class CachedLaunch:
         self.last: tuple[tuple[str, ...], DictConfig] | None = None
 
     def compose(self, overrides: list[str]) -> DictConfig:
-        """A trial's config: composed once per combination of group levels, its values set on a copy."""
-        cfg = self.compositions.compose(overrides)
+        """A draw's config for the search's check: composed once per combination of group levels, its values set
+        on a copy, Hydra's node left as composed (Compositions.compose job=False) until a launch takes it."""
+        cfg = self.compositions.compose(overrides, job=False)
         self.last = (tuple(overrides), cfg)
         return cfg
 
     def take(self, overrides: list[str]) -> DictConfig:
-        """The job's config: the last composition when it was of these overrides (once), else composed."""
+        """The job's config: the last composition when it was of these overrides (once), made a job's, else
+        composed."""
         last, self.last = self.last, None
         if last is not None and last[0] == tuple(overrides):
-            return last[1]
-        cfg = self.compose(overrides)
-        self.last = None
-        return cfg
+            return self.compositions.as_job(last[1], list(overrides))
+        return self.compositions.compose(list(overrides))
 
     def __call__(self, batch, initial_job_idx: int | Sequence[int]):
         setup_globals()

@@ -135,6 +135,7 @@ class SearchLoop:
     def run(self) -> list[int]:
         """Ask a batch, pre-screen each trial, launch the rest as one batch, tell each its outcome; until the
         budget is spent or `stop` says so (asked between batches: a suite's last batch may overfill a band)."""
+        self.settle()
         while not self.stop(self.study) and not self.frames_spent():
             trials = self.next_trials()
             if not trials:
@@ -203,14 +204,17 @@ class SearchLoop:
         garages, the models, the cached compositions) out of the garbage collector's full passes after trials 1,
         2, 4, ... 64: each full pass walked all of it, about 1 s every 15 one-shot trials on this machine. What
         is alive at a freeze is never collected, so it happens only those few times (a trial's leftovers at most
-        seven times over). The youngest generation is also let grow to YOUNG objects before a pass (Python's
-        default: 700): a draw's composed config, its scene description and the like are dropped within a trial,
-        and with 700 they outlived two young passes, were promoted and piled up into a full pass every ~3 trials
-        (62 passes, 5.9 s of a 200-scenario search's 52 s on the wide space; 3 passes and 49 s with YOUNG)."""
+        seven times over). Before the first trial the youngest generation is let grow to YOUNG objects before a
+        pass (Python's default: 700) and the process is collected once and frozen: a draw's composed config, its
+        scene description and the like die within a trial, and with 700 they outlived two young passes, were
+        promoted and piled up into a full pass every ~3 trials (62 passes, 5.9 s of a 200-scenario search's 52 s
+        on the wide space; one pass, 0.1 s, now)."""
         if self.search.get("runs", "per_trial") != "per_search":
             return
         if gc.get_threshold()[0] < YOUNG:
             gc.set_threshold(YOUNG, *gc.get_threshold()[1:])
+            gc.collect()  # the start's garbage is not frozen with it
+            gc.freeze()
         if len(self.ran) in FREEZE_AT:
             gc.freeze()
 
