@@ -248,3 +248,36 @@ def test_a_job_converts_its_config_once(tmp_path, mlflow_uri, monkeypatch):
     r = run_app(["plan=tiny", "dry_run=true", "camera=front", f"tracking.uri={mlflow_uri}"], tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
     assert len(converted) == 1, converted
+
+
+def test_a_configs_plain_values_are_to_containers():
+    """core.plain.resolved reads a config's values from its nodes (a job and each checked draw convert ~630 of them):
+    equal to OmegaConf.to_container(resolve=True) on the shipped configs, the wide space's included, and on
+    interpolations to values, nodes and lists, missing values, None nodes and enums; what to_container refuses it
+    refuses in the same words."""
+    import enum
+
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.plain import resolved
+
+    for overrides in [(), ("space=wide", "plan=generated", "case=oneshot"), ("case=3", "sensor=noisy")]:
+        cfg = compose_cfg(*overrides)
+        assert resolved(cfg) == OmegaConf.to_container(cfg, resolve=True), overrides
+
+    class Kind(enum.Enum):
+        A = 1
+
+    made = OmegaConf.create({"a": 1, "b": "${a}", "c": {"d": [1, "${a}", {"e": "${c.f}"}], "f": "x${a}y"},
+                             "g": "${c}", "h": "${c.d}", "i": "???", "j": None, "k": {"l": "???"}, "m": Kind.A,
+                             "n": "\\${a}", "o": "${oc.select:c.f,zz}", "p": [], "q": {}})
+    made.k = "???"
+    made.j = None
+    ours, theirs = resolved(made), OmegaConf.to_container(made, resolve=True)
+    assert ours == theirs and type(ours["m"]) is Kind and ours["g"] is not ours["c"]
+    broken = OmegaConf.create({"a": "${nowhere}", "b": {"c": "${a}"}})
+    with pytest.raises(Exception) as ours_raised:
+        resolved(broken)
+    with pytest.raises(Exception) as theirs_raised:
+        OmegaConf.to_container(broken, resolve=True)
+    assert (type(ours_raised.value), str(ours_raised.value)) == (type(theirs_raised.value), str(theirs_raised.value))
