@@ -252,7 +252,7 @@ def test_a_job_converts_its_config_once(tmp_path, mlflow_uri, monkeypatch):
 
 def test_a_configs_plain_values_are_to_containers():
     """core.plain.resolved reads a config's values from its nodes (a job and each checked draw convert ~630 of them):
-    equal to OmegaConf.to_container(resolve=True) on the shipped configs, the wide space's included, and on
+    equal to OmegaConf.to_container(resolve=True) (and resolve=False, the schema check's) on the shipped configs, the wide space's included, and on
     interpolations to values, nodes and lists, missing values, None nodes and enums; what to_container refuses it
     refuses in the same words."""
     import enum
@@ -264,6 +264,7 @@ def test_a_configs_plain_values_are_to_containers():
     for overrides in [(), ("space=wide", "plan=generated", "case=oneshot"), ("case=3", "sensor=noisy")]:
         cfg = compose_cfg(*overrides)
         assert resolved(cfg) == OmegaConf.to_container(cfg, resolve=True), overrides
+        assert resolved(cfg, resolve=False) == OmegaConf.to_container(cfg, resolve=False), overrides
 
     class Kind(enum.Enum):
         A = 1
@@ -275,6 +276,9 @@ def test_a_configs_plain_values_are_to_containers():
     made.j = None
     ours, theirs = resolved(made), OmegaConf.to_container(made, resolve=True)
     assert ours == theirs and type(ours["m"]) is Kind and ours["g"] is not ours["c"]
+    made.r = "${c}"  # a node that is an interpolation, kept as written unresolved
+    assert resolved(made, resolve=False) == OmegaConf.to_container(made, resolve=False)
+    assert resolved(made, resolve=False)["b"] == "${a}"
     broken = OmegaConf.create({"a": "${nowhere}", "b": {"c": "${a}"}})
     with pytest.raises(Exception) as ours_raised:
         resolved(broken)

@@ -71,22 +71,23 @@ def settings(node: Any) -> Any:
     return frozen(node)
 
 
-def resolved(node: Any) -> Any:
-    """`OmegaConf.to_container(node, resolve=True)`, read from the nodes: a value that is no interpolation is
-    taken as it is held, the rest resolved as to_container resolves it. A job and each draw a search checks convert
-    their config (~630 nodes on the wide space: 3.6 ms by to_container, most of it spent per node on values that
-    need no resolving). Anything that raises is converted again by to_container, which raises it in its words;
-    tests/test_job_spec.py pins the two equal."""
+def resolved(node: Any, resolve: bool = True) -> Any:
+    """`OmegaConf.to_container(node, resolve=resolve)`, read from the nodes: a value that is no interpolation is
+    taken as it is held, the rest resolved as to_container resolves it (or kept as written, resolve=False). A job
+    and each draw a search checks convert their config (~630 nodes on the wide space: 3.6 ms by to_container, most
+    of it spent per node on values that need no resolving; 2.0 ms here), and the schema check reads it unresolved.
+    Anything that raises is converted again by to_container, which raises it in its words; tests/test_job_spec.py
+    pins the two equal."""
     from omegaconf import OmegaConf
 
     try:
-        return _content(node)
+        return _content(node, resolve)
     except Exception:  # noqa: BLE001 - to_container says what is wrong, as it did
-        return OmegaConf.to_container(node, resolve=True)
+        return OmegaConf.to_container(node, resolve=resolve)
 
 
-def _content(conf: Any) -> Any:
-    """omegaconf's BaseContainer._to_content(conf, resolve=True, throw_on_missing=False), values read directly."""
+def _content(conf: Any, resolve: bool) -> Any:
+    """omegaconf's BaseContainer._to_content(conf, resolve, throw_on_missing=False), values read directly."""
     from omegaconf import MISSING, Container, DictConfig
 
     if conf._is_none():
@@ -94,6 +95,8 @@ def _content(conf: Any) -> Any:
     if conf._is_missing():
         return MISSING
     if conf._is_interpolation():
+        if not resolve:
+            return conf._value()
         conf = conf._dereference_node()
     items = conf.__dict__["_content"]
     keys = items.keys() if isinstance(conf, DictConfig) else range(len(items))
@@ -101,12 +104,12 @@ def _content(conf: Any) -> Any:
     for key in keys:
         node = items[key]
         if isinstance(node, Container):
-            value = _content(node)
+            value = _content(node, resolve)
         else:
             value = node.__dict__["_val"]
-            if isinstance(value, str) and "${" in value:  # an interpolation: resolved as to_container does
+            if resolve and isinstance(value, str) and "${" in value:  # resolved as to_container resolves it
                 node = node._dereference_node()
-                value = _content(node) if isinstance(node, Container) else node._value()
+                value = _content(node, resolve) if isinstance(node, Container) else node._value()
         if isinstance(out, dict):
             out[key] = value
         else:

@@ -105,14 +105,16 @@ def level_file(cfg: DictConfig, group: str) -> str:
 def _task_values(cfg: DictConfig) -> dict:
     """The config as plain data, but Hydra's own node (a sweep job's config carries it; a fifth of the config),
     which unknown_keys skips: not converted."""
+    from garage_exp.core.plain import resolved
+
     if not (isinstance(cfg, DictConfig) and any(k in cfg for k in NOT_IN_SCHEMA)):
-        return OmegaConf.to_container(cfg, resolve=False)
+        return resolved(cfg, resolve=False)
     out = {}
     for key in cfg:
         if key not in NOT_IN_SCHEMA:
             node = cfg._get_node(key)
             plain = OmegaConf.is_config(node) and not node._is_none() and not node._is_missing()
-            out[key] = OmegaConf.to_container(node, resolve=False) if plain else node._value()
+            out[key] = resolved(node, resolve=False) if plain else node._value()
     return out
 
 
