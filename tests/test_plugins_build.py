@@ -100,6 +100,7 @@ def test_a_targets_refusals_read_the_same(monkeypatch):
     ({"_target_": "garage_exp.x.f", "inner": {"_target_": "garage_exp.x.g"}}, {}),  # nested: instantiate builds it
     ({"_target_": "garage_exp.x.f", "_partial_": True}, {}),
     ({"_target_": "garage_exp.x.f", "text": "${oc.env:HOME}"}, {}),  # instantiate resolves it
+    ({"_target_": "garage_exp.x.f", "size": "???"}, {}),  # instantiate refuses it as missing
     ({"_target_": "garage_exp.x.f", "items": [{"_args_": [1]}]}, {}),
     ({"_target_": "garage_exp.x.f", "when": np.datetime64("2026-01-01")}, {}),  # not plain data
     ({"_target_": "garage_exp.x.f"}, {"options": {"a": 1}}),  # a caller's dict: instantiate hands a copy

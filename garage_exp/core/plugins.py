@@ -133,14 +133,14 @@ INSTANTIATE_KEYS = ("_target_", "_args_", "_recursive_", "_convert_", "_partial_
 def direct(settings: dict, kwargs: dict) -> bool:
     """Whether `instantiate(settings, _convert_="all", **kwargs)` would call the target with the settings as they
     are (dicts and lists for tuples): no key of instantiate's but the top `_target_`, no text it would resolve
-    (`${...}`), no caller's dict or list for it to copy."""
+    (`${...}`) or refuse as missing (`???`), no caller's dict or list for it to copy."""
     def plain_value(value: Any) -> bool:
         if isinstance(value, dict):
             return all(isinstance(k, str) and k not in INSTANTIATE_KEYS and plain_value(v) for k, v in value.items())
         if isinstance(value, (list, tuple)):
             return all(plain_value(v) for v in value)
         if isinstance(value, str):
-            return "${" not in value
+            return "${" not in value and value != "???"  # instantiate resolves the one, refuses the other
         return value is None or isinstance(value, (bool, int, float))
 
     return (all(isinstance(k, str) and (k == "_target_" or (not k.startswith("_") and plain_value(v)))
