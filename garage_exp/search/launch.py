@@ -6,8 +6,9 @@ group levels (and structural overrides), then sets the trial's values on a copy 
 Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging. A one-shot search's
 trials (`search.runs=per_search`) skip `run_job`'s two copies of the config and the per-job log file (`run_lean`).
 A search whose space has requirements composes each draw to check it (search/loop.py `rejects`); the launch of
-that draw takes that very composition (`last`) instead of composing it again: a copy of the cached config and
-its ~50 values set cost about 0.05 s a scenario on the wide space.
+that draw takes that very composition (`last`) instead of composing it again (a copy of the cached config and
+its ~50 values set: about 0.05 s a scenario on the wide space when the copy was deepcopy's, ~6 ms now), and sets
+Hydra's node as the job's then (`Compositions.as_job`): the check reads none of it.
 
 A batch's jobs are numbered by Hydra's `initial_job_idx` (consecutive), or by the list of their numbers: a search
 batch's trial numbers, with gaps where the pre-screen pruned a trial (the job's dir is its trial's number).
