@@ -417,3 +417,84 @@ def test_the_archive_search_writes_its_archive_and_each_elites_rerun_reproduces_
     for _, elite in table.iterrows():  # each elite's rerun command gives its trial's frame table
         theirs = pd.read_csv(f"{study.trials[int(elite.trial)].user_attrs['output_dir']}/frames.csv")
         pd.testing.assert_frame_equal(rerun_elite(elite, tmp_path), theirs)
+
+
+def surrogate_cell(x) -> dict:
+    """The cell a point of a..f lands in: its kind set by a, its distance by b, its luminance by c."""
+    kind = "car" if x[0] < 1 / 3 else ("adult" if x[0] < 2 / 3 else "child")
+    return cell(kind, distance=2.0 + 20.0 * x[1], luminance=0.4 * x[2])
+
+
+def surrogate_study(n: int, seed: int = 0) -> list:
+    """n trials at uniform points of a..f, each in surrogate_cell(x) and failing (difficulty 0.8) when d > 0.7;
+    every third one rejected (pruned, no cell)."""
+    rng = np.random.default_rng(seed)
+    made = []
+    for k in range(n):
+        x = rng.uniform(size=6)
+        values = dict(zip("abcdef", map(float, x)))
+        if k % 3 == 2:
+            made.append(create_trial(state=TrialState.PRUNED, params=values,
+                                     distributions={c: FloatDistribution(0.0, 1.0) for c in "abcdef"},
+                                     user_attrs={"rejected": "too far"}, system_attrs={archive.X_ATTR: list(x)}))
+            continue
+        made.append(trial(k, 0.8 if x[3] > 0.7 else 0.2, surrogate_cell(x), params=values, x=list(x)))
+    return numbered(made)
+
+
+def test_the_surrogate_emitter_proposes_draws_predicted_to_fail_in_cells_without_a_failure():
+    """search.archive.emitter=surrogate (search/surrogate.py): a forest fit on the study predicts each candidate's
+    cell and verdict; the ask is the candidate expected to add the most failure cells not yet found. On a study
+    of 120 trials whose failures need d > 0.7 and which holds failures in about half of its 36 cells, the asks
+    fail in a cell without a failure far more often than uniform draws do."""
+    from garage_exp.search import surrogate
+
+    params = {k: FloatDistribution(0.0, 1.0) for k in "abcdef"}
+    search = search_conf()
+    grid = archive.Grid(search.descriptors)
+    trials = surrogate_study(120)
+    held = surrogate.open_cells(trials, grid, 0.6)
+    reachable = {grid.index(surrogate_cell(x)) for x in np.random.default_rng(1).uniform(size=(4000, 6))}
+    found = [c for c in reachable if not held[np.ravel_multi_index(c, grid.dims)]]
+    assert len(reachable) == 36 and 8 <= len(found) <= 28
+
+    def new_failure(x) -> bool:
+        return x[3] > 0.7 and held[np.ravel_multi_index(grid.index(surrogate_cell(x)), grid.dims)]
+
+    sampler = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, emitter="surrogate",
+                                     failure=0.6)
+    asked = [sampler.ask(trials, n) for n in range(120, 160)]
+    rate = np.mean([new_failure(x) for x, _ in asked])
+    uniform = np.mean([new_failure(x) for x in np.random.default_rng(2).uniform(size=(2000, 6))])
+    assert uniform < 0.25 and rate > 0.45
+    assert sampler._surrogate[0] == 120 // surrogate.REFIT * surrogate.REFIT  # fit on the first k * REFIT
+    # a Gaussian offspring names its parent, an elite of the study; a uniform draw none
+    elites = {t.number for t in archive.elite_trials(trials, grid).values()}
+    assert all(p is None or p in elites for _, p in asked)
+    # seeded by the trial's number, and the same from a fresh sampler (a resume, another worker)
+    again = archive.ArchiveSampler(params, search.descriptors, seed=0, startup=1, emitter="surrogate")
+    assert np.array_equal(again.ask(trials, 125)[0], asked[5][0])
+    # the expectation: a point that fails in an open cell against the same point passing, or in a found cell
+    model = sampler._surrogate[1]
+    open_x = next(x for x in np.random.default_rng(3).uniform(size=(4000, 6)) if new_failure(x))
+    done_x = next(x for x in np.random.default_rng(4).uniform(size=(4000, 6))
+                  if x[3] > 0.9 and not held[np.ravel_multi_index(grid.index(surrogate_cell(x)), grid.dims)])
+    passing = np.array([*open_x[:3], 0.2, *open_x[4:]])
+    got = model.expected(np.array([open_x, passing, done_x]), held)
+    assert got[0] > 2 * max(got[1], got[2])
+    # too few trials with a cell to learn from: a Gaussian step from an elite
+    x, parent = sampler.ask(trials[:60], 60)
+    assert parent in elites
+    assert np.all(np.abs(x - np.asarray(trials[parent].system_attrs[archive.X_ATTR])) < 0.9)
+
+
+def test_the_surrogate_emitter_is_accepted_by_the_searchs_check_and_a_misspelt_one_named():
+    from garage_exp.core.errors import GarageError
+    from garage_exp.search.study import check_search
+
+    search = search_conf(sampler="archive", objective="difficulty")
+    OmegaConf.update(search, "archive.emitter", "surrogate")
+    check_search(search)
+    OmegaConf.update(search, "archive.emitter", "surogate")
+    with pytest.raises(GarageError, match="unknown emitter 'surogate'.*surrogate"):
+        check_search(search)

@@ -39,7 +39,7 @@ from garage_exp.report.archive_cells import Grid, draw_cells, elite_trials  # no
 log = logging.getLogger("garage_exp")
 X_ATTR = "archive:x"  # the normalised point the archive sampler asked (system attr of the trial)
 PARENT_ATTR = "archive:parent"  # the elite (trial number) an offspring was mutated from (system attr, curiosity)
-EMITTERS = ("gaussian", "iso_line", "sparse", "directed")
+EMITTERS = ("gaussian", "iso_line", "sparse", "directed", "surrogate")
 PARENTS = ("uniform", "curiosity")
 LINE_SIGMA = 0.2  # the iso-line emitter's spread along the line between two elites (ribs' default)
 # Curiosity (Cully & Demiris 2018, "Quality and diversity optimization: a unifying modular framework"): an elite
@@ -170,10 +170,12 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
     """Optuna's sampler interface around ribs' MAP-Elites emitters (see the module's doc)."""
 
     def __init__(self, params: dict, descriptors, seed: int, startup: int, emitter: str = "gaussian",
-                 sigma: float = 0.15, parents: str = "uniform"):
+                 sigma: float = 0.15, parents: str = "uniform", failure: float = 0.6):
         self.params, self.grid, self.seed = dict(params), Grid(descriptors), int(seed)
         self.startup, self.emitter, self.sigma, self.parents = int(startup), emitter, float(sigma), parents
+        self.failure = float(failure)
         self._random = optuna.samplers.RandomSampler(seed=seed)
+        self._surrogate: tuple[int, object] | None = None  # (the trials it was fit on, the surrogate): surrogate.py
 
     def infer_relative_search_space(self, study, trial) -> dict:
         return dict(self.params)
@@ -190,6 +192,8 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
 
         seeds = np.random.SeedSequence([self.seed, number]).generate_state(3)
         d = len(self.params)
+        if self.emitter == "surrogate":
+            return self.predicted(trials, number, seeds)
         if self.parents == "curiosity":
             cells: dict[int, tuple | None] = {}
             score, elites = replay_archive(trials, self.grid, cells)  # one pass: the elites, scores and cells
@@ -217,6 +221,33 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
             emitter = GaussianEmitter(archive, sigma=self.sigma, x0=np.full(d, 0.5), bounds=None, batch_size=1,
                                       seed=int(seeds[2]))
         return fold(emitter.ask()[0], self.params), None
+
+    def predicted(self, trials: list[FrozenTrial], number: int, seeds) -> tuple[np.ndarray, int | None]:
+        """The surrogate emitter's point (search/surrogate.py): uniform for the first `startup` trials and while
+        the archive is empty, a Gaussian step from an elite drawn uniformly until surrogate.MIN_CELLS finished
+        trials have a cell, then the candidate the forest expects to add the most failure cells not yet found."""
+        from garage_exp.search import surrogate
+
+        d = len(self.params)
+        finished = sorted(trials, key=lambda t: t.number)
+        elites = sorted(elite_trials([t for t in finished if t.state == TrialState.COMPLETE], self.grid).values(),
+                        key=lambda t: t.number)
+        rng = np.random.default_rng(int(seeds[2]))
+        if number < self.startup or not elites:
+            return np.random.default_rng(int(seeds[1])).uniform(size=d), None
+        fit = len(finished) // surrogate.REFIT * surrogate.REFIT
+        if self._surrogate is None or self._surrogate[0] != fit:  # refit once per REFIT trials, in this process
+            x, y = surrogate.rows(finished[:fit], self.grid, self.point, self.failure)
+            model = None
+            if int(np.sum(y[:, -1] >= 0)) >= surrogate.MIN_CELLS:
+                model = surrogate.Surrogate(self.grid.dims, self.seed * 100_003 + fit).fit(x, y)
+            self._surrogate = (fit, model)
+        if self._surrogate[1] is None:  # too few trials with a cell to learn from
+            parent = elites[int(rng.integers(len(elites)))]
+            return self.gaussian(self.point(parent), rng), parent.number
+        point, parent = surrogate.propose(self._surrogate[1], finished, self.grid, self.failure,
+                                          [self.point(e) for e in elites], self.gaussian, rng, d)
+        return point, (None if parent is None else elites[parent].number)
 
     @staticmethod
     def sparse(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -276,8 +307,8 @@ class ArchiveSampler(optuna.samplers.BaseSampler):
     def sample_relative(self, study, trial, search_space) -> dict:
         if not search_space:
             return {}
-        finished = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL) if self.parents == "curiosity" else \
-            (TrialState.COMPLETE,)
+        finished = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL) \
+            if self.parents == "curiosity" or self.emitter == "surrogate" else (TrialState.COMPLETE,)
         x, parent = self.ask(study.get_trials(deepcopy=False, states=finished), trial.number)
         study._storage.set_trial_system_attr(trial._trial_id, X_ATTR, [float(v) for v in x])
         if parent is not None:

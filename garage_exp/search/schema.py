@@ -112,7 +112,8 @@ class ArchiveConf:
 
     # gaussian (MAP-Elites) | iso_line (MAP-Elites with the Iso+LineDD operator) | sparse (an elite with 1-3 of
     # its factors redrawn, the rest kept) | directed (an elite moved along one descriptor: the factors that drive
-    # it, learnt from the study, redrawn, the rest kept)
+    # it, learnt from the study, redrawn, the rest kept) | surrogate (the candidate a forest fit on the study expects
+    # to add the most failure cells not yet found: search/surrogate.py)
     emitter: str = "gaussian"
     # which elite is mutated: uniform (MAP-Elites) | curiosity (in proportion to how often its offspring entered the
     # archive: Cully & Demiris 2018), mutated by any emitter (iso_line's other elite drawn uniformly)

@@ -233,7 +233,7 @@ def sampler(search, seed: int, params: dict | None = None) -> optuna.samplers.Ba
 
         return ArchiveSampler(params or {}, search.descriptors, seed, int(search.startup),
                               str(search.archive.emitter), float(search.archive.sigma),
-                              str(search.archive.get("parents", "uniform")))
+                              str(search.archive.get("parents", "uniform")), float(search.archive.failure))
     if name == "qmc":
         return optuna.samplers.QMCSampler(qmc_type="sobol", scramble=True, seed=seed, warn_independent_sampling=False)
     return NumberedRandom(seed=seed)  # random; saltelli enqueues its design, random fills the rest
