@@ -15,6 +15,8 @@ and bookkeeping) rebuilds the archive from the study's complete trials at each a
 the trial's number: a resumed study, a batch (`search.batch`, each trial another seed), a pre-screened trial and
 several workers on one storage all see the same archive the storage holds. (CMA-ME's emitters keep a covariance
 between asks that a resume would lose; MAP-Elites' does not.) The first `search.startup` trials are uniform.
+The surrogate emitter (search/surrogate.py) chooses among uniform draws and Gaussian offspring the one a forest,
+fit on the study's finished trials, expects to add the most failure cells not yet found.
 """
 
 from __future__ import annotations
