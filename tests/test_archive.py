@@ -482,9 +482,11 @@ def test_the_surrogate_emitter_proposes_draws_predicted_to_fail_in_cells_without
     passing = np.array([*open_x[:3], 0.2, *open_x[4:]])
     got = model.expected(np.array([open_x, passing, done_x]), held)
     assert got[0] > 2 * max(got[1], got[2])
-    # too few trials with a cell to learn from: a Gaussian step from an elite
-    x, parent = sampler.ask(trials[:60], 60)
-    assert parent in elites
+    # too few trials with a cell to learn from (none yet fit on, or under MIN_CELLS): a Gaussian step from an elite
+    for few in (3, 24, 60):
+        x, parent = sampler.ask(trials[:few], few)
+        assert parent in {t.number for t in archive.elite_trials(trials[:few], grid).values()}
+    assert sampler._surrogate == (50, None)
     assert np.all(np.abs(x - np.asarray(trials[parent].system_attrs[archive.X_ATTR])) < 0.9)
 
 

@@ -48,7 +48,9 @@ def rows(trials: list[FrozenTrial], grid, point, failure: float) -> tuple[np.nda
         else:
             y.append([*cell, int(t.values[0] >= failure)])
         x.append(at)
-    return np.asarray(x, float).reshape(len(x), -1), np.asarray(y, int).reshape(len(y), len(grid.dims) + 1)
+    if not x:
+        return np.zeros((0, 0)), np.zeros((0, len(grid.dims) + 1), int)
+    return np.asarray(x, float), np.asarray(y, int)
 
 
 class Surrogate:
