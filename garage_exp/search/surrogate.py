@@ -88,13 +88,13 @@ class Surrogate:
 
 def open_cells(trials: list[FrozenTrial], grid, failure: float) -> np.ndarray:
     """A bool per cell of the grid (C order): True where no complete trial failed at `failure`."""
-    held = np.ones(int(np.prod(grid.dims)), bool)
+    empty = np.ones(int(np.prod(grid.dims)), bool)
     for t in trials:
         if t.state == TrialState.COMPLETE and t.values and t.values[0] >= failure:
             cell = grid.index(t.user_attrs.get("descriptors") or {})
             if cell is not None:
-                held[np.ravel_multi_index(cell, grid.dims)] = False
-    return held
+                empty[np.ravel_multi_index(cell, grid.dims)] = False
+    return empty
 
 
 def propose(model: Surrogate, trials: list[FrozenTrial], grid, failure: float, elites: list[np.ndarray],
