@@ -78,6 +78,17 @@ def missing(capability: str) -> str | None:
     return _have[capability]
 
 
+def instruction_set() -> str:
+    """The CPU feature that decides numeric kernels: OpenVINO's INT8 detectors pick AVX-512 VNNI, AVX-VNNI or AVX2
+    kernels, which round differently, and the slot truth's floats differ in their last digits between AVX-512 and
+    AVX2 machines, so a few pinned outputs hold one set per kind of machine (tests/golden/<set>/)."""
+    try:
+        flags = set(Path("/proc/cpuinfo").read_text().split())
+    except OSError:
+        return "unknown"
+    return "avx512" if "avx512_vnni" in flags else "avxvnni" if "avx_vnni" in flags else "avx2"
+
+
 def chromium() -> str | None:
     import shutil
 

@@ -14,21 +14,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import run_app
+from conftest import instruction_set, run_app
 
 pytestmark = [pytest.mark.render, pytest.mark.detect, pytest.mark.slow]
-
-
-
-def instruction_set() -> str:
-    """The CPU feature that decides the INT8 detectors' kernels (OpenVINO picks AVX-512 VNNI, AVX-VNNI or AVX2
-    kernels, which round differently): the same frames give confidences that differ by up to a few hundredths
-    between these machines, while geometry and ground truth are identical."""
-    try:
-        flags = set(Path("/proc/cpuinfo").read_text().split())
-    except OSError:
-        return "unknown"
-    return "avx512" if "avx512_vnni" in flags else "avxvnni" if "avx_vnni" in flags else "avx2"
 
 
 # The tables were pinned on both kinds of 2-core machine this project runs on (tests/golden/<set>/); between

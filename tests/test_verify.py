@@ -206,15 +206,24 @@ def test_ap50_is_cocos_and_the_loop_uses_it(tmp_path):
 
 @pytest.mark.detect
 def test_verify_a_detector_behind_a_model_server(photos, tmp_path):
-    """Any configured detector: yolo11n served over KServe v2 scores as the local yolo11n did (recall 6/7, mAP50 1)."""
+    """Any configured detector: yolo11n served over KServe v2 scores as the local yolo11n does on this machine
+    (recall 6/7, mAP50 1, and the same false positives: the INT8 kernels of an AVX2 and an AVX-512 machine round
+    differently, and an AVX2 machine finds one more false positive on the two photos, so the local run on the same
+    machine is the reference, not a number)."""
     from garage_exp.assets.locate import models_dir
     from kserve_server import Server
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    def metrics(models: str, folder: Path) -> dict:
+        folder.mkdir()
+        r = run_verify([f"data={photos / 'data.yaml'}", "+label_map.pedestrian=person", f"detector.models={models}"],
+                       folder, f"sqlite:///{folder / 'mlflow.db'}")
+        assert r.returncode == 0, (r.stdout[-2000:], r.stderr[-2000:])
+        return json.loads((folder / "verify_run" / "result.json").read_text())["metrics"]
+
+    local = metrics(f"[{YOLO}]", tmp_path / "local")
     with Server({"yolo": models_dir() / YOLO}) as server:
-        r = run_verify([f"data={photos / 'data.yaml'}", "+label_map.pedestrian=person",
-                        f"detector.models=[{server.url('yolo')}]"], tmp_path, uri)
-    assert r.returncode == 0, (r.stdout[-2000:], r.stderr[-2000:])
-    m = json.loads((tmp_path / "verify_run" / "result.json").read_text())["metrics"]
-    assert m["recall"] == pytest.approx(6 / 7) and m["map50/yolo"] == pytest.approx(1.0)
-    assert m["fp_per_image/yolo"] == 0.5
+        served = metrics(f"[{server.url('yolo')}]", tmp_path / "served")
+    assert served["recall"] == pytest.approx(6 / 7) and served["map50/yolo"] == pytest.approx(1.0)
+    assert served["fp_per_image/yolo"] in (0.5, 1.0)  # 1 false positive on the two photos (AVX-512), or 2 (AVX2)
+    for name in ("recall", "map50", "fp_per_image"):
+        assert served[f"{name}/yolo"] == pytest.approx(local[f"{name}/yolo11n_int8"]), name
