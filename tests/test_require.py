@@ -100,8 +100,23 @@ def test_a_shipped_space_settles_its_requirements_and_cells_unless_the_command_s
     assert mine.search.require.min_visible == 0.6 and mine.search.require.min_box == 25
     plain = compose_cfg()
     space_mod.settle(plain, [])
-    assert plain.search.require.min_visible is None
+    assert plain.search.require.min_visible is None and plain.search.archive.emitter == "gaussian"
     assert OmegaConf.to_container(plain.search.descriptors)[0]["source"] == "kind"
+
+
+def test_the_wide_space_names_its_archive_emitter_and_the_command_or_the_measured_loop_keeps_its_own():
+    """conf/space/wide.yaml's `emitter: surrogate` (what beat random there, docs/search.md) is the search's unless
+    the command names one; the wide loop's Q arm names the Gaussian step it was measured with (docs/loop.md)."""
+    from test_loop_wide import shipped
+
+    cfg = compose_cfg("space=wide")
+    space_mod.settle(cfg, ["space=wide"])
+    assert cfg.search.archive.emitter == "surrogate"
+    q = shipped("loop_wide").arms.Q
+    assert q.sampler == "archive" and list(q.overrides) == ["search.archive.emitter=gaussian"]
+    measured = compose_cfg("space=wide", *q.overrides)
+    space_mod.settle(measured, ["space=wide", *q.overrides])
+    assert measured.search.archive.emitter == "gaussian"
 
 
 def test_a_lens_camera_is_left_to_the_render():

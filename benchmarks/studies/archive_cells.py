@@ -12,8 +12,10 @@ Run: .venv/bin/python -m benchmarks.studies.archive_cells [--trials 30] [--seeds
      [--samplers archive,tpe,random] [--out outputs/benchmarks/<page>]
      [--space wide] [--extra 'key=value ...'] [--page archive_cells] [--recount] [--figure PATH]
 `--space NAME` searches a shipped space (conf/space/NAME.yaml: one-shot scenarios, `search.trials` of them, its
-requirements redrawing what could not be fair) instead of the loop's; `--extra` adds overrides to every search
-(the descriptors, a detector); each search's own cells are counted with the descriptors it measured.
+requirements redrawing what could not be fair, and its archive emitter: the wide space's surrogate since
+2026-12-07) instead of the loop's; `--extra` adds overrides to every search (the descriptors, a detector,
+`search.archive.emitter=gaussian` for the wide space's pages measured before); each search's own cells are counted
+with the descriptors it measured.
 Writes benchmarks/results/<page>.md (the table, the command, commit, date and machine), with each search's curve:
 its failure cells after its first 30, 60, 125, 250, 500, 1000 ... scenarios (the order it rendered them), so that
 one run shows whether a sampler overtakes another and where. `--recount` writes the page from the studies already in

@@ -172,8 +172,9 @@ class SpaceConf:
     """A search space shipped as a file (conf/space/NAME.yaml; `space=NAME`): `params` are overrides in the
     search's grammar (`key=interval(a,b)`, `key=choice(a,b)`, fixed `key=value`), taken as if written on the
     command line before the command's own (which win for the same key: garage_exp/search/space.py: expand);
-    `require` its conditions on a draw. Both are the search's (`search.require`, `search.descriptors`) unless the
-    command sets those itself (garage_exp/search/space.py: settle)."""
+    `require` its conditions on a draw. These, its cells and its archive emitter are the search's
+    (`search.require`, `search.descriptors`, `search.archive.emitter`) unless the command sets those itself
+    (garage_exp/search/space.py: settle)."""
 
     name: str = "none"
     params: list[str] = field(default_factory=list)
@@ -181,6 +182,9 @@ class SpaceConf:
     # the archive's cells for this space: a named set of descriptors (search/schema.py: DESCRIPTOR_SETS);
     # None: the search's own (`search.descriptors`)
     descriptors: Optional[str] = None
+    # the archive's emitter for this space (ArchiveConf.emitter's names); None: the search's own
+    # (`search.archive.emitter`). The wide space names the surrogate, which found 1.8x random's failure cells there
+    emitter: Optional[str] = None
 
 
 register_node("search", SearchConf)

@@ -68,8 +68,8 @@ def expand(config: DictConfig, arguments: list[str]) -> list[str]:
 
 def settle(config: DictConfig, arguments: list[str]) -> None:
     """A shipped space's own search settings onto `config.search`, each unless the command sets it itself: each
-    bound of its `require` (search.require.*) and its named `descriptors` (search.descriptors). In place; the same
-    config settles the same way again."""
+    bound of its `require` (search.require.*), its named `descriptors` (search.descriptors) and its archive
+    `emitter` (search.archive.emitter). In place; the same config settles the same way again."""
     from omegaconf import open_dict, read_write
 
     from garage_exp.search.schema import DESCRIPTOR_SETS
@@ -88,6 +88,9 @@ def settle(config: DictConfig, arguments: list[str]) -> None:
                 raise GarageError(f"unknown descriptor set {name!r} ({' | '.join(DESCRIPTOR_SETS)})",
                                   "space.descriptors")
             config.search.descriptors = OmegaConf.structured(DESCRIPTOR_SETS[name]())
+        emitter = space.get("emitter")
+        if emitter and not given & {"search.archive", "search.archive.emitter"}:
+            config.search.archive.emitter = emitter  # checked with the search's own (search/archive.py: EMITTERS)
 
 
 def with_shipped(arguments: list[str], folder=None) -> list[str]:
