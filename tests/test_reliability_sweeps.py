@@ -63,10 +63,18 @@ def fresh_store(tmp_path) -> str:
     return f"sqlite:///{tmp_path / 'mlflow.db'}"
 
 
+JOB_OF = {"bright": 0, "dim": 1, "clear": 2}  # SWEEP's job numbers
+
+
 def hanging(uri: str, sweep_dir: Path, light: str):
-    """The job of that light level is running (hanging in the fault) and the ones before it finished."""
+    """The job of that light level is running, hanging in the fault (its line printed: a signal now lands in the
+    fault's sleep, as it would in a long render, not somewhere the job is still starting), and the ones before
+    it finished."""
     if not (sweep_dir / tracking.PARENT_FILE).exists():
         return None  # the sweep is still opening its parent run: do not race it
+    out = sweep_dir.parent / "first.out"
+    if f"FAULT: job {JOB_OF[light]} hangs" not in (out.read_text() if out.exists() else ""):
+        return None
     _, runs = all_runs(uri)
     jobs = job_runs(runs)
     running = [r for r in jobs if r.info.status == "RUNNING"]
@@ -81,7 +89,10 @@ def signal_while_hanging(proc: subprocess.Popen, uri: str, sweep_dir: Path, ligh
     try:
         run = wait_for(lambda: hanging(uri, sweep_dir, light), proc)
         os.kill(proc.pid, sig)
-        return run, proc.wait(timeout=60)
+        try:
+            return run, proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:  # say where it was: its output so far
+            pytest.fail(f"no exit 120 s after signal {sig}:\n{(sweep_dir.parent / 'first.out').read_text()[-3000:]}")
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
