@@ -175,6 +175,24 @@ def test_resume_reruns_a_job_whose_plan_file_was_edited(tmp_path, fresh_store):
     assert all(j.info.status == "FINISHED" for j in jobs)
 
 
+def test_sigterm_inside_a_store_write_exits_at_once_and_leaves_nothing_running(tmp_path, fresh_store):
+    """SIGTERM that lands inside the MLflow session logging a job's params (tests/faults `store:term`): the write
+    completes, the job's run ends KILLED (not RUNNING), exit 143 with one line, no traceback. Before the signal
+    was held there, the run stayed RUNNING, and under load the stop waited out sqlite's busy timeout (CI: no exit
+    within a minute)."""
+    uri = fresh_store
+    proc = start_sweep([*SWEEP, f"tracking.uri={uri}"], tmp_path, {"PYTHONPATH": FAULTS,
+                                                                   "GARAGE_EXP_FAULT": "store:term:1"})
+    rc = proc.wait(timeout=180)
+    out = (tmp_path / "first.out").read_text()
+    assert "FAULT: job 1 gets SIGTERM inside a store session" in out
+    assert rc == 128 + signal.SIGTERM and "terminated (SIGTERM)" in out and "Traceback" not in out, out[-3000:]
+    _, runs = all_runs(uri)
+    assert not [r for r in runs if r.info.status == "RUNNING"]
+    jobs = job_runs(runs)
+    assert sorted(j.info.status for j in jobs) == ["FINISHED", "KILLED"]
+
+
 def test_ctrl_c_exits_130_and_leaves_nothing_running(tmp_path, fresh_store):
     """SIGINT (Ctrl-C) in a running job: exit code 130, one line saying how to resume, no run left RUNNING."""
     uri = fresh_store

@@ -166,6 +166,42 @@ def test_after_a_signal_retry_never_waits(fresh_outage):
     assert calls == [1]
 
 
+def test_a_signal_during_a_store_call_is_raised_when_the_call_returns(tmp_path, monkeypatch):
+    """SIGTERM (or Ctrl-C) that comes while a database store's session is open is held: the call completes (its
+    write is whole, no lock left to a connection nobody commits), then the interrupt is raised; a second signal
+    while one is held raises at once. A tracking server's request is not held (a signal may cut it)."""
+    import os
+    import signal
+
+    from garage_exp.core.exits import Terminated
+    from garage_exp.core.shell import command_scope
+
+    def store_call(signals):
+        for sig in signals:
+            os.kill(os.getpid(), sig)
+            for _ in range(100):  # let the handler run here, inside the call
+                pass
+        done.append(True)
+        return "written"
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    with command_scope():
+        done = []
+        with pytest.raises(Terminated):
+            runs.retry(lambda: store_call([signal.SIGTERM]))
+        assert done == [True]  # the call ran to its end before the interrupt
+        done = []
+        with pytest.raises(KeyboardInterrupt) as second:
+            runs.retry(lambda: store_call([signal.SIGTERM, signal.SIGINT]))
+        assert done == [] and not isinstance(second.value, Terminated)  # the second one came at once
+        assert runs.retry(lambda: "after") == "after"  # nothing left held
+        monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://127.0.0.1:1")
+        done = []
+        with pytest.raises(Terminated):
+            runs.retry(lambda: store_call([signal.SIGTERM]))
+        assert done == []  # a server's request: cut where it was
+
+
 # -- provenance: a job's identity, its run's name and params ------------------------------------------------------------
 
 def test_resume_identity_includes_the_plan_file_content(tmp_path):

@@ -3,6 +3,7 @@ bad override) - becomes one line on stderr and exit code 2; a bug keeps its trac
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 
@@ -47,13 +48,39 @@ def stopping() -> bool:
 
 
 def on_sigterm(signum, frame):
-    STATE.stop()
-    raise Terminated(f"signal {signum} (SIGTERM)")
+    _stop(Terminated(f"signal {signum} (SIGTERM)"))
 
 
 def on_sigint(signum, frame):
+    _stop(KeyboardInterrupt())
+
+
+def _stop(interrupt: KeyboardInterrupt) -> None:
+    """Raise the interrupt where the command is, or, inside signals_held, when the call held ends; a second
+    signal while one is held raises at once (a user pressing Ctrl-C again means now)."""
     STATE.stop()
-    raise KeyboardInterrupt
+    if STATE.holding and STATE.held is None:
+        STATE.held = interrupt
+        return
+    STATE.held = None
+    raise interrupt
+
+
+@contextlib.contextmanager
+def signals_held():
+    """A call to a database store in flight (the tracking store's SQL session): Ctrl-C or SIGTERM arriving now
+    is raised when it returns, not inside it. Raised inside the session, the interrupt left that job's run
+    RUNNING with its params half logged, or the write lock to a connection nobody would commit, so that the
+    stopping command's own writes (its run ended KILLED) waited out sqlite's busy timeout: 21 s here, over the
+    test's minute under CI's load (tests/faults `store:term`)."""
+    STATE.holding += 1
+    try:
+        yield
+    finally:
+        STATE.holding -= 1
+        if STATE.holding == 0 and STATE.held is not None:
+            held, STATE.held = STATE.held, None
+            raise held
 
 
 def input_error(exc: BaseException) -> str | None:

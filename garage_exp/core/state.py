@@ -46,6 +46,8 @@ class ProcessState:
     saved_env: dict[str, dict[str, str | None]] = field(default_factory=lambda: {scope: {} for scope in SCOPES})
     in_command: bool = False  # between begin() and end(): a command runs
     pool_level: int | None = None  # the store pool logger's level before a stop quieted it (None: not quieted)
+    holding: int = 0  # store calls in flight that a signal must not interrupt (core.exits.signals_held)
+    held: BaseException | None = None  # the Ctrl-C or SIGTERM that came during one, raised when it ends
 
     # A request already on its way to a server that hangs must not hold a stopping command's exit either.
     STOP_ENV = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "3", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"}
@@ -131,6 +133,7 @@ class ProcessState:
             self.sweep = None
             self.finished_jobs = 0
             self.stopping = False
+            self.holding, self.held = 0, None
             if self.pool_level is not None:
                 import logging
 

@@ -97,14 +97,18 @@ def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.
     does not answer for up to tracking_wait() seconds (one line when the wait starts, one when the server is
     back), then TrackingAway. After Ctrl-C or SIGTERM nothing waits: one attempt, and none at all when the
     server was already away."""
-    from garage_exp.core.exits import stopping
+    from garage_exp.core.exits import signals_held, stopping
 
     k = 0
     while True:
         if STATE.tracking_given_up or (stopping() and STATE.tracking_down_since is not None):
             raise TrackingAway(f"tracking server {_uri()} away")
         try:
-            result = fn()
+            if _database(_uri()):
+                with signals_held():  # a signal now is raised once the store's session has ended
+                    result = fn()
+            else:
+                result = fn()  # a request to a server: a signal may cut it (nothing is left locked here)
         except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError and requests' errors
             if _unreachable(exc):
                 now = time.monotonic()
@@ -131,6 +135,14 @@ def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.
                   file=sys.stderr, flush=True)
             STATE.tracking_down_since = None
         return result
+
+
+def _database(uri: str) -> bool:
+    """The store is a database this process opens itself (sqlite, PostgreSQL, MySQL, ...), not a tracking server
+    or a folder."""
+    from mlflow.store.db.db_types import DATABASE_ENGINES  # MLflow's own list: sqlite, postgresql, mysql, mssql
+
+    return uri.split(":", 1)[0].split("+")[0].lower() in DATABASE_ENGINES
 
 
 def _uri() -> str:

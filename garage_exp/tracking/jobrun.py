@@ -160,8 +160,12 @@ def start_job_run(cfg, run_name: str, tags: dict[str, str], parent_run_id: str |
     run = retry(lambda: mlc.create_run(exp_id, run_name=run_name, tags=all_tags))
     job = JobRun(mlc, run.info.run_id, exp_id)
     params = [Param(k, v) for k, v in sorted(config_params(cfg).items())]
-    for k in range(0, len(params), 100):
-        retry(lambda part=params[k:k + 100]: mlc.log_batch(job.run_id, params=part))
+    try:
+        for k in range(0, len(params), 100):
+            retry(lambda part=params[k:k + 100]: mlc.log_batch(job.run_id, params=part))
+    except BaseException as exc:  # Ctrl-C or SIGTERM before the job's body owns the run: it ends, not RUNNING
+        job.end("KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED")
+        raise
     return job
 
 

@@ -12,6 +12,8 @@ does nothing unless $GARAGE_EXP_FAULT is set, to one of:
     disk:raise:JOB        job JOB's plan map write raises OSError ENOSPC (when no small filesystem can be mounted)
     detector:kill:JOB:N,M job JOB's detector process is killed (SIGKILL) right after frames N, M, ... (0-based)
                           are sent to it
+    store:term:JOB        job JOB sends itself SIGTERM inside its first MLflow write's SQL session (the params of its
+                          run: a scheduler's stop that lands mid-transaction)
 
 Several faults: separate them with ";".
 
@@ -137,6 +139,26 @@ def _install(spec: str) -> None:
             module.DetectorProcess.submit = submit
 
         after_import("garage_exp.perception.detect.worker", patch)
+    elif where == "store":
+        sent = [False]
+
+        def patch(module):
+            real_get_run = module.SqlAlchemyStore._get_run  # read inside log_batch's session, before its writes
+
+            def _get_run(self, *args, **kwargs):
+                if _job_num() == job and not sent[0]:
+                    import signal
+                    import time
+
+                    sent[0] = True
+                    print(f"FAULT: job {job} gets SIGTERM inside a store session", flush=True)
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    time.sleep(0.05)  # the handler runs here, inside the session
+                return real_get_run(self, *args, **kwargs)
+
+            module.SqlAlchemyStore._get_run = _get_run
+
+        after_import("mlflow.store.tracking.sqlalchemy_store", patch)
     else:
         raise ValueError(f"GARAGE_EXP_FAULT: unknown fault {spec!r}")
 
