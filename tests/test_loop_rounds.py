@@ -257,6 +257,19 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
     assert book[book["round"] == 2].suite_scenarios.tolist() == [8, 4, 4, 8, 4, 4]  # the suites grew
 
 
+def test_a_real_photo_check_is_named_by_its_round_variant_seeds_and_mix():
+    """One real-photo check per last round, variant, training seeds and mix: a seed added to a dir gets its own
+    check rather than the refusal of a step made from other inputs; a one-seed dir keeps its names."""
+    from garage_exp.loop.app import verify_suffix
+
+    base = ["tracking.uri=sqlite:///x.db", "rounds=2"]
+    assert verify_suffix(small([*base, "seeds=[0]", "wise=1.0"])) == "_r2"  # as before seeds were named
+    one = verify_suffix(small([*base, "seeds=[0]", "wise=0.5"]))
+    two = verify_suffix(small([*base, "seeds=[0,1]", "wise=0.5"]))
+    assert one == "_r2_wise50" and two == "_r2_seeds0-1_wise50"
+    assert verify_suffix(small([*base, "seeds=[0,1]", "wise=1.0", "variant=big"])) == "_r2_big_seeds0-1"
+
+
 def test_each_generator_spends_its_frame_budget_or_the_loop_stops(tmp_path):
     """After a round, every arm's generator rendered at least its frames and less than one trial more; one that hit
     its cap of trials short of the budget stops the loop in one line (raise trials)."""

@@ -332,6 +332,16 @@ def wise_suffix(cfg) -> str:
     return f"_wise{round(100 * float(cfg.wise)):02d}" if float(cfg.wise) < 1.0 else ""
 
 
+def verify_suffix(cfg) -> str:
+    """What names a real-photo check: one per last round, variant, training seeds and mix, so that `rounds=K+1` or
+    `'seeds=[0,1]'` in the same dir scores its own detectors instead of being refused as a step made from other
+    inputs (adding a seed twice met that refusal, and the one-seed checks had to be moved aside by hand). The
+    seeds are named only when they are not the default [0], so a one-seed dir keeps its steps."""
+    seeds = [int(s) for s in cfg.seeds]
+    return (f"_r{cfg.rounds}" + (f"_{cfg.variant}" if cfg.variant else "")
+            + ("" if seeds == [0] else "_seeds" + "-".join(map(str, seeds))) + wise_suffix(cfg))
+
+
 def real_photos(loop: Loop, detectors: dict) -> list[dict]:
     """The detectors through one `python -m garage_exp.verify` per real-photo set (every detector one of its
     models, linked under its loop name, so each gets its own recall and mAP50): D0 and the last round's."""
@@ -358,9 +368,7 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
             link.symlink_to(Path(d["weights"]).absolute())
         linked[name] = link
     rows = []
-    # One verify per set and last round (and variant): `rounds=K+1` scores its own last round, not refused as a
-    # step made from other inputs.
-    suffix = f"_r{loop.cfg.rounds}" + (f"_{loop.cfg.variant}" if loop.cfg.variant else "") + wise_suffix(loop.cfg)
+    suffix = verify_suffix(loop.cfg)
     for label, data in sets:
         m = loop.verify(f"{label}{suffix}", data, [str(p) for p in linked.values()])["metrics"]
         for name, d in detectors.items():
