@@ -9,6 +9,7 @@ to, and `tracking_uri(None)` and the outage messages name it from then on.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import sys
@@ -104,11 +105,10 @@ def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.
         if STATE.tracking_given_up or (stopping() and STATE.tracking_down_since is not None):
             raise TrackingAway(f"tracking server {_uri()} away")
         try:
-            if _database(_uri()):
-                with signals_held():  # a signal now is raised once the store's session has ended
-                    result = fn()
-            else:
-                result = fn()  # a request to a server: a signal may cut it (nothing is left locked here)
+            # A database's session holds a signal until it ends; a server's request may be cut (nothing is left
+            # locked here).
+            with signals_held() if _database(_uri()) else contextlib.nullcontext():
+                result = fn()
         except Exception as exc:  # MlflowException wraps sqlalchemy's OperationalError and requests' errors
             if _unreachable(exc):
                 now = time.monotonic()
