@@ -52,6 +52,30 @@ def test_a_suite_without_fair_frames_has_no_check_and_an_arm_without_recall_has_
     assert checks.suite.tolist() == ["protocol:cpra"] and checks.holds.tolist() == [False]
 
 
+def test_a_failed_check_says_how_many_objects_it_lost_and_whether_its_suite_can_resolve_the_tolerance():
+    """crossing's 4 fair frames move recall in steps of 0.25: one frame lost fails a 0.02 tolerance, and the
+    sentence says "1 of 4"; a photo set of 32 targets lost 2; a table without counts (an older report) says none."""
+    from garage_exp.loop import forgetting
+
+    scores = with_protocol(one_seed_scores(), {"protocol:crossing": {"D0": 0.75, "R": 0.50, "T": 0.75, "Q": 1.0}})
+    scores.loc[scores.suite == "protocol:crossing", "fair_frames"] = 4.0
+    photos = pd.DataFrame([{**p, "set": "street", "recall": r, "objects": 32.0}
+                           for p, r in zip(PHOTOS, (25 / 32, 23 / 32, 25 / 32, 26 / 32))])
+    checks = forgetting.recall_checks(scores, photos, ["R", "T", "Q"], 1, 0.02, 0.05)
+    row = {(r.arm, r.suite): r for r in checks.itertuples()}
+    r = row[("R", "protocol:crossing")]
+    assert (r.objects, r.step, r.lost, r.holds) == (4, 0.25, 1, False)
+    assert row[("Q", "protocol:crossing")].lost == -1 and row[("Q", "protocol:crossing")].holds
+    assert (row[("R", "real:street")].lost, row[("R", "real:street")].holds) == (2, False)
+    said = forgetting.sentence(checks)
+    assert "R forgets on 2 of 2 (worst protocol:crossing: 0.50 vs D0 0.75, allowed drop 0.02, 1 of 4 objects; " \
+           "one object is more than the tolerance)" in said
+    older = forgetting.recall_checks(scores, photos.drop(columns="objects"), ["R"], 1, 0.02, 0.05)
+    street = older[older.suite == "real:street"].iloc[0]
+    assert pd.isna(street.objects) and pd.isna(street.lost) and not street.holds
+    assert "of 32 objects" not in forgetting.sentence(older[older.suite == "real:street"])
+
+
 def test_the_report_writes_the_recall_checks_and_says_them(tmp_path):
     from garage_exp.loop import report
 

@@ -156,6 +156,11 @@ def test_a_round_draws_exactly_its_budget(tmp_path):
     assert len(frames) == 12 and topped == 3 and all("/1/" in str(f) for f in frames[9:])
     with pytest.raises(ValueError, match="fewer than train_frames=19"):
         budget.round_frames(new, found, 19, seed=1)
+    # of the 12, the 9 of the two failures show a failure; the hardest other trial's 3 (confidence 0.8) do not
+    assert budget.failure_frames(frames, found, 0.4) == 9
+    every = budget.round_frames(budget.joining(found, "all", 0.4), found, 18, seed=1)[0]
+    assert budget.failure_frames(every, found, 0.4) == 9  # a random arm's frames hold failures too
+    assert budget.failure_frames(every, found, 0.95) == 15  # 0.1, 0.3 and 0.8 below 0.95: 5 + 4 + 6 frames
 
 
 def fake_steps(monkeypatch, tmp_path):
@@ -240,6 +245,7 @@ def test_rounds_chain_each_arms_detector_and_resume_without_rerunning(tmp_path, 
     assert book.train_frames.tolist() == [8] * 6
     assert book.rendered_frames.tolist() == [16] * 6 and book.trials.tolist() == [4] * 6  # 4 trials: 16 >= 14
     assert book[book.arm == "R"].joined.tolist() == [4, 4] and book[book.arm == "T"].joined.tolist() == [2, 2]
+    assert (book.failure_frames <= book.train_frames).all() and (book.failure_frames >= 0).all()
 
     ran.clear()
     run_loop(small(args))

@@ -287,6 +287,7 @@ def run_loop(cfg: DictConfig) -> dict:
                              "failures": budget.failures(found, float(cfg.hard_below))[0],
                              "joined": len(new), "suite_scenarios": len(suite),
                              "train_frames": trained[arm]["train_frames"], "topped_up_frames": topped,
+                             "failure_frames": budget.failure_frames(frames, suite + found, float(cfg.hard_below)),
                              "replay_frames": trained[arm]["replay_frames"], "epochs": trained[arm]["epochs"],
                              "imgsz": trained[arm]["imgsz"]})
             budget.assert_equal_budget(trained)
@@ -373,7 +374,7 @@ def real_photos(loop: Loop, detectors: dict) -> list[dict]:
         m = loop.verify(f"{label}{suffix}", data, [str(p) for p in linked.values()])["metrics"]
         for name, d in detectors.items():
             rows.append({"detector": name, "arm": d["arm"], "round": d["round"], "seed": d["seed"], "set": label,
-                         "recall": m[f"recall/{name}"], "map50": m[f"map50/{name}"]})
+                         "recall": m[f"recall/{name}"], "map50": m[f"map50/{name}"], "objects": m.get("targets")})
     return rows
 
 

@@ -40,6 +40,16 @@ def joining(found: list[Trial], keep: str, hard_below: float) -> list[Trial]:
     return [t for t in with_data if t.state == "COMPLETE" and 1.0 - t.difficulty < hard_below]
 
 
+def failure_frames(frames: list[Path], trials: list[Trial], hard_below: float) -> int:
+    """How many of a fine-tuning's frames show a hard-and-fair failure of the detector that rendered them (the
+    arm's detector of that round): what makes a targeted arm's data targeted. Random scenarios hold failures too,
+    as many as the space's failure rate makes them (R's half of its frames where D0 fails half the space), so the
+    two arms' shares say how differently they train (docs/loop.md)."""
+    failed = {t.dataset for t in trials if t.dataset is not None and t.state == "COMPLETE"
+              and 1.0 - t.difficulty < hard_below}
+    return sum(1 for f in frames if f.parent.parent in failed)
+
+
 def rendered(found: list[Trial]) -> int:
     """Frames a search rendered (the generator's cost), from each trial's own count."""
     return sum(t.frames for t in found)
