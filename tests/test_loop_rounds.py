@@ -422,6 +422,14 @@ def test_the_report_pairs_seeds_and_corrects_the_whole_family():
     assert family["diff"].iloc[0] == pytest.approx(100 * 8 / 3 / 16)  # R - T: 2, 3, 3 failures of 16
     assert family.p_holm.tolist() == pytest.approx(stats.holm(family.p.tolist())[1], nan_ok=True)
     assert family.p.iloc[3] != family.p.iloc[3]  # the photos' recall: the same for every seed and D0, no spread: no test
+    # the issue's question in seeds: 20 % of R's mean rate (37.5 per 100: 7.5), at Holm's first step over the family
+    estimate = report.power(scores, ["R", "T"], 1, comparisons=len(family))
+    sd = estimate["sd_of_paired_differences"]["R-T"]
+    assert sd == pytest.approx(pd.Series([100 * 2 / 16, 100 * 3 / 16, 100 * 3 / 16]).std())
+    assert estimate["seeds_needed_20pct_holm"]["R-T"] == math.ceil(
+        stats.seeds_needed(sd, 0.2 * 37.5, alpha=0.05 / len(family)))
+    alone = report.power(scores, ["R", "T"], 1, comparisons=1)["seeds_needed_20pct_holm"]["R-T"]
+    assert alone < estimate["seeds_needed_20pct_holm"]["R-T"]  # Holm's first step over 7 asks for more seeds
 
 
 def test_the_held_out_cells_say_which_failure_kinds_training_removed(tmp_path):

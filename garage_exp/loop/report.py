@@ -185,18 +185,24 @@ def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1,
     per-seed differences between arms (seeds), and D0's failure rate (scenarios per detector); and how many
     detect 20 % fewer failures than D0's at Holm's first step over `comparisons` (stats.scenarios_for), and, from
     the share of scenarios that round k's arms disagreed on (`paired`, paired_scenarios), how many McNemar's test
-    needs when every detector scores the same scenarios (stats.scenarios_for_paired)."""
+    needs when every detector scores the same scenarios (stats.scenarios_for_paired). The issue's own question in
+    seeds (`seeds_needed_20pct_holm`): per pair of arms, the training seeds a paired t-test at Holm's first step
+    needs to detect a difference of 20 % of the pair's first arm's failure rate (R's, for R against Q)."""
     held = scores[scores.suite == "heldout"]
     out = {"delta_per_100": DELTA, "alpha": 0.05, "power": 0.8}
-    sds = {}
+    sds, rates = {}, {}
     for i, a in enumerate(arms):
         for b in arms[i + 1:]:
             x, y = by_seed(held, a, k, "per_100"), by_seed(held, b, k, "per_100")
             diffs = [x[s] - y[s] for s in sorted(set(x) & set(y))]
             if len(diffs) >= 2:
                 sds[f"{a}-{b}"] = float(pd.Series(diffs).std(ddof=1))
+                rates[f"{a}-{b}"] = float(pd.Series([x[s] for s in sorted(set(x) & set(y))]).mean())
     out["sd_of_paired_differences"] = sds
     out["seeds_needed"] = {pair: math.ceil(stats.seeds_needed(sd, DELTA)) for pair, sd in sds.items()}
+    out["seeds_needed_20pct_holm"] = {
+        pair: math.ceil(stats.seeds_needed(sd, 0.2 * rates[pair], alpha=0.05 / comparisons))
+        for pair, sd in sds.items() if rates[pair] > 0}
     d0 = held[held.arm == "D0"]
     if len(d0):
         p = float(d0.per_100.iloc[0]) / 100
