@@ -4,6 +4,7 @@ plan's sites of its kind, site 0 is the one the research's cases always stood at
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from pathlib import Path
@@ -265,6 +266,39 @@ def test_a_kind_of_site_of_your_own_is_one_registered_builder(garage):
         sites.SITES.pop("stem_only")
     with pytest.raises(GarageError, match="unknown site 'stem_only'"):
         sites.find_site("stem_only", c, garage)
+
+
+def test_a_site_is_built_once_per_plan_and_each_caller_gets_its_own(garage, monkeypatch):
+    """A case passed on from site to site asks for the same sites again at every draw of a search (~15 a draw on
+    the wide space): each is built once per plan, kind, bay width, pillar size and index, and handed out as a
+    copy equal to a fresh build; another plan object, another index, another pillar size or a kind registered
+    anew under the same name is built again."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.core.state import STATE
+
+    STATE.clear("process")
+    built = []
+    kind = sites.SITES["straight_run"]
+
+    def counted(classified, g, feature):
+        built.append(feature)
+        return kind.build(classified, g, feature)
+
+    monkeypatch.setitem(sites.SITES, "straight_run", sites.SiteKind("straight_run", kind.find, counted, kind.none))
+    c = plan("research")
+    first = sites.find_site("straight_run", c, garage, index=1)
+    again = sites.find_site("straight_run", c, garage, index=1)
+    assert len(built) == 1 and again is not first and fingerprint(again) == fingerprint(first)
+    sites.find_site("straight_run", c, garage, index=2)
+    sites.find_site("straight_run", copy.deepcopy(c), garage, index=1)  # another plan object
+    wider = OmegaConf.merge(garage, {"pillar_size": float(garage.pillar_size) + 0.1})
+    sites.find_site("straight_run", c, wider, index=1)
+    assert len(built) == 4
+    assert fingerprint(first) == fingerprint(sites.every_site("straight_run", c, garage)[1]) and again.index == 1
+    fresh = sites.SiteKind("straight_run", kind.find, lambda *a: sites.Site("mine", {}), kind.none)
+    monkeypatch.setitem(sites.SITES, "straight_run", fresh)
+    assert sites.find_site("straight_run", c, garage, index=1).name == "mine"
 
 
 def test_the_gyms_live_scenario_stands_where_the_job_built_the_case(library):
