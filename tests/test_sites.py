@@ -299,6 +299,9 @@ def test_a_site_is_built_once_per_plan_and_each_caller_gets_its_own(garage, monk
     fresh = sites.SiteKind("straight_run", kind.find, lambda *a: sites.Site("mine", {}), kind.none)
     monkeypatch.setitem(sites.SITES, "straight_run", fresh)
     assert sites.find_site("straight_run", c, garage, index=1).name == "mine"
+    for _ in range(sites.BUILT_PLANS + 3):  # a search of new plans keeps the last few plans' sites, no more
+        sites.find_site("t_junction", copy.deepcopy(c), garage)
+    assert len(sites._BUILT) == sites.BUILT_PLANS
 
 
 def test_the_gyms_live_scenario_stands_where_the_job_built_the_case(library):

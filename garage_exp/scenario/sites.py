@@ -94,10 +94,11 @@ _FOUND: dict = STATE.cache("scenario.sites.found", "job")  # (plan, kind, bay wi
 # A case that does not fit its drawn site tries the next (scenario/build.py build_hosted): on the wide space a draw
 # built ~15 sites, a straight run's 2.5 ms each (every bay of the plan tested against the run), ~40 ms a draw,
 # most of them rejected. A built site depends only on the plan, the kind, the bays' width, the pillars' size and
-# its index: kept for the process, with the plan object it came from (its id is not reused while the entry lives).
+# its index: kept for the process, per plan object (held by the entry, so that its id is not reused while the
+# entry lives), for the last 32 plans as the bays are (a search drawing plan.seed meets a new plan at most draws).
 # Sites are not changed once built (their users read paths and bays); each caller gets its own shallow copy.
 _BUILT: dict = STATE.cache("scenario.sites.built", "process")
-BUILT_KEPT = 2048
+BUILT_PLANS = 32
 
 
 def register_site(name: str, find: Callable[[Classified, Any], list], none: str):
@@ -389,10 +390,13 @@ def find_site(site, classified: Classified, garage, index: int | None = None, dr
     kind = shipped(site)
     found = features_of(site, classified, garage)
     k = pick(len(found), index, draw, site, classified.plan.name)
-    key = (id(classified), kind, float(garage.bay_width), float(garage.pillar_size), k)  # a kind registered anew: its own
-    hit = _BUILT.get(key)
-    if hit is None or hit[0] is not classified:
-        if len(_BUILT) >= BUILT_KEPT:
-            del _BUILT[next(iter(_BUILT))]  # the oldest
-        hit = _BUILT[key] = (classified, replace(kind.build(classified, garage, found[k]), index=k))
-    return replace(hit[1])
+    key = (id(classified), float(garage.bay_width), float(garage.pillar_size))
+    held = _BUILT.get(key)
+    if held is None or held[0] is not classified:
+        if len(_BUILT) >= BUILT_PLANS:
+            del _BUILT[next(iter(_BUILT))]  # the oldest plan's
+        held = _BUILT[key] = (classified, {})
+    built = held[1]
+    if (kind, k) not in built:  # the kind itself in the key: one registered anew under the same name is its own
+        built[(kind, k)] = replace(kind.build(classified, garage, found[k]), index=k)
+    return replace(built[(kind, k)])
