@@ -62,6 +62,7 @@ WIDE = ["space=wide", "camera.width=320", "camera.height=240", "renderer.save_fr
 
 
 CHILD_FLAGS: list[str] = []  # what the children are told besides their arm (--space, --garages)
+SAMPLER = ["random"]  # --sampler: every arm's (a search's own emitter, e.g. the surrogate's, as an override)
 
 
 def use_space(name: str, garages: int) -> None:
@@ -123,7 +124,7 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str], shared
     arm_overrides = ARMS[arm] if arm in ARMS else []  # a --before checkout's today knows no new keys
     with (contextlib.nullcontext(shared) if shared else tempfile.TemporaryDirectory()) as tmp:
         argv = ["-m", "hydra/sweeper=search", *SCENARIO, *SPACE, *arm_overrides, f"search.trials={trials}",
-                "search.sampler=random", "search.seed=0", f"search.study=oneshot-{arm}",
+                f"search.sampler={SAMPLER[0]}", "search.seed=0", f"search.study=oneshot-{arm}",
                 f"search.storage=sqlite:///{tmp}/optuna.db", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
                 f"hydra.sweep.dir={tmp}/sweep", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled", *extra]
         start, epoch = time.perf_counter(), time.time()
@@ -242,6 +243,9 @@ def main() -> int:
     parser.add_argument("--page", type=Path, default=None, help="default: results/oneshot.md (oneshot_<space>.md)")
     parser.add_argument("--space", default="", help="a shipped space (wide) on generated garages instead")
     parser.add_argument("--garages", type=int, default=16, help="with --space: generated garages drawn among")
+    parser.add_argument("--sampler", default="random",
+                        help="every arm's sampler (random; archive: give its emitter as an override, e.g. "
+                             "search.archive.emitter=surrogate, whose draws are rejected less often)")
     parser.add_argument("--workers", type=int, default=1,
                         help="also the oneshot arm as this many workers sharing one study (oneshot x N)")
     parser.add_argument("--child", choices=[*ARMS, "before"], help=argparse.SUPPRESS)
@@ -249,9 +253,11 @@ def main() -> int:
     parser.add_argument("--shared", default="", help=argparse.SUPPRESS)
     parser.add_argument("overrides", nargs="*", help="more Hydra overrides for both arms")
     opts = parser.parse_args()
+    SAMPLER[0] = opts.sampler
+    CHILD_FLAGS[:] = [f"--sampler={opts.sampler}"]
     if opts.space:
         use_space(opts.space, opts.garages)
-        CHILD_FLAGS[:] = [f"--space={opts.space}", f"--garages={opts.garages}"]  # the children measure it too
+        CHILD_FLAGS[:] += [f"--space={opts.space}", f"--garages={opts.garages}"]  # the children measure it too
     page = opts.page or RESULTS / (f"oneshot_{opts.space}.md" if opts.space else "oneshot.md")
     if opts.child:
         return child(opts.child, opts.trials, opts.out, opts.warmup, opts.overrides, opts.shared)
@@ -305,7 +311,7 @@ def main() -> int:
               "load (1 min) |")
     lines = ["# One-shot scenarios a second (issue 49, item 6)", "",
              f"`{command}` · commit `{commit}` · {time.strftime('%Y-%m-%d %H:%M')} · {machine()}", "",
-             f"scenario: {' '.join(SCENARIO)}", f"space: {' '.join(SPACE)}", "", header,
+             f"scenario: {' '.join(SCENARIO)}", f"space: {' '.join(SPACE)}; sampler: {SAMPLER[0]}", "", header,
              "|" + "---|" * 13]
     lines += [f"| {r['arm']} | {r['scenarios']} | {r['rejected']} | {r['complete']} | {r['counted']} | {r['per_s']:.2f} | "
               f"{r['rendered_per_s']:.2f} | "
