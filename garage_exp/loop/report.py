@@ -194,10 +194,10 @@ def power(scores: pd.DataFrame, arms: list[str], k: int, comparisons: int = 1,
     for i, a in enumerate(arms):
         for b in arms[i + 1:]:
             x, y = by_seed(held, a, k, "per_100"), by_seed(held, b, k, "per_100")
-            diffs = [x[s] - y[s] for s in sorted(set(x) & set(y))]
-            if len(diffs) >= 2:
-                sds[f"{a}-{b}"] = float(pd.Series(diffs).std(ddof=1))
-                rates[f"{a}-{b}"] = float(pd.Series([x[s] for s in sorted(set(x) & set(y))]).mean())
+            common = sorted(set(x) & set(y))
+            if len(common) >= 2:
+                sds[f"{a}-{b}"] = float(pd.Series([x[s] - y[s] for s in common]).std(ddof=1))
+                rates[f"{a}-{b}"] = float(pd.Series([x[s] for s in common]).mean())
     out["sd_of_paired_differences"] = sds
     out["seeds_needed"] = {pair: math.ceil(stats.seeds_needed(sd, DELTA)) for pair, sd in sds.items()}
     out["seeds_needed_20pct_holm"] = {
