@@ -187,6 +187,26 @@ def test_a_pictures_srgb_bytes_are_the_formulas():
     assert textures._rgba(colour, shade).tobytes() == joined.tobytes()
 
 
+def test_only_the_pictures_that_read_the_grime_are_made_again_for_another():
+    """A wide space draws the grime per scenario: floors, walls and hazard stripes read it and are made again;
+    ceilings, beams and line paint do not read it, keep their materials (so their uploaded pictures) and show
+    the pixels a picture drawn with the grime in its parameters showed."""
+    from dataclasses import replace
+
+    from garage_exp.scene import look, materials as mat
+
+    clean, dirty = look.Dress(0.1, 0.3, 0.2, 5), look.Dress(0.9, 0.3, 0.2, 5)
+    flat = [mat.CEILING, mat.BEAM, mat.BAY_FLOOR, mat.ASPHALT, mat.WALL_PAINT, mat.PILLAR_BAND]
+    for m in flat:
+        a, b = look.material_map(clean)[m.name](m), look.material_map(dirty)[m.name](m)
+        assert (a == b) == (a.texture.kind in ("ceiling",)), m.name
+    lines = [look._paint(mat.LANE_WHITE, clean), look._paint(mat.LANE_WHITE, dirty)]
+    assert lines[0] == lines[1]
+    for m in (look.material_map(dirty)[mat.CEILING.name](mat.CEILING), lines[1]):
+        grimed = replace(m, texture=replace(m.texture, params=tuple(sorted((*m.texture.params, ("grime", 0.9))))))
+        assert np.array_equal(image(m)[0], image(grimed)[0])
+
+
 def test_camera_sensor_noise_vignetting_and_tone():
     params = {"full_well": 10000.0, "exposure": 1.0, "read_noise": 0.0, "target_brightness": 0.18,
               "max_gain": 1.0, "blur_sigma": 0.0, "vignetting": 0.0, "tone": "srgb", "quantize": False}

@@ -236,10 +236,20 @@ def test_a_garage_with_other_line_wear_and_failed_lamps_rebuilds_only_those_as_a
     renderer = STATE.renderer
     loaded, before = renderer.sapien_scene, list(renderer._built.merged)
     redrawn = getattr(renderer._built, "redrawn", [])
+    renderer._built._boxes = renderer._built.merged_boxes() + 1000.0  # marked: are the kept ones read again?
     renderer.load(worn[1])
     assert renderer.sapien_scene is loaded  # the garage kept loaded, not rebuilt
     after = renderer._built.merged
     assert all((body in after) != (body in redrawn) for body in before)  # only paint and lamps rebuilt
+    # The kept bodies' boxes are kept (statics never move), only the new ones' are read from SAPIEN.
+    read = np.array([body.get_global_aabb_fast() for body in after], dtype=float).reshape(-1, 2, 3)
+    kept = np.array([body in before for body in after])
+    boxes = renderer._built.merged_boxes()
+    assert kept.any() and (~kept).any()
+    assert np.array_equal(boxes[kept] - 1000.0, read[kept]) and np.array_equal(boxes[~kept], read[~kept])
+    renderer._built._boxes = read  # unmarked: the frame below culls by them
+    renderer._index_bodies(renderer._built, worn[1])
+    assert np.array_equal(renderer.bodies.lo[-len(after):], read[:, 0])
     again = rendered(worn[1], worn[2], renderer, worn[0])
     assert np.array_equal(again, fresh_frame(worn)) and again.std() > 0
     renderer = STATE.renderer  # back: fresh paint, every lamp on, on the garage loaded with the worn ones

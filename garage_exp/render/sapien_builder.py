@@ -123,7 +123,6 @@ class SceneBuilder:
                 if all(id(entity) in redrawn for _, _, entity in shapes):
                     self.redrawn.append(body)
                     self.redrawn_materials.add(material)
-        self._boxes = None
 
     def replace_redrawn(self, entities: Iterable[Entity]) -> None:
         """Remove the merged bodies of line paint and lamps (and their materials) and merge the new ones: the
@@ -133,6 +132,8 @@ class SceneBuilder:
         gone = {id(body) for body in self.redrawn}
         for body in self.redrawn:
             self.scene.remove_entity(body.entity)
+        if self._boxes is not None:  # the kept bodies' boxes stay (they never move); the new ones are read later
+            self._boxes = self._boxes[[id(body) not in gone for body in self.merged[:len(self._boxes)]]]
         self.merged = [body for body in self.merged if id(body) not in gone]
         for material in self.redrawn_materials:
             self.materials.pop(material, None)
@@ -140,11 +141,15 @@ class SceneBuilder:
         self.add_statics(entities)
 
     def merged_boxes(self) -> np.ndarray:
-        """The merged static bodies' world AABBs (n, 2, 3), in `merged` order: they never move, so they are read
-        from SAPIEN once per build (about 700 bodies: 0.04 s a load) rather than on every actors' replacement."""
-        if self._boxes is None:
-            self._boxes = np.array([body.get_global_aabb_fast() for body in self.merged],
-                                   dtype=float).reshape(-1, 2, 3)
+        """The merged static bodies' world AABBs (n, 2, 3), in `merged` order: they never move, so each is read
+        from SAPIEN once (about 700 bodies: 0.04 s a load) rather than on every actors' replacement. The boxes
+        kept are those of a prefix of `merged` (statics are appended; replace_redrawn drops the removed ones' and
+        a wide space's draw, whose wear rebuilds the line paint, reads only the new bodies')."""
+        known = 0 if self._boxes is None else len(self._boxes)
+        if self._boxes is None or known < len(self.merged):
+            new = np.array([body.get_global_aabb_fast() for body in self.merged[known:]],
+                           dtype=float).reshape(-1, 2, 3)
+            self._boxes = new if self._boxes is None else np.concatenate([self._boxes, new])
         return self._boxes
 
     def _add_merged(self, name: str, shapes: Sequence[tuple[Pose, Box | Mesh, Entity]]):

@@ -77,8 +77,14 @@ def _textured(base: Material, kind: str, dress: Dress, tile: float = 4.0, **para
                     Texture(kind, dress.seed, tile, _params(kind, dress, params)), specular=SPECULAR)
 
 
+# The kinds whose pictures read the grime (scene/textures.py). Ceilings and line paint do not: a value they never
+# read in their params made a wide-space scenario, which draws grime per scenario, make its two ceiling pictures
+# (384 px) again for the same pixels.
+GRIMED = ("concrete", "asphalt", "wall", "stripes")
+
+
 def _params(kind: str, dress: Dress, extra: dict) -> tuple:
-    values = {**extra, "grime": round(dress.grime, 4)}
+    values = {**extra, "grime": round(dress.grime, 4)} if kind in GRIMED else dict(extra)
     if kind in ("concrete", "asphalt"):
         values["wetness"] = round(dress.wetness, 4)
     if kind == "paint":
