@@ -161,7 +161,7 @@ def test_a_floors_and_lines_kept_layers_draw_the_pixels_drawn_without_them():
 
 
 def test_a_pictures_srgb_bytes_are_the_formulas():
-    """textures.srgb8 converts in place (half the time); its bytes are those of the sRGB formula computed as two
+    """textures.srgb8 converts the whole RGBA picture in place; its bytes are those of the sRGB formula computed as two
     branches joined by np.where, on made pictures of odd sizes, out-of-range and tiny values, float32 and float64,
     and on each kind of texture; `_rgba` writes the picture it computed as a joined float64 copy did."""
     from garage_exp.scene import textures
