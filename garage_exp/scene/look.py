@@ -77,9 +77,9 @@ def _textured(base: Material, kind: str, dress: Dress, tile: float = 4.0, **para
                     Texture(kind, dress.seed, tile, _params(kind, dress, params)), specular=SPECULAR)
 
 
-# The kinds whose pictures read the grime (scene/textures.py). Ceilings and line paint do not: a value they never
-# read in their params made a wide-space scenario, which draws grime per scenario, make its two ceiling pictures
-# (384 px) again for the same pixels.
+# The kinds whose pictures read the grime (scene/textures.py). Ceilings and line paint do not: with the grime in
+# their parameters, every scenario of a wide space (which draws the grime per scenario) made its two ceiling
+# pictures (384 px) again, with the same pixels.
 GRIMED = ("concrete", "asphalt", "wall", "stripes")
 
 
