@@ -99,7 +99,7 @@ map: python
 # Benchmarks (benchmarks/README.md), each `python -m benchmarks.GROUP.NAME`: `make bench` runs the quick ones (about
 # 20 minutes on 2 cores, estimated from the documented runs), the others by name. Their numbers are in docs/performance.md and benchmarks/results/.
 BENCH_QUICK := performance.scene performance.look performance.detect performance.rigs performance.pipeline studies.slot_detector
-BENCH_LONG := performance.sweep performance.garage_size performance.profile_job studies.search studies.falsification studies.soak performance.gym_vector studies.archive_cells performance.oneshot performance.space_check studies.blank_factors
+BENCH_LONG := performance.sweep performance.garage_size performance.profile_job studies.search studies.falsification studies.soak performance.gym_vector studies.archive_cells performance.oneshot performance.oneshot_stages performance.space_check studies.blank_factors
 BENCH_CLUSTER := performance.ray_nodes
 BENCH_GPU := performance.gpu performance.gpu_pipeline
 define run_benchmarks

@@ -87,3 +87,25 @@ def test_each_archive_cells_page_keeps_its_searches_in_a_dir_of_its_own(tmp_path
     assert out_dir("", "archive_cells_wide_iso") == ROOT / "outputs" / "benchmarks" / "archive_cells_wide_iso"
     assert out_dir("", "archive_cells") != out_dir("", "archive_cells_wide")
     assert out_dir(str(tmp_path), "archive_cells") == tmp_path
+
+
+def test_oneshot_stages_reads_threads_and_tables_each_runs_stages():
+    """oneshot_stages: this process's threads' CPU seconds from /proc (the main thread's named as the process),
+    and a table with a stage a row, a run a column, a stage a checkout lacks shown as '-'."""
+    from benchmarks.performance import oneshot_stages as st
+
+    sum(i * i for i in range(200_000))  # some CPU for the main thread
+    threads = st.thread_cpu()
+    assert threads and all(v >= 0 for v in threads.values()) and max(threads.values()) > 0
+    run = {"stages": {"a draw's requirement check": [0.9, 20], "the scene change": [1.5, 10]}, "trials": 30,
+           "complete": 10, "rejected": 8, "told_timed": 12, "wall_timed": 6.5, "threads": {"python": 5.0},
+           "missing": ["ground truth"]}
+    lines = st.table([("`aaa`", run), ("`bbb`", {**run, "threads": {"python": 4.0, "llvmpipe": 1.0}})])
+    assert lines[0] == "| stage (ms a call; calls) | `aaa` | `bbb` |"
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in lines[2:]}
+    assert rows["a draw's requirement check"].endswith("| 45.0; 20 | 45.0; 20 |")
+    assert rows["the scene change"].endswith("| 150.0; 10 | 150.0; 10 |")
+    assert rows["ground truth"].endswith("| - | - |")
+    assert rows["trials (complete, rejected)"].endswith("| 30 (10, 8) | 30 (10, 8) |")
+    assert rows["thread llvmpipe, CPU s"].endswith("| 0.00 | 1.00 |")
+    assert len(rows) == len(st.STAGES) + 4
