@@ -170,7 +170,9 @@ def test_after_a_signal_retry_never_waits(fresh_outage):
 # there this test's SIGTERM twice killed the worker (xdist: "node down: Not properly terminated") in a clean
 # clone's full run, though it passes alone; a process of its own fails as a test, never as the worker.
 SIGNAL_SCOPE = r"""
-import signal, sys
+import os
+import signal
+
 import pytest
 from garage_exp.core.exits import Terminated
 from garage_exp.core.shell import command_scope
@@ -194,7 +196,6 @@ with command_scope():
         runs.retry(lambda: store_call([signal.SIGTERM, signal.SIGINT]))
     assert done == [] and not isinstance(second.value, Terminated), "the second one came at once"
     assert runs.retry(lambda: "after") == "after"  # nothing left held
-    import os
     os.environ["MLFLOW_TRACKING_URI"] = "http://127.0.0.1:1"
     done = []
     with pytest.raises(Terminated):

@@ -93,9 +93,10 @@ SITES: dict[str, SiteKind] = {}
 _FOUND: dict = STATE.cache("scenario.sites.found", "job")  # (plan, kind, bay width, pillar size) -> features
 # A case that does not fit its drawn site tries the next (scenario/build.py build_hosted), and a search asks for the
 # same sites at every draw: a straight run's build tests every bay of the plan (963 builds in a 40-trial wide
-# search, start-up probes included; about 2 % of the trial loop, docs/performance.md). A built site depends only on the plan, the kind, the bays' width, the pillars' size and
-# its index: kept for the process, per plan object (held by the entry, so that its id is not reused while the
-# entry lives), for the last 32 plans as the bays are (a search drawing plan.seed meets a new plan at most draws).
+# search, start-up probes included; about 2 % of the trial loop, docs/performance.md). A built site depends only
+# on the plan, the kind, the bays' width, the pillars' size and its index: kept for the process, per plan object
+# (held by the entry, so that its id is not reused while the entry lives), for the last 32 plans as the bays are
+# (a search drawing plan.seed meets a new plan at most draws).
 # Sites are not changed once built (their users read paths and bays); each caller gets its own shallow copy.
 _BUILT: dict = STATE.cache("scenario.sites.built", "process")
 BUILT_PLANS = 32
