@@ -14,6 +14,14 @@ os.environ.pop("MLFLOW_TRACKING_URI", None)
 # MLflow 3's `mlflow ui`/`mlflow server` start about seven job consumers (huey) for GenAI jobs no test uses; on
 # 2 cores they take CPU from the test that started the server.
 os.environ.setdefault("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")
+# The slot truth's floats (tests/golden/exports.json) go through numpy's matrix products, and OpenBLAS picks its
+# kernels by CPU: its AVX-512 (SkylakeX) kernels on a Zen 4 round the last digits otherwise than its AVX2 (Haswell)
+# ones on a Zen 5, which wrote the pinned bytes (measured: OPENBLAS_CORETYPE=Haswell or Zen on the Zen 4 writes
+# them, SkylakeX or Cooperlake do not). The tests pin the kernels so that one set of bytes holds on both; read when
+# numpy loads OpenBLAS, so before anything imports numpy (xdist's workers inherit it).
+if "numpy" not in sys.modules and " avx2 " in (Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").is_file()
+                                                else ""):
+    os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")  # AVX2 kernels: only where the CPU has AVX2
 # `make test` sets GARAGE_EXP_PROVISIONED=1 after provisioning Vulkan, vehicles and weights (make setup).
 STRICT_CI = os.environ.get("CI", "").lower() == "true" or os.environ.get("GARAGE_EXP_PROVISIONED") == "1"
 
