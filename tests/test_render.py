@@ -421,3 +421,61 @@ def test_missing_vulkan_device_is_one_line_naming_the_fix():
     lines = [line for line in out.stdout.splitlines() if line.startswith("ERR")]
     assert len(lines) == 1 and INSTALL_HINT in lines[0], out.stdout + out.stderr
     assert "\n" not in lines[0]
+
+
+@render
+def test_the_ids_shader_pack_draws_the_pixels_and_ids_of_sapiens_minimal_pack():
+    """The silhouette twin's own pack (render/shaders/ids) against SAPIEN's "minimal" pack it replaced, on a wide-space
+    garage with the real look (textured floors and walls, line paint, contact-shadow decals, parked cars, a
+    person): the whole frame's ids picture, then each actor's silhouette, equal pixel for pixel. A pack that lost
+    minimal's discard of a transparent texel, or moved a vertex, fails here."""
+    import sapien
+    import sapien.render as sr
+    from conftest import compose_cfg
+
+    from garage_exp.render.open import open_renderer
+    from garage_exp.render.sapien_cameras import ids_shader_dir
+    from garage_exp.run.pipeline import in_view
+    from garage_exp.run.preflight import preflight
+    from garage_exp.scenario.assemble import HIDDEN
+
+    cfg = compose_cfg("space=wide", "camera.width=160", "camera.height=120", "palette.parked_occupancy=0.9",
+                      "case.actors.target.distance=12", "camera.fovy=70", "case.actors.occluder.type=hatchback_silver")
+    prepared = preflight(cfg, check_space=False, load=False)
+    sub = open_renderer(cfg.renderer, HIDDEN).subs[0]
+    sub.load(prepared.scene)
+    shot, camera = prepared.setup.shots[0], prepared.spec.primary
+    sub.set_pose("ego", shot.ego)
+    for name, pose in shot.poses.items():
+        sub.set_pose(name, pose if pose is not None else HIDDEN)
+    sub.render(camera)  # the frame's bodies shown (the lit frame's culling)
+    cam, scene = sub._camera(camera), sub._built.scene
+    minimal = sr.RenderCameraComponent(cam.spec.width, cam.spec.height,
+                                       os.path.join(os.path.dirname(sapien.__file__), "vulkan_shader", "minimal"))
+    minimal.set_fovy(math.radians(cam.spec.fovy), compute_x=True)
+    minimal.near, minimal.far = cam.spec.near, cam.spec.far
+    mount = sapien.Entity()
+    mount.add_component(minimal)
+    scene.add_entity(mount)
+    mount.set_pose(cam.silhouette.entity.pose)
+
+    def ids(component):
+        scene.update_render()
+        component.take_picture()
+        return component.get_picture("PositionSegmentation")[..., 3].copy()
+
+    assert os.path.samefile(ids_shader_dir(), Path(__file__).parents[1] / "garage_exp/render/shaders/ids")
+    ours, theirs = ids(cam.silhouette), ids(minimal)
+    assert len(np.unique(theirs)) > 20  # floor, walls, pillars, paint, cars: a garage, not an empty frame
+    assert np.array_equal(ours, theirs)
+    names = in_view(prepared.scene, shot.poses)
+    twin = cam.silhouette
+    masks = sub.unoccluded_ids(camera, names)
+    cam.silhouette = minimal
+    try:
+        expected = sub.unoccluded_ids(camera, names)
+    finally:
+        cam.silhouette = twin
+        scene.remove_entity(mount)
+    assert len(masks) > 5 and masks.keys() == expected.keys()
+    assert all(np.array_equal(masks[name], expected[name]) for name in masks)

@@ -1,9 +1,11 @@
 """SAPIEN cameras for a scene's camera specs: a lit camera and an ids-only twin per spec, the cube faces of a
 fisheye, and taking their pictures.
 
-Silhouettes: the twin uses SAPIEN's unlit "minimal" shader and renders ids only (about half the cost of a lit
-frame; same rasterisation, pixel-identical ids). A fisheye camera has no picture of its own: its cube faces
-(render/fisheye.py) are pinhole cameras whose pictures are remapped.
+Silhouettes: the twin renders ids only, with our own shader pack (render/shaders/ids). SAPIEN's "minimal" pack,
+which it replaces, still lit every pixel from the shadow-casting lamps and rendered their shadow maps; the ids
+pack keeps its vertex stage and its discard of a transparent texel and drops the rest: the same pixels and ids
+(tests/test_render.py), a silhouette render's CPU about halved (docs/performance.md). A fisheye camera has no
+picture of its own: its cube faces (render/fisheye.py) are pinhole cameras whose pictures are remapped.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from garage_exp.scene.views import view_lens
 class SapienCamera:
     spec: CameraSpec
     component: object  # sapien.render.RenderCameraComponent with the default (lit) shader
-    silhouette: object  # the same camera with the unlit "minimal" shader: ids only, about half the cost
+    silhouette: object  # the same camera with the ids-only shader pack (shaders/ids)
     # A fisheye camera has no picture of its own: its cube faces (rotation in the camera's frame, a pinhole
     # SapienCamera) are rendered and remapped (render/fisheye.py); `view` undistorts the result for the detector.
     faces: list[tuple[np.ndarray, "SapienCamera"]] | None = None
@@ -58,7 +60,7 @@ def pinhole_camera(sapien_scene, spec: CameraSpec, crop: tuple[int, int, int, in
 
     width, height = (crop[2], crop[3]) if crop else (spec.width, spec.height)
     component = sapien_scene.add_camera(spec.name, width, height, math.radians(spec.fovy), spec.near, spec.far)
-    silhouette = sr.RenderCameraComponent(width, height, _minimal_shader_dir())
+    silhouette = sr.RenderCameraComponent(width, height, ids_shader_dir())
     silhouette.set_fovy(math.radians(spec.fovy), compute_x=True)
     silhouette.near, silhouette.far = spec.near, spec.far
     if crop:
@@ -105,11 +107,10 @@ def take_ids(sapien_scene, cam: SapienCamera) -> np.ndarray:
     """The entity ids (HxW) of a pinhole camera, from its ids-only twin."""
     sapien_scene.update_render()
     cam.silhouette.take_picture()
-    # The minimal shader packs position (mm) and the entity id into one int32 picture.
+    # The ids pack (as SAPIEN's minimal one) packs position (mm) and the entity id into one int32 picture.
     return cam.silhouette.get_picture("PositionSegmentation")[..., 3].copy()
 
 
-def _minimal_shader_dir() -> str:
-    import sapien
-
-    return os.path.join(os.path.dirname(sapien.__file__), "vulkan_shader", "minimal")
+def ids_shader_dir() -> str:
+    """The ids-only shader pack's folder (SAPIEN compiles a pack from a folder of GLSL files)."""
+    return os.path.join(os.path.dirname(os.path.abspath(__file__)), "shaders", "ids")
