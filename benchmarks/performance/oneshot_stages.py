@@ -33,6 +33,7 @@ from benchmarks.common import RESULTS, ROOT, child_env
 # (what it is, module, attribute): the trial loop's stages, then the parts of a rendered scenario's job.
 STAGES = [
     ("a draw's requirement check", "garage_exp.search.loop", "SearchLoop.rejects"),
+    ("its first look from plain data", "garage_exp.search.loop", "SearchLoop.plain_look"),
     ("Optuna's ask", "garage_exp.search.loop", "SearchLoop.next_trials"),
     ("a rendered scenario's job", "garage_exp.search.loop", "SearchLoop.run_batch"),
     ("the scene change", "garage_exp.render.sapien_backend", "SapienRenderer.load"),
@@ -40,6 +41,7 @@ STAGES = [
     ("line paint and lamps rebuilt", "garage_exp.render.sapien_builder", "SceneBuilder.replace_redrawn"),
     ("the actors and cameras replaced", "garage_exp.render.sapien_backend", "SapienRenderer._replace_actors"),
     ("the render (lit frame, silhouettes)", "garage_exp.render.batch", "RenderScene.render_batch"),
+    ("the silhouettes", "garage_exp.render.sapien_backend", "SapienRenderer.unoccluded_ids"),
     ("the wait for detection", "garage_exp.perception.detect.worker", "DetectorProcess.result"),
     ("ground truth", "garage_exp.perception.groundtruth", "ground_truth"),
     ("sRGB conversions", "garage_exp.scene.textures", "srgb8"),

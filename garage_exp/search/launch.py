@@ -26,6 +26,7 @@ from hydra.core.utils import JobReturn, JobRuntime, configure_log, run_job, setu
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from garage_exp.search.compose import Compositions
+from garage_exp.search.plain_draw import PlainDraws
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +35,8 @@ class CachedLaunch:
     def __init__(self, hydra_context, task_function, config: DictConfig, groups: set[str]):
         self.hydra_context, self.task_function, self.config, self.groups = hydra_context, task_function, config, groups
         self.compositions = Compositions(hydra_context.config_loader, config, groups)
+        # A draw's first look from plain data, before any composition (search/plain_draw.py, search/loop.py)
+        self.plain = PlainDraws(self.compositions)
         # The last composition and its overrides, taken once by the launch of the same overrides. Who composes
         # may change it only as the job's own preflight does (run/preflight.hand_on: the plan's garage keys).
         self.last: tuple[tuple[str, ...], DictConfig] | None = None

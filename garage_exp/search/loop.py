@@ -108,12 +108,13 @@ class SearchLoop:
     """Runs a study's trials as jobs. `launch(overrides, job_idx)` runs one job and returns its JobReturn."""
 
     def __init__(self, search, space: space_mod.Space, study: optuna.Study, launch, budget: int,
-                 stop=lambda study: False, compose=None, attrs: dict | None = None):
+                 stop=lambda study: False, compose=None, attrs: dict | None = None, plain=None):
         self.search, self.space, self.launch, self.budget = search, space, launch, budget
         self.attrs = dict(attrs or {})  # set on every trial it asks (the tracking store its run goes to)
         self.study = study_mod.lean(study, search)  # a random search's loop keeps no trial in memory
         self.stop = stop  # asked before each trial (a suite stops once its bands are full)
         self.compose = compose  # overrides -> the trial's config, for the pre-screen
+        self.plain = plain  # a search's PlainDraws (search/plain_draw.py): the check's first look from plain data
         self.url = study_mod.storage_url(search)
         self.ran: list[int] = []  # trial numbers this worker ran
         # the space's requirements, checked on each draw before it is rendered (search/require.py)
@@ -242,11 +243,13 @@ class SearchLoop:
 
         try:
             with heartbeat(self.study, trial):
-                # hand: the job of an accepted (or colliding) draw takes this scene (or refusal), not building it
-                # again; screen: most rejections are decided on the placed actors, before their garage is built
-                prepared = preflight(self.compose(overrides), check_space=False, load=False, hand=True,
-                                     screen=self.first_look)
-                verdict = require_mod.judge(self.require, prepared.scene, prepared.setup, prepared.spec.primary)
+                verdict = self.plain_look(overrides)  # None: the full check decides
+                if verdict is None:
+                    # hand: the job of an accepted (or colliding) draw takes this scene (or refusal), not building
+                    # it again; screen: most rejections are decided on the placed actors, before the garage is built
+                    prepared = preflight(self.compose(overrides), check_space=False, load=False, hand=True,
+                                         screen=self.first_look)
+                    verdict = require_mod.judge(self.require, prepared.scene, prepared.setup, prepared.spec.primary)
         except Screened as exc:
             verdict = exc.verdict
         except (KeyboardInterrupt, SystemExit):
@@ -280,6 +283,23 @@ class SearchLoop:
             raise GarageError(f"the space's requirements rejected {self.in_a_row} draws in a row (the last: "
                               f"{verdict.why}): loosen them or the space", "search.require")
         return True
+
+    def plain_look(self, overrides: list[str]):
+        """The first look from the draw's plain settings, without composing its config (search/plain_draw.py):
+        its rejection, or None when the full check decides (the look passed, or the draw could not be made there).
+        Raises Infeasible as the full check would. Any other failure leaves it to the full check, whose words a
+        broken draw then gets."""
+        if self.plain is None:
+            return None
+        from garage_exp.search import plain_draw
+
+        try:
+            return plain_draw.first_look(self.plain, overrides, self.require)
+        except Infeasible:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the full check says what is wrong, in its own words
+            log.debug("plain first look not made (%s)", exc)
+            return None
 
     def first_look(self, job, setup, cameras) -> None:
         """The requirements on the placed actors alone (require.first_look): Screened with the rejection it

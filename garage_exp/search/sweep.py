@@ -206,7 +206,7 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     until = _suite_full(search, stop) if search.mode == "suite" else (lambda _study: stop())
     compose = getattr(launch, "compose", None) or (lambda overrides: loader.load_sweep_config(config, overrides))
     loop = SearchLoop(search, space, study, launch, total, stop=until, compose=compose,
-                      attrs={"tracking_uri": store})
+                      attrs={"tracking_uri": store}, plain=getattr(launch, "plain", None))
     ran = loop.run()
     return {"study": study, "name": name, "ran": ran, "space": space}
 
