@@ -52,7 +52,8 @@ def draw(space, rng, number: int) -> list[str]:
         else:
             values[name] = float(rng.uniform(dist.low, dist.high))
     values["plan.seed"] = number % 4
-    return [*space.overrides(values), f"search.trial={number}"]
+    # a search's store, which a resolver reads (detector.registry: ${oc.select:tracking.uri,null})
+    return [*space.overrides(values), "tracking.uri=sqlite:///nowhere.db", f"search.trial={number}"]
 
 
 def same(a, b) -> bool:
@@ -167,7 +168,8 @@ def test_a_search_with_the_plain_first_look_tells_every_draw_as_the_full_check_d
 
         store = f"search.storage=sqlite:///{tmp_path / (name + '.db')}"
         with hydra_loader() as loader:
-            command = ["space=wide", "plan.seed=int(interval(0,3))", "search.sampler=random", store]
+            command = ["space=wide", "plan.seed=int(interval(0,3))", "search.sampler=random", store,
+                       "tracking.uri=sqlite:///nowhere.db"]
             master = loader.load_configuration("config", ["hydra/sweeper=search", *command], RunMode.MULTIRUN)
             arguments = space_mod.expand(master, command)
             space_mod.settle(master, arguments)
@@ -184,12 +186,13 @@ def test_a_search_with_the_plain_first_look_tells_every_draw_as_the_full_check_d
                        plain=cached.plain if plain else None).run()
         told = [(t.number, t.state, t.user_attrs.get("rejected"), t.user_attrs.get("require_estimate"),
                  t.user_attrs.get("placement"), t.params) for t in study.get_trials()]
-        return told, launched, composed
+        return told, launched, composed, len(cached.plain.bases)
 
-    full, full_launched, full_composed = run("full", plain=False)
-    plain, plain_launched, plain_composed = run("plain", plain=True)
+    full, full_launched, full_composed, _ = run("full", plain=False)
+    plain, plain_launched, plain_composed, bases = run("plain", plain=True)
     assert plain == full and plain_launched == full_launched
     infeasible = sum(1 for t in full if t[4])  # told without a launch, counted in the budget
     assert infeasible and any(t[2] for t in full) and len(full_launched) + infeasible == 12
     assert len(full_composed) == len(full)  # the full check composes every draw; the plain look, those it passes
     assert len(plain_composed) < len(full) / 2
+    assert bases == 2  # the fixed overrides composed, then with the store a resolver reads: once each

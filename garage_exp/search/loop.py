@@ -236,7 +236,9 @@ class SearchLoop:
     def rejects(self, trial: optuna.Trial, overrides: list[str]) -> bool:
         """The space's requirements on this draw, from its scene description (search/require.py): True when they
         rejected it (told PRUNED with `rejected`; the loop asks for another in its place) or when its actors
-        collide (told PRUNED infeasible, as its job would have been: it counts, and is never launched)."""
+        collide (told PRUNED infeasible, as its job would have been: it counts, and is never launched). The
+        placed actors are looked at first from the draw's plain settings (`plain_look`); only a draw that look
+        passes is composed and its garage built."""
         if self.require is None or self.compose is None:
             return False
         from garage_exp.run.preflight import preflight

@@ -29,6 +29,7 @@ from omegaconf import Container, DictConfig, OmegaConf
 
 from garage_exp.core.plain import Settings, frozen, settings
 
+MAX_BASES = 32  # combinations of fixed overrides kept (a search has one or a few: its group levels)
 # An interpolation that is one reference to another key: absolute (`${garage.ceiling_height}`) or relative to its
 # node's parent (`${.length}`, `${..size}`).
 REFERENCE = re.compile(r"\$\{(\.*)([A-Za-z_][\w]*(?:\.[A-Za-z_][\w]*)*)\}")
@@ -60,6 +61,11 @@ class Base:
             node = node._get_node(part)
         return None if isinstance(node, Container) else node
 
+    def read_by_resolvers(self, values) -> list[tuple[str, ...]]:
+        """The paths among `values` that an interpolation other than a plain reference may read."""
+        texts = [text for _, text in self.interpolations if REFERENCE.fullmatch(text) is None]
+        return [p for p in values if any(_reads(text, p) for text in texts)]
+
     def with_values(self, values: dict[tuple[str, ...], object]) -> Settings | None:
         """These settings with `values` set (path -> the override's value), or None where that cannot be made
         exactly here."""
@@ -79,7 +85,7 @@ class Base:
             target = None if match is None else _target(path, match)
             touched = [p for p in converted if target is not None and _overlap(p, target)]
             if target is None:
-                if any(".".join(p) in text or p[-1] in text for p in converted):
+                if any(_reads(text, p) for p in converted):
                     return None  # a resolver or a concatenation that may read a changed key
                 continue
             if any(_overlap(target, other) for other, _ in self.interpolations):
@@ -113,9 +119,11 @@ class PlainDraws:
         return self.base(fixed).with_values(values)
 
     def split(self, overrides: list[str]):
-        """(the fixed overrides, {path: value} of the drawn ones), or None for an override this cannot set."""
+        """(the fixed overrides, {path: value} of the drawn ones), or None for an override this cannot set. A
+        value that a resolver or a concatenation reads (`detector.registry: ${oc.select:tracking.uri,null}` reads
+        a search's `tracking.uri`) goes with the fixed ones, into the composition: OmegaConf resolves it."""
         comp = self.compositions
-        fixed, values = [], {}
+        fixed, values, lines = [], {}, {}
         for line in overrides:
             o = comp.parsed(line)
             value = None if comp.structural(o) else o.value()
@@ -125,13 +133,19 @@ class PlainDraws:
             path = tuple(o.key_or_group.split("."))
             if path in values:
                 return None  # set twice: Hydra's order decides
-            values[path] = value
+            values[path], lines[path] = value, o.input_line
         if any(tuple(comp.parsed(line).key_or_group.split(".")) in values for line in fixed):
             return None
+        read = self.base(tuple(fixed)).read_by_resolvers(values)
+        if read:
+            fixed = [line for line in overrides if line in fixed or any(lines[p] == line for p in read)]
+            values = {p: v for p, v in values.items() if p not in read}
         return tuple(fixed), values
 
     def base(self, fixed: tuple[str, ...]) -> Base:
         if fixed not in self.bases:
+            if len(self.bases) >= MAX_BASES:  # a drawn value a resolver reads makes a base a draw: keep the last
+                self.bases.pop(next(iter(self.bases)))
             self.bases[fixed] = Base.of(self.compositions.compose(list(fixed), job=False))
         return self.bases[fixed]
 
@@ -189,6 +203,11 @@ def _interpolations(node, path: tuple[str, ...], found: list) -> None:
     elif isinstance(node, Container):  # a list: its items' interpolations too
         for k in range(len(node)):
             _interpolations(node._get_node(k), (*path, str(k)), found)
+
+
+def _reads(text: str, path: tuple[str, ...]) -> bool:
+    """Whether an interpolation's text may read `path` (its full key, or its last part in a relative key)."""
+    return ".".join(path) in text or path[-1] in text
 
 
 def _target(path: tuple[str, ...], match: re.Match) -> tuple[str, ...]:

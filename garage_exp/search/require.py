@@ -11,7 +11,8 @@ region as they avoid infeasible ones. The search reports how many draws its requ
 
 The search looks first at the case's placed actors alone (`first_look`), before the garage around them is built:
 a draw whose target is too small, too far or cut by the image's edge is rejected there, as the built scene's
-`judge` would reject it; the rest are judged on the built scene.
+`judge` would reject it; the rest are judged on the built scene. A search's sweeper takes that look from the
+draw's plain settings, before its config is composed (search/plain_draw.py).
 """
 
 from __future__ import annotations
