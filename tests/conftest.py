@@ -221,6 +221,20 @@ def hydra_loader(config: str = "config"):
         yield GlobalHydra.instance().config_loader()
 
 
+def recording_launch(launched: list, frames: float = 1.0):
+    """A search's launch whose jobs are stand-ins: each batch's overrides appended to `launched`, each job
+    returning a complete trial's summary (`frames` fair frames, difficulty 0.5)."""
+    from types import SimpleNamespace
+
+    def launch(batch, idx):
+        launched.extend(batch)
+        return [SimpleNamespace(return_value={"fair_frames": frames, "fair_difficulty": 0.5, "fair_confidence": 0.5,
+                                              "fair_recall": 1.0, "visible_fraction_mean": 0.9, "frames": frames,
+                                              "run_id": "r", "output_dir": "/nowhere"}) for _ in batch]
+
+    return launch
+
+
 def schema_node(schema, values: dict):
     """A config group's node as its schema types it (`schema`: the dataclass), with `values` set: what Hydra
     composes for one level, without composing the whole config."""

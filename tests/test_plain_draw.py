@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import optuna.distributions as od
 import pytest
-from conftest import hydra_loader
+from conftest import hydra_loader, recording_launch
 from omegaconf import OmegaConf
 
 from garage_exp.core.errors import Infeasible, Screened
@@ -159,12 +159,7 @@ def test_a_search_with_the_plain_first_look_tells_every_draw_as_the_full_check_d
 
     def run(name: str, plain: bool):
         launched, composed = [], []
-
-        def launch(batch, idx):
-            launched.extend(batch)
-            return [SimpleNamespace(return_value={"fair_frames": 1.0, "fair_difficulty": 0.5, "fair_confidence": 0.5,
-                                                  "fair_recall": 1.0, "visible_fraction_mean": 0.9, "frames": 1.0,
-                                                  "run_id": "r", "output_dir": "/nowhere"}) for _ in batch]
+        launch = recording_launch(launched)
 
         store = f"search.storage=sqlite:///{tmp_path / (name + '.db')}"
         with hydra_loader() as loader:

@@ -5,7 +5,7 @@ rendering it."""
 import math
 
 import pytest
-from conftest import compose_cfg, hydra_loader
+from conftest import compose_cfg, hydra_loader, recording_launch
 from optuna.trial import TrialState
 
 from garage_exp.core.errors import GarageError
@@ -179,17 +179,10 @@ SPACE = ["plan=tiny", "case.motion.values=[6.0]", "case.actors.target.distance=i
 def stubbed_search(tmp_path, name: str, budget: int, max_distance: float) -> tuple:
     """A random search of `budget` trials on SPACE whose jobs are stand-ins that record what was launched:
     (the study, the launched overrides, the trial numbers the loop ran)."""
-    from types import SimpleNamespace
-
     from hydra.types import RunMode
 
     launched = []
-
-    def launch(batch, idx):
-        launched.extend(batch)
-        return [SimpleNamespace(return_value={"fair_frames": 2.0, "fair_difficulty": 0.5, "fair_confidence": 0.5,
-                                              "fair_recall": 1.0, "visible_fraction_mean": 0.9, "frames": 2.0,
-                                              "run_id": "r", "output_dir": "/nowhere"}) for _ in batch]
+    launch = recording_launch(launched, frames=2.0)
 
     store = f"search.storage=sqlite:///{tmp_path / 'optuna.db'}"
     with hydra_loader() as loader:
