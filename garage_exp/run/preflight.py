@@ -88,18 +88,28 @@ def hand_on(cfg: DictConfig, plan) -> None:
     height; plan/generator.py) sets those keys of the job's config, and the `pillar` group's size when that group
     resizes every pillar (conf/pillar/): the bays the plan's cells were sized for are the bays built. The shipped
     plans carry none (nothing changes)."""
-    if not plan.garage:
+    handed = handed_values(cfg, plan)
+    if not handed:
         return
     from omegaconf import read_write
 
-    values = dict(plan.garage)
     with read_write(cfg):
-        for key, value in values.items():
-            cfg.garage[key] = value
-        pillar = OmegaConf.select(cfg, "modifiers.pillar")
-        if "pillar_size" in values and isinstance(pillar, DictConfig) and "size" in pillar \
-                and pillar.get("_target_") == "garage_exp.scene.modifiers.pillar_size":
-            pillar.size = values["pillar_size"]
+        for path, value in handed.items():
+            OmegaConf.select(cfg, ".".join(path[:-1]))[path[-1]] = value
+
+
+def handed_values(cfg: DictConfig, plan) -> dict[tuple[str, ...], object]:
+    """The keys `hand_on` sets (a path each) and their values, in the order it sets them: the plan's garage keys,
+    then the pillar group's size. A search's plain first look sets them on plain data (search/plain_draw.py)."""
+    if not plan.garage:
+        return {}
+    values = dict(plan.garage)
+    handed: dict[tuple[str, ...], object] = {("garage", str(key)): value for key, value in values.items()}
+    pillar = OmegaConf.select(cfg, "modifiers.pillar")
+    if "pillar_size" in values and isinstance(pillar, DictConfig) and "size" in pillar \
+            and pillar.get("_target_") == "garage_exp.scene.modifiers.pillar_size":
+        handed[("modifiers", "pillar", "size")] = values["pillar_size"]
+    return handed
 
 
 def _library():

@@ -25,7 +25,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from omegaconf import Container, DictConfig, OmegaConf
+from omegaconf import Container, DictConfig
 
 from garage_exp.core.plain import Settings, frozen, settings
 
@@ -155,17 +155,14 @@ class PlainDraws:
         split = self.split(overrides)
         if split is None:
             return None
-        fixed, values = split
-        base = self.base(fixed)
-        values = dict(values)
-        garage = dict(plan.garage or {})
-        for key, value in garage.items():
-            values[("garage", str(key))] = value
-        pillar = OmegaConf.select(base.config, "modifiers.pillar")
-        if "pillar_size" in garage and isinstance(pillar, DictConfig) and "size" in pillar \
-                and pillar.get("_target_") == "garage_exp.scene.modifiers.pillar_size":
-            values[("modifiers", "pillar", "size")] = garage["pillar_size"]
-        return base.with_values(values)
+        base = self.base(split[0])
+        return _handed_on(base, split[1], plan)
+
+
+def _handed_on(base: Base, values: dict, plan) -> Settings | None:
+    from garage_exp.run.preflight import handed_values
+
+    return base.with_values({**values, **handed_values(base.config, plan)})
 
 
 def first_look(draws: PlainDraws, overrides: list[str], rule):
@@ -181,11 +178,15 @@ def first_look(draws: PlainDraws, overrides: list[str], rule):
     from garage_exp.scene.camera import scored_camera
     from garage_exp.search import require
 
-    drawn = draws.settings(overrides)
+    split = draws.split(overrides)
+    if split is None:
+        return None
+    base, values = draws.base(split[0]), split[1]
+    drawn = base.with_values(values)  # its plan's settings, to read the plan
     if drawn is None:
         return None
     classified = classified_plan(resolve_plan_path(drawn.plan))
-    config = draws.handed_on(overrides, classified.plan)
+    config = _handed_on(base, values, classified.plan)
     if config is None or hint(config.case.name, config.plan.name, config.plan.file, refused=True):
         return None  # a shipped case on a plan it does not fit: the preflight's words say where it fits
     job = check_config(config)
