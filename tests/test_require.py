@@ -374,6 +374,41 @@ def test_a_draw_whose_actors_collide_is_told_infeasible_in_the_check_and_never_l
     assert "stands in the occluder: infeasible" in capsys.readouterr().out
 
 
+def test_each_draw_writes_its_attributes_in_one_transaction_before_its_tell(tmp_path, monkeypatch):
+    """A draw's own attributes (overrides, worker) go with the check's (its estimate, why it was rejected) or with
+    its outcome (infeasible) in one write: a rejected or colliding draw writes once before it is told, an
+    accepted one once at its check and once with its outcome. Every trial holds its overrides and worker."""
+    from garage_exp.core.errors import Infeasible
+    from garage_exp.scenario import assemble
+    from garage_exp.search import writes
+
+    real, real_write = assemble.build_scene, writes.write_attrs
+    written: list[int] = []
+
+    def collide_near(job, *args, **kwargs):  # a stand-in collision: every draw nearer than 5 m
+        if float(job.case.actors["target"].distance) < 5.0:
+            raise Infeasible("the target stands in the occluder", "case.actors.target.distance")
+        return real(job, *args, **kwargs)
+
+    def counted(store, trial_id, attrs):
+        written.append(trial_id)
+        real_write(store, trial_id, attrs)
+
+    monkeypatch.setattr(assemble, "build_scene", collide_near)
+    monkeypatch.setattr(writes, "write_attrs", counted)
+    study, launched, _ = stubbed_search(tmp_path, "once", 8, max_distance=9)
+    trials = study.get_trials()
+    kinds = {"rejected": [t for t in trials if "rejected" in t.user_attrs],
+             "infeasible": [t for t in trials if t.user_attrs.get("infeasible")],
+             "accepted": [t for t in trials if t.state == TrialState.COMPLETE]}
+    assert all(kinds.values()) and sum(map(len, kinds.values())) == len(trials)  # each kind drawn
+    for kind, writes_each in (("rejected", 1), ("infeasible", 1), ("accepted", 2)):
+        assert all(written.count(t._trial_id) == writes_each for t in kinds[kind]), kind
+    assert all(t.user_attrs["overrides"][-1] == f"search.trial={t.number}" and t.user_attrs["worker"]
+               for t in trials)
+    assert len(launched) == len(kinds["accepted"])
+
+
 # Draws of the one-shot case on the small plan, each meant to meet or miss the wide space's requirements one way
 # (the occluder, an actor of the case, set aside but where the draw is about it).
 ASIDE = ["case.actors.occluder.offset=2.5", "case.actors.occluder.length=0.3"]

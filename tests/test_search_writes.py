@@ -87,3 +87,23 @@ def test_a_study_in_memory_is_written_as_ever():
         trial = s.ask(SPACE)
         trial.set_user_attr("k", 1)
     assert s.trials[0].params == trial.params and s.trials[0].user_attrs == {"k": 1}
+
+
+def test_a_key_written_again_is_replaced_and_a_finished_trial_refuses_attributes_as_optuna_refuses(tmp_path):
+    """write_attrs's one upsert statement for all keys: a key set in an earlier block gets its new value, the
+    others stay, and a trial already told is refused (Optuna's check), whichever writes them."""
+    plain, held = study(tmp_path, "plain"), study(tmp_path, "held")
+    for s in (plain, held):
+        trial = s.ask(SPACE)
+        with writes.attrs_at_once(s) if s is held else contextlib.nullcontext():
+            trial.set_user_attr("overrides", ["a=1"])
+            trial.set_user_attr("worker", "w1")
+        with writes.attrs_at_once(s) if s is held else contextlib.nullcontext():
+            trial.set_user_attr("worker", "w2")
+            trial.set_user_attr("rejected", "visible 0.1 < 0.3")
+        s.tell(trial, state=optuna.trial.TrialState.PRUNED)
+        with pytest.raises(RuntimeError, match="has already finished"):
+            with writes.attrs_at_once(s) if s is held else contextlib.nullcontext():
+                trial.set_user_attr("late", 1)
+    assert stored(tmp_path, "plain") == stored(tmp_path, "held")
+    assert stored(tmp_path, "held")[0][4] == {"overrides": ["a=1"], "worker": "w2", "rejected": "visible 0.1 < 0.3"}

@@ -104,8 +104,8 @@ def child(arm: str, trials: int, out: str, warmup: int, extra: list[str], shared
     cpu: list[tuple[float, float]] = []
     real_tell = loop.SearchLoop.tell
 
-    def tell(self, trial, outcome):
-        real_tell(self, trial, outcome)
+    def tell(self, trial, outcome, *args, **kwargs):  # a checkout's own tell may take more (its first attrs)
+        real_tell(self, trial, outcome, *args, **kwargs)
         ends.append(time.perf_counter())
         told.append(outcome.state.name)
         if len(ends) == warmup:

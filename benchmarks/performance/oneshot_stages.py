@@ -104,8 +104,8 @@ def child(trials: int, warmup: int, garages: int, out: str) -> int:
     told, cpu = [0], {}
     real_tell, real_run = loop.SearchLoop.tell, loop.SearchLoop.run
 
-    def tell(self, trial, outcome):
-        real_tell(self, trial, outcome)
+    def tell(self, trial, outcome, *args, **kwargs):  # a checkout's own tell may take more (its first attrs)
+        real_tell(self, trial, outcome, *args, **kwargs)
         told[0] += 1
         if told[0] == warmup:
             cpu["warm"], cpu["warm_at"] = thread_cpu(), time.perf_counter()

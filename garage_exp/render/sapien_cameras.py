@@ -103,9 +103,11 @@ def take(sapien_scene, cam: SapienCamera) -> tuple[np.ndarray, np.ndarray]:
     return rgb, ids
 
 
-def take_ids(sapien_scene, cam: SapienCamera) -> np.ndarray:
-    """The entity ids (HxW) of a pinhole camera, from its ids-only twin."""
-    sapien_scene.update_render()
+def take_ids(sapien_scene, cam: SapienCamera, sync: bool = True) -> np.ndarray:
+    """The entity ids (HxW) of a pinhole camera, from its ids-only twin. `sync=False` leaves the render scene's
+    poses as the last take left them (nothing moved since; a body's visibility needs no sync)."""
+    if sync:
+        sapien_scene.update_render()
     cam.silhouette.take_picture()
     # The ids pack (as SAPIEN's minimal one) packs position (mm) and the entity id into one int32 picture.
     return cam.silhouette.get_picture("PositionSegmentation")[..., 3].copy()

@@ -144,12 +144,9 @@ class SearchLoop:
             batch = []
             for trial in trials:
                 overrides = [*self.space.overrides(trial.params), f"search.trial={trial.number}"]
-                with writes.attrs_at_once(self.study):  # one transaction
-                    trial.set_user_attr("overrides", overrides)
-                    trial.set_user_attr("worker", WORKER)  # which process (node) ran it: a cluster's trials spread
-                    for key, value in self.attrs.items():
-                        trial.set_user_attr(key, value)
-                if not self.rejects(trial, overrides) and not self.screened(trial, overrides):
+                # which process (node) ran it: a cluster's trials spread; written with the check's verdict
+                opening = {"overrides": overrides, "worker": WORKER, **self.attrs}
+                if not self.rejects(trial, overrides, opening) and not self.screened(trial, overrides):
                     batch.append((trial, overrides))
             if batch:
                 self.run_batch(batch)
@@ -219,34 +216,48 @@ class SearchLoop:
         if len(self.ran) in FREEZE_AT:
             gc.freeze()
 
-    def tell(self, trial: optuna.Trial, out: Outcome) -> None:
+    def tell(self, trial: optuna.Trial, out: Outcome, first: dict | None = None) -> None:
+        """Tell the trial its outcome, its attributes written first (`first`, then the outcome's) in one
+        transaction."""
         if out.state == TrialState.COMPLETE and self.search.get("descriptors"):
             measured = describe(out.attrs, self.search)
             if measured is not None:
                 out.attrs["descriptors"] = measured
-        with writes.attrs_at_once(self.study):  # a dozen: one transaction
-            for key, value in out.attrs.items():
-                trial.set_user_attr(key, value)
+        self.set_attrs(trial, {**(first or {}), **out.attrs})  # a dozen: one transaction
         if out.state == TrialState.FAIL:
             log.error("trial %d failed: %s", trial.number, out.attrs["error"])
         self.study.tell(trial, out.values, state=out.state)
         self.ran.append(trial.number)
         print(line(trial.number, out, self.budget, self.search.objective))
 
-    def rejects(self, trial: optuna.Trial, overrides: list[str]) -> bool:
+    def set_attrs(self, trial: optuna.Trial, attrs: dict) -> None:
+        """The trial's user attributes, in one transaction."""
+        with writes.attrs_at_once(self.study):
+            for key, value in attrs.items():
+                trial.set_user_attr(key, value)
+
+    def rejects(self, trial: optuna.Trial, overrides: list[str], opening: dict | None = None) -> bool:
         """The space's requirements on this draw, from its scene description (search/require.py): True when they
         rejected it (told PRUNED with `rejected`; the loop asks for another in its place) or when its actors
         collide (told PRUNED infeasible, as its job would have been: it counts, and is never launched). The
         placed actors are looked at first from the draw's plain settings (`plain_look`); only a draw that look
-        passes is composed and its garage built."""
+        passes is composed and its garage built.
+
+        `opening`: the draw's own attributes (its overrides, worker, tracking store), written with the check's in
+        one transaction, whatever the check decides: a draw was three transactions before its tell (the opening,
+        the check's estimate, Optuna's tell), and a one-shot search makes about 3.5 draws a rendered scenario. The
+        heartbeat covers the full check alone: the plain look takes a few milliseconds, less than starting the
+        heartbeat's thread and writing its first beat."""
+        opening = dict(opening or {})
         if self.require is None or self.compose is None:
+            self.set_attrs(trial, opening)
             return False
         from garage_exp.run.preflight import preflight
 
         try:
-            with heartbeat(self.study, trial):
-                verdict = self.plain_look(overrides)  # None: the full check decides
-                if verdict is None:
+            verdict = self.plain_look(overrides)  # None: the full check decides
+            if verdict is None:
+                with heartbeat(self.study, trial):
                     # hand: the job of an accepted (or colliding) draw takes this scene (or refusal), not building
                     # it again; screen: most rejections are decided on the placed actors, before the garage is built
                     prepared = preflight(self.compose(overrides), check_space=False, load=False, hand=True,
@@ -255,26 +266,28 @@ class SearchLoop:
         except Screened as exc:
             verdict = exc.verdict
         except (KeyboardInterrupt, SystemExit):
+            self.set_attrs(trial, opening)
             self.study.tell(trial, state=TrialState.FAIL)
             raise
         except Infeasible as exc:
             # Two actors in one another: its job's preflight would raise this very refusal (the scene is built from
             # the same settings) and return it to be told PRUNED infeasible (cli/app.py). Told here, it costs no
             # launch (a composed job, its checks, its run dir made and removed): ~45 % of the wide space's draws.
-            self.tell(trial, outcome({"error": str(exc), "infeasible": True}, self.search.objective))
+            self.tell(trial, outcome({"error": str(exc), "infeasible": True}, self.search.objective), first=opening)
             self.settle()
             return True
         except Exception as exc:  # noqa: BLE001 - broken: the job itself says so, in its own words
             log.debug("trial %d: requirements not checked (%s)", trial.number, exc)
+            self.set_attrs(trial, opening)
             return False
-        with writes.attrs_at_once(self.study):
-            if verdict.best is not None:  # a first look's visible is an upper bound (require.first_look)
-                trial.set_user_attr("require_estimate", {"visible": round(verdict.best.visible, 3),
-                                                         "box": round(verdict.best.box_height, 1),
-                                                         "distance": round(verdict.best.distance, 2),
-                                                         "truncation": round(verdict.best.truncation, 3)})
-            if not verdict.ok:
-                trial.set_user_attr("rejected", verdict.why)
+        if verdict.best is not None:  # a first look's visible is an upper bound (require.first_look)
+            opening["require_estimate"] = {"visible": round(verdict.best.visible, 3),
+                                           "box": round(verdict.best.box_height, 1),
+                                           "distance": round(verdict.best.distance, 2),
+                                           "truncation": round(verdict.best.truncation, 3)}
+        if not verdict.ok:
+            opening["rejected"] = verdict.why
+        self.set_attrs(trial, opening)
         if verdict.ok:
             self.in_a_row = 0
             return False

@@ -15,6 +15,9 @@ trial's outcome, a dozen, before it is told).
 from __future__ import annotations
 
 import contextlib
+import functools
+import json
+import sqlite3
 
 from optuna.storages import RDBStorage
 
@@ -103,15 +106,50 @@ def write(store: RDBStorage, trial_id: int, rows: list[tuple]) -> None:
 
 
 def write_attrs(store: RDBStorage, trial_id: int, attrs: dict) -> None:
-    """One trial's user attributes, as Optuna's `set_trial_user_attr` writes each (an upsert), in one session."""
+    """One trial's user attributes, as Optuna's `set_trial_user_attr` writes each (an upsert), in one session: the
+    trial looked up and checked once, and the rows upserted by one statement run for all of them. Optuna's own
+    write looked the trial up again and built its statement anew for every key (about 1.5 ms a key in Python;
+    a one-shot draw of the wide space sets about a dozen). A database with no upsert statement of ours (neither
+    SQLite, PostgreSQL nor MySQL) gets Optuna's writes, key by key."""
     from optuna.storages._rdb import models
     from optuna.storages._rdb.storage import _create_scoped_session
 
     from garage_exp.search.storage import call
 
+    upsert = _attr_upsert(store.engine.name)
+
     def commit() -> None:
         with _create_scoped_session(store.scoped_session, True) as session:
-            for key, value in attrs.items():
-                store._set_trial_attr_without_commit(session, models.TrialUserAttributeModel, trial_id, key, value)
+            if upsert is None:
+                for key, value in attrs.items():
+                    store._set_trial_attr_without_commit(session, models.TrialUserAttributeModel, trial_id, key,
+                                                         value)
+                return
+            trial = models.TrialModel.find_or_raise_by_id(trial_id, session)
+            store.check_trial_is_updatable(trial_id, trial.state)
+            session.execute(upsert, [{"trial_id": trial_id, "key": key, "value_json": json.dumps(value)}
+                                     for key, value in attrs.items()])
 
-    call(commit, store.url)
+    if attrs:
+        call(commit, store.url)
+
+
+@functools.cache
+def _attr_upsert(dialect: str):
+    """The statement that inserts a user attribute or replaces its value (Optuna's, per dialect), made once so
+    that SQLAlchemy compiles it once; None for a database Optuna writes otherwise."""
+    from optuna.storages._rdb import models
+
+    table = models.TrialUserAttributeModel
+    if dialect == "mysql":
+        from sqlalchemy.dialects.mysql import insert
+
+        stmt = insert(table)
+        return stmt.on_duplicate_key_update(value_json=stmt.inserted.value_json)
+    if dialect == "sqlite" and sqlite3.sqlite_version_info >= (3, 24, 0) or dialect == "postgresql":
+        from sqlalchemy.dialects import postgresql, sqlite
+
+        stmt = (sqlite if dialect == "sqlite" else postgresql).insert(table)
+        return stmt.on_conflict_do_update(index_elements=[table.trial_id, table.key],
+                                          set_={"value_json": stmt.excluded.value_json})
+    return None
