@@ -302,6 +302,38 @@ def test_a_scene_with_the_same_statics_replaces_only_its_actors_and_renders_as_a
 
 
 @render
+def test_a_camera_of_another_field_of_view_is_set_in_place_and_renders_as_a_fresh_one(renderer):
+    """A wide space draws the field of view and the pitch per scenario: the loaded scene's camera of that name and
+    size takes the new spec in place (not removed and made again), and its frame (pixels, ids, silhouettes) is a
+    fresh renderer's. Another size is a new camera."""
+    from garage_exp.render.sapien_backend import SapienRenderer
+
+    renderer.load(garage(pillar_at=6.0))
+    renderer.render("front")
+    before = renderer._camera("front").component
+    cam = CameraSpec("front", Pose(0.5, 0.0, 1.4), pitch=4.0, fovy=41.0, near=0.2, far=60.0, width=W, height=H)
+    scene = garage(pillar_at=6.0, target_at=9.0, camera=cam)
+    scene.entities.append(vehicle("extra", "parked", Pose(12.0, 1.5, 0.0, 90.0), BLUE))
+    renderer.load(scene)
+    assert renderer._camera("front").component is before  # set in place
+    reused = renderer.render("front")
+    reused_masks = renderer.unoccluded_ids("front", ["target", "extra"])
+    fresh_renderer = SapienRenderer(max_lights=8)
+    fresh_renderer.load(scene)
+    fresh = fresh_renderer.render("front")
+    assert np.array_equal(reused.rgb, fresh.rgb)
+    for name in ("target", "extra", "ego"):  # ids are numbered per SAPIEN scene: each entity's mask
+        assert np.array_equal(reused.ids == renderer.ids[name], fresh.ids == fresh_renderer.ids[name]), name
+    fresh_masks = fresh_renderer.unoccluded_ids("front", ["target", "extra"])
+    assert set(reused_masks) == set(fresh_masks) == {"target", "extra"}
+    assert all(np.array_equal(reused_masks[k], fresh_masks[k]) for k in fresh_masks)
+    bigger = replace(cam, width=W * 2, height=H * 2)
+    renderer.load(garage(pillar_at=6.0, camera=bigger))
+    assert renderer._camera("front").component is not before
+    assert renderer.render("front").rgb.shape == (H * 2, W * 2, 3)
+
+
+@render
 def test_contact_shadows_that_meet_draw_the_same_in_a_kept_scene_as_in_a_fresh_one(renderer):
     """A parked car's contact shadow over a static decal (in the real look, a pillar's: blended decals at one
     height, where the order they are drawn in shows): SAPIEN draws bodies

@@ -43,7 +43,7 @@ from garage_exp.render.light_pool import LightPool
 from garage_exp.render.registry import register_backend
 from garage_exp.render.sapien_builder import DECALS, SceneBuilder, is_redrawn, merges, static_key
 from garage_exp.render.sapien_batch import open_scene
-from garage_exp.render.sapien_cameras import SapienCamera, add_camera, take, take_ids
+from garage_exp.render.sapien_cameras import SapienCamera, add_camera, reconfigured, take, take_ids
 from garage_exp.render.silhouettes import disjoint_groups, image_rect
 from garage_exp.scene.camera import camera_to_world
 from garage_exp.scene.lenses import lens_of
@@ -203,7 +203,13 @@ class SapienRenderer:
         the light pool stay (shown again in full: the last frame may have culled some)."""
         built = self._built
         built.remove_actors()
-        for cam in self._cameras.values():
+        # A camera of the same name and size is set to its new spec in place (sapien_cameras.reconfigured).
+        specs = {spec.name: spec for spec in scene.cameras}
+        kept = {name: again for name, cam in self._cameras.items() if name in specs
+                for again in [reconfigured(cam, specs[name])] if again is not None}
+        for name, cam in self._cameras.items():
+            if name in kept:
+                continue
             for pinhole in cam.pinholes():  # a fisheye's cube faces are cameras of their own
                 built.scene.remove_entity(pinhole.component.entity)
                 built.scene.remove_entity(pinhole.silhouette.entity)
@@ -213,7 +219,7 @@ class SapienRenderer:
         built.scene.set_ambient_light([float(c) for c in scene.ambient])
         self._lights.set_lamps(scene)
         self._add_actors(built, scene)
-        self._mount_cameras(built, scene)
+        self._mount_cameras(built, scene, kept)
         self._index_bodies(built, scene)
 
     def _add_actors(self, built: SceneBuilder, scene: Scene) -> None:
@@ -221,7 +227,8 @@ class SapienRenderer:
             if not merges(entity, self.batch_static):
                 built.add_entity(entity)
 
-    def _mount_cameras(self, built: SceneBuilder, scene: Scene) -> None:
+    def _mount_cameras(self, built: SceneBuilder, scene: Scene, kept: dict[str, SapienCamera] | None = None) -> None:
+        """The scene's cameras: each a new one, or the one `kept` under its name (already set to its spec)."""
         egos = [e.name for e in scene.entities if e.role == "ego"]
         self._ego = egos[0] if egos else None
         if scene.cameras and self._ego is None:
@@ -229,7 +236,7 @@ class SapienRenderer:
         for spec in scene.cameras:
             if spec.name in self._cameras:
                 raise GarageError(f"two cameras are named {spec.name!r}", "scene.cameras")
-            self._cameras[spec.name] = add_camera(built.scene, spec)
+            self._cameras[spec.name] = (kept or {}).get(spec.name) or add_camera(built.scene, spec)
 
     def _index_bodies(self, built: SceneBuilder, scene: Scene) -> None:
         # The blank control: everything but the vehicles is hidden (also from the silhouette renders).
