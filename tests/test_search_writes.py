@@ -5,6 +5,7 @@ contradicting distribution."""
 from __future__ import annotations
 
 import contextlib
+import copy
 
 import optuna
 import pytest
@@ -107,3 +108,43 @@ def test_a_key_written_again_is_replaced_and_a_finished_trial_refuses_attributes
                 trial.set_user_attr("late", 1)
     assert stored(tmp_path, "plain") == stored(tmp_path, "held")
     assert stored(tmp_path, "held")[0][4] == {"overrides": ["a=1"], "worker": "w2", "rejected": "visible 0.1 < 0.3"}
+
+
+def lean(s: optuna.Study) -> optuna.Study:
+    """The study as a random search's loop holds it (search/study.lean): its database storage, no cache."""
+    twin = copy.copy(s)
+    twin._storage = writes.backend(s)
+    return twin
+
+
+def test_a_trial_told_from_its_own_copy_is_stored_as_optunas_tell_stores_it_without_reading_it_back(tmp_path,
+                                                                                                      monkeypatch):
+    """told_from_its_copy: the database ends as Optuna's own tell leaves it (complete and pruned, with
+    attributes and a reported value), the trial is not read back for its tell, and a trial another worker
+    finished meanwhile is still refused."""
+    from optuna.storages import RDBStorage
+
+    reads = []
+    real = RDBStorage.get_trial
+    monkeypatch.setattr(RDBStorage, "get_trial", lambda self, trial_id: reads.append(trial_id) or real(self, trial_id))
+    plain, held = study(tmp_path, "plain"), study(tmp_path, "held")
+    for s in (plain, held):
+        direct = lean(s)
+        for k, state in enumerate([optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED]):
+            trial = direct.ask(SPACE)
+            trial.set_user_attr("overrides", [f"x={k}"])
+            trial.report(0.25, step=3)
+            reads.clear()
+            with writes.told_from_its_copy(direct, trial) if s is held else contextlib.nullcontext():
+                direct.tell(trial, 0.5 if state == optuna.trial.TrialState.COMPLETE else None, state=state)
+            assert (reads == []) == (s is held)
+        assert "get_trial" not in vars(writes.backend(s))  # the class's own again
+    assert stored(tmp_path, "plain") == stored(tmp_path, "held")
+    assert [t[1] for t in stored(tmp_path, "held")] == [optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED]
+    direct = lean(held)
+    trial = direct.ask(SPACE)
+    optuna.load_study(study_name="held", storage=f"sqlite:///{tmp_path / 'held'}.db").tell(
+        trial.number, state=optuna.trial.TrialState.FAIL)  # another worker fails it (a stale heartbeat)
+    with pytest.raises(RuntimeError, match="has already finished"):
+        with writes.told_from_its_copy(direct, trial):
+            direct.tell(trial, 0.5)

@@ -226,7 +226,8 @@ class SearchLoop:
         self.set_attrs(trial, {**(first or {}), **out.attrs})  # a dozen: one transaction
         if out.state == TrialState.FAIL:
             log.error("trial %d failed: %s", trial.number, out.attrs["error"])
-        self.study.tell(trial, out.values, state=out.state)
+        with writes.told_from_its_copy(self.study, trial):
+            self.study.tell(trial, out.values, state=out.state)
         self.ran.append(trial.number)
         print(line(trial.number, out, self.budget, self.search.objective))
 
@@ -292,7 +293,8 @@ class SearchLoop:
             self.in_a_row = 0
             return False
         self.in_a_row += 1
-        self.study.tell(trial, state=TrialState.PRUNED)
+        with writes.told_from_its_copy(self.study, trial):
+            self.study.tell(trial, state=TrialState.PRUNED)
         print(f"garage_exp: draw {trial.number + 1}: rejected by the space's requirements ({verdict.why}); redrawn")
         if self.in_a_row >= self.require.max_draws:
             raise GarageError(f"the space's requirements rejected {self.in_a_row} draws in a row (the last: "
