@@ -148,6 +148,43 @@ def test_retry_waits_a_bounded_time_for_the_server_and_says_so_once(fresh_outage
     assert fresh_outage == []
 
 
+def test_a_tag_two_workers_set_at_once_on_one_run_is_written_again_and_kept(tmp_path, monkeypatch):
+    """Two workers of one search tag their parent run at their ends: MLflow's sqlite store looks the tag up, then
+    inserts it, and when the other worker's insert lands in between, this one fails on the key (a two-worker
+    search once ended with exit 1 so). The race is made here on a real store: the other worker's write lands
+    between this one's look-up and its insert. retry() writes it again, which finds the row and updates it."""
+    from sqlalchemy.orm import Session
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    mine, other = client.client(uri), client.client(uri)
+    run_id = mine.create_run(mine.create_experiment("race")).info.run_id
+    real_merge, raced = Session.merge, []
+
+    def merge_then_the_other_worker(self, instance, *args, **kwargs):
+        merged = real_merge(self, instance, *args, **kwargs)
+        if not raced and getattr(instance, "key", None) == "search_mode":
+            raced.append(1)
+            other.set_tag(run_id, "search_mode", "search")  # commits first
+        return merged
+
+    monkeypatch.setattr(Session, "merge", merge_then_the_other_worker)
+    with pytest.raises(Exception, match="UNIQUE constraint failed"):  # the race itself, unretried
+        mine.set_tag(run_id, "search_mode", "search")
+    raced.clear()
+    other.delete_tag(run_id, "search_mode")
+    runs.retry(lambda: mine.set_tag(run_id, "search_mode", "suite"))
+    assert raced == [1] and mine.get_run(run_id).data.tags["search_mode"] == "suite"
+    calls = []
+
+    def always_taken():
+        calls.append(1)
+        raise RuntimeError("(sqlite3.IntegrityError) UNIQUE constraint failed: tags.key, tags.run_uuid")
+
+    with pytest.raises(RuntimeError, match="UNIQUE"):  # a key that stays taken is a real conflict
+        runs.retry(always_taken, base_delay=0.0)
+    assert len(calls) == client.RACED_ATTEMPTS
+
+
 def test_after_a_signal_retry_never_waits(fresh_outage):
     from garage_exp.core.state import STATE
 

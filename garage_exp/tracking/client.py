@@ -23,6 +23,13 @@ from garage_exp.core.state import STATE
 # lock longer than its busy timeout; the write did not happen and is safe to repeat.
 TRANSIENT = ("database is locked", "database table is locked")
 
+# Two workers of one search that write the same key of one run at once (the search's parent run: its tags, at
+# each worker's end): MLflow's store looks the row up, then inserts it, and the later insert fails on the key.
+# The other worker's row is there then: the write, repeated, finds it and updates it. Repeated a few times only:
+# a key that stays taken is a real conflict.
+RACED = ("unique constraint failed", "duplicate key value violates unique constraint")
+RACED_ATTEMPTS = 3
+
 # A tracking server that does not answer: refused or reset connections, timeouts, a proxy's 502-504; or a
 # server whose PostgreSQL store restarts (it answers 503, or 500 with the driver's text, until the database is
 # back).
@@ -94,7 +101,8 @@ def _unreachable(exc: BaseException) -> bool:
 
 def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.0):
     """Call fn(), retrying on sqlite's 'database is locked' (several workers share one sqlite store) with
-    jittered exponential back-off (~30 s in all before the error is raised), and on a tracking server that
+    jittered exponential back-off (~30 s in all before the error is raised), a few times on a key another worker
+    wrote at the same moment (RACED), and on a tracking server that
     does not answer for up to tracking_wait() seconds (one line when the wait starts, one when the server is
     back), then TrackingAway. After Ctrl-C or SIGTERM nothing waits: one attempt, and none at all when the
     server was already away."""
@@ -125,7 +133,8 @@ def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.
                 k += 1
                 continue
             text = str(exc).lower()
-            if not any(t in text for t in TRANSIENT) or k >= attempts - 1:
+            raced = any(t in text for t in RACED)
+            if not (raced or any(t in text for t in TRANSIENT)) or k >= (RACED_ATTEMPTS if raced else attempts) - 1:
                 raise
             time.sleep(min(max_delay, base_delay * (2**k)) * (0.5 + random.random()))
             k += 1
