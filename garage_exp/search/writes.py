@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import functools
 import json
 import sqlite3
 
 from optuna.storages import RDBStorage
+
+from garage_exp.core.state import STATE
 
 
 def backend(study):
@@ -162,7 +163,7 @@ def write_attrs(store: RDBStorage, trial_id: int, attrs: dict) -> None:
         call(commit, store.url)
 
 
-@functools.cache
+@STATE.memo("process", maxsize=8)  # one a dialect
 def _attr_upsert(dialect: str):
     """The statement that inserts a user attribute or replaces its value (Optuna's, per dialect), made once so
     that SQLAlchemy compiles it once; None for a database Optuna writes otherwise."""

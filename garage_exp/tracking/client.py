@@ -102,10 +102,9 @@ def _unreachable(exc: BaseException) -> bool:
 def retry(fn, attempts: int = 10, base_delay: float = 0.1, max_delay: float = 5.0):
     """Call fn(), retrying on sqlite's 'database is locked' (several workers share one sqlite store) with
     jittered exponential back-off (~30 s in all before the error is raised), a few times on a key another worker
-    wrote at the same moment (RACED), and on a tracking server that
-    does not answer for up to tracking_wait() seconds (one line when the wait starts, one when the server is
-    back), then TrackingAway. After Ctrl-C or SIGTERM nothing waits: one attempt, and none at all when the
-    server was already away."""
+    wrote at the same moment (RACED), and on a tracking server that does not answer for up to tracking_wait()
+    seconds (one line when the wait starts, one when the server is back), then TrackingAway. After Ctrl-C or
+    SIGTERM nothing waits: one attempt, and none at all when the server was already away."""
     from garage_exp.core.exits import signals_held, stopping
 
     k = 0
