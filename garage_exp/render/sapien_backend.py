@@ -205,10 +205,11 @@ class SapienRenderer:
         built.remove_actors()
         # A camera of the same name and size is set to its new spec in place (sapien_cameras.reconfigured).
         specs = {spec.name: spec for spec in scene.cameras}
-        kept = {name: again for name, cam in self._cameras.items() if name in specs
-                for again in [reconfigured(cam, specs[name])] if again is not None}
+        kept: dict[str, SapienCamera] = {}
         for name, cam in self._cameras.items():
-            if name in kept:
+            again = reconfigured(cam, specs[name]) if name in specs else None
+            if again is not None:
+                kept[name] = again
                 continue
             for pinhole in cam.pinholes():  # a fisheye's cube faces are cameras of their own
                 built.scene.remove_entity(pinhole.component.entity)

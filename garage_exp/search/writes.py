@@ -63,19 +63,17 @@ def told_from_its_copy(study, trial):
     attributes through the storage leaves the trial's copy without them. What the tell writes is the same; a
     trial another worker failed meanwhile is still refused, by the database's check on the write."""
     store = study._storage
-    if not isinstance(store, RDBStorage) or "get_trial" in vars(store):
+    if not isinstance(store, RDBStorage):  # Optuna's cache over it: a sampler that reads the history
         yield
         return
-    real = store.get_trial
 
     def get_trial(trial_id: int):
-        return copy.deepcopy(trial._cached_frozen_trial) if trial_id == trial._trial_id else real(trial_id)
+        if trial_id == trial._trial_id:
+            return copy.deepcopy(trial._cached_frozen_trial)
+        return type(store).get_trial(store, trial_id)
 
-    store.get_trial = get_trial
-    try:
+    with _held(study, "get_trial", lambda held: get_trial):
         yield
-    finally:
-        del store.get_trial  # the class's own again
 
 
 @contextlib.contextmanager
