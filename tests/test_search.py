@@ -196,6 +196,25 @@ def test_infeasible_trials_are_pruned_not_hard(tmp_path):
     assert study.best_trial.params["light.intensity"] >= 0.2  # the hardest fair one, not a hidden target
 
 
+def test_a_trial_runs_with_openblas_on_one_thread_and_the_process_gets_its_threads_back(tmp_path):
+    """OpenBLAS's workers spin after each product they share: in the trial loop its products stay on the loop's
+    thread (loop.one_blas_thread); outside the loop the process keeps what it had."""
+    from threadpoolctl import threadpool_info
+
+    def blas_threads():
+        return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    before, seen = blas_threads(), []
+
+    def launch(batch, idx):
+        seen.append(blas_threads())
+        return fake_launch(batch, idx)
+
+    run_loop(tmp_path, 3, launch=launch)
+    assert before and len(seen) == 3 and all(set(threads.values()) == {1} for threads in seen)
+    assert blas_threads() == before
+
+
 def test_a_batch_of_trials_gives_what_one_at_a_time_gives(tmp_path):
     """search.batch=K asks K trials, launches them as one batch, tells K: with the random sampler the study is
     the one a batch of 1 makes (the sampler's stream is drawn in the same order), and the launcher got batches."""

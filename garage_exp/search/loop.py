@@ -39,6 +39,20 @@ WORKER = f"{socket.gethostname()}:{os.getpid()}"
 COUNTED = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL, TrialState.RUNNING)
 
 
+@contextlib.contextmanager
+def one_blas_thread():
+    """numpy's and SciPy's OpenBLAS limited to the calling thread. A trial's products are small (ground truth's
+    hidden pixels per category, projections), yet OpenBLAS hands them to its worker threads, and each worker then
+    spins waiting for the next call: 13 % of a one-shot search's CPU on this 2-core machine (its thread's CPU time,
+    measured), the share that a second worker, lavapipe's rasterisers and the detector's process were waiting for.
+    The frame rows do not change (tests/test_oneshot.py reruns a one-shot search's elites as jobs, whose OpenBLAS
+    keeps its threads, to their rows)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
 @dataclass
 class Outcome:
     """What a trial's job returned, as the study records it."""
@@ -135,7 +149,12 @@ class SearchLoop:
 
     def run(self) -> list[int]:
         """Ask a batch, pre-screen each trial, launch the rest as one batch, tell each its outcome; until the
-        budget is spent or `stop` says so (asked between batches: a suite's last batch may overfill a band)."""
+        budget is spent or `stop` says so (asked between batches: a suite's last batch may overfill a band).
+        Linear algebra runs on this thread alone meanwhile (`one_blas_thread`)."""
+        with one_blas_thread():
+            return self._run()
+
+    def _run(self) -> list[int]:
         self.settle()
         while not self.stop(self.study) and not self.frames_spent():
             trials = self.next_trials()
