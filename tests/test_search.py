@@ -215,6 +215,32 @@ def test_a_trial_runs_with_openblas_on_one_thread_and_the_process_gets_its_threa
     assert blas_threads() == before
 
 
+def test_a_dead_workers_trial_is_failed_and_stale_trials_are_looked_for_once_a_heartbeat(tmp_path, monkeypatch):
+    """A trial whose worker died (its heartbeat older than the grace period) is failed, keeping its place in the
+    budget; the loop looks for such trials once a heartbeat interval and at the study's end, not at every draw."""
+    import datetime
+
+    from optuna.storages._rdb.models import TrialHeartbeatModel
+
+    cfg = search_node(tmp_path)
+    space = space_mod.build(SPACE, cfg, levels())
+    study = study_mod.open_study(cfg.search, "s", 0, space.params)
+    dead = study.ask(fixed_distributions=space.params)
+    store = getattr(study._storage, "_backend", study._storage)  # the database under Optuna's cache
+    store.record_heartbeat(dead._trial_id)
+    session = store.scoped_session()
+    beat = session.query(TrialHeartbeatModel).filter(TrialHeartbeatModel.trial_id == dead._trial_id).one()
+    beat.heartbeat -= datetime.timedelta(seconds=study_mod.GRACE_S + 60)
+    session.commit()
+    looks = []
+    real = optuna.storages.fail_stale_trials
+    monkeypatch.setattr(optuna.storages, "fail_stale_trials", lambda s: looks.append(1) or real(s))
+    SearchLoop(cfg.search, space, study, fake_launch, 6).run()
+    trials = study.get_trials()
+    assert trials[0].state == TrialState.FAIL and len(trials) == 6  # its place kept: five more trials
+    assert len(looks) == 2  # at the first draw and at the end, the run far shorter than a heartbeat interval
+
+
 def test_a_batch_of_trials_gives_what_one_at_a_time_gives(tmp_path):
     """search.batch=K asks K trials, launches them as one batch, tells K: with the random sampler the study is
     the one a batch of 1 makes (the sampler's stream is drawn in the same order), and the launcher got batches."""
