@@ -5,12 +5,13 @@ contradicting distribution."""
 from __future__ import annotations
 
 import contextlib
-import copy
+from types import SimpleNamespace
 
 import optuna
 import pytest
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
 
+from garage_exp.search import study as study_mod
 from garage_exp.search import writes
 
 SPACE = {"x": FloatDistribution(0.0, 1.0), "n": IntDistribution(1, 9), "kind": CategoricalDistribution(["a", "b"]),
@@ -112,9 +113,7 @@ def test_a_key_written_again_is_replaced_and_a_finished_trial_refuses_attributes
 
 def lean(s: optuna.Study) -> optuna.Study:
     """The study as a random search's loop holds it (search/study.lean): its database storage, no cache."""
-    twin = copy.copy(s)
-    twin._storage = writes.backend(s)
-    return twin
+    return study_mod.lean(s, SimpleNamespace(sampler="random", mode="search"))
 
 
 def test_a_trial_told_from_its_own_copy_is_stored_as_optunas_tell_stores_it_without_reading_it_back(tmp_path,
