@@ -117,8 +117,9 @@ def test_wet_floors_shine_where_puddles_are():
 def test_a_floors_and_lines_kept_layers_draw_the_pixels_drawn_without_them():
     """A wide space draws grime, wetness and wear per scenario: a floor's noise, stains, cracks and puddles and the
     line paint's noise are drawn once per kind, seed, size (and stain counts) and weighed per picture
-    (textures._start, _grime). Each picture equals the one drawn straight from its random numbers, as the
-    pictures were drawn before they were kept: cold, and warm after pictures that share its layers."""
+    (textures._start, _grime), as a wall's paint and dirt are (_wall_layers). Each picture equals the one drawn
+    straight from its random numbers, as the pictures were drawn before they were kept: cold, and warm after
+    pictures that share its layers."""
     from garage_exp.scene import textures
     from garage_exp.scene.textures import _blobs, _cracks, _rgba, _rng, fbm
 
@@ -158,6 +159,21 @@ def test_a_floors_and_lines_kept_layers_draw_the_pixels_drawn_without_them():
     for wear in (0.3, 0.31, 0.9):
         paint = Material("p", (0.9, 0.8, 0.1, 1.0), texture=Texture("paint", 4, 1.0, (("wear", wear),)))
         assert np.array_equal(textures.image(paint)[0], paint_drawn((0.9, 0.8, 0.1, 1.0), 4, 96, wear)), wear
+
+    def wall_drawn(colour, seed, size, tile, grime, tint):
+        rng = _rng("wall", seed)
+        noise, streaks = fbm(size, rng), fbm(size, rng, octaves=3, base=16)
+        shade = (1.0 + tint) * (1.0 + 0.06 * noise)
+        z = (np.arange(size, dtype=np.float32) / size * tile)[:, None]
+        streaks = np.repeat(np.clip(streaks, 0, 1).mean(axis=0, keepdims=True), size, axis=0)
+        shade *= 1.0 - grime * (0.25 * streaks * np.clip((z - 1.0) / 1.8, 0, 1) + 0.3 * np.exp(-z / 0.35))
+        return _rgba(np.asarray(colour), np.clip(shade, 0.2, 1.3))
+
+    textures._wall_layers.cache_clear()
+    for grime, tint in ((0.37, 0.0), (0.9, 0.0), (0.0, -0.1), (1.0, 0.1)):  # the first two share the layers
+        wall = Material("w", colour, texture=Texture("wall", 6, 3.0, (("grime", grime), ("tint", tint))))
+        assert np.array_equal(textures.image(wall)[0], wall_drawn(colour, 6, 288, 3.0, grime, tint)), (grime, tint)
+    assert textures._wall_layers.cache_info().hits >= 1
 
 
 def test_a_pictures_srgb_bytes_are_the_formulas():
