@@ -285,3 +285,35 @@ def test_a_configs_plain_values_are_to_containers():
     with pytest.raises(Exception) as theirs_raised:
         OmegaConf.to_container(broken, resolve=True)
     assert (type(ours_raised.value), str(ours_raised.value)) == (type(theirs_raised.value), str(theirs_raised.value))
+
+
+def test_holds_answers_as_in_does_without_an_exception_for_a_missing_key():
+    """core.plain.holds is `key in node`: for keys held, missing, mandatory-missing ('???'), None, interpolations
+    and a None node, on plain and struct nodes. For a key its node does not hold it answers without
+    OmegaConf raising (and formatting) a ConfigAttributeError: `settings` asks it of every group of every draw."""
+    import omegaconf._utils
+    from omegaconf import DictConfig, OmegaConf
+
+    from garage_exp.core.plain import holds
+
+    made = OmegaConf.create({"a": 1, "b": "???", "c": None, "d": "${a}", "e": "${nowhere}", "f": {"g": 1},
+                             "h": DictConfig(None)})
+    for struct in (False, True):
+        OmegaConf.set_struct(made, struct)
+        for node in (made, made.f):
+            for key in "abcdefghz":
+                assert holds(node, key) == (key in node), (struct, key)
+    raised = []
+    real = omegaconf._utils.format_and_raise
+
+    def counting(*args, **kwargs):
+        raised.append(args)
+        return real(*args, **kwargs)
+
+    cfg = compose_cfg("space=wide")
+    with pytest.MonkeyPatch.context() as patch:
+        for module in ("omegaconf._utils", "omegaconf.base", "omegaconf.basecontainer", "omegaconf.dictconfig"):
+            patch.setattr(f"{module}.format_and_raise", counting, raising=False)
+        groups = [cfg._get_node(k) for k in cfg if isinstance(cfg._get_node(k), DictConfig)]
+        assert len(groups) > 10 and not any(holds(group, "hydra") for group in groups)
+    assert raised == []

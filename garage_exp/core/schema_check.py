@@ -18,6 +18,7 @@ from typing import Any, Iterator
 
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.plain import holds
 from garage_exp.core.state import STATE
 from garage_exp.core.schema import config_schema
 from garage_exp.core.errors import GarageError, did_you_mean
@@ -62,7 +63,7 @@ def unknown_keys(value: Any, schema: Any, path: tuple[str, ...] = ()) -> Iterato
 def task_overrides(cfg: DictConfig) -> list[str]:
     """The job's command-line overrides: a sweep job's config composed for the sweep's check carries its own
     (`hydra.overrides.task`); a running job's are Hydra's."""
-    if isinstance(cfg, DictConfig) and "hydra" in cfg:
+    if isinstance(cfg, DictConfig) and holds(cfg, "hydra"):
         task = OmegaConf.select(cfg, "hydra.overrides.task", default=None)
         if task is not None:
             return [str(o) for o in task]
@@ -90,7 +91,7 @@ def level_file(cfg: DictConfig, group: str) -> str:
     try:
         from hydra.core.hydra_config import HydraConfig
 
-        hc = cfg.hydra if isinstance(cfg, DictConfig) and "hydra" in cfg else HydraConfig.get()
+        hc = cfg.hydra if isinstance(cfg, DictConfig) and holds(cfg, "hydra") else HydraConfig.get()
         level = hc.runtime.choices.get(group)
         sources = [s.path for s in hc.runtime.config_sources if s.schema == "file"]
     except (ValueError, AttributeError):  # composed outside a Hydra app
@@ -107,7 +108,7 @@ def _task_values(cfg: DictConfig) -> dict:
     which unknown_keys skips: not converted."""
     from garage_exp.core.plain import resolved
 
-    if not (isinstance(cfg, DictConfig) and any(k in cfg for k in NOT_IN_SCHEMA)):
+    if not (isinstance(cfg, DictConfig) and any(holds(cfg, k) for k in NOT_IN_SCHEMA)):
         return resolved(cfg, resolve=False)
     out = {}
     for key in cfg:

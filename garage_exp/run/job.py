@@ -10,6 +10,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from garage_exp.core.plain import holds
 from garage_exp.core.state import STATE
 from garage_exp.tracking import runs as tracking
 from garage_exp.core.exits import SweepStopped
@@ -33,7 +34,7 @@ def name_levels(cfg: DictConfig, plan_name: str) -> None:
         if group == "plan" or "/" in group or level is None or f"{group}.name" in given:
             continue
         node = OmegaConf.select(cfg, group, default=None)
-        if isinstance(node, DictConfig) and "name" in node:
+        if isinstance(node, DictConfig) and holds(node, "name"):
             node.name = str(level)
 
 
