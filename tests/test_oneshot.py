@@ -335,3 +335,37 @@ def test_a_one_shot_trials_composition_keeps_hydras_types_and_flags():
             ours.case.frames = "many"  # the schema's type still checks a value
         other = launch.take(["light=dim", "light.intensity=0.9", "search.trial=1"])
         assert (ours.light.intensity, other.light.intensity, other.case.frames) == (0.3, 0.9, None)
+
+
+def test_a_one_shot_trials_hydra_node_is_handed_over_as_hydras_copy_would_be():
+    """run_lean hands HydraConfig the trial's own `hydra` node (launch.hand_hydra_node) instead of Hydra's copy
+    (set_config): HydraConfig then reads what set_config gives, typed HydraConf, read-only, its parent the job's
+    config; and the node is the trial's, not a copy."""
+    import copy
+    from types import SimpleNamespace
+
+    from conftest import hydra_loader
+    from hydra.conf import HydraConf
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+
+    from garage_exp.search.launch import CachedLaunch, hand_hydra_node
+
+    with hydra_loader() as loader:
+        master = loader.load_configuration("config", ["hydra/sweeper=search"], RunMode.MULTIRUN)
+        launch = CachedLaunch(SimpleNamespace(config_loader=loader), None, master, {"light", "case", "plan"})
+        trial = launch.take(["light=dim", "light.intensity=0.3", "search.runs=per_search", "search.trial=0"])
+    twin = copy.deepcopy(trial)
+    previous = HydraConfig.instance().cfg
+    try:
+        HydraConfig.instance().set_config(twin)
+        hydras = HydraConfig.instance().cfg
+        hand_hydra_node(trial)
+        ours = HydraConfig.instance().cfg
+        assert OmegaConf.to_container(ours, resolve=False) == OmegaConf.to_container(hydras, resolve=False)
+        assert OmegaConf.get_type(ours, "hydra") is HydraConf and OmegaConf.is_readonly(ours.hydra)
+        assert ours.hydra._get_parent() is trial and ours.hydra is trial._get_node("hydra")
+        assert HydraConfig.get().runtime.choices["light"] == "dim"
+    finally:
+        HydraConfig.instance().cfg = previous
