@@ -77,6 +77,23 @@ def test_several_workers_are_counted_while_all_are_warm():
     assert both["cpu_per_scenario"] == pytest.approx(((2.0 + 1.0) / 7, (0.1 + 0.1) / 7))
 
 
+def test_a_side_by_side_pair_gives_each_sides_rendered_rate_and_cpu_and_their_ratios():
+    """oneshot's `--side-by-side`: a pair's sides are rated on what each rendered after its warm-up (told
+    COMPLETE), per second of its own clock and per CPU second of its search process, and this checkout's ratios
+    are to the other's."""
+    from benchmarks.performance.oneshot import pair_row
+
+    old = {"ends": [1.0, 2.0, 3.0, 4.0, 5.0], "told": ["COMPLETE", "PRUNED", "COMPLETE", "COMPLETE", "PRUNED"],
+           "cpu": [(1.0, 0.1), (3.0, 0.2)]}
+    new = {"ends": [1.0, 1.5, 2.5, 3.0, 3.5], "told": ["PRUNED", "COMPLETE", "COMPLETE", "COMPLETE", "COMPLETE"],
+           "cpu": [(2.0, 0.0), (4.5, 0.1)]}
+    row = pair_row(old, new, warmup=2)
+    # old: 2 rendered after its 2nd end (at 3, 4) in 3 s, 2 CPU s; new: 3 rendered (2.5, 3, 3.5) in 2 s, 2.5 CPU s
+    assert (row["before_rendered_per_s"], row["rendered_per_s"]) == (pytest.approx(0.667, abs=1e-3), 1.5)
+    assert (row["before_cpu"], row["cpu"]) == (1.0, pytest.approx(0.833, abs=1e-3))
+    assert row["rate_ratio"] == pytest.approx(2.25, abs=1e-3) and row["cpu_ratio"] == pytest.approx(0.833, abs=1e-3)
+
+
 def test_each_archive_cells_page_keeps_its_searches_in_a_dir_of_its_own(tmp_path):
     """archive_cells resumes a study of the same sampler and seed found in its dir (an interrupted run goes on):
     by default that dir is the page's own, so a variant's run never continues another page's searches; `--out`

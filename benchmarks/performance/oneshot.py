@@ -34,6 +34,12 @@ average, inside the issue's "at least every 32"), the oneshot arm keeping them a
 scenarios told (a rejected draw costs its check, and counts as none; a draw whose actors collide is told PRUNED
 infeasible without rendering, and counts), and `rendered / s` those rendered and scored alone. The page:
 benchmarks/results/oneshot_wide.md.
+
+`--side-by-side PAIRS` (with `--before DIR`) measures one checkout against another on a machine shared with others,
+whose speed drifts from one minute to the next by more than a change of a few per cent: the two checkouts' one-shot
+searches (one worker each) run at the same time, PAIRS times, and each pair gives the ratios of their rendered
+scenarios a second and of their CPU seconds a rendered scenario; the page prints each pair and the medians
+(benchmarks/results/oneshot_<space>_side_by_side.md).
 """
 
 from __future__ import annotations
@@ -176,34 +182,42 @@ def longest_run(plans: list) -> int:
     return best
 
 
+def start_child(name: str, trials: int, warmup: int, code: Path | None, extra: list[str], shared: str = ""):
+    """One child's search started (not waited for): its process and the file it writes its record to."""
+    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
+        out = fh.name
+    # the file, not `-m`, from the code's own checkout: `python -m` would put the working dir first on sys.path
+    # and import this checkout's garage_exp for --before's arm (as performance/before.py runs its children)
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name, "--trials", str(trials),
+           "--warmup", str(warmup), "--out", out, *(["--shared", shared] if shared else []), *CHILD_FLAGS, *extra]
+    proc = subprocess.Popen(cmd, cwd=code or ROOT, env=child_env(code, GARAGE_EXP_PROVISIONED="1"),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return proc, out
+
+
+def finish_children(started: list, arm: str) -> list[dict]:
+    """The started children's records, once all have ended (an arm whose child failed stops the benchmark)."""
+    logs = [proc.communicate()[0] for proc, _ in started]
+    for (proc, _), log in zip(started, logs):
+        if proc.returncode != 0:
+            sys.stderr.write(log[-6000:])
+            raise SystemExit(f"the {arm} arm failed (exit {proc.returncode})")
+    results = [json.loads(Path(out).read_text()) for _, out in started]
+    for _, out in started:
+        os.unlink(out)
+    return results
+
+
 def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[str], name: str | None = None,
             workers: int = 1) -> dict:
     """One arm: its child's search, or `workers` children sharing one study (the search's workers on one
     storage, as on a cluster), combined by `merge`."""
     name = name or ("before" if code is not None else arm)
-    outs, shared = [], tempfile.mkdtemp(prefix="oneshot-shared-") if workers > 1 else ""
-    procs = []
+    shared = tempfile.mkdtemp(prefix="oneshot-shared-") if workers > 1 else ""
     load = os.getloadavg()[0]
     started = time.perf_counter()
-    for _ in range(workers):
-        with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
-            outs.append(fh.name)
-        # the file, not `-m`, from the code's own checkout: `python -m` would put the working dir first on sys.path
-        # and import this checkout's garage_exp for --before's arm (as performance/before.py runs its children)
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name, "--trials", str(trials),
-               "--warmup", str(warmup), "--out", outs[-1], *(["--shared", shared] if shared else []),
-               *CHILD_FLAGS, *extra]
-        procs.append(subprocess.Popen(cmd, cwd=code or ROOT, env=child_env(code, GARAGE_EXP_PROVISIONED="1"),
-                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
-    logs = [proc.communicate()[0] for proc in procs]
+    results = finish_children([start_child(name, trials, warmup, code, extra, shared) for _ in range(workers)], arm)
     wall = time.perf_counter() - started
-    for proc, log in zip(procs, logs):
-        if proc.returncode != 0:
-            sys.stderr.write(log[-6000:])
-            raise SystemExit(f"the {arm} arm failed (exit {proc.returncode})")
-    results = [json.loads(Path(out).read_text()) for out in outs]
-    for out in outs:
-        os.unlink(out)
     if shared:
         import shutil
 
@@ -211,6 +225,35 @@ def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[s
     result = results[0] if workers == 1 else merge(results, warmup)
     return {**result, "arm": arm, "wall": wall, "load_before": load, "load_after": os.getloadavg()[0],
             "workers": workers}
+
+
+def side_by_side(pairs: int, trials: int, warmup: int, before: Path, extra: list[str]) -> list[dict]:
+    """The one-shot path of `before` and of this checkout, one worker each, run at the same time, `pairs` times:
+    on a machine shared with others, whose speed drifts by a fifth from one minute to the next here, a pair
+    sees the same neighbours, so its ratio holds where consecutive arms' rates do not (`pair_row`)."""
+    rows = []
+    for k in range(pairs):
+        load = os.getloadavg()[0]
+        old, new = finish_children([start_child("oneshot", trials, warmup, before, extra),
+                                    start_child("oneshot", trials, warmup, None, extra)], "side by side")
+        rows.append({"pair": k + 1, **pair_row(old, new, warmup),
+                     "load": f"{load:.2f} -> {os.getloadavg()[0]:.2f}"})
+    return rows
+
+
+def pair_row(old: dict, new: dict, warmup: int) -> dict:
+    """One side-by-side pair: each side's scenarios rendered a second and its search process's CPU seconds a
+    rendered scenario (after its warm-up), and this checkout's ratios to `old`'s."""
+    def side(r: dict) -> tuple[float, float]:
+        shown = rendered_rate(r, warmup)
+        rendered = r["told"][warmup:].count("COMPLETE") if r.get("told") else 0
+        cpu = (r["cpu"][1][0] - r["cpu"][0][0]) / rendered if len(r.get("cpu", [])) == 2 and rendered else float("nan")
+        return shown, cpu
+
+    (old_rate, old_cpu), (new_rate, new_cpu) = side(old), side(new)
+    return {"before_rendered_per_s": round(old_rate, 3), "rendered_per_s": round(new_rate, 3),
+            "rate_ratio": round(new_rate / old_rate, 3), "before_cpu": round(old_cpu, 3), "cpu": round(new_cpu, 3),
+            "cpu_ratio": round(new_cpu / old_cpu, 3)}
 
 
 def merge(results: list[dict], warmup: int) -> dict:
@@ -248,6 +291,9 @@ def main() -> int:
                              "search.archive.emitter=surrogate, whose draws are rejected less often)")
     parser.add_argument("--workers", type=int, default=1,
                         help="also the oneshot arm as this many workers sharing one study (oneshot x N)")
+    parser.add_argument("--side-by-side", type=int, default=0, metavar="PAIRS",
+                        help="with --before: instead of the arms, its one-shot path and this checkout's run at the "
+                             "same time, one worker each, this many times (a ratio that holds on a shared machine)")
     parser.add_argument("--child", choices=[*ARMS, "before"], help=argparse.SUPPRESS)
     parser.add_argument("--out", help=argparse.SUPPRESS)
     parser.add_argument("--shared", default="", help=argparse.SUPPRESS)
@@ -258,7 +304,8 @@ def main() -> int:
     if opts.space:
         use_space(opts.space, opts.garages)
         CHILD_FLAGS[:] += [f"--space={opts.space}", f"--garages={opts.garages}"]  # the children measure it too
-    page = opts.page or RESULTS / (f"oneshot_{opts.space}.md" if opts.space else "oneshot.md")
+    stem = f"oneshot_{opts.space}" if opts.space else "oneshot"
+    page = opts.page or RESULTS / (f"{stem}_side_by_side.md" if opts.side_by_side else f"{stem}.md")
     if opts.child:
         return child(opts.child, opts.trials, opts.out, opts.warmup, opts.overrides, opts.shared)
 
@@ -272,6 +319,11 @@ def main() -> int:
         ["git", "rev-parse", "--short", "HEAD"], cwd=opts.before, capture_output=True, text=True).stdout.strip()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                             text=True).stdout.strip()
+    if opts.side_by_side:
+        if opts.before is None:
+            parser.error("--side-by-side needs --before")
+        return side_by_side_page(side_by_side(opts.side_by_side, opts.trials, opts.warmup, opts.before,
+                                              opts.overrides), page, command, commit, before_commit)
     runs = []
     for _ in range(opts.rounds):
         runs.append(run_arm("today", opts.today_trials, opts.warmup, opts.before, opts.overrides))
@@ -342,6 +394,29 @@ def main() -> int:
         lines += ["", f"{many[0]['arm']} / {many_before[0]['arm']} (the checkout at {before_commit}): **{told:.2f}x** "
                   f"told, **{shown:.2f}x** rendered."]
     lines += ["", "```json", json.dumps({"rows": rows, "ratio": ratio, "gain": gain}), "```"]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    page.write_text(text)
+    return 0
+
+
+def side_by_side_page(rows: list[dict], page: Path, command: str, commit: str, before_commit: str) -> int:
+    from statistics import median
+
+    from benchmarks.jobkit import machine
+
+    lines = ["# One-shot scenarios a second, two checkouts side by side (issue 49, item 6)", "",
+             f"`{command}` · commit `{commit}` against `{before_commit}` · {time.strftime('%Y-%m-%d %H:%M')} · "
+             f"{machine()}", "", f"scenario: {' '.join(SCENARIO)}", f"space: {' '.join(SPACE)}; sampler: {SAMPLER[0]}",
+             "", "Each pair: the two checkouts' one-shot searches (one worker each) at the same time.", "",
+             "| pair | rendered / s: before | this checkout | ratio | CPU s / rendered (search process): before | "
+             "this checkout | ratio | load (1 min) |", "|" + "---|" * 8]
+    lines += [f"| {r['pair']} | {r['before_rendered_per_s']:.2f} | {r['rendered_per_s']:.2f} | {r['rate_ratio']:.3f} | "
+              f"{r['before_cpu']:.3f} | {r['cpu']:.3f} | {r['cpu_ratio']:.3f} | {r['load']} |" for r in rows]
+    rate, cpu = median(r["rate_ratio"] for r in rows), median(r["cpu_ratio"] for r in rows)
+    lines += ["", f"median over {len(rows)} pairs: rendered a second **{rate:.3f}x**, CPU a rendered scenario "
+              f"**{cpu:.3f}x** the checkout at {before_commit}."]
+    lines += ["", "```json", json.dumps({"pairs": rows, "rate_ratio": rate, "cpu_ratio": cpu}), "```"]
     text = "\n".join(lines) + "\n"
     print(text)
     page.write_text(text)
