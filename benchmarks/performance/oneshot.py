@@ -393,8 +393,12 @@ def main() -> int:
         shown = max(r["rendered_per_s"] for r in many) / max(r["rendered_per_s"] for r in many_before)
         lines += ["", f"{many[0]['arm']} / {many_before[0]['arm']} (the checkout at {before_commit}): **{told:.2f}x** "
                   f"told, **{shown:.2f}x** rendered."]
-    lines += ["", "```json", json.dumps({"rows": rows, "ratio": ratio, "gain": gain}), "```"]
-    text = "\n".join(lines) + "\n"
+    return write_page(page, lines, {"rows": rows, "ratio": ratio, "gain": gain})
+
+
+def write_page(page: Path, lines: list[str], data: dict) -> int:
+    """The page (its lines, then its numbers as JSON for a later run to read back), printed and written."""
+    text = "\n".join([*lines, "", "```json", json.dumps(data), "```"]) + "\n"
     print(text)
     page.write_text(text)
     return 0
@@ -416,11 +420,7 @@ def side_by_side_page(rows: list[dict], page: Path, command: str, commit: str, b
     rate, cpu = median(r["rate_ratio"] for r in rows), median(r["cpu_ratio"] for r in rows)
     lines += ["", f"median over {len(rows)} pairs: rendered a second **{rate:.3f}x**, CPU a rendered scenario "
               f"**{cpu:.3f}x** the checkout at {before_commit}."]
-    lines += ["", "```json", json.dumps({"pairs": rows, "rate_ratio": rate, "cpu_ratio": cpu}), "```"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    page.write_text(text)
-    return 0
+    return write_page(page, lines, {"pairs": rows, "rate_ratio": rate, "cpu_ratio": cpu})
 
 
 if __name__ == "__main__":
