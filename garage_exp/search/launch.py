@@ -4,7 +4,8 @@ Hydra's basic launcher composes every job's config from the files (about 0.6 s h
 trial). A trial differs from the next by a few values, so this launcher composes once per combination of
 group levels (and structural overrides), then sets the trial's values on a copy (search/compose.py).
 Everything else is Hydra's basic launcher: `run_job`, the job's dir, HydraConfig, logging. A one-shot search's
-trials (`search.runs=per_search`) skip `run_job`'s two copies of the config and the per-job log file (`run_lean`).
+trials (`search.runs=per_search`) skip `run_job`'s two copies of the config, HydraConfig's copy of Hydra's node
+(`hand_hydra_node`) and the per-job log file (`run_lean`).
 A search whose space has requirements composes each draw to check it (search/loop.py `rejects`); the launch of
 that draw takes that very composition (`last`) instead of composing it again (a copy of the cached config and
 its ~50 values set: about 0.05 s a scenario on the wide space when the copy was deepcopy's, ~6 ms now), and sets
