@@ -87,13 +87,17 @@ def missing(capability: str) -> str | None:
 
 
 def instruction_set() -> str:
-    """The CPU feature that decides numeric kernels: OpenVINO's INT8 detectors pick AVX-512 VNNI, AVX-VNNI or AVX2
-    kernels, which round differently, and the slot truth's floats differ in their last digits between AVX-512 and
-    AVX2 machines, so a few pinned outputs hold one set per kind of machine (tests/golden/<set>/)."""
+    """The CPU feature that decides numeric kernels: OpenVINO's INT8 detectors pick AMX, AVX-512 VNNI, AVX-VNNI or
+    AVX2 kernels, which round differently, and the slot truth's floats differ in their last digits between AVX-512
+    and AVX2 machines, so a few pinned outputs hold one set per kind of machine (tests/golden/<set>/). AMX comes
+    first: an Intel Xeon with it has AVX-512 VNNI too, and its detectors' scores moved by up to 0.004 from the
+    Zen 4's on the lighting table (measured, 2026-12-08)."""
     try:
         flags = set(Path("/proc/cpuinfo").read_text().split())
     except OSError:
         return "unknown"
+    if "amx_int8" in flags:
+        return "amx"
     return "avx512" if "avx512_vnni" in flags else "avxvnni" if "avx_vnni" in flags else "avx2"
 
 

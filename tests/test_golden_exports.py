@@ -31,7 +31,7 @@ import pytest
 from conftest import instruction_set
 
 GOLDEN = Path(__file__).parent / "golden" / "exports.json"
-NUMERIC_SET = "avx512" if instruction_set() == "avx512" else "avx2"  # AVX-512 or not
+NUMERIC_SET = "avx512" if instruction_set() in ("avx512", "amx") else "avx2"  # AVX-512 or not
 ON_THIS_MACHINE = Path(__file__).parent / "golden" / NUMERIC_SET / "exports.json"
 CASES = ["1", "2", "3", "cpnco", "cpra", "crossing", "crouch", "light", "pedestrian", "pullout", "slots", "stepout"]
 PLANS = ["research", "garage26x30"]
