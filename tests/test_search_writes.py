@@ -147,3 +147,36 @@ def test_a_trial_told_from_its_own_copy_is_stored_as_optunas_tell_stores_it_with
     with pytest.raises(RuntimeError, match="has already finished"):
         with writes.told_from_its_copy(direct, trial):
             direct.tell(trial, 0.5)
+
+
+def test_an_ask_without_reading_its_trial_back_holds_the_trial_the_database_holds(tmp_path, monkeypatch):
+    """asked_without_reading: the new trial's copy is the one its write handed back, equal to what a fresh read of
+    the database gives (number, state, start, no parameters yet); the ask reads nothing back; the asks, their
+    parameters and tells leave the database as Optuna's own; an enqueued trial is read back as ever."""
+    from optuna.storages import RDBStorage
+
+    reads = []
+    real = RDBStorage.get_trial
+    monkeypatch.setattr(RDBStorage, "get_trial", lambda self, trial_id: reads.append(trial_id) or real(self, trial_id))
+    plain, held = study(tmp_path, "plain"), study(tmp_path, "held")
+    for s in (plain, held):
+        direct = lean(s)
+        for k in range(3):
+            reads.clear()
+            with writes.params_at_once(direct), writes.asked_without_reading(direct) if s is held \
+                    else contextlib.nullcontext():
+                trial = direct.ask()
+                fresh = real(writes.backend(s), trial._trial_id)
+                assert trial._cached_frozen_trial == fresh  # as the database holds it, before any draw
+                trial.suggest_float("x", 0.0, 1.0)
+            assert (reads == []) == (s is held)
+            direct.tell(trial, float(k))
+        direct.enqueue_trial({"x": 0.25})
+        reads.clear()
+        with writes.asked_without_reading(direct) if s is held else contextlib.nullcontext():
+            trial = direct.ask()
+            assert trial.suggest_float("x", 0.0, 1.0) == 0.25
+        assert reads  # the enqueued trial read back (it was made before, from a template)
+        direct.tell(trial, 9.0)
+        assert not {"create_new_trial", "get_trial"} & set(vars(writes.backend(s)))  # the class's own again
+    assert stored(tmp_path, "plain") == stored(tmp_path, "held")

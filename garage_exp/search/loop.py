@@ -149,7 +149,8 @@ class SearchLoop:
             wanted = min(int(self.search.get("batch", 1)), self.budget - held)
             if wanted <= 0 and not looked:  # the study's end: no trial left running for a dead worker
                 self.fail_stale(now=True)
-            with writes.params_at_once(self.study):  # a draw's 33 parameters: one transaction, not 33
+            # a draw's 33 parameters: one transaction, not 33; the new trial not read back
+            with writes.params_at_once(self.study), writes.asked_without_reading(self.study):
                 return [self.study.ask(fixed_distributions=self.space.params) for _ in range(max(wanted, 0))]
 
     def fail_stale(self, now: bool = False) -> bool:

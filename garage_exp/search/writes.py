@@ -9,7 +9,8 @@ trial looked up and checked once, every row added in one session. Nothing reads 
 then: a trial's own draw reads its cached frozen trial, and another worker reads finished trials only. What is
 written, and each check Optuna makes on a parameter (a distribution that contradicts the study's), is the same.
 `attrs_at_once` does the same for user attributes set together (a draw's overrides and worker; a finished
-trial's outcome, a dozen, before it is told). `told_from_its_copy` spares a tell its read of the trial.
+trial's outcome, a dozen, before it is told). `told_from_its_copy` spares a tell its read of the trial, and
+`asked_without_reading` an ask its read of the trial it has just made.
 """
 
 from __future__ import annotations
@@ -74,6 +75,38 @@ def told_from_its_copy(study, trial):
 
     with _held(study, "get_trial", lambda held: get_trial):
         yield
+
+
+@contextlib.contextmanager
+def asked_without_reading(study):
+    """Inside: a trial the study makes is not read back from the database. Optuna's ask creates the trial's row,
+    which hands back the trial as written (RDBStorage._create_new_trial), then reads the same trial again to give
+    it its cached copy (Trial.__init__: get_trial, ~1 ms with its parameter, attribute and value queries; about
+    3.5 asks a rendered one-shot scenario). Here the copy is the one the write handed back. Only a study that talks
+    to its database directly (`study.lean`) is so asked: Optuna's cache over a database already keeps what it
+    created. A trial made from a template (an enqueued one) is read back as ever."""
+    store = study._storage
+    if not isinstance(store, RDBStorage) or "create_new_trial" in vars(store) or "get_trial" in vars(store):
+        yield
+        return
+    made: dict = {}
+
+    def create_new_trial(study_id: int, template_trial=None) -> int:
+        if template_trial is not None:
+            return type(store).create_new_trial(store, study_id, template_trial)
+        frozen = store._create_new_trial(study_id)
+        made[frozen._trial_id] = frozen
+        return frozen._trial_id
+
+    def get_trial(trial_id: int):
+        frozen = made.pop(trial_id, None)
+        return type(store).get_trial(store, trial_id) if frozen is None else frozen
+
+    store.create_new_trial, store.get_trial = create_new_trial, get_trial
+    try:
+        yield
+    finally:
+        del store.create_new_trial, store.get_trial  # the class's own again
 
 
 @contextlib.contextmanager
