@@ -277,3 +277,25 @@ def test_a_pillar_with_its_own_id_is_a_pillar_and_a_box_occluder_is_structure():
                         Entity("kid", "target", Pose(), extent=(0.3, 0.4, 1.2), kind="person")])
     got = occluder_ids(frame, scene, {"pillar_1_2": 5, "wall_N_0": 6, "ego": 7, "crate": 8, "kid": 9, "old": 10})
     assert got == {"pillar": [5, 40], "vehicle": [7], "person": [9]}  # the wall, the crate, the unknown: structure
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 3), st.integers(1, 6), st.integers(0, 2**32 - 1))
+def test_hidden_pixels_counted_per_category_as_the_product_counts_them(frames, actors, seed):
+    """hidden_by on the CPU counts by bincount; each count equals the pixels an actor has hidden behind ids of
+    that category (the product's definition): named ids, structure (any other drawn id, ids past the named
+    ones included), id 0 hiding nothing."""
+    from garage_exp.perception.groundtruth import OCCLUDERS, hidden_by
+
+    rng = np.random.default_rng(seed)
+    ids = rng.integers(0, 40, (frames, 12, 16)).astype(np.int32)
+    hidden = rng.random((frames, actors, 12, 16)) < rng.random()
+    occluders = {"pillar": [3, 4], "vehicle": [7, 9, 11], "person": [20]}
+    got = hidden_by(ids, hidden, occluders)
+    category = np.full(ids.shape, len(OCCLUDERS) - 1)  # structure
+    for c, name in enumerate(OCCLUDERS[:-1]):
+        category[np.isin(ids, occluders[name])] = c
+    category[ids == 0] = -1
+    want = np.array([[[int((hidden[n, k] & (category[n] == c)).sum()) for c in range(len(OCCLUDERS))]
+                      for k in range(actors)] for n in range(frames)])
+    assert got.shape == want.shape and np.array_equal(got, want)
