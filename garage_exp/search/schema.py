@@ -164,6 +164,10 @@ class SearchConf:
     # parent, which holds every trial's frame rows (search/scenarios.csv) and the study's analysis: a one-shot
     # trial's own run cost about as much as rendering it (docs/performance.md, "One-shot scenarios")
     runs: str = "per_trial"
+    # the CPUs this worker (its Python thread, renderer threads and detector process) is kept on: "0", "0-1",
+    # "0,2"; null: wherever the scheduler puts it. Two workers of one study on two cores: cpus=0 and cpus=1
+    # (garage_exp/search/cpus.py)
+    cpus: Optional[str] = None
     trial: Optional[int] = None  # set by the sweeper on each trial's job: a lean job that returns its summary
 
 

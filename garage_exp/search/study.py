@@ -89,6 +89,9 @@ def check_search(search) -> None:
         raise GarageError(f"{search.startup} startup trials: at least 0", "search.startup")
     if int(search.get("batch", 1)) < 1:
         raise GarageError(f"a batch of {search.batch} trials: at least 1", "search.batch")
+    from garage_exp.search.cpus import parse
+
+    parse(search.get("cpus"))
     if search.get("runs", "per_trial") not in RUNS:
         raise GarageError(f"unknown runs {search.runs!r} ({' | '.join(RUNS)})", "search.runs")
     if int(search.trials) < 1:

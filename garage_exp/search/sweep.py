@@ -187,6 +187,11 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     """Run (or continue) the command's study; returns what the sweep leaves: study name, storage, trials run."""
     search = config.search
     space = check(config, loader)
+    from garage_exp.search import cpus
+
+    pinned = cpus.pin(cpus.parse(search.get("cpus")))  # before its first trial makes the renderer's threads
+    if pinned:
+        print(f"garage_exp: this worker kept on CPU {search.cpus} ({len(pinned)} processes)")
     name = study_name_of(config)
     seed = seed_of(search, config)
     study = study_mod.open_study(search, name, seed, space.params)
@@ -241,6 +246,11 @@ def collect(config: DictConfig, loader, ran: list[int]) -> dict:
     """What `run` returns, for a study that other workers (Ray tasks, garage_exp.cluster) filled."""
     search = config.search
     space = check(config, loader)
+    from garage_exp.search import cpus
+
+    pinned = cpus.pin(cpus.parse(search.get("cpus")))  # before its first trial makes the renderer's threads
+    if pinned:
+        print(f"garage_exp: this worker kept on CPU {search.cpus} ({len(pinned)} processes)")
     name = study_name_of(config)
     study = study_mod.open_study(search, name, seed_of(search, config), space.params)
     return {"study": study, "name": name, "ran": ran, "space": space}
