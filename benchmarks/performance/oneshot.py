@@ -24,8 +24,8 @@ the ratio to today's search and this checkout's gain on the one-shot path itself
 checkout's workers arm, `oneshot x N@before`). `--workers N` adds the
 oneshot arm as N workers of one search (N children on one study's storage, as the search runs on several
 machines; each draws other scenarios: the samplers seed each trial by its number): its rate counts the scenarios
-told while every worker was past its warm-up and none had stopped.
-The page: benchmarks/results/oneshot.md.
+told while every worker was past its warm-up and none had stopped; with `--pin` also as N workers each kept on
+its own CPU (`search.cpus`, the arm `oneshot x N, pinned`). The page: benchmarks/results/oneshot.md.
 
 `--space wide` measures the wide space instead (conf/space/wide.yaml: one-shot scenarios over 31 factors, each
 draw checked against the space's requirements before it is rendered, a rejected draw redrawn), on generated garages:
@@ -209,14 +209,18 @@ def finish_children(started: list, arm: str) -> list[dict]:
 
 
 def run_arm(arm: str, trials: int, warmup: int, code: Path | None, extra: list[str], name: str | None = None,
-            workers: int = 1) -> dict:
+            workers: int = 1, pin: bool = False) -> dict:
     """One arm: its child's search, or `workers` children sharing one study (the search's workers on one
-    storage, as on a cluster), combined by `merge`."""
+    storage, as on a cluster), combined by `merge`; `pin`: worker k kept on CPU k (`search.cpus`, round the
+    machine's CPUs)."""
     name = name or ("before" if code is not None else arm)
     shared = tempfile.mkdtemp(prefix="oneshot-shared-") if workers > 1 else ""
     load = os.getloadavg()[0]
     started = time.perf_counter()
-    results = finish_children([start_child(name, trials, warmup, code, extra, shared) for _ in range(workers)], arm)
+    cpus = sorted(os.sched_getaffinity(0)) if pin else []
+    results = finish_children([start_child(name, trials, warmup, code,
+                                           [*extra, *([f"search.cpus={cpus[k % len(cpus)]}"] if pin else [])], shared)
+                               for k in range(workers)], arm)
     wall = time.perf_counter() - started
     if shared:
         import shutil
@@ -291,6 +295,8 @@ def main() -> int:
                              "search.archive.emitter=surrogate, whose draws are rejected less often)")
     parser.add_argument("--workers", type=int, default=1,
                         help="also the oneshot arm as this many workers sharing one study (oneshot x N)")
+    parser.add_argument("--pin", action="store_true",
+                        help="with --workers N: also those workers each kept on its own CPU (search.cpus)")
     parser.add_argument("--side-by-side", type=int, default=0, metavar="PAIRS",
                         help="with --before: instead of the arms, its one-shot path and this checkout's run at the "
                              "same time, one worker each, this many times (a ratio that holds on a shared machine)")
@@ -336,6 +342,9 @@ def main() -> int:
                                     opts.overrides, "oneshot", workers=opts.workers))
             runs.append(run_arm(f"oneshot x {opts.workers}", opts.trials, opts.warmup, None, opts.overrides,
                                 "oneshot", workers=opts.workers))
+            if opts.pin:
+                runs.append(run_arm(f"oneshot x {opts.workers}, pinned", opts.trials, opts.warmup, None,
+                                    opts.overrides, "oneshot", workers=opts.workers, pin=True))
     rows = []
     for r in runs:
         warm = r.get("window_warmup", opts.warmup)
@@ -378,16 +387,18 @@ def main() -> int:
               "scenarios/s."]
     many = [row for row in rows if row["arm"].startswith("oneshot x ") and not row["arm"].endswith("@before")]
     many_before = [row for row in rows if row["arm"].startswith("oneshot x ") and row["arm"].endswith("@before")]
-    if many:
-        best = max(row["per_s"] for row in many)
-        shown = max(row["rendered_per_s"] for row in many)
-        lines += ["", f"{many[0]['arm']} (workers sharing one study, each its own renderer and detector): "
+    for arm in dict.fromkeys(row["arm"] for row in many):  # each workers arm: as the scheduler puts them, pinned
+        best = max(row["per_s"] for row in many if row["arm"] == arm)
+        shown = max(row["rendered_per_s"] for row in many if row["arm"] == arm)
+        kept = ", each kept on its own CPU (search.cpus)" if arm.endswith("pinned") else ""
+        lines += ["", f"{arm} (workers sharing one study, each its own renderer and detector{kept}): "
                   f"**{best:.2f}** scenarios/s sustained while all were warm, {best / (sum(today) / len(today)):.2f}x "
                   f"today, {best / (sum(new) / len(new)):.2f}x one worker (goal >= 5: "
                   f"{'met' if best >= 5.0 else 'NOT met'} as told, infeasible draws counted); rendered and scored "
                   f"alone **{shown:.2f}**/s (goal >= 5: {'met' if shown >= 5.0 else 'NOT met'})."]
     if gain is not None:
         lines += ["", f"oneshot / oneshot@before (the same one-shot path on the checkout at {before_commit}): **{gain:.2f}x**."]
+    many = [row for row in many if not row["arm"].endswith("pinned")]  # the before checkout's are not pinned
     if many and many_before:
         told = max(r["per_s"] for r in many) / max(r["per_s"] for r in many_before)
         shown = max(r["rendered_per_s"] for r in many) / max(r["rendered_per_s"] for r in many_before)
