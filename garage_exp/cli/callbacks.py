@@ -104,6 +104,7 @@ class MlflowSweepCallback(Callback):
         if self.search:  # the search's settings and space, before anything is written
             from hydra.core.global_hydra import GlobalHydra
 
+            search_sweep.keep_on_cpus(config)  # before the checks start the detector's process
             search_sweep.check(config, GlobalHydra.instance().config_loader())
             study = search_sweep.study_name_of(config)
         jobs = check_sweep(config)  # before anything is written

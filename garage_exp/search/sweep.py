@@ -50,6 +50,18 @@ def group_levels(loader) -> dict[str, list[str]]:
     return groups
 
 
+def keep_on_cpus(config: DictConfig) -> None:
+    """This worker kept on `search.cpus` (search/cpus.py), before its checks load the detector's process and its
+    renderer makes its threads: they start on those CPUs, and so do the thread pools that read the process's CPUs
+    once when they start (pinned afterwards, the detector's own thread and one of the renderer's moved back to
+    both cores, measured). A setting that names no CPU here stops the command before anything is written."""
+    from garage_exp.search import cpus
+
+    value = OmegaConf.select(config, "search.cpus")
+    if cpus.pin(cpus.parse(value)):
+        print(f"garage_exp: this worker kept on CPU {value}")
+
+
 def check(config: DictConfig, loader) -> space_mod.Space:
     """The search's settings and space, each value (an interval's ends and middle, each choice) and the space's
     middle composed and checked as a job would check it (no rendering): GarageError (one line naming the override) on the first problem. A point whose values put two
@@ -187,11 +199,6 @@ def run(config: DictConfig, loader, launch, stop=lambda: False) -> dict:
     """Run (or continue) the command's study; returns what the sweep leaves: study name, storage, trials run."""
     search = config.search
     space = check(config, loader)
-    from garage_exp.search import cpus
-
-    pinned = cpus.pin(cpus.parse(search.get("cpus")))  # before its first trial makes the renderer's threads
-    if pinned:
-        print(f"garage_exp: this worker kept on CPU {search.cpus} ({len(pinned)} processes)")
     name = study_name_of(config)
     seed = seed_of(search, config)
     study = study_mod.open_study(search, name, seed, space.params)
@@ -246,11 +253,6 @@ def collect(config: DictConfig, loader, ran: list[int]) -> dict:
     """What `run` returns, for a study that other workers (Ray tasks, garage_exp.cluster) filled."""
     search = config.search
     space = check(config, loader)
-    from garage_exp.search import cpus
-
-    pinned = cpus.pin(cpus.parse(search.get("cpus")))  # before its first trial makes the renderer's threads
-    if pinned:
-        print(f"garage_exp: this worker kept on CPU {search.cpus} ({len(pinned)} processes)")
     name = study_name_of(config)
     study = study_mod.open_study(search, name, seed_of(search, config), space.params)
     return {"study": study, "name": name, "ran": ran, "space": space}
