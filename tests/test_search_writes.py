@@ -111,21 +111,27 @@ def test_a_key_written_again_is_replaced_and_a_finished_trial_refuses_attributes
     assert stored(tmp_path, "held")[0][4] == {"overrides": ["a=1"], "worker": "w2", "rejected": "visible 0.1 < 0.3"}
 
 
+@pytest.fixture
+def reads(monkeypatch) -> list[int]:
+    """The trial ids the database storage reads back (RDBStorage.get_trial), in order."""
+    from optuna.storages import RDBStorage
+
+    seen: list[int] = []
+    real = RDBStorage.get_trial
+    monkeypatch.setattr(RDBStorage, "get_trial", lambda self, trial_id: seen.append(trial_id) or real(self, trial_id))
+    return seen
+
+
 def lean(s: optuna.Study) -> optuna.Study:
     """The study as a random search's loop holds it (search/study.lean): its database storage, no cache."""
     return study_mod.lean(s, SimpleNamespace(sampler="random", mode="search"))
 
 
 def test_a_trial_told_from_its_own_copy_is_stored_as_optunas_tell_stores_it_without_reading_it_back(tmp_path,
-                                                                                                      monkeypatch):
+                                                                                                      reads):
     """told_from_its_copy: the database ends as Optuna's own tell leaves it (complete and pruned, with
     attributes and a reported value), the trial is not read back for its tell, and a trial another worker
     finished meanwhile is still refused."""
-    from optuna.storages import RDBStorage
-
-    reads = []
-    real = RDBStorage.get_trial
-    monkeypatch.setattr(RDBStorage, "get_trial", lambda self, trial_id: reads.append(trial_id) or real(self, trial_id))
     plain, held = study(tmp_path, "plain"), study(tmp_path, "held")
     for s in (plain, held):
         direct = lean(s)
@@ -149,15 +155,10 @@ def test_a_trial_told_from_its_own_copy_is_stored_as_optunas_tell_stores_it_with
             direct.tell(trial, 0.5)
 
 
-def test_an_ask_without_reading_its_trial_back_holds_the_trial_the_database_holds(tmp_path, monkeypatch):
+def test_an_ask_without_reading_its_trial_back_holds_the_trial_the_database_holds(tmp_path, reads):
     """asked_without_reading: the new trial's copy is the one its write handed back, equal to what a fresh read of
     the database gives (number, state, start, no parameters yet); the ask reads nothing back; the asks, their
     parameters and tells leave the database as Optuna's own; an enqueued trial is read back as ever."""
-    from optuna.storages import RDBStorage
-
-    reads = []
-    real = RDBStorage.get_trial
-    monkeypatch.setattr(RDBStorage, "get_trial", lambda self, trial_id: reads.append(trial_id) or real(self, trial_id))
     plain, held = study(tmp_path, "plain"), study(tmp_path, "held")
     for s in (plain, held):
         direct = lean(s)
@@ -166,7 +167,8 @@ def test_an_ask_without_reading_its_trial_back_holds_the_trial_the_database_hold
             with writes.params_at_once(direct), writes.asked_without_reading(direct) if s is held \
                     else contextlib.nullcontext():
                 trial = direct.ask()
-                fresh = real(writes.backend(s), trial._trial_id)
+                fresh = optuna.storages.RDBStorage.get_trial(writes.backend(s), trial._trial_id)
+                reads.remove(trial._trial_id)  # the test's own read
                 assert trial._cached_frozen_trial == fresh  # as the database holds it, before any draw
                 trial.suggest_float("x", 0.0, 1.0)
             assert (reads == []) == (s is held)
