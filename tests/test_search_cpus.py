@@ -62,3 +62,19 @@ for pid in pinned[1:]:
     assert int(processes) == 3  # itself, its child and that one's child
     assert int(threads) >= 4  # the main thread and the one made before, and each child's
     assert all_pinned == "True" and after.strip() == f"[{cpu}]"
+
+
+def test_the_search_keeps_its_worker_on_the_cpus_its_config_names(monkeypatch, capsys):
+    """sweep.keep_on_cpus (called when the search's multirun starts, before its checks load the detector): the
+    config's search.cpus parsed and pinned, a line saying so; nothing pinned without the setting."""
+    from omegaconf import OmegaConf
+
+    from garage_exp.search import sweep
+
+    pinned = []
+    monkeypatch.setattr(cpus, "pin", lambda wanted: pinned.append(wanted) or ([os.getpid()] if wanted else []))
+    cpu = max(os.sched_getaffinity(0))
+    sweep.keep_on_cpus(OmegaConf.create({"search": {"cpus": str(cpu)}}))
+    assert pinned == [{cpu}] and f"kept on CPU {cpu}" in capsys.readouterr().out
+    sweep.keep_on_cpus(OmegaConf.create({"search": {"cpus": None}}))
+    assert pinned[-1] is None and capsys.readouterr().out == ""
